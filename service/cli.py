@@ -1,0 +1,72 @@
+"""The ``servowatch`` command line: one module per subcommand under ``service.commands``.
+
+Each command module exposes ``NAME``, ``HELP``, ``add_arguments(parser)`` and
+``run(args) -> int``. SI units in and out; ``--json`` prints exactly one JSON object on stdout.
+Bad arguments exit 2 (argparse), a bad input file exits 2 with a message naming it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+__all__ = ["main", "COMMANDS", "build_parser"]
+
+COMMANDS: tuple[str, ...] = (
+    "characteristic",
+    "simulate",
+    "compare",
+    "estimate",
+    "calibrate",
+    "actuator",
+    "inject",
+    "run",
+    "status",
+    "router",
+    "replay",
+    "demo",
+)
+
+
+def _load(name: str):
+    modname = f"service.commands.{name}"
+    try:
+        return importlib.import_module(modname)
+    except ModuleNotFoundError as e:
+        if e.name == modname:  # command not built yet
+            return None
+        raise
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with every available subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="servowatch",
+        description="Prognostics and health monitoring for electro-hydraulic actuators.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        mod = _load(name)
+        if mod is None:
+            continue
+        p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``servowatch`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
