@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 from collections.abc import Sequence
 
@@ -57,10 +58,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+_NEG_NUMBER = re.compile(r"^-[\d.]")
+
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--x-s -1e-4,0`` -> ``--x-s=-1e-4,0``: argparse would take the value for an option."""
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if (
+            a.startswith("--")
+            and "=" not in a
+            and i + 1 < len(argv)
+            and _NEG_NUMBER.match(argv[i + 1])
+        ):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``servowatch`` console script."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(_join_negative_values(argv))
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
