@@ -1,0 +1,409 @@
+"""Wire messages of the monitoring service: sensor samples in, fault commands, key expressions.
+
+A measurement message carries 1..N consecutive samples of ONE actuator; the key names the
+actuator (``fleet/{aircraft}/{actuator}/meas``), so the payload is actuator-agnostic.
+Two encodings are accepted and auto-detected on receipt (docs/messages.md):
+
+* ``bin`` (default, chosen by measurement in ``bench/codec.py``): an 8-byte header
+  ``b"SW"``, version ``1``, kind ``ord("M")``, sample count ``n`` (uint32 little-endian),
+  then ``n`` packed little-endian records of 73 bytes:
+  ``seq`` int64, ``t`` float64, ``mask`` uint8 (bit k set = channel k present, channels in
+  the order of :data:`CHANNELS`), 7 x float64 channel values (ignored where absent).
+* ``json``: ``{"v": 1, "samples": [{"seq": 0, "t": 0.001, "x_cmd": 0.02, "p1": null, ...}]}``
+  or one bare sample object. Absent keys and ``null`` mean a missing channel.
+
+:class:`MeasSample` (pydantic) is the documented schema. :func:`decode_meas` validates with a
+hand-written check that applies the same rules (tests hold the two to the same verdicts),
+because pydantic per sample costs more than a 20 kHz aggregate stream can afford.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import struct
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+__all__ = [
+    "CHANNELS",
+    "DEFAULT_FORMAT",
+    "MAX_BYTES",
+    "MessageError",
+    "MeasSample",
+    "FaultCommand",
+    "FaultAck",
+    "encode_meas",
+    "decode_meas",
+    "decode_meas_dicts",
+    "encode_json",
+    "decode_json",
+    "KEY_MEAS",
+    "KEY_EST",
+    "KEY_RES",
+    "KEY_HEALTH",
+    "KEY_FAULT",
+    "KEY_ALIVE",
+    "KEY_STATUS",
+    "key",
+    "parse_meas_key",
+    "parse_fleet_key",
+    "mcap_topic",
+]
+
+#: Measured channels in wire order (SI: m, A, m, m, Pa abs, Pa abs, Pa).
+CHANNELS: tuple[str, ...] = ("x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr")
+DEFAULT_FORMAT: Literal["json", "bin"] = "bin"
+MAX_BYTES = 65536
+MAX_SAMPLES = 4096
+
+KEY_MEAS = "fleet/{aircraft}/{actuator}/meas"
+KEY_EST = "fleet/{aircraft}/{actuator}/est"
+KEY_RES = "fleet/{aircraft}/{actuator}/res"
+KEY_HEALTH = "fleet/{aircraft}/{actuator}/health"
+KEY_FAULT = "fleet/{aircraft}/{actuator}/@fault"
+KEY_ALIVE = "fleet/{aircraft}/{actuator}/alive"
+KEY_STATUS = "monitor/{station}/{shard}/status"
+
+_MAGIC = b"SW"
+_VERSION = 1
+_KIND_MEAS = ord("M")
+_HEADER = struct.Struct("<2sBBI")
+_REC = struct.Struct("<qdB" + "d" * len(CHANNELS))  # 73 bytes
+_ALLOWED_JSON_KEYS = frozenset(("seq", "t", *CHANNELS))
+_NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
+
+
+class MessageError(ValueError):
+    """A message that cannot be decoded or does not validate; ``field`` names the culprit."""
+
+    def __init__(self, message: str, field: str | None = None):
+        super().__init__(f"{field}: {message}" if field else message)
+        self.field = field
+
+
+# --------------------------------------------------------------------------- schema
+
+
+class MeasSample(BaseModel):
+    """One sensor sample of one actuator (the documented schema of a ``meas`` message).
+
+    ``seq`` counts samples per actuator from the publisher (>= 0, strictly increasing within a
+    message); ``t`` is the sample time [s]. Channels are ``None`` when not measured.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False, strict=False)
+
+    seq: int = Field(ge=0, description="sample counter of the publisher")
+    t: float = Field(description="sample time [s]")
+    x_cmd: float | None = Field(None, description="position command [m]")
+    i: float | None = Field(None, description="servovalve current [A]")
+    x_s: float | None = Field(None, description="spool position [m]")
+    x_j: float | None = Field(None, description="jack position [m]")
+    p1: float | None = Field(None, description="chamber 1 pressure, absolute [Pa]")
+    p2: float | None = Field(None, description="chamber 2 pressure, absolute [Pa]")
+    p_sr: float | None = Field(None, description="supply minus return pressure [Pa]")
+
+    @field_validator("seq", mode="before")
+    @classmethod
+    def _no_bool_seq(cls, v: Any) -> Any:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise ValueError("must be an integer")
+        return v
+
+    @field_validator("t", *CHANNELS, mode="before")
+    @classmethod
+    def _no_bool(cls, v: Any) -> Any:
+        if isinstance(v, bool) or (v is not None and not isinstance(v, int | float)):
+            raise ValueError("must be a number")
+        return v
+
+    def as_input(self) -> dict[str, float | None]:
+        """The monitor's input mapping: ``t`` and the channels (``seq`` dropped)."""
+        return {"t": self.t, **{c: getattr(self, c) for c in CHANNELS}}
+
+
+def _make(seq: int, t: float, vals: Sequence[float | None]) -> MeasSample:
+    """A MeasSample from already-validated values, bypassing pydantic (what model_construct
+    does, without its per-call overhead)."""
+    d: dict[str, Any] = {"seq": seq, "t": t}
+    d.update(zip(CHANNELS, vals, strict=True))
+    m = object.__new__(MeasSample)
+    object.__setattr__(m, "__dict__", d)
+    object.__setattr__(m, "__pydantic_fields_set__", set(d))
+    object.__setattr__(m, "__pydantic_extra__", None)
+    object.__setattr__(m, "__pydantic_private__", None)
+    return m
+
+
+class FaultCommand(BaseModel):
+    """A fault to inject into a virtual actuator (``fleet/{ac}/{act}/@fault``).
+
+    ``leak``: leakage coefficient c_lk [m^3/s/Pa]; ``supply``: P_SR [Pa]; ``sensor_bias``:
+    bias added to ``channel`` (SI unit of the channel); ``dropout``: ``channel`` reads None;
+    ``clear``: remove every fault (or the one named by ``channel``). ``ramp_s`` > 0 ramps the
+    change; ``duration_s`` ends it after that long.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    kind: Literal["leak", "supply", "sensor_bias", "dropout", "clear"]
+    value: float | None = None
+    ramp_s: float = Field(0.0, ge=0)
+    channel: str | None = None
+    duration_s: float | None = Field(None, gt=0)
+
+
+class FaultAck(BaseModel):
+    """Answer of a virtual actuator to a :class:`FaultCommand`."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    ok: bool
+    message: str
+    active: list[dict] = Field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- encoding
+
+
+def encode_meas(
+    samples: Sequence[MeasSample | Mapping[str, Any]], fmt: Literal["json", "bin"] = DEFAULT_FORMAT
+) -> bytes:
+    """Encode 1..N consecutive samples of one actuator (``bin`` or ``json``).
+
+    Samples may be :class:`MeasSample` or mappings with ``seq``, ``t`` and channel keys.
+    Values are not validated here (the receiver validates); ``n`` must be >= 1.
+    """
+    n = len(samples)
+    if n == 0:
+        raise MessageError("at least one sample is required", "samples")
+    rows = [s.model_dump() if isinstance(s, MeasSample) else s for s in samples]
+    if fmt == "json":
+        out = [{k: v for k, v in r.items() if v is not None} for r in rows]
+        return json.dumps({"v": 1, "samples": out}, separators=(",", ":")).encode()
+    if fmt != "bin":
+        raise ValueError(f"unknown format {fmt!r}")
+    parts = [_HEADER.pack(_MAGIC, _VERSION, _KIND_MEAS, n)]
+    for r in rows:
+        mask = 0
+        vals = []
+        for k, c in enumerate(CHANNELS):
+            v = r.get(c)
+            if v is None:
+                vals.append(math.nan)
+            else:
+                mask |= 1 << k
+                vals.append(v)
+        parts.append(_REC.pack(r["seq"], r["t"], mask, *vals))
+    return b"".join(parts)
+
+
+def _check_size(payload: bytes, max_bytes: int) -> None:
+    if not isinstance(payload, bytes | bytearray | memoryview):
+        raise MessageError(f"expected bytes, got {type(payload).__name__}", "payload")
+    if len(payload) > max_bytes:
+        raise MessageError(f"{len(payload)} bytes exceeds max_bytes={max_bytes}", "payload")
+    if len(payload) == 0:
+        raise MessageError("empty message", "payload")
+
+
+def _bin_rows(payload: bytes) -> list[tuple[int, float, list[float | None]]]:
+    if len(payload) < _HEADER.size:
+        raise MessageError("shorter than the 8-byte header", "header")
+    _magic, version, kind, n = _HEADER.unpack_from(payload)
+    if version != _VERSION:
+        raise MessageError(f"unsupported version {version}", "version")
+    if kind != _KIND_MEAS:
+        raise MessageError(f"unsupported kind {kind}", "kind")
+    if n < 1 or n > MAX_SAMPLES:
+        raise MessageError(f"sample count {n} outside 1..{MAX_SAMPLES}", "n")
+    want = _HEADER.size + n * _REC.size
+    if len(payload) != want:
+        raise MessageError(f"{len(payload)} bytes, expected {want} for n={n}", "n")
+    out: list[tuple[int, float, list[float | None]]] = []
+    isfinite = math.isfinite
+    nch = len(CHANNELS)
+    full = (1 << nch) - 1
+    ps, pt = -1, -math.inf
+    for k, rec in enumerate(_REC.iter_unpack(memoryview(payload)[_HEADER.size :])):
+        seq, t, m = rec[0], rec[1], rec[2]
+        vals: list[float | None] = list(rec[3:])
+        if seq < 0:
+            raise MessageError(f"must be >= 0, got {seq}", f"samples[{k}].seq")
+        if not isfinite(t):
+            raise MessageError(f"must be finite, got {t}", f"samples[{k}].t")
+        if m != full:
+            if m > full:
+                raise MessageError(f"unknown bits in mask {m:#x}", f"samples[{k}].mask")
+            for b in range(nch):
+                if not (m >> b) & 1:
+                    vals[b] = None
+        for b, v in enumerate(vals):
+            if v is not None and not isfinite(v):
+                raise MessageError(f"must be finite, got {v}", f"samples[{k}].{CHANNELS[b]}")
+        if k:
+            if seq <= ps:
+                raise MessageError(f"not increasing ({ps} then {seq})", f"samples[{k}].seq")
+            if t <= pt:
+                raise MessageError(f"not increasing ({pt} then {t})", f"samples[{k}].t")
+        ps, pt = seq, t
+        out.append((seq, t, vals))
+    return out
+
+
+def _num(v: Any, field: str, *, optional: bool) -> float | None:
+    if v is None:
+        if optional:
+            return None
+        raise MessageError("required", field)
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise MessageError(f"must be a number, got {type(v).__name__}", field)
+    f = float(v)
+    if not math.isfinite(f):
+        raise MessageError(f"must be finite, got {v!r}", field)
+    return f
+
+
+def _json_rows(payload: bytes) -> list[tuple[int, float, list[float | None]]]:
+    try:
+        obj = json.loads(payload)
+    except (UnicodeDecodeError, ValueError) as e:
+        raise MessageError(f"malformed JSON: {e}", "payload") from None
+    if not isinstance(obj, dict):
+        raise MessageError("must be a JSON object", "payload")
+    if "samples" in obj:
+        extra = set(obj) - {"v", "samples"}
+        if extra:
+            raise MessageError("unknown key", sorted(extra)[0])
+        if obj.get("v", 1) != 1:
+            raise MessageError(f"unsupported version {obj.get('v')!r}", "v")
+        items = obj["samples"]
+        if not isinstance(items, list):
+            raise MessageError("must be a list", "samples")
+        prefix = "samples"
+    else:
+        items = [obj]
+        prefix = None
+    if not 1 <= len(items) <= MAX_SAMPLES:
+        raise MessageError(f"sample count {len(items)} outside 1..{MAX_SAMPLES}", "samples")
+    rows = []
+    for k, s in enumerate(items):
+        where = f"{prefix}[{k}]." if prefix else ""
+        if not isinstance(s, dict):
+            raise MessageError("must be an object", f"{prefix}[{k}]" if prefix else "payload")
+        if not _ALLOWED_JSON_KEYS.issuperset(s):
+            bad = sorted(set(s) - _ALLOWED_JSON_KEYS)[0]
+            raise MessageError("unknown key", f"{where}{bad}")
+        seq = s.get("seq")
+        if seq is None:
+            raise MessageError("required", f"{where}seq")
+        if isinstance(seq, bool) or not isinstance(seq, int):
+            raise MessageError(f"must be an integer, got {seq!r}", f"{where}seq")
+        if seq < 0:
+            raise MessageError(f"must be >= 0, got {seq}", f"{where}seq")
+        t = _num(s.get("t"), f"{where}t", optional=False)
+        vals = [_num(s.get(c), f"{where}{c}", optional=True) for c in CHANNELS]
+        if rows:
+            ps, pt, _ = rows[-1]
+            if seq <= ps:
+                raise MessageError(f"not increasing ({ps} then {seq})", f"{where}seq")
+            if t <= pt:
+                raise MessageError(f"not increasing ({pt} then {t})", f"{where}t")
+        rows.append((seq, t, vals))
+    return rows
+
+
+def _rows(payload: bytes, max_bytes: int) -> list[tuple[int, float, list[float | None]]]:
+    _check_size(payload, max_bytes)
+    payload = bytes(payload)
+    if payload[:2] == _MAGIC:
+        return _bin_rows(payload)
+    head = payload.lstrip()[:1]
+    if head in (b"{", b"["):
+        return _json_rows(payload)
+    raise MessageError("neither the binary magic b'SW' nor a JSON object", "payload")
+
+
+def decode_meas(payload: bytes, max_bytes: int = MAX_BYTES) -> list[MeasSample]:
+    """Decode and validate a measurement message of either format (auto-detected).
+
+    Rules (same as :class:`MeasSample` plus batch rules): size <= ``max_bytes``; 1..4096
+    samples; ``seq`` integer >= 0; ``t`` and present channels finite numbers; ``seq`` and ``t``
+    strictly increasing within the message; no unknown keys. Raises :class:`MessageError`
+    naming the field (``samples[3].p1``, ``payload``, ``n``, ...).
+    """
+    return [_make(seq, t, vals) for seq, t, vals in _rows(payload, max_bytes)]
+
+
+def decode_meas_dicts(payload: bytes, max_bytes: int = MAX_BYTES) -> list[dict[str, Any]]:
+    """As :func:`decode_meas`, but plain dicts ``{seq, t, x_cmd, ..., p_sr}`` (faster)."""
+    out = []
+    for seq, t, vals in _rows(payload, max_bytes):
+        d = dict(zip(CHANNELS, vals, strict=True))
+        d["seq"] = seq
+        d["t"] = t
+        out.append(d)
+    return out
+
+
+def encode_json(obj: Mapping[str, Any] | BaseModel) -> bytes:
+    """Compact JSON bytes of a mapping or pydantic model (est/res/health/status/ack)."""
+    if isinstance(obj, BaseModel):
+        return obj.model_dump_json().encode()
+    return json.dumps(obj, separators=(",", ":"), allow_nan=False, default=str).encode()
+
+
+def decode_json(payload: bytes, max_bytes: int = MAX_BYTES) -> dict[str, Any]:
+    """A JSON object from bytes; :class:`MessageError` on size, syntax or a non-object."""
+    _check_size(payload, max_bytes)
+    try:
+        obj = json.loads(bytes(payload))
+    except (UnicodeDecodeError, ValueError) as e:
+        raise MessageError(f"malformed JSON: {e}", "payload") from None
+    if not isinstance(obj, dict):
+        raise MessageError("must be a JSON object", "payload")
+    return obj
+
+
+# --------------------------------------------------------------------------- keys
+
+
+def _check_name(v: str, field: str) -> str:
+    if not isinstance(v, str) or not _NAME_RE.match(v):
+        raise MessageError(f"invalid name {v!r} (letters, digits, _ . - only)", field)
+    return v
+
+
+def key(template: str, **names: str) -> str:
+    """Fill a key template (``KEY_MEAS`` ...) after checking each name is one plain chunk."""
+    for k, v in names.items():
+        _check_name(v, k)
+    return template.format(**names)
+
+
+def parse_fleet_key(key_expr: str) -> tuple[str, str, str]:
+    """``fleet/{aircraft}/{actuator}/{leaf}`` -> (aircraft, actuator, leaf); MessageError else."""
+    parts = str(key_expr).split("/")
+    if len(parts) != 4 or parts[0] != "fleet":
+        raise MessageError(f"not fleet/<aircraft>/<actuator>/<leaf>: {key_expr!r}", "key")
+    _check_name(parts[1], "aircraft")
+    _check_name(parts[2], "actuator")
+    return parts[1], parts[2], parts[3]
+
+
+def parse_meas_key(key_expr: str) -> tuple[str, str]:
+    """``fleet/{aircraft}/{actuator}/meas`` -> (aircraft, actuator); MessageError if malformed."""
+    aircraft, actuator, leaf = parse_fleet_key(key_expr)
+    if leaf != "meas":
+        raise MessageError(f"leaf {leaf!r} is not 'meas'", "key")
+    return aircraft, actuator
+
+
+def mcap_topic(aircraft: str, actuator: str, kind: str) -> str:
+    """MCAP topic ``/fleet/{aircraft}/{actuator}/{kind}`` (kind: meas, est, residual, health,
+    events)."""
+    return f"/fleet/{_check_name(aircraft, 'aircraft')}/{_check_name(actuator, 'actuator')}/{kind}"
