@@ -1,0 +1,162 @@
+"""Zenoh helpers: loopback-only session configs, free ports, a bounded drop-counting queue.
+
+Every config built here disables multicast scouting and, unless ``allow_remote=True`` is
+passed explicitly (deployment configs), accepts only ``tcp/127.0.0.1:<port>`` or unix-socket
+endpoints (design.md, "Conventions"). A slow subscriber callback stalls the whole session, so
+subscribers hand samples to a :class:`BoundedQueue` and count what it drops.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import re
+import socket
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Generic, Literal, TypeVar
+
+import zenoh
+
+__all__ = [
+    "EndpointError",
+    "check_endpoint",
+    "make_config",
+    "free_port",
+    "loopback",
+    "BoundedQueue",
+    "wait_until",
+]
+
+_LOOPBACK_RE = re.compile(r"^tcp/127\.0\.0\.1:(\d{1,5})$")
+_UNIX_RE = re.compile(r"^(unixsock-stream|unix)/.+$")
+
+T = TypeVar("T")
+
+
+class EndpointError(ValueError):
+    """An endpoint that is not allowed (not loopback/unix without ``allow_remote``)."""
+
+
+def check_endpoint(endpoint: str, *, allow_remote: bool = False, field: str = "endpoint") -> str:
+    """Return ``endpoint`` if allowed, normalised (``unix/P`` -> ``unixsock-stream/P``).
+
+    Allowed: ``tcp/127.0.0.1:<port>`` (port 0..65535) and unix sockets; anything of the form
+    ``<proto>/<address>`` when ``allow_remote`` is true. Raises :class:`EndpointError`.
+    """
+    if not isinstance(endpoint, str) or "/" not in endpoint:
+        raise EndpointError(f"{field}: {endpoint!r} is not <proto>/<address>")
+    if endpoint.startswith("unix/"):
+        endpoint = "unixsock-stream/" + endpoint[len("unix/") :]
+    m = _LOOPBACK_RE.match(endpoint)
+    if m:
+        if int(m.group(1)) > 65535:
+            raise EndpointError(f"{field}: port out of range in {endpoint!r}")
+        return endpoint
+    if _UNIX_RE.match(endpoint) or allow_remote:
+        return endpoint
+    raise EndpointError(
+        f"{field}: {endpoint!r} refused: only tcp/127.0.0.1:<port> or unix sockets "
+        "(pass allow_remote=True for a deployment config)"
+    )
+
+
+def make_config(
+    mode: Literal["peer", "client", "router"] = "peer",
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    *,
+    allow_remote: bool = False,
+    extra: Mapping[str, Any] | None = None,
+) -> zenoh.Config:
+    """A :class:`zenoh.Config` with multicast scouting off and only the given endpoints.
+
+    ``listen`` replaces zenoh's default listeners (which bind every interface); an empty
+    ``listen`` means the session listens nowhere (fine for clients and peers that connect to
+    a router). ``extra`` maps config paths to JSON-serialisable values inserted last (it may
+    not re-enable multicast scouting).
+    """
+    if mode not in ("peer", "client", "router"):
+        raise ValueError(f"mode: {mode!r} is not peer, client or router")
+    if isinstance(listen, str) or isinstance(connect, str):
+        raise TypeError("listen and connect are sequences of endpoints, not strings")
+    lst = [check_endpoint(e, allow_remote=allow_remote, field="listen") for e in listen]
+    con = [check_endpoint(e, allow_remote=allow_remote, field="connect") for e in connect]
+    if mode == "client" and not con:
+        raise ValueError("connect: a client needs at least one endpoint to connect to")
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("listen/endpoints", json.dumps(lst))
+    cfg.insert_json5("connect/endpoints", json.dumps(con))
+    for path, value in (extra or {}).items():
+        if path.startswith("scouting/multicast") and value not in (False, {"enabled": False}):
+            raise ValueError(f"{path}: multicast scouting stays off")
+        cfg.insert_json5(path, json.dumps(value))
+    return cfg
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago (for tests and demos)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def loopback(port: int) -> str:
+    """The endpoint string ``tcp/127.0.0.1:<port>``."""
+    return f"tcp/127.0.0.1:{int(port)}"
+
+
+class BoundedQueue(Generic[T]):
+    """A thread-safe bounded FIFO that drops the oldest item when full and counts drops.
+
+    ``put`` never blocks (safe in a Zenoh callback); ``get_batch`` waits up to ``timeout``
+    for at least one item and returns up to ``max_items``.
+    """
+
+    def __init__(self, maxlen: int = 10000):
+        if maxlen < 1:
+            raise ValueError("maxlen must be >= 1")
+        self.maxlen = maxlen
+        self._dq: collections.deque[T] = collections.deque()
+        self._cv = threading.Condition()
+        self.dropped = 0
+        self.put_count = 0
+        self.high_water = 0
+
+    def put(self, item: T) -> None:
+        """Append ``item``; if full, drop the oldest and count it."""
+        with self._cv:
+            if len(self._dq) >= self.maxlen:
+                self._dq.popleft()
+                self.dropped += 1
+            self._dq.append(item)
+            self.put_count += 1
+            n = len(self._dq)
+            if n > self.high_water:
+                self.high_water = n
+            self._cv.notify()
+
+    def get_batch(self, max_items: int = 1000, timeout: float | None = None) -> list[T]:
+        """Up to ``max_items`` items in FIFO order; ``[]`` if none arrived within ``timeout``."""
+        with self._cv:
+            if not self._dq and not self._cv.wait_for(lambda: bool(self._dq), timeout):
+                return []
+            n = min(max_items, len(self._dq))
+            return [self._dq.popleft() for _ in range(n)]
+
+    def __len__(self) -> int:
+        return len(self._dq)
+
+
+def wait_until(pred: Callable[[], bool], timeout: float = 5.0, interval: float = 0.01) -> bool:
+    """Poll ``pred`` until it is true or ``timeout`` [s] passes; return its last value."""
+    deadline = time.monotonic() + timeout
+    while True:
+        if pred():
+            return True
+        if time.monotonic() >= deadline:
+            return bool(pred())
+        time.sleep(interval)
