@@ -1,0 +1,438 @@
+"""MCAP logging for the monitoring service, and a reader that survives a killed writer.
+
+Writing (:class:`McapLogger`, built on ``mcap.writer.Writer``): one JSON message per sample with
+flat fields and a jsonschema per topic (Foxglove's Plot panel shows the fields directly),
+``log_time`` = ``publish_time`` = sample time in ns, topics like
+``/fleet/AC001/elevator_L/residual``. The chunk in progress is ended and written at least every
+``flush_s`` seconds (by ``log`` and by a background thread), so a writer killed with ``kill -9``
+loses at most about ``flush_s`` of data; files rotate by size or age; ``close`` finishes the
+file (summary, footer). ``log`` is thread-safe.
+
+Reading (:func:`read_log`): a streaming pass over the records that yields every message of every
+complete chunk, in file order, and stops with one :class:`TruncatedLogWarning` at the first
+incomplete or corrupt record (a file whose writer was killed has no footer and may end inside a
+chunk).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import struct
+import threading
+import time
+import warnings
+import zlib
+from collections.abc import Iterable, Iterator, Mapping
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any
+
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Footer, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+try:
+    import zstandard
+except ImportError:  # pragma: no cover
+    zstandard = None
+try:
+    import lz4.frame as lz4_frame
+except ImportError:  # pragma: no cover
+    lz4_frame = None
+
+__all__ = [
+    "McapLogger",
+    "read_log",
+    "read_log_files",
+    "rotated_files",
+    "json_schema_for",
+    "TruncatedLogWarning",
+    "LogReadStats",
+]
+
+log = logging.getLogger("servowatch.mcaplog")
+
+_LIBRARY = "servowatch"
+_MSG_HEAD = struct.Struct("<HIQQ")  # channel_id, sequence, log_time, publish_time
+_REC_HEAD = struct.Struct("<BQ")  # opcode, length
+
+
+class TruncatedLogWarning(UserWarning):
+    """An MCAP file that ends early or holds a corrupt record (its writer was killed)."""
+
+
+def _sanitize(v: Any) -> Any:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def json_schema_for(topic: str, msg: Mapping[str, Any]) -> dict[str, Any]:
+    """A flat jsonschema for messages like ``msg`` (numbers may be null; extra keys allowed)."""
+    props: dict[str, Any] = {}
+    for k, v in msg.items():
+        if isinstance(v, bool):
+            props[k] = {"type": "boolean"}
+        elif isinstance(v, int):
+            props[k] = {"type": "integer"}
+        elif isinstance(v, float) or v is None:
+            props[k] = {"type": ["number", "null"]}
+        elif isinstance(v, str):
+            props[k] = {"type": "string"}
+        else:
+            props[k] = {}
+    return {"title": topic, "type": "object", "properties": props}
+
+
+class McapLogger:
+    """Thread-safe MCAP writer: JSON messages, one jsonschema per topic, periodic flush,
+    rotation by size (``rotate_bytes``) and/or age (``rotate_s``).
+
+    Without rotation the file is ``path`` itself; with rotation the files are
+    ``{stem}-{counter:04d}-{UTC timestamp}{suffix}`` beside ``path``. ``paths`` lists the
+    files written so far. Use as a context manager or call :meth:`close`.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        rotate_bytes: int | None = None,
+        rotate_s: float | None = None,
+        flush_s: float = 1.0,
+        chunk_size: int = 1 << 20,
+        compression: str = "zstd",
+        background_flush: bool = True,
+        metadata: Mapping[str, str] | None = None,
+    ):
+        if flush_s <= 0:
+            raise ValueError("flush_s must be > 0")
+        if rotate_bytes is not None and rotate_bytes <= 0:
+            raise ValueError("rotate_bytes must be > 0 or None")
+        if rotate_s is not None and rotate_s <= 0:
+            raise ValueError("rotate_s must be > 0 or None")
+        self.path = Path(path)
+        self.rotate_bytes = rotate_bytes
+        self.rotate_s = rotate_s
+        self.flush_s = float(flush_s)
+        self.chunk_size = int(chunk_size)
+        self._compression = {
+            "zstd": CompressionType.ZSTD if zstandard is not None else CompressionType.NONE,
+            "lz4": CompressionType.LZ4 if lz4_frame is not None else CompressionType.NONE,
+            "none": CompressionType.NONE,
+        }[compression]
+        self._metadata = dict(metadata or {})
+        self.paths: list[Path] = []
+        self.message_count = 0
+        self.flush_count = 0
+        self._lock = threading.RLock()
+        self._closed = False
+        self._counter = 0
+        self._fh: IO[bytes] | None = None
+        self._writer: Writer | None = None
+        self._channels: dict[str, int] = {}
+        self._schemas: dict[str, int] = {}
+        self._seq: dict[int, int] = {}
+        self._dirty = False
+        self._since_check = 0
+        self._open_next()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        if background_flush:
+            self._thread = threading.Thread(target=self._flush_loop, name="mcap-flush", daemon=True)
+            self._thread.start()
+
+    # ----------------------------------------------------------------- files
+    def _next_path(self) -> Path:
+        if self.rotate_bytes is None and self.rotate_s is None:
+            return self.path
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+        p = self.path.with_name(f"{self.path.stem}-{self._counter:04d}-{stamp}{self.path.suffix}")
+        self._counter += 1
+        return p
+
+    def _open_next(self) -> None:
+        p = self._next_path()
+        p.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(p, "wb")  # noqa: SIM115 - closed in _finish_current
+        self._writer = Writer(self._fh, chunk_size=self.chunk_size, compression=self._compression)
+        self._writer.start(profile="", library=_LIBRARY)
+        if self._metadata:
+            self._writer.add_metadata("servowatch", self._metadata)
+        self._channels.clear()
+        self._schemas.clear()
+        self._seq.clear()
+        self._opened_at = time.monotonic()
+        self._last_flush = self._opened_at
+        self.paths.append(p)
+        log.debug("mcap: writing %s", p)
+
+    def _finish_current(self) -> None:
+        if self._writer is not None:
+            self._writer.finish()
+            self._writer = None
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+    def _maybe_rotate(self) -> None:
+        fh = self._fh
+        if fh is None:
+            return
+        too_big = self.rotate_bytes is not None and fh.tell() >= self.rotate_bytes
+        too_old = self.rotate_s is not None and time.monotonic() - self._opened_at >= self.rotate_s
+        if too_big or too_old:
+            self._finish_current()
+            self._open_next()
+
+    # ----------------------------------------------------------------- writing
+    def _channel(self, topic: str, msg: Mapping[str, Any]) -> int:
+        w = self._writer
+        assert w is not None
+        schema = json_schema_for(topic, msg)
+        sid = w.register_schema(
+            name=topic.rsplit("/", 1)[-1] or topic,
+            encoding="jsonschema",
+            data=json.dumps(schema).encode(),
+        )
+        cid = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        self._channels[topic] = cid
+        self._seq[cid] = 0
+        return cid
+
+    def log(self, topic: str, t: float, msg: Mapping[str, Any]) -> None:
+        """Append ``msg`` (flat JSON-serialisable mapping) on ``topic`` at sample time ``t`` [s].
+
+        Non-finite floats are written as ``null`` (JSON has no NaN).
+        """
+        try:
+            data = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+        except ValueError:
+            data = json.dumps(
+                {k: _sanitize(v) for k, v in msg.items()}, separators=(",", ":")
+            ).encode()
+        t_ns = max(0, int(round(t * 1e9)))
+        with self._lock:
+            if self._closed:
+                raise ValueError("log() on a closed McapLogger")
+            cid = self._channels.get(topic)
+            if cid is None:
+                cid = self._channel(topic, msg)
+            seq = self._seq[cid]
+            self._seq[cid] = (seq + 1) & 0xFFFFFFFF
+            self._writer.add_message(cid, t_ns, data, t_ns, seq)  # type: ignore[union-attr]
+            self.message_count += 1
+            self._dirty = True
+            self._since_check += 1
+            if self._since_check >= 256:
+                self._since_check = 0
+                if time.monotonic() - self._last_flush >= self.flush_s:
+                    self._flush_locked()
+                self._maybe_rotate()
+
+    def _flush_locked(self) -> None:
+        if self._writer is not None and self._dirty:
+            self._writer.flush()  # ends the chunk in progress and flushes the stream
+            self.flush_count += 1
+            self._dirty = False
+        self._last_flush = time.monotonic()
+
+    def flush(self) -> None:
+        """End the chunk in progress and write it out now (also rotates if due)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._flush_locked()
+            self._maybe_rotate()
+
+    def _flush_loop(self) -> None:
+        period = self.flush_s / 2
+        while not self._stop.wait(period):
+            with self._lock:
+                if self._closed:
+                    return
+                if time.monotonic() - self._last_flush >= self.flush_s * 0.9:
+                    try:
+                        self._flush_locked()
+                        self._maybe_rotate()
+                    except Exception:  # pragma: no cover - disk full etc.
+                        log.exception("mcap: background flush failed")
+
+    def close(self) -> None:
+        """Finish the current file (summary and footer) and stop the flusher; idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._stop.set()
+            self._finish_current()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> McapLogger:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------- reading
+
+
+class LogReadStats:
+    """What :func:`read_log` found: chunks read, messages, truncation (filled while iterating)."""
+
+    def __init__(self) -> None:
+        self.chunks = 0
+        self.messages = 0
+        self.truncated = False
+        self.reason = ""
+        self.footer = False
+
+
+def _decompress(chunk: Chunk) -> bytes:
+    if chunk.compression == "":
+        data = chunk.data
+    elif chunk.compression == "zstd":
+        if zstandard is None:  # pragma: no cover
+            raise RuntimeError("zstd chunk but the zstandard package is missing")
+        data = zstandard.ZstdDecompressor().decompress(
+            chunk.data, max_output_size=chunk.uncompressed_size
+        )
+    elif chunk.compression == "lz4":
+        if lz4_frame is None:  # pragma: no cover
+            raise RuntimeError("lz4 chunk but the lz4 package is missing")
+        data = lz4_frame.decompress(chunk.data)
+    else:
+        raise ValueError(f"unknown chunk compression {chunk.compression!r}")
+    if len(data) != chunk.uncompressed_size:
+        raise ValueError("chunk size mismatch")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError("chunk CRC mismatch")
+    return data
+
+
+def _iter_chunk(data: bytes) -> Iterator[tuple[int, Any]]:
+    """Records inside a decompressed chunk: (opcode, parsed) with messages as tuples."""
+    from io import BytesIO
+
+    from mcap.data_stream import ReadDataStream
+
+    pos, end = 0, len(data)
+    mv = memoryview(data)
+    while pos < end:
+        op, length = _REC_HEAD.unpack_from(data, pos)
+        body = pos + 9
+        if body + length > end:
+            raise ValueError("record overruns its chunk")
+        if op == Opcode.MESSAGE:
+            cid, seq, lt, pt = _MSG_HEAD.unpack_from(data, body)
+            yield op, (cid, seq, lt, bytes(mv[body + 22 : body + length]))
+        elif op in (Opcode.SCHEMA, Opcode.CHANNEL):
+            rs = ReadDataStream(BytesIO(bytes(mv[body : body + length])))
+            yield op, (Schema.read(rs) if op == Opcode.SCHEMA else Channel.read(rs))
+        pos = body + length
+
+
+def _iter_raw(
+    path: Path, stats: LogReadStats
+) -> Iterator[tuple[str, int, bytes]]:  # (topic, log_time_ns, data)
+    channels: dict[int, str] = {}
+    with open(path, "rb") as fh:
+        reader = StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
+        records = reader.records
+        while True:
+            try:
+                rec = next(records)
+            except StopIteration:
+                break
+            except Exception as e:  # EndOfFile, struct.error, InvalidMagic, ...
+                stats.truncated = True
+                stats.reason = f"{type(e).__name__} {e}".strip()
+                return
+            if isinstance(rec, Chunk):
+                try:
+                    parsed = list(_iter_chunk(_decompress(rec)))
+                except Exception as e:
+                    stats.truncated = True
+                    stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
+                    return
+                stats.chunks += 1
+                for op, r in parsed:
+                    if op == Opcode.CHANNEL:
+                        channels[r.id] = r.topic
+                    elif op == Opcode.MESSAGE:
+                        topic = channels.get(r[0])
+                        if topic is not None:
+                            yield topic, r[2], r[3]
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec.topic
+            elif isinstance(rec, Footer):
+                stats.footer = True
+                return
+            elif getattr(rec, "channel_id", None) is not None and hasattr(rec, "data"):
+                topic = channels.get(rec.channel_id)  # un-chunked Message record
+                if topic is not None:
+                    yield topic, rec.log_time, rec.data
+
+
+def read_log(
+    path: str | Path,
+    topics: Iterable[str] | None = None,
+    *,
+    stats: LogReadStats | None = None,
+) -> Iterator[tuple[str, float, dict]]:
+    """Yield ``(topic, t_s, msg)`` for every message of every complete chunk, in file order.
+
+    ``t_s`` is ``log_time`` in seconds; ``msg`` the decoded JSON object. ``topics`` keeps only
+    those topics. A file that ends early or holds a corrupt chunk yields everything before
+    it and then warns once with :class:`TruncatedLogWarning` (also logged). ``stats``, if
+    given, is filled as the iteration proceeds.
+    """
+    p = Path(path)
+    st = stats if stats is not None else LogReadStats()
+    want = None if topics is None else set(topics)
+    loads = json.loads
+    for topic, lt, data in _iter_raw(p, st):
+        if want is not None and topic not in want:
+            continue
+        try:
+            msg = loads(data)
+        except ValueError:
+            continue
+        st.messages += 1
+        yield topic, lt * 1e-9, msg
+    if st.truncated or not st.footer:
+        if not st.truncated:
+            st.truncated = True
+            st.reason = "no footer"
+        text = (
+            f"{p}: truncated MCAP log ({st.reason}); read {st.chunks} complete chunks, "
+            f"{st.messages} messages"
+        )
+        log.warning(text)
+        warnings.warn(text, TruncatedLogWarning, stacklevel=2)
+
+
+def rotated_files(path: str | Path) -> list[Path]:
+    """``path`` itself if it exists, else the rotation set ``{stem}-NNNN-*{suffix}`` in order."""
+    p = Path(path)
+    if p.exists():
+        return [p]
+    return sorted(p.parent.glob(f"{p.stem}-[0-9][0-9][0-9][0-9]-*{p.suffix}"))
+
+
+def read_log_files(
+    paths: Iterable[str | Path], topics: Iterable[str] | None = None
+) -> Iterator[tuple[str, float, dict]]:
+    """:func:`read_log` over several files in turn (a rotation set)."""
+    tl = None if topics is None else list(topics)
+    for p in paths:
+        yield from read_log(p, tl)
