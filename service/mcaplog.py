@@ -58,6 +58,7 @@ log = logging.getLogger("servowatch.mcaplog")
 _LIBRARY = "servowatch"
 _MSG_HEAD = struct.Struct("<HIQQ")  # channel_id, sequence, log_time, publish_time
 _REC_HEAD = struct.Struct("<BQ")  # opcode, length
+_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 
 
 class TruncatedLogWarning(UserWarning):
@@ -209,7 +210,7 @@ class McapLogger:
         Non-finite floats are written as ``null`` (JSON has no NaN).
         """
         try:
-            data = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+            data = _ENCODE(msg).encode()
         except ValueError:
             data = json.dumps(
                 {k: _sanitize(v) for k, v in msg.items()}, separators=(",", ":")
