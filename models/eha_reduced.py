@@ -1,0 +1,163 @@
+"""Simplified (C-type) EHA process model for the estimator (physics.md sections 2, 3).
+
+No chamber states: the load pressure P12 = law(x_S, A v_J, P_SR) is algebraic (a valve law of
+``models.valve_laws``). States, in this order (the filter state, SI units)::
+
+    x_s [m], v_s [m/s], x_j [m], v_j [m/s], f_r [N], p_sr [Pa], c_lk [m^3/s/Pa]
+
+The first four are the plant states; f_r (external load), p_sr (supply) and c_lk (internal
+leakage) are slowly varying parameters (random walks in the filter). The measured servovalve
+current i is an input; the spool is the second-order lag of physics.md section 3 driven by
+K_sv i, discretised exactly (zero-order hold). The jack velocity is stiff through the law
+(pole near -A^2 G_PQ / m, about -7400 1/s), so it is advanced linearly-implicitly
+(Rosenbrock-Euler with a finite-difference Jacobian), which is stable at any step.
+
+Everything is vectorised over leading batch axes (sigma points x actuators): a state array
+has shape ``(..., 7)`` and every parameter broadcasts against ``(...)``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from models.params import EHAParams
+from models.valve_laws import LAWS
+
+__all__ = [
+    "STATE_NAMES",
+    "N_STATES",
+    "IX",
+    "MEAS_NAMES",
+    "ReducedParams",
+    "reduced_params",
+    "spool_step",
+    "p12_state",
+    "jack_accel",
+    "step",
+    "measure",
+    "ecu_current",
+]
+
+STATE_NAMES: tuple[str, ...] = ("x_s", "v_s", "x_j", "v_j", "f_r", "p_sr", "c_lk")
+N_STATES = len(STATE_NAMES)
+IX = {n: k for k, n in enumerate(STATE_NAMES)}
+MEAS_NAMES: tuple[str, ...] = ("x_s", "x_j", "p1", "p2", "p_sr")
+
+
+class ReducedParams(NamedTuple):
+    """Parameters of the simplified EHA model (SI). ``x_ss``/``g_pq`` are *effective* values
+    (calibrated against the plant, see ``service.calibration``)."""
+
+    law: str = "C5"
+    g_pq: float = 7.4e11  # effective G_PQ [Pa s/m^3]
+    x_ss: float = 1e-4  # effective saturation spool displacement (G_P = P_SR / x_SS) [m]
+    p_vap: float = 1e3  # [Pa]
+    p_r: float = 0.5e6  # return pressure, absolute [Pa] (chamber pressures P1, P2)
+    area: float = 1e-3  # [m^2]
+    mass: float = 100.0  # [kg]
+    c_v: float = 2000.0  # viscous friction [N s/m]
+    f_d: float = 400.0  # Coulomb friction [N], smoothed by tanh(v / v_f)
+    v_f: float = 2e-3  # friction smoothing velocity [m/s]
+    k_sv: float = 0.05  # [m/A]
+    x_sm: float = 5e-4  # spool stroke limit [m]
+    omega_n: float = 2 * math.pi * 150.0  # [rad/s]
+    zeta: float = 0.7
+    k_p: float = 2.0  # ECU position gain [A/m] (used only when the current is not measured)
+    i_max: float = 0.01  # [A]
+    h_max: float = 2.5e-4  # longest internal integration substep [s]
+
+
+def reduced_params(p: EHAParams | None = None, law: str = "C5", **overrides) -> ReducedParams:
+    """Nominal simplified-model parameters derived from the HF set (physics.md section 3)."""
+    p = p or EHAParams()
+    rp = ReducedParams(
+        law=law,
+        g_pq=p.g_pq,
+        x_ss=p.x_ss,
+        p_vap=p.p_vap,
+        p_r=p.p_r,
+        area=p.area,
+        mass=p.mass,
+        c_v=p.c_v,
+        f_d=p.f_d,
+        k_sv=p.k_sv,
+        x_sm=p.x_sm,
+        omega_n=p.omega_n,
+        zeta=p.zeta,
+        k_p=p.k_p,
+        i_max=p.i_max,
+    )
+    return rp._replace(**overrides)
+
+
+def ecu_current(x_cmd: NDArray, x_j: NDArray, rp: ReducedParams) -> NDArray:
+    """ECU law i_c = clip(K_p (x_cmd - x_J), -i_max, i_max) (physics.md section 3)."""
+    return np.clip(rp.k_p * (x_cmd - x_j), -rp.i_max, rp.i_max)
+
+
+def spool_step(x_s: NDArray, v_s: NDArray, i: NDArray, h: NDArray | float, rp: ReducedParams):
+    """Exact zero-order-hold step of x_S'' = w_n^2 (x_ref - x_S) - 2 zeta w_n x_S'
+    with x_ref = clip(K_sv i, -x_SM, x_SM) (physics.md section 3), for 0 < zeta < 1."""
+    w, z = rp.omega_n, rp.zeta
+    sig = z * w
+    wd = w * math.sqrt(1.0 - z * z)
+    e = np.exp(-sig * h)
+    c, s = np.cos(wd * h), np.sin(wd * h)
+    x_ref = np.clip(rp.k_sv * i, -rp.x_sm, rp.x_sm)
+    dx = x_s - x_ref
+    x_new = x_ref + e * ((c + sig / wd * s) * dx + s / wd * v_s)
+    v_new = e * (-(w * w) / wd * s * dx + (c - sig / wd * s) * v_s)
+    return np.clip(x_new, -rp.x_sm, rp.x_sm), v_new
+
+
+def p12_state(x_s, v_j, p_sr, c_lk, rp: ReducedParams) -> NDArray:
+    """Load pressure P12 = law(x_S, A v_J, P_SR) with the effective valve parameters."""
+    return LAWS[rp.law](x_s, rp.area * v_j, p_sr, rp.g_pq, rp.x_ss, c_lk, rp.p_vap)
+
+
+def jack_accel(x_s, v_j, f_r, p_sr, c_lk, rp: ReducedParams) -> NDArray:
+    """dv_J/dt = (A P12 - F_R - c_v v_J - F_d tanh(v_J / v_f)) / m (physics.md section 1)."""
+    p12 = p12_state(x_s, v_j, p_sr, c_lk, rp)
+    f = rp.area * p12 - f_r - rp.c_v * v_j - rp.f_d * np.tanh(v_j / rp.v_f)
+    return f / rp.mass
+
+
+def step(x: NDArray, i: NDArray, dt: NDArray, rp: ReducedParams, n_sub: int) -> NDArray:
+    """Advance states ``x`` (..., 7) by ``dt`` (broadcast to x[..., 0]) with current ``i`` held.
+
+    ``n_sub`` substeps of h = dt / n_sub: exact spool step, then a linearly-implicit
+    (Rosenbrock-Euler) velocity update v+ = v + h a / (1 - h da/dv), then x_J += h v+.
+    Parameters (f_r, p_sr, c_lk) are held constant over the step (random walks).
+    """
+    x_s, v_s, x_j, v_j = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
+    f_r, p_sr, c_lk = x[..., 4], x[..., 5], x[..., 6]
+    h = np.asarray(dt, float) / n_sub
+    dv = 1e-5
+    for _ in range(n_sub):
+        x_s, v_s = spool_step(x_s, v_s, i, h, rp)
+        a0 = jack_accel(x_s, v_j, f_r, p_sr, c_lk, rp)
+        a1 = jack_accel(x_s, v_j + dv, f_r, p_sr, c_lk, rp)
+        jac = np.minimum((a1 - a0) / dv, 0.0)  # only the damping part is made implicit
+        v_j = v_j + h * a0 / (1.0 - h * jac)
+        x_j = x_j + h * v_j
+    return np.stack([x_s, v_s, x_j, v_j, f_r, p_sr, c_lk], axis=-1)
+
+
+def measure(x: NDArray, rp: ReducedParams) -> NDArray:
+    """Measurement model (..., 5): x_S, x_J, P1, P2, P_SR.
+
+    P1 = P_R + (P_SR + P12) / 2, P2 = P_R + (P_SR - P12) / 2: exact for a symmetric valve
+    with incompressible chambers (the sum P1 + P2 = P_S + P_R holds for any flow and leakage
+    when the four lands are matched, physics.md section 3).
+    """
+    p_sr = x[..., 5]
+    p12 = p12_state(x[..., 0], x[..., 3], p_sr, x[..., 6], rp)
+    half = 0.5 * p_sr
+    return np.stack(
+        [x[..., 0], x[..., 2], rp.p_r + half + 0.5 * p12, rp.p_r + half - 0.5 * p12, p_sr],
+        axis=-1,
+    )

@@ -1,0 +1,142 @@
+"""Baseline identification from a healthy run (issue 3, deliverable 2).
+
+The C-type laws are secant approximations of the valve: at null the HF valve has twice their
+pressure gain (physics.md section 3). A monitor built on nominal C-type parameters would read
+that mismatch as a fault, so its effective parameters are identified first on healthy data:
+
+1. P_R (return, absolute) from the mean of (P1 + P2) / 2 - P_SR / 2 (the chamber-pressure sum
+   of a matched four-land valve is P_S + P_R for any flow and leakage, physics.md section 3).
+2. Near null every C-law reads P12 (1 + G_PQ C_Lk) = (P_SR / x_SS) x_S - G_PQ A v_J
+   (physics.md section 2), linear in a = 1 / x_SS and G_PQ once C_Lk is fixed at nominal:
+   P12 = a P_SR x_S - G_PQ (A v_J + C_Lk P12). Least squares on smoothed x_S, P12 and the
+   smoothed derivative of x_J gives the effective pressure gain and G_PQ.
+3. Only 1/G_PQ + C_Lk is identifiable at null, so C_Lk stays at nominal and the residual bias
+   of the monitor's C_Lk estimate on the same healthy data is moved into 1/G_PQ (a few fixed
+   passes), so that a healthy plant reads C_Lk = nominal and a leak reads as an increase.
+
+``measured_run`` makes the "recorded log" from a scenario: the HF bench with the scenario's
+sensor noise added (seeded).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import savgol_filter
+
+from models.eha import SimResult, simulate
+from models.scenario import Scenario
+from service.monitor import Baseline, MonitorConfig
+
+__all__ = ["measured_run", "identify_baseline", "calibrate", "run_monitor", "SAMPLE_KEYS"]
+
+SAMPLE_KEYS: tuple[str, ...] = ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2")
+
+
+def measured_run(
+    scenario: Scenario,
+    *,
+    valve: str = "HF",
+    with_supply_sensor: bool = False,
+    progress: Callable[[float], None] | None = None,
+) -> tuple[SimResult, dict[str, NDArray]]:
+    """Run the bench on ``scenario`` at the sensors' rate and add its seeded sensor noise.
+
+    Returns the noiseless truth and the measured signals t, x_cmd, i, x_s, x_j, p1, p2
+    (and p_sr when ``with_supply_sensor``).
+    """
+    sn = scenario.sensors
+    out_every = max(1, int(round(1.0 / (sn.rate_hz * scenario.step_s))))
+    sim = simulate(scenario, valve, out_every=out_every, progress=progress)
+    rng = np.random.default_rng(sn.seed)
+    n = len(sim.t)
+
+    def noisy(y: NDArray, s: float) -> NDArray:
+        return y + s * rng.standard_normal(n) if s > 0 else y.copy()
+
+    meas = {
+        "t": sim.t.copy(),
+        "x_cmd": sim.x_cmd.copy(),
+        "i": noisy(sim.i, sn.current_a),
+        "x_s": noisy(sim.x_s, sn.x_s_m),
+        "x_j": noisy(sim.x_j, sn.x_j_m),
+        "p1": noisy(sim.p1, sn.p_pa),
+        "p2": noisy(sim.p2, sn.p_pa),
+    }
+    if with_supply_sensor:
+        meas["p_sr"] = noisy(sim.p_sr, sn.p_sr_pa)
+    return sim, meas
+
+
+def identify_baseline(
+    meas: dict[str, NDArray], law: str = "C5", p_sr_rated: float | None = None
+) -> Baseline:
+    """Steps 1-2 of the module docstring: P_R, effective x_SS and G_PQ by least squares."""
+    nom = Baseline.nominal(law)
+    p_sr = float(p_sr_rated or nom.p_sr_rated)
+    t = np.asarray(meas["t"], float)
+    dt = float(np.median(np.diff(t)))
+    win = max(5, int(round(0.04 / dt)) | 1)  # 40 ms Savitzky-Golay window, odd
+    p1, p2 = np.asarray(meas["p1"], float), np.asarray(meas["p2"], float)
+    p_r = float(np.mean(0.5 * (p1 + p2)) - 0.5 * p_sr)
+    x_s = savgol_filter(np.asarray(meas["x_s"], float), win, 3)
+    p12 = savgol_filter(p1 - p2, win, 3)
+    v_j = savgol_filter(np.asarray(meas["x_j"], float), win, 3, deriv=1, delta=dt)
+    keep = np.abs(x_s) < 0.7 * nom.x_ss
+    keep[: win * 2] = False  # start-up transient
+    keep[-win:] = False
+    A = np.stack([p_sr * x_s, -(nom.area * v_j + nom.c_lk * p12)], axis=1)[keep]
+    coef, *_ = np.linalg.lstsq(A, p12[keep], rcond=None)
+    a, g_pq = float(coef[0]), float(coef[1])
+    if not (a > 0 and g_pq > 0):
+        raise ValueError("calibration failed: the healthy run does not excite the valve near null")
+    return nom.model_copy(
+        update={"x_ss": 1.0 / a, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "source": "lsq"}
+    )
+
+
+def run_monitor(
+    meas: dict[str, NDArray],
+    config: MonitorConfig | None = None,
+    baseline: Baseline | None = None,
+    progress: Callable[[float], None] | None = None,
+):
+    """Feed the measured arrays sample by sample to a ``Monitor``; returns (outputs, monitor)."""
+    from service.monitor import Monitor
+
+    mon = Monitor(config, baseline)
+    keys = [k for k in ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr") if k in meas]
+    cols = [np.asarray(meas[k], float).tolist() for k in keys]
+    n = len(cols[0])
+    outs = []
+    step = max(1, n // 50)
+    for j in range(n):
+        outs.append(mon.update({k: c[j] for k, c in zip(keys, cols, strict=True)}))
+        if progress is not None and j % step == 0:
+            progress(j / n)
+    return outs, mon
+
+
+def calibrate(
+    meas: dict[str, NDArray],
+    law: str = "C5",
+    config: MonitorConfig | None = None,
+    passes: int = 2,
+    settle_s: float = 1.0,
+) -> Baseline:
+    """Identify a baseline from healthy measurements (all three steps of the docstring)."""
+    cfg = (config or MonitorConfig()).model_copy(update={"model": law})
+    base = identify_baseline(meas, law)
+    t = np.asarray(meas["t"], float)
+    for _ in range(passes):
+        outs, _ = run_monitor(meas, cfg, base)
+        sel = [o for o in outs if o is not None and o.t >= t[0] + settle_s]
+        c_est = float(np.mean([o.est["c_lk"] for o in sel]))
+        p_sr_est = float(np.mean([o.est["p_sr"] for o in sel]))
+        inv_g = 1.0 / base.g_pq + (c_est - base.c_lk)
+        # the P_SR estimate is clipped at rated: only correct P_R when it reads low
+        p_r = base.p_r + 0.5 * min(p_sr_est - base.p_sr_rated, 0.0)
+        base = base.model_copy(update={"g_pq": 1.0 / max(inv_g, 1e-14), "p_r": p_r})
+    return base.model_copy(update={"source": "calibrated"})

@@ -1,0 +1,573 @@
+"""Per-actuator health monitor: a UKF on the simplified (C-type) EHA model, no I/O.
+
+Samples in, estimates out. ``Monitor`` serves one actuator; ``MonitorBank`` serves many in one
+vectorised update (all sigma points of all actuators through ``models.eha_reduced.step`` in
+one call). ``Monitor`` is a ``MonitorBank`` of one, so both run the same code; element-wise
+numpy and per-matrix LAPACK calls make the result independent of the batch size
+(``tests/test_monitor.py`` checks bit equality).
+
+Filter state (SI; scaled internally so that the default noise settings need no tuning):
+x_s, v_s, x_j, v_j (plant), f_r (external load), p_sr (supply), c_lk (internal leakage), the
+last three as random walks. Inputs: servovalve current i (measured; else the ECU law on
+x_cmd). Measurements: any of x_s, x_j, p1, p2, p_sr. See docs/estimation.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from models import eha_reduced as er
+from models.params import EHAParams
+from models.valve_laws import LAW_NAMES
+from service.ukf import BatchUKF, nearest_spd
+
+__all__ = [
+    "MeasurementNoise",
+    "ProcessNoise",
+    "AlarmConfig",
+    "MonitorConfig",
+    "Baseline",
+    "AlarmEvent",
+    "MonitorOutput",
+    "Monitor",
+    "MonitorBank",
+    "MEAS_CHANNELS",
+    "ALARM_KINDS",
+]
+
+MEAS_CHANNELS: tuple[str, ...] = er.MEAS_NAMES  # x_s, x_j, p1, p2, p_sr
+ALARM_KINDS: tuple[str, ...] = ("leak", "supply")
+_NX = er.N_STATES
+
+
+class _Cfg(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class MeasurementNoise(_Cfg):
+    """1-sigma measurement noise assumed by the filter (sensor noise plus model mismatch)."""
+
+    x_s_m: float = Field(1.0e-6, gt=0, description="spool LVDT [m]")
+    x_j_m: float = Field(50e-6, gt=0, description="jack LVDT [m]")
+    p_pa: float = Field(80e3, gt=0, description="chamber pressure transducers [Pa]")
+    p_sr_pa: float = Field(80e3, gt=0, description="supply pressure transducer [Pa]")
+
+
+class ProcessNoise(_Cfg):
+    """Random-walk intensities, 1-sigma growth per sqrt(second) (Q = q^2 dt)."""
+
+    x_s: float = Field(2e-5, gt=0, description="[m/sqrt(s)]")
+    v_s: float = Field(2e-2, gt=0, description="[m/s/sqrt(s)]")
+    x_j: float = Field(2e-5, gt=0, description="[m/sqrt(s)]")
+    v_j: float = Field(5e-3, gt=0, description="[m/s/sqrt(s)]")
+    f_r: float = Field(2e3, gt=0, description="external load [N/sqrt(s)]")
+    p_sr: float = Field(2e6, gt=0, description="supply [Pa/sqrt(s)]")
+    c_lk: float = Field(1e-13, gt=0, description="leakage [m^3/s/Pa/sqrt(s)]")
+
+
+class AlarmConfig(_Cfg):
+    """Alarm thresholds with hysteresis (raise/clear levels) and a persistence time."""
+
+    leak_raise: float = Field(2.5, gt=0, description="raise when C_Lk / baseline >= this")
+    leak_clear: float = Field(2.0, gt=0, description="clear when C_Lk / baseline <= this")
+    supply_raise: float = Field(0.85, gt=0, description="raise when P_SR / rated <= this")
+    supply_clear: float = Field(0.90, gt=0, description="clear when P_SR / rated >= this")
+    hold_s: float = Field(0.05, ge=0, description="condition must persist this long [s]")
+
+
+class MonitorConfig(_Cfg):
+    """Monitor settings; every default works on the bundled scenarios without tuning."""
+
+    model: str = Field("C5", description=f"valve law, one of {LAW_NAMES}")
+    channels: Literal["full", "reduced"] = Field(
+        "full", description="full: use every channel present; reduced: x_J only (+ i, x_cmd)"
+    )
+    noise: MeasurementNoise = Field(default_factory=MeasurementNoise)
+    process: ProcessNoise = Field(default_factory=ProcessNoise)
+    alarms: AlarmConfig = Field(default_factory=AlarmConfig)
+    alpha: float = Field(0.5, gt=0, le=1, description="sigma-point spread (Merwe alpha)")
+    beta: float = 2.0
+    kappa: float = 0.0
+    init_sigma_f_r: float = Field(5e3, gt=0, description="initial load 1-sigma [N]")
+    init_sigma_p_sr: float = Field(2e6, gt=0, description="initial supply 1-sigma [Pa]")
+    init_sigma_c_lk: float = Field(2e-13, gt=0, description="initial leakage 1-sigma")
+    max_gap_s: float = Field(0.05, gt=0, description="longer sample gaps re-initialise [s]")
+    nis_tau_s: float = Field(0.2, gt=0, description="time constant of the NIS average [s]")
+    nis_reinit: float = Field(30.0, gt=1, description="re-init when mean NIS/dof exceeds this")
+    c_lk_max: float = Field(1e-10, gt=0, description="upper clip of C_Lk [m^3/s/Pa]")
+
+
+class Baseline(_Cfg):
+    """Calibrated nominal parameters of the simplified model (see ``service.calibration``).
+
+    ``x_ss``/``g_pq`` are effective values that absorb the C-type/HF mismatch near null
+    (physics.md section 3: only 1/G_PQ + C_Lk is identifiable at null, so C_Lk stays at its
+    nominal value and the effective 1/G_PQ takes the rest).
+    """
+
+    law: str = "C5"
+    g_pq: float = Field(gt=0)
+    x_ss: float = Field(gt=0)
+    c_lk: float = Field(ge=0)
+    p_r: float = Field(gt=0)
+    p_sr_rated: float = Field(gt=0)
+    area: float = 1e-3
+    mass: float = 100.0
+    c_v: float = 2000.0
+    f_d: float = 400.0
+    k_sv: float = 0.05
+    x_sm: float = 5e-4
+    omega_n: float = 2 * math.pi * 150.0
+    zeta: float = 0.7
+    k_p: float = 2.0
+    i_max: float = 0.01
+    source: str = "nominal"
+
+    @classmethod
+    def nominal(cls, law: str = "C5", params: EHAParams | None = None) -> Baseline:
+        """Uncalibrated values derived from the HF parameter set (physics.md section 3)."""
+        p = params or EHAParams()
+        return cls(
+            law=law,
+            g_pq=p.g_pq,
+            x_ss=p.x_ss,
+            c_lk=p.c_lk,
+            p_r=p.p_r,
+            p_sr_rated=p.p_sr,
+            area=p.area,
+            mass=p.mass,
+            c_v=p.c_v,
+            f_d=p.f_d,
+            k_sv=p.k_sv,
+            x_sm=p.x_sm,
+            omega_n=p.omega_n,
+            zeta=p.zeta,
+            k_p=p.k_p,
+            i_max=p.i_max,
+            source="nominal",
+        )
+
+    @classmethod
+    def default(cls, law: str = "C5") -> Baseline:
+        """The baseline calibrated on the bundled healthy HF run (``servowatch calibrate``);
+        nominal values for a law without a stored calibration."""
+        cal = _DEFAULT_CALIBRATION.get(law)
+        base = cls.nominal(law)
+        if cal is None:
+            return base
+        return base.model_copy(update={**cal, "source": "default calibration (healthy_noise)"})
+
+    def reduced_params(self) -> er.ReducedParams:
+        """Parameters of ``models.eha_reduced`` for this baseline."""
+        return er.ReducedParams(
+            law=self.law,
+            g_pq=self.g_pq,
+            x_ss=self.x_ss,
+            p_r=self.p_r,
+            area=self.area,
+            mass=self.mass,
+            c_v=self.c_v,
+            f_d=self.f_d,
+            k_sv=self.k_sv,
+            x_sm=self.x_sm,
+            omega_n=self.omega_n,
+            zeta=self.zeta,
+            k_p=self.k_p,
+            i_max=self.i_max,
+        )
+
+    def save(self, path: str | Path) -> None:
+        """Write as JSON."""
+        Path(path).write_text(json.dumps(self.model_dump(), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> Baseline:
+        """Read a JSON file written by ``save``."""
+        return cls.model_validate_json(Path(path).read_text())
+
+
+# Effective parameters identified by ``servowatch calibrate --scenario healthy_noise`` on the
+# HF bench (see docs/estimation.md); updated when the calibration is re-run.
+_DEFAULT_CALIBRATION: dict[str, dict[str, float]] = {}
+
+
+@dataclass
+class AlarmEvent:
+    """An alarm raised or cleared at time ``t`` (``value`` is the indicator that crossed)."""
+
+    t: float
+    kind: str
+    state: Literal["raised", "cleared"]
+    value: float
+
+
+@dataclass
+class MonitorOutput:
+    """One accepted sample's estimates (flat dicts of floats, never NaN)."""
+
+    t: float
+    est: dict[str, float]
+    res: dict[str, float]
+    health: dict[str, float]
+    events: list[AlarmEvent] = field(default_factory=list)
+
+
+_COUNTERS = (
+    "accepted",
+    "skipped_nan",
+    "skipped_time",
+    "missing_channel",
+    "bad_channel",
+    "reinit",
+    "gap",
+)
+
+
+def _f(v) -> float | None:
+    """A finite float or None."""
+    if v is None:
+        return None
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+class MonitorBank:
+    """Monitors for many actuators advanced together in one vectorised UKF update."""
+
+    def __init__(
+        self,
+        config: MonitorConfig | None = None,
+        baseline: Baseline | None = None,
+        capacity: int = 8,
+    ):
+        self.config = config or MonitorConfig()
+        if self.config.model not in LAW_NAMES:
+            raise ValueError(f"unknown model {self.config.model!r}; expected one of {LAW_NAMES}")
+        self.baseline = baseline or Baseline.default(self.config.model)
+        if self.baseline.law != self.config.model:
+            self.baseline = self.baseline.model_copy(update={"law": self.config.model})
+        self.rp = self.baseline.reduced_params()
+        b, c = self.baseline, self.config
+        self.scale = np.array(
+            [b.x_ss, b.x_ss * b.omega_n, 1e-3, 1e-2, 1e3, 1e6, 1e-13], float
+        )  # filter units
+        pn = c.process
+        self._q = (
+            np.array([pn.x_s, pn.v_s, pn.x_j, pn.v_j, pn.f_r, pn.p_sr, pn.c_lk]) / self.scale
+        ) ** 2
+        nz = c.noise
+        r = np.array([nz.x_s_m, nz.x_j_m, nz.p_pa, nz.p_pa, nz.p_sr_pa])
+        self._zscale = np.array([b.x_ss, 1e-3, 1e6, 1e6, 1e6])
+        self.R = np.diag((r / self._zscale) ** 2)
+        self._use = np.ones(5, bool) if c.channels == "full" else np.array([0, 1, 0, 0, 0], bool)
+        # channels whose absence is counted (the supply transducer is optional)
+        self._expect = self._use & np.array([1, 1, 1, 1, 0], bool)
+        self._p0 = np.array(
+            [2e-6, 1e-3, 1e-4, 5e-3, c.init_sigma_f_r, c.init_sigma_p_sr, c.init_sigma_c_lk]
+        )
+        self.ukf = BatchUKF(_NX, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
+        self.ids: dict[str, int] = {}
+        self._alloc(capacity)
+
+    # -- storage -------------------------------------------------------------------------
+    def _alloc(self, cap: int) -> None:
+        n = _NX
+        self.x = np.zeros((cap, n))  # scaled filter state
+        self.P = np.zeros((cap, n, n))
+        self.ol = np.zeros((cap, n))  # SI open-loop (parallel) model state
+        self.t_last = np.full(cap, -np.inf)
+        self.i_last = np.zeros(cap)
+        self.nis_avg = np.zeros(cap)
+        self.alarm = np.zeros((cap, len(ALARM_KINDS)), bool)
+        self.pending = np.full((cap, len(ALARM_KINDS)), np.nan)  # since when a change is due
+        self.counters: list[dict[str, int]] = [dict.fromkeys(_COUNTERS, 0) for _ in range(cap)]
+        self.events_log: list[list[AlarmEvent]] = [[] for _ in range(cap)]
+
+    _ARRAYS = ("x", "P", "ol", "t_last", "i_last", "nis_avg", "alarm", "pending")
+
+    def _grow(self) -> None:
+        n_old = len(self.x)
+        old = {a: getattr(self, a) for a in self._ARRAYS}
+        counters = self.counters
+        events = self.events_log
+        self._alloc(2 * n_old)
+        for a, v in old.items():
+            getattr(self, a)[:n_old] = v
+        self.counters[:n_old] = counters
+        self.events_log[:n_old] = events
+
+    def _index(self, key: str) -> int:
+        k = self.ids.get(key)
+        if k is None:
+            k = len(self.ids)
+            if k >= len(self.x):
+                self._grow()
+            self.ids[key] = k
+        return k
+
+    # -- public --------------------------------------------------------------------------
+    def counters_of(self, key: str) -> dict[str, int]:
+        """Sample counters of actuator ``key`` (accepted, skipped_nan, skipped_time, ...)."""
+        return self.counters[self.ids[key]]
+
+    def update_many(self, samples: Sequence[tuple[str, Mapping]]) -> list[MonitorOutput | None]:
+        """Process samples (actuator id, sample) in order. The n-th sample of each actuator
+        goes into round n, so the result equals feeding them one by one."""
+        out: list[MonitorOutput | None] = [None] * len(samples)
+        seen: dict[str, int] = {}
+        rounds: list[list[int]] = []
+        for j, (key, _) in enumerate(samples):
+            r = seen.get(key, 0)
+            seen[key] = r + 1
+            if r == len(rounds):
+                rounds.append([])
+            rounds[r].append(j)
+        for r in rounds:
+            self._round([samples[j] for j in r], r, out)
+        return out
+
+    # -- core ----------------------------------------------------------------------------
+    def _parse(self, k: int, s: Mapping):
+        cnt = self.counters[k]
+        t = _f(s.get("t"))
+        if t is None:
+            cnt["skipped_nan"] += 1
+            return None
+        z = np.zeros(5)
+        mask = np.zeros(5, bool)
+        for c, name in enumerate(MEAS_CHANNELS):
+            if not self._use[c]:
+                continue
+            raw = s.get(name)
+            v = _f(raw)
+            if v is None:
+                if name in s and raw is not None:
+                    cnt["bad_channel"] += 1
+                continue
+            z[c] = v / self._zscale[c]
+            mask[c] = True
+        i = _f(s.get("i"))
+        if i is None and s.get("i") is not None:
+            cnt["bad_channel"] += 1
+        x_cmd = _f(s.get("x_cmd"))
+        if x_cmd is None and s.get("x_cmd") is not None:
+            cnt["bad_channel"] += 1
+        if not mask.any() and i is None and x_cmd is None:
+            cnt["skipped_nan"] += 1
+            return None
+        if t <= self.t_last[k]:
+            cnt["skipped_time"] += 1
+            return None
+        cnt["missing_channel"] += int((self._expect & ~mask).sum())
+        return t, z, mask, i, x_cmd
+
+    def _init_state(self, k: int, z: NDArray, mask: NDArray, i, x_cmd) -> None:
+        b, rp = self.baseline, self.rp
+        sc = self._zscale
+        x_s = z[0] * sc[0] if mask[0] else (b.k_sv * i if i is not None else 0.0)
+        x_j = z[1] * sc[1] if mask[1] else (x_cmd if x_cmd is not None else 0.0)
+        p_sr = b.p_sr_rated
+        if mask[4]:
+            p_sr = z[4] * sc[4]
+        elif mask[2] and mask[3]:
+            p_sr = (z[2] + z[3]) * sc[2] - 2 * b.p_r
+        p_sr = float(np.clip(p_sr, rp.p_vap, b.p_sr_rated))
+        f_r = 0.0
+        if mask[2] and mask[3]:
+            f_r = (z[2] - z[3]) * sc[2] * b.area
+        xs = np.array([x_s, 0.0, x_j, 0.0, f_r, p_sr, b.c_lk])
+        self.x[k] = xs / self.scale
+        self.P[k] = np.diag((self._p0 / self.scale) ** 2)
+        self.ol[k] = xs
+        self.ol[k, 5], self.ol[k, 6] = b.p_sr_rated, b.c_lk
+        self.nis_avg[k] = 0.0
+
+    def _fx(self, sig_si: NDArray, i: NDArray, dt: NDArray) -> NDArray:
+        """Process model on SI points (B, K, 7), constraints applied for evaluation only."""
+        ev = sig_si.copy()
+        ev[..., 6] = np.maximum(ev[..., 6], 0.0)
+        ev[..., 5] = np.maximum(ev[..., 5], self.rp.p_vap)
+        n_sub = max(1, int(math.ceil(float(dt.max()) / self.rp.h_max - 1e-9)))
+        out = er.step(ev, i, dt[:, None], self.rp, n_sub)
+        out[..., 5:] = sig_si[..., 5:]
+        return out
+
+    def _round(self, items: list[tuple[str, Mapping]], slots: list[int], out: list) -> None:
+        cfg, b = self.config, self.baseline
+        idx, parsed, slot_of = [], [], []
+        for (key, s), slot in zip(items, slots, strict=True):
+            k = self._index(key)
+            p = self._parse(k, s)
+            if p is None:
+                continue
+            t = p[0]
+            if not math.isfinite(self.t_last[k]) or t - self.t_last[k] > cfg.max_gap_s:
+                if math.isfinite(self.t_last[k]):
+                    self.counters[k]["gap"] += 1
+                self._init_state(k, p[1], p[2], p[3], p[4])
+                self.t_last[k] = t
+                self.i_last[k] = p[3] if p[3] is not None else 0.0
+                self.counters[k]["accepted"] += 1
+                out[slot] = self._output(k, t, p[1], p[2], np.zeros(5), 0.0, [])
+                continue
+            idx.append(k)
+            parsed.append(p)
+            slot_of.append(slot)
+        if not idx:
+            return
+        ks = np.array(idx)
+        B = len(ks)
+        t = np.array([p[0] for p in parsed])
+        z = np.stack([p[1] for p in parsed])
+        mask = np.stack([p[2] for p in parsed])
+        dt = t - self.t_last[ks]
+        x, P = self.x[ks], self.P[ks]
+        # inputs: measured current, else the ECU law on the command and the estimated x_J
+        i_f = np.empty(B)
+        i_ol = np.empty(B)
+        for j, p in enumerate(parsed):
+            k = ks[j]
+            i_meas, x_cmd = p[3], p[4]
+            if i_meas is not None:
+                i_f[j] = i_meas
+            elif x_cmd is not None:
+                i_f[j] = er.ecu_current(x_cmd, x[j, 2] * self.scale[2], self.rp)
+            else:
+                i_f[j] = self.i_last[k]
+            if x_cmd is not None:
+                i_ol[j] = er.ecu_current(x_cmd, self.ol[k, 2], self.rp)
+            else:
+                i_ol[j] = i_f[j]
+            self.i_last[k] = i_f[j]
+        # sigma points; repair a covariance that lost definiteness
+        try:
+            sig = self.ukf.sigma_points(x, P)
+        except np.linalg.LinAlgError:
+            P = nearest_spd(P, 1e-12)
+            sig = self.ukf.sigma_points(x, P)
+        K = sig.shape[1]
+        # one model call: every sigma point of every actuator plus the open-loop model
+        ol = self.ol[ks].copy()
+        ol[:, 4] = x[:, 4] * self.scale[4]  # parallel model takes the estimated load
+        pts = np.concatenate([sig * self.scale, ol[:, None, :]], axis=1)
+        ins = np.concatenate([np.repeat(i_f[:, None], K, axis=1), i_ol[:, None]], axis=1)
+        moved = self._fx(pts, ins, dt)
+        sig_f = moved[:, :K] / self.scale
+        self.ol[ks] = moved[:, K]
+        xp, Pp, _ = self.ukf.unscented_transform(sig_f, np.diag(self._q)[None] * dt[:, None, None])
+        res = self.ukf.update(
+            sig_f,
+            xp,
+            Pp,
+            lambda s: er.measure(s * self.scale, self.rp) / self._zscale,
+            z,
+            self.R,
+            mask,
+        )
+        xn, Pn = res.x, 0.5 * (res.P + np.swapaxes(res.P, 1, 2))
+        # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
+        xn[:, 6] = np.clip(xn[:, 6], 0.0, cfg.c_lk_max / self.scale[6])
+        xn[:, 5] = np.clip(xn[:, 5], self.rp.p_vap / self.scale[5], b.p_sr_rated / self.scale[5])
+        # divergence: mean NIS per channel, exponentially averaged
+        dof = np.maximum(res.dof, 1.0)
+        a = 1.0 - np.exp(-dt / cfg.nis_tau_s)
+        nis_avg = self.nis_avg[ks] + a * (res.nis / dof - self.nis_avg[ks])
+        bad = ~(np.isfinite(xn).all(axis=1) & np.isfinite(Pn).all(axis=(1, 2)))
+        diverged = nis_avg > cfg.nis_reinit
+        self.x[ks], self.P[ks], self.t_last[ks], self.nis_avg[ks] = xn, Pn, t, nis_avg
+        for j, k in enumerate(ks):
+            k = int(k)
+            evs: list[AlarmEvent] = []
+            if bad[j] or diverged[j]:
+                keep = self.x[k].copy()
+                self._init_state(k, z[j], mask[j], parsed[j][3], parsed[j][4])
+                if not bad[j]:  # keep the parameter estimates, reset the covariance
+                    self.x[k, 4:] = keep[4:]
+                self.counters[k]["reinit"] += 1
+                evs.append(AlarmEvent(float(t[j]), "reinit", "raised", float(nis_avg[j])))
+            self.counters[k]["accepted"] += 1
+            out[slot_of[j]] = self._output(
+                k, float(t[j]), z[j], mask[j], res.y[j], float(res.nis[j]), evs
+            )
+
+    def _output(
+        self, k: int, t: float, z: NDArray, mask: NDArray, y: NDArray, nis: float, evs
+    ) -> MonitorOutput:
+        b, cfg, sc = self.baseline, self.config.alarms, self.scale
+        xs = self.x[k] * sc
+        sd = np.sqrt(np.maximum(np.diagonal(self.P[k]), 0.0)) * sc
+        est = {}
+        for j, name in enumerate(er.STATE_NAMES):
+            est[name] = float(xs[j])
+            est[name + "_sigma"] = float(sd[j])
+        est["p12"] = float(er.p12_state(xs[0], xs[3], xs[5], xs[6], self.rp))
+        est["c_lk_increase"] = float(xs[6] - b.c_lk)
+        zs = self._zscale
+        res = {f"innov_{c}": float(y[j] * zs[j]) for j, c in enumerate(MEAS_CHANNELS)}
+        res["nis"] = float(nis) if math.isfinite(nis) else 0.0
+        res["nis_dof"] = float(mask.sum())
+        olm = er.measure(self.ol[k], self.rp)
+        for j, c in enumerate(MEAS_CHANNELS):
+            res[f"ol_{c}"] = float(z[j] * zs[j] - olm[j]) if mask[j] else 0.0
+        leak_ratio = float(xs[6] / b.c_lk) if b.c_lk > 0 else 0.0
+        supply_ratio = float(xs[5] / b.p_sr_rated)
+        health = {"leak_ratio": leak_ratio, "supply_ratio": supply_ratio}
+        # alarms with hysteresis and persistence
+        cond_raise = (leak_ratio >= cfg.leak_raise, supply_ratio <= cfg.supply_raise)
+        cond_clear = (leak_ratio <= cfg.leak_clear, supply_ratio >= cfg.supply_clear)
+        values = (leak_ratio, supply_ratio)
+        for a, kind in enumerate(ALARM_KINDS):
+            on = self.alarm[k, a]
+            want = cond_clear[a] if on else cond_raise[a]
+            if want:
+                if math.isnan(self.pending[k, a]):
+                    self.pending[k, a] = t
+                if t - self.pending[k, a] >= cfg.hold_s - 1e-12:
+                    self.alarm[k, a] = not on
+                    self.pending[k, a] = np.nan
+                    evs.append(AlarmEvent(t, kind, "cleared" if on else "raised", values[a]))
+            else:
+                self.pending[k, a] = np.nan
+            health[f"alarm_{kind}"] = float(self.alarm[k, a])
+        health["nis_avg"] = float(self.nis_avg[k])
+        self.events_log[k].extend(evs)
+        return MonitorOutput(t=t, est=est, res=res, health=health, events=evs)
+
+
+class Monitor:
+    """One actuator: a ``MonitorBank`` of one (same code path, same numbers)."""
+
+    def __init__(self, config: MonitorConfig | None = None, baseline: Baseline | None = None):
+        self._bank = MonitorBank(config, baseline, capacity=1)
+        self._key = "_"
+        self._bank._index(self._key)
+
+    @property
+    def config(self) -> MonitorConfig:
+        return self._bank.config
+
+    @property
+    def baseline(self) -> Baseline:
+        return self._bank.baseline
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """accepted, skipped_nan, skipped_time, missing_channel, bad_channel, reinit, gap."""
+        return self._bank.counters_of(self._key)
+
+    def update(self, sample: Mapping[str, float | None]) -> MonitorOutput | None:
+        """Process one sample (keys t, x_cmd, i, x_s, x_j, p1, p2, p_sr; all but t optional);
+        None when the sample is skipped (counted in ``counters``)."""
+        return self._bank.update_many([(self._key, sample)])[0]
