@@ -32,7 +32,7 @@ from typing import IO, Any
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Footer, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import MCAP0_MAGIC, CompressionType, Writer
 
 try:
     import zstandard
@@ -377,6 +377,9 @@ def _iter_raw(
                 channels[rec.id] = rec.topic
             elif isinstance(rec, Footer):
                 stats.footer = True
+                if fh.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+                    stats.truncated = True
+                    stats.reason = "trailing magic missing"
                 return
             elif getattr(rec, "channel_id", None) is not None and hasattr(rec, "data"):
                 topic = channels.get(rec.channel_id)  # un-chunked Message record

@@ -1,0 +1,204 @@
+"""MCAP logging: schemas, log_time, flush, rotation, thread safety, truncated files."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+import warnings
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from service.mcaplog import (
+    LogReadStats,
+    McapLogger,
+    TruncatedLogWarning,
+    read_log,
+    read_log_files,
+    rotated_files,
+)
+from service.zenoh_util import wait_until
+
+MEAS = "/fleet/AC001/elevator_L/meas"
+RES = "/fleet/AC001/elevator_L/residual"
+
+
+def _meas(k: int) -> dict:
+    return {"seq": k, "t": 100.0 + k * 1e-3, "x_j": 1e-5 * k, "p1": 1.2e7 + k, "x_s": None}
+
+
+def _write(path: Path, n: int, **kw) -> McapLogger:
+    lg = McapLogger(path, **kw)
+    for k in range(n):
+        m = _meas(k)
+        lg.log(MEAS, m["t"], m)
+        if k % 10 == 0:
+            lg.log(RES, m["t"], {"r_p12": 0.5 * k, "nis": 1.0, "alarm": k > 500})
+    return lg
+
+
+def test_round_trip_with_mcap_reader(tmp_path):
+    p = tmp_path / "a.mcap"
+    with _write(p, 1000) as lg:
+        pass
+    assert lg.paths == [p]
+    with open(p, "rb") as f:
+        r = make_reader(f)
+        summary = r.get_summary()
+        assert summary.statistics.message_count == 1100
+        schemas = {s.name: s for s in summary.schemas.values()}
+        assert set(schemas) == {"meas", "residual"}
+        assert all(s.encoding == "jsonschema" for s in schemas.values())
+        sch = json.loads(schemas["meas"].data)
+        assert sch["properties"]["seq"] == {"type": "integer"}
+        assert sch["properties"]["p1"]["type"] == ["number", "null"]
+        assert json.loads(schemas["residual"].data)["properties"]["alarm"] == {"type": "boolean"}
+        assert {c.message_encoding for c in summary.channels.values()} == {"json"}
+        msgs = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in r.iter_messages()]
+    meas = [m for m in msgs if m[0] == MEAS]
+    assert len(meas) == 1000
+    assert meas[7][1] == round((100.0 + 7e-3) * 1e9)  # log_time = sample time [ns]
+    assert meas[7][2] == _meas(7)
+    ours = list(read_log(p))
+    assert [(t, m) for t, _, m in ours] == [(t, m) for t, _, m in msgs]
+    assert ours[0][1] == pytest.approx(100.0, abs=1e-9)
+    assert [m for _, _, m in read_log(p, topics=[RES])] == [m for t, _, m in msgs if t == RES]
+
+
+def test_non_finite_written_as_null(tmp_path):
+    p = tmp_path / "nan.mcap"
+    with McapLogger(p) as lg:
+        lg.log(RES, 1.0, {"a": float("nan"), "b": float("inf"), "c": 2.0})
+    assert list(read_log(p)) == [(RES, 1.0, {"a": None, "b": None, "c": 2.0})]
+
+
+def test_close_idempotent_and_log_after_close_refused(tmp_path):
+    lg = _write(tmp_path / "c.mcap", 10)
+    lg.close()
+    lg.close()
+    assert lg.closed
+    with pytest.raises(ValueError):
+        lg.log(MEAS, 1.0, {"x": 1})
+
+
+def test_flush_makes_data_readable_before_close(tmp_path):
+    p = tmp_path / "f.mcap"
+    lg = _write(p, 300, background_flush=False)
+    lg.flush()
+    cp = tmp_path / "copy.mcap"
+    shutil.copyfile(p, cp)
+    with pytest.warns(TruncatedLogWarning):
+        got = [m for t, _, m in read_log(cp) if t == MEAS]
+    assert got == [_meas(k) for k in range(300)]
+    lg.close()
+
+
+def test_background_flush_without_further_logging(tmp_path):
+    p = tmp_path / "bg.mcap"
+    lg = _write(p, 200, flush_s=0.2)
+    cp = tmp_path / "copy.mcap"
+
+    def readable() -> bool:
+        shutil.copyfile(p, cp)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TruncatedLogWarning)
+            return sum(1 for t, _, _ in read_log(cp) if t == MEAS) == 200
+
+    assert wait_until(readable, timeout=10, interval=0.05)
+    assert lg.flush_count >= 1
+    lg.close()
+
+
+def test_rotation_by_size(tmp_path):
+    base = tmp_path / "rot.mcap"
+    lg = _write(base, 6000, rotate_bytes=20_000, chunk_size=4096, background_flush=False)
+    lg.close()
+    assert len(lg.paths) >= 3
+    assert all(p.name.startswith("rot-") and p.suffix == ".mcap" for p in lg.paths)
+    assert rotated_files(base) == sorted(lg.paths)
+    got = [m for t, _, m in read_log_files(lg.paths) if t == MEAS]
+    assert got == [_meas(k) for k in range(6000)]
+    for p in lg.paths:  # every file is complete and carries its own schemas
+        with open(p, "rb") as f:
+            s = make_reader(f).get_summary()
+            assert s is not None and s.schemas
+
+
+def test_rotation_by_time(tmp_path):
+    base = tmp_path / "rt.mcap"
+    lg = McapLogger(base, rotate_s=0.2, flush_s=0.1)
+    k = 0
+    while len(lg.paths) < 2 and k < 10_000_000:
+        lg.log(MEAS, 1.0 + k * 1e-3, _meas(k))
+        k += 1
+        if k % 1000 == 0:
+            wait_until(lambda: False, timeout=0.01)
+    lg.close()
+    assert len(lg.paths) >= 2
+    assert sum(1 for _ in read_log_files(lg.paths)) == k
+
+
+def test_thread_safe_log(tmp_path):
+    p = tmp_path / "th.mcap"
+    lg = McapLogger(p, chunk_size=8192, flush_s=0.05)
+
+    def work(j: int) -> None:
+        for k in range(2000):
+            lg.log(f"/fleet/AC00{j}/a/meas", k * 1e-3, {"seq": k, "j": j})
+
+    ths = [threading.Thread(target=work, args=(j,)) for j in range(4)]
+    for t in ths:
+        t.start()
+    for t in ths:
+        t.join()
+    lg.close()
+    per: dict[str, list[int]] = {}
+    for topic, _, m in read_log(p):
+        per.setdefault(topic, []).append(m["seq"])
+    assert len(per) == 4
+    assert all(v == list(range(2000)) for v in per.values())
+
+
+def test_truncated_file_yields_complete_chunks_and_warns(tmp_path):
+    p = tmp_path / "full.mcap"
+    with _write(p, 5000, chunk_size=8192, background_flush=False):
+        pass
+    full = list(read_log(p))
+    size = p.stat().st_size
+    prev = -1
+    for cut in (0, 7, 100, size // 4, size // 2, (3 * size) // 4, size - 40, size - 1):
+        q = tmp_path / f"cut{cut}.mcap"
+        shutil.copyfile(p, q)
+        with open(q, "r+b") as f:
+            f.truncate(cut)
+        st = LogReadStats()
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            got = list(read_log(q, stats=st))
+        assert len([x for x in w if issubclass(x.category, TruncatedLogWarning)]) == 1
+        assert st.truncated
+        assert got == full[: len(got)]  # a prefix, in order, nothing invented
+        assert len(got) >= prev
+        prev = len(got)
+        if cut >= size // 2:
+            assert len(got) >= len(full) // 3
+    # the data section is complete before the summary: a cut inside the summary loses nothing
+    assert prev == len(full)
+
+
+def test_corrupt_chunk_stops_with_warning(tmp_path):
+    p = tmp_path / "x.mcap"
+    with _write(p, 3000, chunk_size=8192, background_flush=False, compression="none"):
+        pass
+    full = list(read_log(p))
+    data = bytearray(p.read_bytes())
+    mid = len(data) // 2
+    data[mid : mid + 64] = b"\xff" * 64
+    q = tmp_path / "y.mcap"
+    q.write_bytes(bytes(data))
+    with pytest.warns(TruncatedLogWarning):
+        got = list(read_log(q))
+    assert 0 < len(got) < len(full)
+    assert got == full[: len(got)]
