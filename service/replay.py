@@ -1,0 +1,276 @@
+"""Offline replay: logged samples through the same monitor code, as fast as possible or paced.
+
+The logged ``/fleet/{aircraft}/{actuator}/meas`` messages are read in log order
+(``service.mcaplog.read_log``, which survives a truncated file) and fed to one
+``service.monitor.MonitorBank`` keyed by actuator, in batches of consecutive samples. The bank
+gives results that do not depend on the batch composition (``tests/test_monitor.py``), so a
+replay reproduces the live daemon's estimates when it uses the same monitor configuration and
+baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` copied, ``est``,
+``residual``, ``health``, ``events``) and, optionally, are republished on Zenoh.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+import warnings
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from service import messages as m
+from service.mcaplog import LogReadStats, McapLogger, TruncatedLogWarning, read_log
+from service.monitor import Baseline, MonitorBank, MonitorConfig
+
+__all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
+
+log = logging.getLogger("servowatch.replay")
+
+INPUT_KEYS: tuple[str, ...] = ("t", *m.CHANNELS)
+_BATCH = 256
+
+
+@dataclass
+class ReplaySummary:
+    """What a replay did; ``speed`` is log duration / wall time (x real time)."""
+
+    log: str
+    out: str | None
+    samples: int = 0
+    outputs: int = 0
+    skipped: int = 0
+    actuators: list[str] = field(default_factory=list)
+    final: dict[str, dict[str, Any]] = field(default_factory=dict)
+    alarms: list[dict[str, Any]] = field(default_factory=list)
+    counters: dict[str, dict[str, int]] = field(default_factory=dict)
+    t_start: float | None = None
+    t_end: float | None = None
+    duration_s: float = 0.0
+    wall_s: float = 0.0
+    speed: float | None = None
+    truncated: bool = False
+    published: int = 0
+    warnings: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON types (non-finite floats as None)."""
+        return _jsonable(asdict(self))
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, bool | int | str) or v is None:
+        return v
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return str(v)
+    return f if math.isfinite(f) else None
+
+
+def _flat(d: Mapping[str, Any]) -> dict[str, Any]:
+    out = {}
+    for k, v in d.items():
+        v = _jsonable(v)
+        out[str(k)] = json.dumps(v) if isinstance(v, dict | list) else v
+    return out
+
+
+def _event_dict(ev: Any) -> dict[str, Any]:
+    if isinstance(ev, Mapping):
+        return _jsonable(dict(ev))
+    if hasattr(ev, "__dataclass_fields__"):
+        return _jsonable({k: getattr(ev, k) for k in ev.__dataclass_fields__})
+    return _jsonable({k: getattr(ev, k, None) for k in ("t", "kind", "state", "value")})
+
+
+def read_metadata(path: str | Path) -> dict[str, str]:
+    """The ``servowatch`` metadata record of an MCAP file ({} if absent or unreadable)."""
+    from mcap.records import Metadata
+    from mcap.stream_reader import StreamReader
+
+    try:
+        with open(path, "rb") as fh:
+            for rec in StreamReader(fh, emit_chunks=True).records:
+                if isinstance(rec, Metadata) and rec.name == "servowatch":
+                    return dict(rec.metadata)
+    except Exception:
+        return {}
+    return {}
+
+
+def _parse_topic(topic: str) -> tuple[str, str] | None:
+    parts = topic.split("/")
+    if len(parts) != 5 or parts[0] != "" or parts[1] != "fleet" or parts[4] != "meas":
+        return None
+    return parts[2], parts[3]
+
+
+def replay(
+    log_path: str | Path,
+    *,
+    speed: float | None = None,
+    out: str | Path | None = None,
+    publish: Any | None = None,
+    monitor_config: MonitorConfig | None = None,
+    baseline: Baseline | None = None,
+    publish_every: int = 10,
+    progress: Callable[[ReplaySummary], None] | None = None,
+) -> ReplaySummary:
+    """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
+
+    Parameters
+    ----------
+    speed : None replays as fast as possible; ``s`` > 0 paces the samples at ``s`` x real time.
+    out : a new MCAP log of the replay (meas, est, residual, health, events), or None.
+    publish : a zenoh session; est/res/health are put on ``fleet/{ac}/{act}/{est,res,health}``
+        every ``publish_every`` outputs per actuator.
+    monitor_config, baseline : None takes the log's ``servowatch`` metadata (``monitor_config``,
+        ``baseline`` JSON) when present, else ``MonitorConfig()`` and ``Baseline.default()``.
+
+    A truncated log is replayed up to its last complete chunk; the summary says so in
+    ``truncated`` and ``warnings``.
+    """
+    if speed is not None and not speed > 0:
+        raise ValueError("speed must be > 0 or None")
+    log_path = Path(log_path)
+    if not log_path.exists():
+        raise FileNotFoundError(f"{log_path}: no such log")
+    meta = read_metadata(log_path)
+    if monitor_config is None and "monitor_config" in meta:
+        monitor_config = MonitorConfig.model_validate_json(meta["monitor_config"])
+    if baseline is None and "baseline" in meta:
+        baseline = Baseline.model_validate_json(meta["baseline"])
+    cfg = monitor_config or MonitorConfig()
+    base = baseline or Baseline.default(cfg.model)
+    bank = MonitorBank(cfg, base)
+    summary = ReplaySummary(log=str(log_path), out=str(out) if out is not None else None)
+    writer = McapLogger(
+        out,
+        flush_s=1.0,
+        metadata={
+            "source": "replay",
+            "replay_of": str(log_path),
+            "monitor_config": cfg.model_dump_json(),
+            "baseline": base.model_dump_json(),
+        },
+    ) if out is not None else None  # fmt: skip
+    pubs: dict[tuple[str, str], Any] = {}
+    n_out: dict[str, int] = {}
+    last_t: dict[str, float] = {}
+    names: dict[str, tuple[str, str]] = {}
+    batch: list[tuple[str, dict[str, Any]]] = []
+    stats = LogReadStats()
+    wall0 = time.perf_counter()
+    t_first: float | None = None
+
+    def flush_batch() -> None:
+        if not batch:
+            return
+        outs = bank.update_many(batch)
+        for (name, _s), o in zip(batch, outs, strict=True):
+            if o is None:
+                continue
+            summary.outputs += 1
+            ac, act = names[name]
+            fin = summary.final.setdefault(name, {})
+            fin["t"] = o.t
+            fin["est"] = o.est
+            fin["health"] = o.health
+            if writer is not None:
+                b = f"/fleet/{ac}/{act}/"
+                writer.log(b + "est", o.t, _flat(o.est))
+                writer.log(b + "residual", o.t, _flat(o.res))
+                writer.log(b + "health", o.t, _flat(o.health))
+            for ev in o.events:
+                d = _event_dict(ev)
+                summary.alarms.append({"actuator": name, **d})
+                if writer is not None:
+                    writer.log(f"/fleet/{ac}/{act}/events", float(d.get("t") or o.t), _flat(d))
+            if publish is not None:
+                k = n_out[name] = n_out.get(name, 0) + 1
+                if k % publish_every == 0:
+                    _publish(publish, pubs, ac, act, o)
+                    summary.published += 1
+        batch.clear()
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", TruncatedLogWarning)
+        try:
+            for topic, t_log, msg in read_log(log_path, stats=stats):
+                at = _parse_topic(topic)
+                if at is None:
+                    continue
+                name = f"{at[0]}/{at[1]}"
+                if name not in names:
+                    names[name] = at
+                    summary.actuators.append(name)
+                t = msg.get("t", t_log)
+                if not isinstance(t, int | float) or isinstance(t, bool) or not math.isfinite(t):
+                    summary.skipped += 1
+                    continue
+                if name in last_t and t <= last_t[name]:
+                    summary.skipped += 1  # the daemon logs accepted samples only; be safe
+                    continue
+                last_t[name] = t
+                sample = {k: msg.get(k) for k in INPUT_KEYS}
+                sample["t"] = float(t)
+                summary.samples += 1
+                if t_first is None:
+                    t_first = float(t)
+                    summary.t_start = t_first
+                summary.t_end = float(t)
+                if writer is not None:
+                    writer.log(topic, float(t), msg)
+                batch.append((name, sample))
+                if speed is not None:
+                    due = wall0 + (float(t) - t_first) / speed
+                    now = time.perf_counter()
+                    if due > now + 0.002:
+                        flush_batch()
+                        time.sleep(max(0.0, due - time.perf_counter()))
+                if len(batch) >= _BATCH:
+                    flush_batch()
+                    if progress is not None:
+                        progress(summary)
+            flush_batch()
+        finally:
+            if writer is not None:
+                writer.close()
+    summary.wall_s = time.perf_counter() - wall0
+    for w in caught:
+        if issubclass(w.category, TruncatedLogWarning):
+            summary.truncated = True
+            summary.warnings.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if summary.t_start is not None and summary.t_end is not None:
+        summary.duration_s = summary.t_end - summary.t_start
+        if summary.wall_s > 0 and summary.samples > 1:
+            summary.speed = summary.duration_s / summary.wall_s
+    summary.counters = {n: bank.counters_of(n) for n in summary.actuators}
+    if summary.samples == 0:
+        summary.warnings.append(f"{log_path}: no /fleet/*/*/meas samples")
+    return summary
+
+
+def _publish(session: Any, pubs: dict, ac: str, act: str, o: Any) -> None:
+    for tmpl, leaf, d in (
+        (m.KEY_EST, "est", o.est),
+        (m.KEY_RES, "res", o.res),
+        (m.KEY_HEALTH, "health", o.health),
+    ):
+        p = pubs.get((ac, act, leaf))
+        if p is None:
+            p = pubs[(ac, act, leaf)] = session.declare_publisher(
+                tmpl.format(aircraft=ac, actuator=act)
+            )
+        p.put(m.encode_json({"t": o.t, **_jsonable(d)}))
