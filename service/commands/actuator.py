@@ -1,0 +1,97 @@
+"""``servowatch actuator``: a virtual actuator publishing its sensors on Zenoh."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+
+from service.cliutil import emit_json, fail
+
+NAME = "actuator"
+HELP = "Run a virtual actuator (HF bench paced by the wall clock) publishing on Zenoh."
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from service.daemon import add_zenoh_arguments
+
+    p.add_argument("--scenario", default="demo", help="scenario TOML file or bundled name")
+    p.add_argument("--aircraft", default="AC001")
+    p.add_argument("--actuator", default="elevator_L")
+    p.add_argument("--rate", type=float, default=1000.0, help="sample rate [Hz] (default 1000)")
+    p.add_argument(
+        "--samples-per-msg", type=int, default=10, help="samples per Zenoh message (default 10)"
+    )
+    p.add_argument(
+        "--format",
+        choices=("bin", "json"),
+        default=None,
+        help="wire format (default: service.messages.DEFAULT_FORMAT)",
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="stop after this much simulated time [s] (default: run until killed)",
+    )
+    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default: scenario)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary at the end")
+    add_zenoh_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from service import messages as msgs
+    from service.actuator import VirtualActuator
+    from service.config import ConfigError
+    from service.daemon import service_config_from_args
+    from service.scenarios import ScenarioError, load_scenario
+
+    logging.basicConfig(
+        level=logging.INFO,
+        stream=sys.stderr,
+        format="%(asctime)s %(levelname)s %(name)s %(message)s",
+    )
+    try:
+        msgs.key(msgs.KEY_MEAS, aircraft=args.aircraft, actuator=args.actuator)
+        scenario = load_scenario(args.scenario)
+        cfg = service_config_from_args(args)
+    except (ScenarioError, ConfigError, msgs.MessageError, ValueError) as e:
+        return fail(str(e))
+    if not args.rate > 0 or args.samples_per_msg < 1:
+        return fail("--rate must be > 0 and --samples-per-msg >= 1")
+    va = VirtualActuator(scenario, rate_hz=args.rate, t_origin=time.time(), seed=args.seed)
+    stop = threading.Event()
+
+    def _stop(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+        logging.getLogger("servowatch.actuator").info(
+            "actuator %s/%s publishing %s at %g Hz",
+            args.aircraft,
+            args.actuator,
+            msgs.KEY_MEAS.format(aircraft=args.aircraft, actuator=args.actuator),
+            args.rate,
+        )
+        counters = va.serve(
+            session,
+            args.aircraft,
+            args.actuator,
+            stop=stop,
+            duration_s=args.duration,
+            samples_per_msg=args.samples_per_msg,
+            fmt=args.format,
+        )
+    counters["seq_next"] = va.seq
+    if args.json:
+        emit_json(counters)
+    else:
+        print(f"actuator {args.aircraft}/{args.actuator}: {counters}", file=sys.stderr)
+    return 0

@@ -1,0 +1,90 @@
+"""``servowatch inject``: send a fault command to a virtual actuator and print its answer."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from service.cliutil import emit_json, fail, finite_float
+
+NAME = "inject"
+HELP = "Inject a fault into a virtual actuator (leak, supply, sensor_bias, dropout, clear)."
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from service.daemon import add_zenoh_arguments
+
+    p.add_argument("--aircraft", default="AC001")
+    p.add_argument("--actuator", default="elevator_L")
+    p.add_argument(
+        "--fault",
+        required=True,
+        choices=("leak", "supply", "sensor_bias", "dropout", "clear"),
+        help="leak: c_lk [m^3/s/Pa]; supply: P_SR [Pa]; sensor_bias: SI bias on "
+        "--channel; dropout: --channel missing (none = whole actuator); clear",
+    )
+    p.add_argument("--value", type=finite_float, default=None, help="fault value (SI)")
+    p.add_argument("--ramp-s", type=finite_float, default=0.0, help="ramp time [s] (0 = step)")
+    p.add_argument("--channel", default=None, help="sensor channel (i, x_s, x_j, p1, p2, p_sr)")
+    p.add_argument(
+        "--duration-s",
+        type=finite_float,
+        default=None,
+        help="the fault clears itself after this long [s]",
+    )
+    p.add_argument("--timeout", type=float, default=3.0, help="reply timeout [s]")
+    p.add_argument("--json", action="store_true", help="print the acknowledgement as JSON")
+    add_zenoh_arguments(p)
+
+
+def send_fault(session, aircraft: str, actuator: str, command, timeout: float = 3.0):
+    """Send a ``FaultCommand``; return the ``FaultAck`` or None if nobody answered."""
+    from service import messages as msgs
+
+    key = msgs.key(msgs.KEY_FAULT, aircraft=aircraft, actuator=actuator)
+    for reply in session.get(key, payload=command.model_dump_json().encode(), timeout=timeout):
+        if reply.ok is not None:
+            return msgs.FaultAck.model_validate_json(reply.ok.payload.to_bytes())
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+    from pydantic import ValidationError
+
+    from service import messages as msgs
+    from service.config import ConfigError
+    from service.daemon import service_config_from_args
+
+    try:
+        cmd = msgs.FaultCommand(
+            kind=args.fault,
+            value=args.value,
+            ramp_s=args.ramp_s,
+            channel=args.channel,
+            duration_s=args.duration_s,
+        )
+        msgs.key(msgs.KEY_FAULT, aircraft=args.aircraft, actuator=args.actuator)
+        cfg = service_config_from_args(args)
+    except ValidationError as e:
+        err = e.errors()[0]
+        return fail(f"invalid fault command: {'.'.join(map(str, err['loc']))}: {err['msg']}")
+    except (ConfigError, msgs.MessageError, ValueError) as e:
+        return fail(str(e))
+    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+        ack = send_fault(session, args.aircraft, args.actuator, cmd, args.timeout)
+    if ack is None:
+        return fail(
+            f"no answer from {args.aircraft}/{args.actuator} within {args.timeout} s "
+            "(is the actuator running and reachable?)",
+            3,
+        )
+    if args.json:
+        emit_json(ack.model_dump())
+    else:
+        print(("ok: " if ack.ok else "") + ack.message)
+        for f in ack.active:
+            print("  active:", f)
+    if not ack.ok:
+        print(f"servowatch: fault refused: {ack.message}", file=sys.stderr)
+    return 0 if ack.ok else 1

@@ -1,0 +1,102 @@
+"""``servowatch run``: the monitoring daemon (Zenoh in and out, MCAP log, status)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+import time
+
+from service.cliutil import emit_json, fail
+
+NAME = "run"
+HELP = "Run the monitoring daemon: subscribe, monitor each actuator, publish, log to MCAP."
+
+
+class _JsonFormatter(logging.Formatter):
+    """One JSON object per log line (structured logs for journald / containers)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        d = {
+            "ts": round(record.created, 3),
+            "level": record.levelname,
+            "logger": record.name,
+            "msg": record.getMessage(),
+        }
+        if record.exc_info:
+            d["exc"] = self.formatException(record.exc_info)
+        return json.dumps(d)
+
+
+def setup_logging(level: str, structured: bool) -> None:
+    """Root logging on stderr: JSON lines when ``structured``, else plain text."""
+    h = logging.StreamHandler(sys.stderr)
+    h.setFormatter(
+        _JsonFormatter()
+        if structured
+        else logging.Formatter("%(asctime)s %(levelname)s %(name)s %(message)s")
+    )
+    root = logging.getLogger()
+    root.handlers[:] = [h]
+    root.setLevel(level)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from service.daemon import add_zenoh_arguments
+
+    add_zenoh_arguments(p)
+    p.add_argument("--log", default=None, help="MCAP file to write (default: log_dir/...)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="stop after this long [s] (default: until SIGTERM/SIGINT)",
+    )
+    p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
+    p.add_argument("--json", action="store_true", help="print the final status as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from service.config import ConfigError
+    from service.daemon import Daemon, service_config_from_args
+
+    try:
+        cfg = service_config_from_args(args)
+    except (ConfigError, ValueError) as e:
+        return fail(str(e))
+    setup_logging(cfg.log_level, not args.plain_logs)
+    stop = threading.Event()
+
+    def _stop(signum, frame):
+        logging.getLogger("servowatch.daemon").info("signal %d: stopping", signum)
+        stop.set()
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    try:
+        daemon = Daemon(cfg, log_path=args.log)
+    except Exception as e:  # bad baseline, unwritable log directory, ...
+        return fail(f"cannot start the daemon: {e}")
+    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+        daemon.start(session)
+        t_end = None if args.duration is None else time.monotonic() + args.duration
+        while not stop.is_set():
+            left = None if t_end is None else t_end - time.monotonic()
+            if left is not None and left <= 0:
+                break
+            stop.wait(0.5 if left is None else min(0.5, left))
+        final = daemon.stop()
+    if args.json:
+        emit_json(final)
+    else:
+        print(
+            f"servowatch run: {final['samples']} samples, {final['dropped']} dropped, "
+            f"{final['bad']} bad, log {', '.join(final['log'])}",
+            file=sys.stderr,
+        )
+    return 0

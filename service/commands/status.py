@@ -1,0 +1,86 @@
+"""``servowatch status``: query every reachable daemon's status queryable."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from service.cliutil import emit_json, fail
+
+NAME = "status"
+HELP = "Query the status of every monitoring daemon reachable on Zenoh."
+
+STATUS_SELECTOR = "monitor/*/*/status"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from service.daemon import add_zenoh_arguments
+
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--timeout", type=float, default=2.0, help="reply timeout [s]")
+    add_zenoh_arguments(p)
+
+
+def query_status(session, timeout: float = 2.0, selector: str = STATUS_SELECTOR) -> dict:
+    """``{key: status dict}`` of every daemon that answered within ``timeout``."""
+    out: dict[str, dict] = {}
+    for reply in session.get(selector, timeout=timeout):
+        if reply.ok is None:
+            continue
+        try:
+            out[str(reply.ok.key_expr)] = json.loads(reply.ok.payload.to_bytes())
+        except ValueError:
+            out[str(reply.ok.key_expr)] = {"error": "unreadable status"}
+    return out
+
+
+def _fmt(v, spec: str = ".3g") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def format_status(daemons: dict) -> str:
+    """Human-readable table of the daemons' status."""
+    lines = []
+    for key, st in sorted(daemons.items()):
+        lat = st.get("latency_ms", {})
+        lines.append(
+            f"{key}: pid {st.get('pid')} up {_fmt(st.get('uptime_s'), '.0f')} s, "
+            f"{st.get('samples')} samples, {st.get('dropped')} dropped, {st.get('bad')} bad, "
+            f"latency p50 {_fmt(lat.get('p50'))} ms p99 {_fmt(lat.get('p99'))} ms"
+        )
+        for _name, a in sorted(st.get("actuators", {}).items()):
+            est = ", ".join(
+                f"{k}={_fmt(v)}"
+                for k, v in list(a.get("est", {}).items())[:4]
+                if isinstance(v, int | float)
+            )
+            flags = []
+            if a.get("silent"):
+                flags.append("SILENT")
+            if a.get("alarms"):
+                flags.append("ALARM " + ",".join(str(x.get("kind")) for x in a["alarms"]))
+            lines.append(
+                f"  {a['aircraft']}/{a['actuator']}: {a['samples']} samples, "
+                f"dropped {a['dropped']}, gaps {a['gaps']}, bad {a['bad']}, {est} "
+                + " ".join(flags)
+            )
+    return "\n".join(lines) if lines else "no daemon answered"
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from service.config import ConfigError
+    from service.daemon import service_config_from_args
+
+    try:
+        cfg = service_config_from_args(args)
+    except (ConfigError, ValueError) as e:
+        return fail(str(e))
+    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+        daemons = query_status(session, args.timeout)
+    if args.json:
+        emit_json({"daemons": daemons})
+    else:
+        print(format_status(daemons))
+    return 0 if daemons else 3
