@@ -1,0 +1,86 @@
+"""``servowatch router``: a Zenoh router as a Python session in router mode.
+
+There is no zenohd on PyPI; ``zenoh.open`` with ``mode: router`` routes between the peers and
+clients that connect to it. Multicast scouting is off; by default it listens on loopback only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import threading
+
+from service.cliutil import fail
+
+NAME = "router"
+HELP = "run a Zenoh router (Python session in router mode) until SIGINT/SIGTERM"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--listen", action="append", default=None, metavar="ENDPOINT",
+        help="endpoint to listen on (default tcp/127.0.0.1:7447; repeatable)",
+    )  # fmt: skip
+    p.add_argument(
+        "--connect", action="append", default=[], metavar="ENDPOINT",
+        help="another router to connect to (repeatable)",
+    )  # fmt: skip
+    p.add_argument(
+        "--config", default=None, metavar="FILE.json5",
+        help="a Zenoh JSON5 config (e.g. deploy/router.json5); --listen/--connect override it",
+    )  # fmt: skip
+
+
+def _config(args: argparse.Namespace):
+    import zenoh
+
+    from service.zenoh_util import make_config
+
+    if args.config is None:
+        return make_config(
+            "router", args.listen or ["tcp/127.0.0.1:7447"], args.connect
+        ), args.listen or ["tcp/127.0.0.1:7447"]
+    cfg = zenoh.Config.from_file(args.config)
+    cfg.insert_json5("mode", '"router"')
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    if args.listen:
+        cfg.insert_json5("listen/endpoints", json.dumps(args.listen))
+    if args.connect:
+        cfg.insert_json5("connect/endpoints", json.dumps(args.connect))
+    listen = json.loads(cfg.get_json("listen/endpoints"))
+    return cfg, listen
+
+
+def run(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from service.zenoh_util import EndpointError
+
+    try:
+        cfg, listen = _config(args)
+    except (EndpointError, ValueError, OSError) as e:
+        return fail(str(e))
+    except zenoh.ZError as e:
+        return fail(f"{args.config}: invalid Zenoh config: {e}")
+    stop = threading.Event()
+
+    def _stop(signum, _frame):
+        stop.set()
+
+    old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            session = zenoh.open(cfg)
+        except zenoh.ZError as e:
+            return fail(f"cannot start the router on {listen}: {e}", 1)
+        with session:
+            print(f"servowatch router {session.zid()} listening on {', '.join(map(str, listen))}",
+                  flush=True)  # fmt: skip
+            while not stop.wait(0.5):
+                pass
+        print("servowatch router stopped", flush=True)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    return 0
