@@ -1,0 +1,147 @@
+"""Zenoh helpers, exercised through real sessions on loopback ports."""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+
+import pytest
+import zenoh
+
+from service.messages import MeasSample, decode_meas, encode_meas
+from service.zenoh_util import (
+    BoundedQueue,
+    EndpointError,
+    check_endpoint,
+    free_port,
+    loopback,
+    make_config,
+    wait_until,
+)
+
+
+@pytest.mark.parametrize(
+    "ep", ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:0", "unixsock-stream//tmp/sw.sock"]
+)
+def test_allowed_endpoints(ep):
+    assert check_endpoint(ep) == ep
+
+
+def test_unix_shorthand():
+    assert check_endpoint("unix//tmp/a.sock") == "unixsock-stream//tmp/a.sock"
+
+
+@pytest.mark.parametrize(
+    "ep",
+    [
+        "tcp/0.0.0.0:7447",
+        "tcp/[::]:7447",
+        "tcp/localhost:7447",
+        "tcp/10.0.0.5:7447",
+        "udp/127.0.0.1:7447",
+        "tcp/127.0.0.1:70000",
+        "127.0.0.1:7447",
+        "udp/224.0.0.224:7446",
+    ],
+)
+def test_refused_endpoints(ep):
+    with pytest.raises(EndpointError):
+        check_endpoint(ep)
+
+
+def test_allow_remote_is_explicit():
+    assert check_endpoint("tcp/10.0.0.5:7447", allow_remote=True) == "tcp/10.0.0.5:7447"
+    with pytest.raises(EndpointError):
+        make_config("router", listen=["tcp/0.0.0.0:7447"])
+    cfg = make_config("router", listen=["tcp/0.0.0.0:7447"], allow_remote=True)
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7447"]
+
+
+def test_config_contents():
+    cfg = make_config("client", connect=[loopback(7447)])
+    assert json.loads(cfg.get_json("mode")) == "client"
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(cfg.get_json("listen/endpoints")) == []  # not zenoh's [::] default
+    assert json.loads(cfg.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7447"]
+    with pytest.raises(ValueError):
+        make_config("client")
+    with pytest.raises(ValueError):
+        make_config("broker")  # type: ignore[arg-type]
+    with pytest.raises(TypeError):
+        make_config("peer", connect="tcp/127.0.0.1:7447")  # type: ignore[arg-type]
+    with pytest.raises(ValueError):
+        make_config("peer", extra={"scouting/multicast/enabled": True})
+
+
+def test_free_port_is_bindable():
+    p = free_port()
+    assert 1024 <= p <= 65535
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", p))
+
+
+def test_bounded_queue_drops_oldest_and_counts():
+    q: BoundedQueue[int] = BoundedQueue(3)
+    for k in range(5):
+        q.put(k)
+    assert q.dropped == 2 and q.put_count == 5 and q.high_water == 3
+    assert q.get_batch(10, timeout=0) == [2, 3, 4]
+    assert q.get_batch(10, timeout=0.01) == []
+    got: list[list[int]] = []
+    th = threading.Thread(target=lambda: got.append(q.get_batch(10, timeout=5)))
+    th.start()
+    q.put(9)
+    th.join(5)
+    assert got == [[9]]
+    with pytest.raises(ValueError):
+        BoundedQueue(0)
+
+
+@pytest.fixture
+def router():
+    port = free_port()
+    s = zenoh.open(make_config("router", listen=[loopback(port)]))
+    yield port
+    s.close()
+
+
+def test_pub_sub_query_liveliness_through_a_router(router):
+    ep = [loopback(router)]
+    with (
+        zenoh.open(make_config("peer", connect=ep)) as daemon,
+        zenoh.open(make_config("client", connect=ep)) as source,
+    ):
+        q: BoundedQueue[tuple[str, bytes]] = BoundedQueue(1000)
+        sub = daemon.declare_subscriber(
+            "fleet/**/meas", lambda s: q.put((str(s.key_expr), s.payload.to_bytes()))
+        )
+        qbl = daemon.declare_queryable(
+            "monitor/g1/0/status",
+            lambda query: query.reply("monitor/g1/0/status", b'{"actuators": 1}'),
+        )
+        tok = daemon.liveliness().declare_token("fleet/AC001/elevator_L/alive")
+        samples = [MeasSample(seq=k, t=k * 1e-3, p1=1e7 + k) for k in range(5)]
+        # wait until the subscription has propagated: a probe put arrives
+        assert wait_until(
+            lambda: source.put("fleet/probe/x/meas", b"probe") or len(q) > 0, timeout=10
+        )
+        q.get_batch(1000, timeout=0)
+        source.put("fleet/AC001/elevator_L/meas", encode_meas(samples))
+        source.put("fleet/AC001/elevator_L/@fault", b"{}")  # '@' chunk: not matched by **
+        source.put("fleet/AC001/elevator_L/est", b"{}")
+        assert wait_until(lambda: len(q) >= 1, timeout=10)
+        (key, payload), *rest = q.get_batch(10, timeout=0.5)
+        assert rest == []
+        assert key == "fleet/AC001/elevator_L/meas"
+        assert decode_meas(payload) == samples
+        replies = [r.ok for r in source.get("monitor/**/status", timeout=5) if r.ok]
+        assert [json.loads(r.payload.to_bytes()) for r in replies] == [{"actuators": 1}]
+        alive = [str(r.ok.key_expr) for r in source.liveliness().get("fleet/**/alive", timeout=5)]
+        assert alive == ["fleet/AC001/elevator_L/alive"]
+        tok.undeclare()
+        assert wait_until(
+            lambda: not list(source.liveliness().get("fleet/**/alive", timeout=1)), timeout=10
+        )
+        sub.undeclare()
+        qbl.undeclare()
