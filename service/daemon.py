@@ -320,6 +320,28 @@ class _Monitors:
             else:
                 self.factory = lambda _aid: mon.Monitor(monitor_config, baseline)
 
+    def metadata(self, station: str, shard: str) -> dict[str, str]:
+        """MCAP metadata that lets ``service.replay`` rebuild the same monitors."""
+        md = {"source": "daemon", "station": station, "shard": shard}
+        if self.bank is not None:
+            for name, attr in (("monitor_config", "config"), ("baseline", "baseline")):
+                obj = getattr(self.bank, attr, None)
+                if hasattr(obj, "model_dump_json"):
+                    md[name] = obj.model_dump_json()
+        return md
+
+    def counters_of(self, aid: str) -> dict[str, int] | None:
+        """The monitor's own sample counters for ``aid`` (accepted, skipped, reinit, ...)."""
+        fn = getattr(self.bank, "counters_of", None)
+        if fn is not None:
+            try:
+                return dict(fn(aid))
+            except KeyError:
+                return None
+        mon = self.monitors.get(aid)
+        c = getattr(mon, "counters", None)
+        return dict(c) if isinstance(c, dict) else None
+
     def reset(self, aid: str) -> None:
         """Forget the state of ``aid`` (a new monitor starts at its next sample)."""
         if self.bank is not None:
@@ -413,6 +435,7 @@ class Daemon:
                 rotate_bytes=getattr(config, "rotate_bytes", None),
                 rotate_s=getattr(config, "rotate_s", None),
                 flush_s=float(getattr(config, "flush_s", 1.0) or 1.0),
+                metadata=self.monitors.metadata(self.station, self.shard),
             )
         self.logger = logger
         self.log_path = Path(log_path) if log_path is not None else None
@@ -662,6 +685,8 @@ class Daemon:
         now = time.monotonic()
         with self._lock:
             acts = {k: st.snapshot(now) for k, st in list(self.actuators.items())}
+        for k, a in acts.items():
+            a["monitor"] = self.monitors.counters_of(k)
         p50, p99 = percentiles(list(self.latency))
         a50, a99 = percentiles(list(self.age))
         up = time.time() - self.started

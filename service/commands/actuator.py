@@ -72,7 +72,13 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+    try:
+        session = zenoh.open(cfg.zenoh.to_zenoh())
+    except zenoh.ZError as e:
+        return fail(
+            f"cannot open a Zenoh session ({cfg.zenoh.mode}, connect {cfg.zenoh.connect}): {e}", 3
+        )
+    with session:
         logging.getLogger("servowatch.actuator").info(
             "actuator %s/%s publishing %s at %g Hz",
             args.aircraft,

@@ -71,7 +71,13 @@ def run(args: argparse.Namespace) -> int:
         return fail(f"invalid fault command: {'.'.join(map(str, err['loc']))}: {err['msg']}")
     except (ConfigError, msgs.MessageError, ValueError) as e:
         return fail(str(e))
-    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+    try:
+        session = zenoh.open(cfg.zenoh.to_zenoh())
+    except zenoh.ZError as e:
+        return fail(
+            f"cannot open a Zenoh session ({cfg.zenoh.mode}, connect {cfg.zenoh.connect}): {e}", 3
+        )
+    with session:
         ack = send_fault(session, args.aircraft, args.actuator, cmd, args.timeout)
     if ack is None:
         return fail(

@@ -55,6 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="stop after this long [s] (default: until SIGTERM/SIGINT)",
     )
+    p.add_argument(
+        "--no-rotate", action="store_true", help="write exactly --log (no size/time rotation)"
+    )
     p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
 
@@ -69,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
         cfg = service_config_from_args(args)
     except (ConfigError, ValueError) as e:
         return fail(str(e))
+    if args.no_rotate:
+        cfg = cfg.model_copy(update={"rotate_bytes": None, "rotate_s": None})
     setup_logging(cfg.log_level, not args.plain_logs)
     stop = threading.Event()
 
@@ -79,10 +84,16 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
     try:
+        session = zenoh.open(cfg.zenoh.to_zenoh())
+    except zenoh.ZError as e:
+        msg = f"cannot open a Zenoh session ({cfg.zenoh.mode}, connect {cfg.zenoh.connect}): {e}"
+        return fail(msg, 3)
+    try:
         daemon = Daemon(cfg, log_path=args.log)
     except Exception as e:  # bad baseline, unwritable log directory, ...
+        session.close()
         return fail(f"cannot start the daemon: {e}")
-    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+    with session:
         daemon.start(session)
         t_end = None if args.duration is None else time.monotonic() + args.duration
         while not stop.is_set():

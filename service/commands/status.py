@@ -77,7 +77,13 @@ def run(args: argparse.Namespace) -> int:
         cfg = service_config_from_args(args)
     except (ConfigError, ValueError) as e:
         return fail(str(e))
-    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+    try:
+        session = zenoh.open(cfg.zenoh.to_zenoh())
+    except zenoh.ZError as e:
+        return fail(
+            f"cannot open a Zenoh session ({cfg.zenoh.mode}, connect {cfg.zenoh.connect}): {e}", 3
+        )
+    with session:
         daemons = query_status(session, args.timeout)
     if args.json:
         emit_json({"daemons": daemons})

@@ -1,0 +1,297 @@
+"""Monitoring daemon logic without Zenoh: validation, counters, ordering, logging, status."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import socket
+from dataclasses import dataclass, field
+
+import pytest
+
+from service import messages as m
+from service.config import ServiceConfig
+from service.daemon import Daemon, RateLimitedLog, percentiles, sd_notify, watchdog_interval
+
+KEY = "fleet/AC001/elevator_L/meas"
+KEY2 = "fleet/AC002/rudder/meas"
+
+
+@dataclass
+class Out:
+    t: float
+    est: dict
+    res: dict
+    health: dict
+    events: list = field(default_factory=list)
+
+
+@dataclass
+class Ev:
+    t: float
+    kind: str
+    state: str
+    value: float
+
+
+class CountingMonitor:
+    """Echoes the samples it gets; raises a 'leak' alarm when p1 > 1e7, clears it below."""
+
+    def __init__(self, aid):
+        self.aid = aid
+        self.seen: list[dict] = []
+        self.on = False
+
+    def update(self, s):
+        self.seen.append(dict(s))
+        ev = []
+        if (s["p1"] or 0) > 1e7 and not self.on:
+            self.on = True
+            ev.append(Ev(s["t"], "leak", "raised", s["p1"]))
+        elif (s["p1"] or 0) <= 1e7 and self.on:
+            self.on = False
+            ev.append(Ev(s["t"], "leak", "cleared", s["p1"]))
+        return Out(
+            s["t"],
+            {"n": len(self.seen), "x_j": s["x_j"]},
+            {"r": 0.0},
+            {"alarm_leak": float(self.on)},
+            ev,
+        )
+
+
+class ListLogger:
+    def __init__(self):
+        self.rows: list[tuple[str, float, dict]] = []
+        self.closed = False
+        self.paths = []
+
+    def log(self, topic, t, msg):
+        assert math.isfinite(t)
+        self.rows.append((topic, t, dict(msg)))
+
+    def close(self):
+        self.closed = True
+
+    def topic(self, suffix):
+        return [r for r in self.rows if r[0].endswith(suffix)]
+
+
+def sample(seq, t=None, **kw):
+    d = {
+        "seq": seq,
+        "t": 1000.0 + seq * 1e-3 if t is None else t,
+        "x_cmd": 0.0,
+        "i": 0.0,
+        "x_s": 0.0,
+        "x_j": seq * 1e-6,
+        "p1": 5e6,
+        "p2": 5e6,
+        "p_sr": 20e6,
+    }
+    d.update(kw)
+    return d
+
+
+def make(**cfg):
+    mons: dict[str, CountingMonitor] = {}
+
+    def factory(aid):
+        mons[aid] = CountingMonitor(aid)
+        return mons[aid]
+
+    lg = ListLogger()
+    d = Daemon(ServiceConfig(**cfg), logger=lg, monitor_factory=factory)
+    return d, lg, mons
+
+
+def test_good_samples_are_all_logged_and_fed_in_order():
+    d, lg, mons = make()
+    for j in range(0, 100, 10):
+        assert d.submit(KEY, m.encode_meas([sample(k) for k in range(j, j + 10)]))
+    d.submit(KEY2, m.encode_meas([sample(k) for k in range(5)], fmt="json"))
+    assert d.process_pending() == 105
+    assert [s["t"] for s in mons[KEY].seen] == [1000.0 + k * 1e-3 for k in range(100)]
+    assert set(mons[KEY].seen[0]) == {"t", "x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr"}
+    meas = lg.topic("/AC001/elevator_L/meas")
+    assert [r[2]["seq"] for r in meas] == list(range(100))
+    assert meas[7][1] == meas[7][2]["t"]  # log time = sample time
+    assert len(lg.topic("/AC001/elevator_L/est")) == 100
+    assert len(lg.topic("/AC002/rudder/residual")) == 5
+    st = d.status()
+    a = st["actuators"][KEY]
+    assert (a["samples"], a["messages"], a["gaps"], a["bad_total"]) == (100, 10, 0, 0)
+    assert st["samples"] == 105 and st["dropped"] == 0
+    json.dumps(st)  # JSON-ready
+
+
+def test_bad_messages_are_counted_and_good_ones_kept():
+    d, lg, mons = make()
+    d.submit(KEY, m.encode_meas([sample(0), sample(1)]))
+    d.submit(KEY, b"\x00garbage")
+    d.submit(KEY, b'{"samples": [{"seq": 2, "t": 1000.002, "p1": NaN}]}')
+    d.submit(KEY, b'{"seq": 2, "t": 1000.002, "p1": "high"}')
+    d.submit(KEY, b'{"seq": 2, "t": 1000.002, "bogus": 1}')
+    d.submit(KEY, b"{" + b" " * 70000 + b"}")
+    nan_bin = bytearray(m.encode_meas([sample(2)]))
+    nan_bin[-8:] = b"\x00\x00\x00\x00\x00\x00\xf8\x7f"  # p_sr = NaN in the binary form
+    d.submit(KEY, bytes(nan_bin))
+    d.submit(KEY, m.encode_meas([sample(2), sample(3)]))
+    d.submit("fleet/AC001/bad key/meas", m.encode_meas([sample(0)]))
+    d.submit("fleet/AC001/elevator_L/est", m.encode_meas([sample(0)]))
+    d.process_pending()
+    a = d.status()["actuators"][KEY]
+    assert a["samples"] == 4
+    assert [s["t"] for s in mons[KEY].seen] == [1000.0, 1000.001, 1000.002, 1000.003]
+    assert a["bad"] == {"malformed": 1, "non_finite": 2, "schema": 2, "oversize": 1}
+    assert d.status()["unknown"] == {"invalid_key": 2}
+    assert len(lg.topic("/meas")) == 4
+
+
+def test_duplicates_out_of_order_gaps_and_restart():
+    d, lg, mons = make()
+    d.submit(KEY, m.encode_meas([sample(k) for k in range(10)]))
+    d.submit(KEY, m.encode_meas([sample(k) for k in range(5, 10)]))  # duplicates
+    d.submit(KEY, m.encode_meas([sample(9)]))  # exact repeat of the last
+    d.submit(KEY, m.encode_meas([sample(k) for k in range(15, 20)]))  # gap of 5
+    d.submit(KEY, m.encode_meas([sample(12)]))  # late: out of order
+    # publisher restart: seq back to 0, time moves on
+    d.submit(KEY, m.encode_meas([sample(k, t=2000.0 + k * 1e-3) for k in range(3)]))
+    d.process_pending()
+    a = d.status()["actuators"][KEY]
+    assert a["samples"] == 18
+    assert a["gaps"] == 5
+    assert a["bad"] == {"out_of_order": 5, "duplicate": 2}  # seq 9 twice, 5-8 and 12 late
+    assert a["restarts"] == 1
+    ts = [s["t"] for s in mons[KEY].seen]
+    assert ts == sorted(ts) and len(set(ts)) == 18
+    assert any(r[2]["kind"] == "restart" for r in lg.topic("/service"))
+
+
+def test_full_queue_drops_are_counted_per_actuator():
+    d, lg, mons = make(queue_size=3)
+    ok = [d.submit(KEY, m.encode_meas([sample(k)])) for k in range(5)]
+    assert ok == [True, True, True, False, False]
+    d.process_pending()
+    a = d.status()["actuators"][KEY]
+    assert (a["dropped"], a["samples"], a["gaps"]) == (2, 3, 0)
+    assert d.status()["dropped"] == 2
+
+
+def test_alarm_events_are_logged_and_listed_while_active():
+    d, lg, mons = make()
+    d.submit(KEY, m.encode_meas([sample(0), sample(1, p1=2e7), sample(2, p1=2e7)]))
+    d.process_pending()
+    st = d.status()
+    assert [(x["kind"], x["state"]) for x in st["alarms"]] == [("leak", "raised")]
+    assert st["alarms"][0]["actuator"] == "AC001/elevator_L"
+    d.submit(KEY, m.encode_meas([sample(3)]))
+    d.process_pending()
+    assert d.status()["alarms"] == []
+    ev = lg.topic("/AC001/elevator_L/events")
+    assert [(r[2]["state"], r[1]) for r in ev] == [("raised", 1000.001), ("cleared", 1000.003)]
+
+
+def test_silence_detection_and_resume():
+    d, lg, mons = make(silence_s=2.0)
+    d.submit(KEY, m.encode_meas([sample(0)]), t_recv=100.0)
+    d.submit(KEY2, m.encode_meas([sample(0)]), t_recv=101.5)
+    d.process_pending()
+    assert d.check_silence(now=101.9) == []
+    assert d.check_silence(now=102.1) == ["AC001/elevator_L"]
+    assert d.check_silence(now=102.2) == []  # reported once
+    assert d.status()["silent"] == ["AC001/elevator_L"]
+    d.submit(KEY, m.encode_meas([sample(1)]), t_recv=102.5)
+    d.process_pending()
+    assert d.status()["silent"] == []
+    kinds = [r[2]["kind"] for r in lg.topic("/AC001/elevator_L/service")]
+    assert kinds == ["silent", "resumed"]
+
+
+def test_monitor_exception_is_counted_not_fatal():
+    d, lg, mons = make()
+    d.submit(KEY, m.encode_meas([sample(0)]))
+    d.process_pending()
+    mons[KEY].update = lambda s: 1 / 0
+    d.submit(KEY, m.encode_meas([sample(1)]))
+    d.process_pending()
+    st = d.status()
+    assert st["errors"] == 1 and st["actuators"][KEY]["samples"] == 2
+    assert len(lg.topic("/meas")) == 2  # the sample itself is still logged
+
+
+def test_stop_drains_the_queue_and_closes_the_log():
+    d, lg, mons = make()
+    d.start(None)
+    for j in range(0, 1000, 10):
+        d.submit(KEY, m.encode_meas([sample(k) for k in range(j, j + 10)]))
+    final = d.stop()
+    assert final["samples"] == 1000 and lg.closed
+    assert len(lg.topic("/meas")) == 1000
+    assert d.stop()["samples"] == 1000  # idempotent
+
+
+def test_real_monitor_and_mcap_log_round_trip(tmp_path):
+    """The default path: MonitorBank + McapLogger; the log holds every sample and output."""
+    from service.mcaplog import read_log
+
+    cfg = ServiceConfig(rotate_bytes=None, rotate_s=None)
+    path = tmp_path / "d.mcap"
+    d = Daemon(cfg, log_path=path)
+    for j in range(0, 60, 20):
+        d.submit(
+            KEY, m.encode_meas([sample(k, x_j=1e-3, p1=12e6, p2=8e6) for k in range(j, j + 20)])
+        )
+    d.process_pending()
+    final = d.stop()
+    rows = list(read_log(path))
+    meas = [r for r in rows if r[0] == "/fleet/AC001/elevator_L/meas"]
+    est = [r for r in rows if r[0] == "/fleet/AC001/elevator_L/est"]
+    assert [r[2]["seq"] for r in meas] == list(range(60))
+    assert len(est) == final["actuators"][KEY]["outputs"] > 0
+    assert final["actuators"][KEY]["monitor"]["accepted"] == 60
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def test_percentiles_nearest_rank():
+    assert percentiles([]) == [None, None]
+    v = list(range(1, 101))  # 1..100
+    assert percentiles(v, (50, 99, 100)) == [50, 99, 100]
+    assert percentiles([3.0], (50, 99)) == [3.0, 3.0]
+
+
+def test_rate_limited_log_suppresses_and_reports(caplog):
+    rl = RateLimitedLog(logging.getLogger("t"), interval_s=3600)
+    with caplog.at_level(logging.WARNING):
+        assert rl.warning("a", "first %d", 1)
+        assert not rl.warning("a", "second")
+        assert not rl.warning("a", "third")
+        assert rl.warning("b", "other key")
+    assert [r.getMessage() for r in caplog.records] == ["first 1", "other key"]
+    rl._last["a"] -= 7200
+    with caplog.at_level(logging.WARNING):
+        rl.warning("a", "later")
+    assert caplog.records[-1].getMessage() == "later (2 similar suppressed)"
+
+
+def test_sd_notify_sends_a_datagram(tmp_path):
+    path = str(tmp_path / "notify")
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as srv:
+        srv.bind(path)
+        assert sd_notify("READY=1", {"NOTIFY_SOCKET": path})
+        assert srv.recv(64) == b"READY=1"
+    assert not sd_notify("READY=1", {})
+    # abstract namespace: '@' stands for the leading NUL byte
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as srv:
+        srv.bind("\0servowatch-test-notify")
+        assert sd_notify("WATCHDOG=1", {"NOTIFY_SOCKET": "@servowatch-test-notify"})
+        assert srv.recv(64) == b"WATCHDOG=1"
+
+
+def test_watchdog_interval_is_half_the_systemd_period():
+    assert watchdog_interval({"WATCHDOG_USEC": "4000000"}) == pytest.approx(2.0)
+    assert watchdog_interval({}) is None
+    assert watchdog_interval({"WATCHDOG_USEC": "4000000", "WATCHDOG_PID": "1"}) is None
