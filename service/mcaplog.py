@@ -228,7 +228,7 @@ class McapLogger:
             self.message_count += 1
             self._dirty = True
             self._since_check += 1
-            if self._since_check >= 256:
+            if self._since_check >= 64:
                 self._since_check = 0
                 if time.monotonic() - self._last_flush >= self.flush_s:
                     self._flush_locked()

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from service import messages as m
-from service.mcaplog import LogReadStats, McapLogger, TruncatedLogWarning, read_log
+from service.mcaplog import LogReadStats, McapLogger, TruncatedLogWarning, read_log, rotated_files
 from service.monitor import Baseline, MonitorBank, MonitorConfig
 
 __all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
@@ -54,6 +54,7 @@ class ReplaySummary:
     truncated: bool = False
     published: int = 0
     warnings: list[str] = field(default_factory=list)
+    files: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types (non-finite floats as None)."""
@@ -107,6 +108,15 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return {}
 
 
+def _read_files(files: list[Path], stats: LogReadStats):
+    for f in files:
+        st = LogReadStats()
+        yield from read_log(f, stats=st)
+        stats.chunks += st.chunks
+        stats.messages += st.messages
+        stats.truncated = stats.truncated or st.truncated
+
+
 def _parse_topic(topic: str) -> tuple[str, str] | None:
     parts = topic.split("/")
     if len(parts) != 5 or parts[0] != "" or parts[1] != "fleet" or parts[4] != "meas":
@@ -127,6 +137,9 @@ def replay(
 ) -> ReplaySummary:
     """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
 
+    ``log_path`` is a file or, when no such file exists, the base name of a rotation set
+    (``{stem}-NNNN-*.mcap`` beside it, replayed in order).
+
     Parameters
     ----------
     speed : None replays as fast as possible; ``s`` > 0 paces the samples at ``s`` x real time.
@@ -142,9 +155,10 @@ def replay(
     if speed is not None and not speed > 0:
         raise ValueError("speed must be > 0 or None")
     log_path = Path(log_path)
-    if not log_path.exists():
-        raise FileNotFoundError(f"{log_path}: no such log")
-    meta = read_metadata(log_path)
+    files = rotated_files(log_path)
+    if not files:
+        raise FileNotFoundError(f"{log_path}: no such log (nor a rotation set {log_path.stem}-*)")
+    meta = read_metadata(files[0])
     if monitor_config is None and "monitor_config" in meta:
         monitor_config = MonitorConfig.model_validate_json(meta["monitor_config"])
     if baseline is None and "baseline" in meta:
@@ -153,6 +167,7 @@ def replay(
     base = baseline or Baseline.default(cfg.model)
     bank = MonitorBank(cfg, base)
     summary = ReplaySummary(log=str(log_path), out=str(out) if out is not None else None)
+    summary.files = [str(f) for f in files]
     writer = McapLogger(
         out,
         flush_s=1.0,
@@ -205,7 +220,7 @@ def replay(
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TruncatedLogWarning)
         try:
-            for topic, t_log, msg in read_log(log_path, stats=stats):
+            for topic, t_log, msg in _read_files(files, stats):
                 at = _parse_topic(topic)
                 if at is None:
                     continue

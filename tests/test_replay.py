@@ -154,3 +154,17 @@ def test_cli_json_summary(tmp_path, run_rows, capsys):
         main(["replay", str(log), "--speed", "0"])
     with pytest.raises(ValueError):
         replay(log, speed=-1.0)
+
+
+def test_rotation_set_replays_as_one_log(tmp_path, run_rows):
+    rows = run_rows[:200]
+    base = tmp_path / "rot.mcap"
+    kw = {"rotate_bytes": 8_000, "chunk_size": 2_000, "compression": "none"}
+    with McapLogger(base, background_flush=False, **kw) as lg:
+        for d in rows:
+            lg.log(mcap_topic("AC001", "elevator_L", "meas"), d["t"], d)
+    assert len(lg.paths) >= 3 and not base.exists()
+    s = replay(base)
+    assert s.files == [str(p) for p in lg.paths]
+    assert s.samples == 200 and not s.truncated
+    assert s.final["AC001/elevator_L"]["est"] == _direct(rows)[-1].est

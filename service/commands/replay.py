@@ -25,7 +25,9 @@ def _speed(text: str) -> float | None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", help="MCAP log written by `servowatch run` (or by the demo)")
+    p.add_argument(
+        "log", help="MCAP log of `servowatch run` or the demo (or a rotation set's base name)"
+    )
     p.add_argument(
         "--speed", type=_speed, default=None, metavar="max|X",
         help="max (default): as fast as possible; X: X times real time",
@@ -68,8 +70,10 @@ def run(args: argparse.Namespace) -> int:
     from service.replay import replay
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    if not Path(args.log).exists():
-        return fail(f"{args.log}: no such log")
+    from service.mcaplog import rotated_files
+
+    if not rotated_files(args.log):
+        return fail(f"{args.log}: no such log (nor a rotation set {Path(args.log).stem}-*)")
     try:
         cfg = load_config(args.config) if args.config else None
     except ConfigError as e:
