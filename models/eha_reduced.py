@@ -22,8 +22,10 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
+from models.compiled import law_p12
 from models.params import EHAParams
 from models.valve_laws import LAWS
 
@@ -40,6 +42,9 @@ __all__ = [
     "step",
     "measure",
     "ecu_current",
+    "param_vector",
+    "step_nb",
+    "measure_nb",
 ]
 
 STATE_NAMES: tuple[str, ...] = ("x_s", "v_s", "x_j", "v_j", "f_r", "p_sr", "c_lk")
@@ -68,7 +73,7 @@ class ReducedParams(NamedTuple):
     zeta: float = 0.7
     k_p: float = 2.0  # ECU position gain [A/m] (used only when the current is not measured)
     i_max: float = 0.01  # [A]
-    h_max: float = 2.5e-4  # longest internal integration substep [s]
+    h_max: float = 1e-3  # longest internal integration substep [s]
 
 
 def reduced_params(p: EHAParams | None = None, law: str = "C5", **overrides) -> ReducedParams:
@@ -150,14 +155,114 @@ def step(x: NDArray, i: NDArray, dt: NDArray, rp: ReducedParams, n_sub: int) -> 
 def measure(x: NDArray, rp: ReducedParams) -> NDArray:
     """Measurement model (..., 5): x_S, x_J, P1, P2, P_SR.
 
-    P1 = P_R + (P_SR + P12) / 2, P2 = P_R + (P_SR - P12) / 2: exact for a symmetric valve
+    P1 = P_R + (P_SR + P12) / 2, P2 = P_R + (P_SR - P12) / 2 (P12 evaluated with C_Lk >= 0,
+    P_SR >= P_vap): exact for a symmetric valve
     with incompressible chambers (the sum P1 + P2 = P_S + P_R holds for any flow and leakage
     when the four lands are matched, physics.md section 3).
     """
     p_sr = x[..., 5]
-    p12 = p12_state(x[..., 0], x[..., 3], p_sr, x[..., 6], rp)
+    p12 = p12_state(
+        x[..., 0], x[..., 3], np.maximum(p_sr, rp.p_vap), np.maximum(x[..., 6], 0.0), rp
+    )
     half = 0.5 * p_sr
     return np.stack(
         [x[..., 0], x[..., 2], rp.p_r + half + 0.5 * p12, rp.p_r + half - 0.5 * p12, p_sr],
         axis=-1,
     )
+
+
+# -- compiled scalar version (numba), held to the numpy functions above by tests/test_ukf.py --
+(
+    K_G_PQ,
+    K_X_SS,
+    K_P_VAP,
+    K_P_R,
+    K_AREA,
+    K_MASS,
+    K_C_V,
+    K_F_D,
+    K_V_F,
+    K_K_SV,
+    K_X_SM,
+    K_OMEGA_N,
+    K_ZETA,
+    K_K_P,
+    K_I_MAX,
+    K_H_MAX,
+    K_LAW,
+    N_PRM,
+) = range(18)
+
+
+def param_vector(rp: ReducedParams) -> NDArray:
+    """Float64 parameter vector of the compiled kernels (layout: the K_* constants)."""
+    from models.compiled import MODEL_IDS
+
+    a = np.empty(N_PRM)
+    a[K_G_PQ], a[K_X_SS], a[K_P_VAP], a[K_P_R] = rp.g_pq, rp.x_ss, rp.p_vap, rp.p_r
+    a[K_AREA], a[K_MASS], a[K_C_V], a[K_F_D], a[K_V_F] = rp.area, rp.mass, rp.c_v, rp.f_d, rp.v_f
+    a[K_K_SV], a[K_X_SM], a[K_OMEGA_N], a[K_ZETA] = rp.k_sv, rp.x_sm, rp.omega_n, rp.zeta
+    a[K_K_P], a[K_I_MAX], a[K_H_MAX] = rp.k_p, rp.i_max, rp.h_max
+    a[K_LAW] = MODEL_IDS[rp.law]
+    return a
+
+
+@njit(cache=True)
+def _accel_nb(x_s, v_j, f_r, p_sr, c_lk, prm):
+    p12 = law_p12(
+        int(prm[K_LAW]), x_s, prm[K_AREA] * v_j, p_sr, prm[K_G_PQ], prm[K_X_SS], c_lk, prm[K_P_VAP]
+    )
+    f = prm[K_AREA] * p12 - f_r - prm[K_C_V] * v_j - prm[K_F_D] * math.tanh(v_j / prm[K_V_F])
+    return f / prm[K_MASS]
+
+
+@njit(cache=True)
+def step_nb(x, i, dt, n_sub, prm, out):
+    """Scalar ``step`` (same algebra): x (7,) -> out (7,); parameters clipped for evaluation
+    (C_Lk >= 0, P_SR >= P_vap) but copied through unchanged."""
+    x_s, v_s, x_j, v_j = x[0], x[1], x[2], x[3]
+    f_r = x[4]
+    p_sr = max(x[5], prm[K_P_VAP])
+    c_lk = max(x[6], 0.0)
+    h = dt / n_sub
+    w, z = prm[K_OMEGA_N], prm[K_ZETA]
+    sig = z * w
+    wd = w * math.sqrt(1.0 - z * z)
+    e = math.exp(-sig * h)
+    c, s = math.cos(wd * h), math.sin(wd * h)
+    x_sm = prm[K_X_SM]
+    x_ref = min(max(prm[K_K_SV] * i, -x_sm), x_sm)
+    dv = 1e-5
+    for _ in range(n_sub):
+        dx = x_s - x_ref
+        xn = x_ref + e * ((c + sig / wd * s) * dx + s / wd * v_s)
+        v_s = e * (-(w * w) / wd * s * dx + (c - sig / wd * s) * v_s)
+        x_s = min(max(xn, -x_sm), x_sm)
+        a0 = _accel_nb(x_s, v_j, f_r, p_sr, c_lk, prm)
+        a1 = _accel_nb(x_s, v_j + dv, f_r, p_sr, c_lk, prm)
+        jac = min((a1 - a0) / dv, 0.0)
+        v_j = v_j + h * a0 / (1.0 - h * jac)
+        x_j = x_j + h * v_j
+    out[0], out[1], out[2], out[3] = x_s, v_s, x_j, v_j
+    out[4], out[5], out[6] = x[4], x[5], x[6]
+
+
+@njit(cache=True)
+def measure_nb(x, prm, out):
+    """Scalar ``measure``: x (7,) -> out (5,) = x_S, x_J, P1, P2, P_SR."""
+    p_sr = x[5]
+    p12 = law_p12(
+        int(prm[K_LAW]),
+        x[0],
+        prm[K_AREA] * x[3],
+        max(p_sr, prm[K_P_VAP]),
+        prm[K_G_PQ],
+        prm[K_X_SS],
+        max(x[6], 0.0),
+        prm[K_P_VAP],
+    )
+    out[0] = x[0]
+    out[1] = x[2]
+    out[2] = prm[K_P_R] + 0.5 * p_sr + 0.5 * p12
+    out[3] = prm[K_P_R] + 0.5 * p_sr - 0.5 * p12
+    out[4] = p_sr

@@ -11,8 +11,9 @@ that mismatch as a fault, so its effective parameters are identified first on he
    P12 = a P_SR x_S - G_PQ (A v_J + C_Lk P12). Least squares on smoothed x_S, P12 and the
    smoothed derivative of x_J gives the effective pressure gain and G_PQ.
 3. Only 1/G_PQ + C_Lk is identifiable at null, so C_Lk stays at nominal and the residual bias
-   of the monitor's C_Lk estimate on the same healthy data is moved into 1/G_PQ (a few fixed
-   passes), so that a healthy plant reads C_Lk = nominal and a leak reads as an increase.
+   of the monitor's C_Lk estimate on the same healthy data is moved into 1/G_PQ, keeping the
+   flow gain P_SR / (x_SS G_PQ) fixed (a few fixed passes), so that a healthy plant reads
+   C_Lk = nominal and a leak reads as an increase.
 
 ``measured_run`` makes the "recorded log" from a scenario: the HF bench with the scenario's
 sensor noise added (seeded).
@@ -78,7 +79,7 @@ def identify_baseline(
     p_sr = float(p_sr_rated or nom.p_sr_rated)
     t = np.asarray(meas["t"], float)
     dt = float(np.median(np.diff(t)))
-    win = max(5, int(round(0.04 / dt)) | 1)  # 40 ms Savitzky-Golay window, odd
+    win = max(5, int(round(0.2 / dt)) | 1)  # 0.2 s Savitzky-Golay window, odd
     p1, p2 = np.asarray(meas["p1"], float), np.asarray(meas["p2"], float)
     p_r = float(np.mean(0.5 * (p1 + p2)) - 0.5 * p_sr)
     x_s = savgol_filter(np.asarray(meas["x_s"], float), win, 3)
@@ -138,5 +139,8 @@ def calibrate(
         inv_g = 1.0 / base.g_pq + (c_est - base.c_lk)
         # the P_SR estimate is clipped at rated: only correct P_R when it reads low
         p_r = base.p_r + 0.5 * min(p_sr_est - base.p_sr_rated, 0.0)
-        base = base.model_copy(update={"g_pq": 1.0 / max(inv_g, 1e-14), "p_r": p_r})
+        g_new = 1.0 / max(inv_g, 1e-14)
+        # keep the flow gain P_SR / (x_SS G_PQ) fixed: only the sum 1/G_PQ + C_Lk moves
+        x_ss = base.x_ss * base.g_pq / g_new
+        base = base.model_copy(update={"g_pq": g_new, "x_ss": x_ss, "p_r": p_r})
     return base.model_copy(update={"source": "calibrated"})

@@ -22,13 +22,15 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from models import eha_reduced as er
+from models.eha_reduced import step_nb
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
-from service.ukf import BatchUKF, nearest_spd
+from service.ukf import BatchUKF, ukf_step_batch
 
 __all__ = [
     "MeasurementNoise",
@@ -104,6 +106,7 @@ class MonitorConfig(_Cfg):
     nis_tau_s: float = Field(0.2, gt=0, description="time constant of the NIS average [s]")
     nis_reinit: float = Field(30.0, gt=1, description="re-init when mean NIS/dof exceeds this")
     c_lk_max: float = Field(1e-10, gt=0, description="upper clip of C_Lk [m^3/s/Pa]")
+    arm_s: float = Field(0.5, ge=0, description="alarms armed this long after a (re)init [s]")
 
 
 class Baseline(_Cfg):
@@ -124,6 +127,7 @@ class Baseline(_Cfg):
     mass: float = 100.0
     c_v: float = 2000.0
     f_d: float = 400.0
+    v_f: float = 2e-3
     k_sv: float = 0.05
     x_sm: float = 5e-4
     omega_n: float = 2 * math.pi * 150.0
@@ -177,6 +181,7 @@ class Baseline(_Cfg):
             mass=self.mass,
             c_v=self.c_v,
             f_d=self.f_d,
+            v_f=self.v_f,
             k_sv=self.k_sv,
             x_sm=self.x_sm,
             omega_n=self.omega_n,
@@ -274,10 +279,18 @@ class MonitorBank:
         self._use = np.ones(5, bool) if c.channels == "full" else np.array([0, 1, 0, 0, 0], bool)
         # channels whose absence is counted (the supply transducer is optional)
         self._expect = self._use & np.array([1, 1, 1, 1, 0], bool)
+        self._expect_idx = [int(c) for c in np.flatnonzero(self._expect)]
+        self._chan = [
+            (c, name, float(self._zscale[c]))
+            for c, name in enumerate(MEAS_CHANNELS)
+            if self._use[c]
+        ]
         self._p0 = np.array(
             [2e-6, 1e-3, 1e-4, 5e-3, c.init_sigma_f_r, c.init_sigma_p_sr, c.init_sigma_c_lk]
         )
         self.ukf = BatchUKF(_NX, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
+        self._prm = er.param_vector(self.rp)
+        self._p_sr_max = b.p_sr_rated / self.scale[5]
         self.ids: dict[str, int] = {}
         self._alloc(capacity)
 
@@ -290,12 +303,13 @@ class MonitorBank:
         self.t_last = np.full(cap, -np.inf)
         self.i_last = np.zeros(cap)
         self.nis_avg = np.zeros(cap)
+        self.t_init = np.zeros(cap)
         self.alarm = np.zeros((cap, len(ALARM_KINDS)), bool)
         self.pending = np.full((cap, len(ALARM_KINDS)), np.nan)  # since when a change is due
         self.counters: list[dict[str, int]] = [dict.fromkeys(_COUNTERS, 0) for _ in range(cap)]
         self.events_log: list[list[AlarmEvent]] = [[] for _ in range(cap)]
 
-    _ARRAYS = ("x", "P", "ol", "t_last", "i_last", "nis_avg", "alarm", "pending")
+    _ARRAYS = ("x", "P", "ol", "t_last", "i_last", "nis_avg", "t_init", "alarm", "pending")
 
     def _grow(self) -> None:
         n_old = len(self.x)
@@ -340,37 +354,42 @@ class MonitorBank:
 
     # -- core ----------------------------------------------------------------------------
     def _parse(self, k: int, s: Mapping):
+        """(t, z list (scaled), mask list, i, x_cmd) or None (counted)."""
         cnt = self.counters[k]
         t = _f(s.get("t"))
         if t is None:
             cnt["skipped_nan"] += 1
             return None
-        z = np.zeros(5)
-        mask = np.zeros(5, bool)
-        for c, name in enumerate(MEAS_CHANNELS):
-            if not self._use[c]:
-                continue
+        z = [0.0] * 5
+        mask = [False] * 5
+        bad = 0
+        for c, name, zs in self._chan:
             raw = s.get(name)
+            if raw is None:
+                continue
             v = _f(raw)
             if v is None:
-                if name in s and raw is not None:
-                    cnt["bad_channel"] += 1
+                bad += 1
                 continue
-            z[c] = v / self._zscale[c]
+            z[c] = v / zs
             mask[c] = True
         i = _f(s.get("i"))
         if i is None and s.get("i") is not None:
-            cnt["bad_channel"] += 1
+            bad += 1
         x_cmd = _f(s.get("x_cmd"))
         if x_cmd is None and s.get("x_cmd") is not None:
-            cnt["bad_channel"] += 1
-        if not mask.any() and i is None and x_cmd is None:
+            bad += 1
+        if bad:
+            cnt["bad_channel"] += bad
+        if not any(mask) and i is None and x_cmd is None:
             cnt["skipped_nan"] += 1
             return None
         if t <= self.t_last[k]:
             cnt["skipped_time"] += 1
             return None
-        cnt["missing_channel"] += int((self._expect & ~mask).sum())
+        miss = sum(1 for c in self._expect_idx if not mask[c])
+        if miss:
+            cnt["missing_channel"] += miss
         return t, z, mask, i, x_cmd
 
     def _init_state(self, k: int, z: NDArray, mask: NDArray, i, x_cmd) -> None:
@@ -395,7 +414,7 @@ class MonitorBank:
         self.nis_avg[k] = 0.0
 
     def _fx(self, sig_si: NDArray, i: NDArray, dt: NDArray) -> NDArray:
-        """Process model on SI points (B, K, 7), constraints applied for evaluation only."""
+        """Numpy process model on SI points (B, K, 7) (reference path, used by tests)."""
         ev = sig_si.copy()
         ev[..., 6] = np.maximum(ev[..., 6], 0.0)
         ev[..., 5] = np.maximum(ev[..., 5], self.rp.p_vap)
@@ -405,7 +424,7 @@ class MonitorBank:
         return out
 
     def _round(self, items: list[tuple[str, Mapping]], slots: list[int], out: list) -> None:
-        cfg, b = self.config, self.baseline
+        cfg = self.config
         idx, parsed, slot_of = [], [], []
         for (key, s), slot in zip(items, slots, strict=True):
             k = self._index(key)
@@ -416,11 +435,15 @@ class MonitorBank:
             if not math.isfinite(self.t_last[k]) or t - self.t_last[k] > cfg.max_gap_s:
                 if math.isfinite(self.t_last[k]):
                     self.counters[k]["gap"] += 1
-                self._init_state(k, p[1], p[2], p[3], p[4])
+                z1, m1 = np.array([p[1]]), np.array([p[2]], bool)
+                self._init_state(k, z1[0], m1[0], p[3], p[4])
                 self.t_last[k] = t
+                self.t_init[k] = t
                 self.i_last[k] = p[3] if p[3] is not None else 0.0
                 self.counters[k]["accepted"] += 1
-                out[slot] = self._output(k, t, p[1], p[2], np.zeros(5), 0.0, [])
+                out[slot] = self._outputs(
+                    np.array([k]), np.array([t]), z1, m1, np.zeros((1, 5)), np.zeros(1), [[]]
+                )[0]
                 continue
             idx.append(k)
             parsed.append(p)
@@ -430,120 +453,143 @@ class MonitorBank:
         ks = np.array(idx)
         B = len(ks)
         t = np.array([p[0] for p in parsed])
-        z = np.stack([p[1] for p in parsed])
-        mask = np.stack([p[2] for p in parsed])
+        z = np.array([p[1] for p in parsed])
+        mask = np.array([p[2] for p in parsed], bool)
         dt = t - self.t_last[ks]
         x, P = self.x[ks], self.P[ks]
         # inputs: measured current, else the ECU law on the command and the estimated x_J
-        i_f = np.empty(B)
-        i_ol = np.empty(B)
-        for j, p in enumerate(parsed):
-            k = ks[j]
-            i_meas, x_cmd = p[3], p[4]
-            if i_meas is not None:
-                i_f[j] = i_meas
-            elif x_cmd is not None:
-                i_f[j] = er.ecu_current(x_cmd, x[j, 2] * self.scale[2], self.rp)
-            else:
-                i_f[j] = self.i_last[k]
-            if x_cmd is not None:
-                i_ol[j] = er.ecu_current(x_cmd, self.ol[k, 2], self.rp)
-            else:
-                i_ol[j] = i_f[j]
-            self.i_last[k] = i_f[j]
-        # sigma points; repair a covariance that lost definiteness
-        try:
-            sig = self.ukf.sigma_points(x, P)
-        except np.linalg.LinAlgError:
-            P = nearest_spd(P, 1e-12)
-            sig = self.ukf.sigma_points(x, P)
-        K = sig.shape[1]
-        # one model call: every sigma point of every actuator plus the open-loop model
-        ol = self.ol[ks].copy()
-        ol[:, 4] = x[:, 4] * self.scale[4]  # parallel model takes the estimated load
-        pts = np.concatenate([sig * self.scale, ol[:, None, :]], axis=1)
-        ins = np.concatenate([np.repeat(i_f[:, None], K, axis=1), i_ol[:, None]], axis=1)
-        moved = self._fx(pts, ins, dt)
-        sig_f = moved[:, :K] / self.scale
-        self.ol[ks] = moved[:, K]
-        xp, Pp, _ = self.ukf.unscented_transform(sig_f, np.diag(self._q)[None] * dt[:, None, None])
-        res = self.ukf.update(
-            sig_f,
-            xp,
-            Pp,
-            lambda s: er.measure(s * self.scale, self.rp) / self._zscale,
-            z,
-            self.R,
-            mask,
-        )
-        xn, Pn = res.x, 0.5 * (res.P + np.swapaxes(res.P, 1, 2))
+        rp = self.rp
+        nan = math.nan
+        i_m = np.array([nan if p[3] is None else p[3] for p in parsed])
+        x_c = np.array([nan if p[4] is None else p[4] for p in parsed])
+        ecu = np.clip(rp.k_p * (x_c - x[:, 2] * self.scale[2]), -rp.i_max, rp.i_max)
+        i_f = np.where(np.isnan(i_m), np.where(np.isnan(x_c), self.i_last[ks], ecu), i_m)
+        ecu_ol = np.clip(rp.k_p * (x_c - self.ol[ks, 2]), -rp.i_max, rp.i_max)
+        i_ol = np.where(np.isnan(x_c), i_f, ecu_ol)
+        self.i_last[ks] = i_f
+        n_sub = np.maximum(np.ceil(dt / rp.h_max - 1e-9), 1).astype(np.int64)
+        y = np.zeros((B, 5))
+        nis = np.zeros(B)
+        status = np.zeros(B, np.int64)
+        w = self.ukf.w
+        ukf_step_batch(
+            x, P, z, mask, i_f, dt, n_sub, self._q, self.R, self.scale, self._zscale,
+            w.Wm, w.Wc, w.c, self._prm, y, nis, status,
+        )  # fmt: skip
+        # the parallel (open-loop) model: same simplified model, driven by the command
+        ol = self.ol[ks]
+        ol[:, 4] = x[:, 4] * self.scale[4]  # it takes the estimated (unmeasured) load
+        _ol_step_batch(ol, i_ol, dt, n_sub, self._prm)
+        self.ol[ks] = ol
         # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
-        xn[:, 6] = np.clip(xn[:, 6], 0.0, cfg.c_lk_max / self.scale[6])
-        xn[:, 5] = np.clip(xn[:, 5], self.rp.p_vap / self.scale[5], b.p_sr_rated / self.scale[5])
-        # divergence: mean NIS per channel, exponentially averaged
-        dof = np.maximum(res.dof, 1.0)
+        x[:, 6] = np.clip(x[:, 6], 0.0, cfg.c_lk_max / self.scale[6])
+        x[:, 5] = np.clip(x[:, 5], rp.p_vap / self.scale[5], self._p_sr_max)
+        # divergence: NIS per channel, exponentially averaged
+        dof = np.maximum(mask.sum(axis=1), 1)
         a = 1.0 - np.exp(-dt / cfg.nis_tau_s)
-        nis_avg = self.nis_avg[ks] + a * (res.nis / dof - self.nis_avg[ks])
-        bad = ~(np.isfinite(xn).all(axis=1) & np.isfinite(Pn).all(axis=(1, 2)))
+        nis_avg = self.nis_avg[ks] + a * (nis / dof - self.nis_avg[ks])
+        bad = (status == 2) | ~(np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2)))
+        bad |= ~np.isfinite(nis_avg)
         diverged = nis_avg > cfg.nis_reinit
-        self.x[ks], self.P[ks], self.t_last[ks], self.nis_avg[ks] = xn, Pn, t, nis_avg
-        for j, k in enumerate(ks):
-            k = int(k)
-            evs: list[AlarmEvent] = []
-            if bad[j] or diverged[j]:
-                keep = self.x[k].copy()
-                self._init_state(k, z[j], mask[j], parsed[j][3], parsed[j][4])
-                if not bad[j]:  # keep the parameter estimates, reset the covariance
-                    self.x[k, 4:] = keep[4:]
-                self.counters[k]["reinit"] += 1
-                evs.append(AlarmEvent(float(t[j]), "reinit", "raised", float(nis_avg[j])))
+        self.x[ks], self.P[ks], self.t_last[ks] = x, P, t
+        self.nis_avg[ks] = np.where(bad, 0.0, nis_avg)
+        evs: list[list[AlarmEvent]] = [[] for _ in range(B)]
+        for j in np.flatnonzero(bad | diverged):
+            k = int(ks[j])
+            keep = self.x[k].copy()
+            self._init_state(k, z[j], mask[j], parsed[j][3], parsed[j][4])
+            if not bad[j]:  # keep the parameter estimates, restart the covariance
+                self.x[k, 4:] = keep[4:]
+            y[j] = 0.0
+            nis[j] = 0.0
+            self.counters[k]["reinit"] += 1
+            self.t_init[k] = t[j]
+            value = float(nis_avg[j]) if math.isfinite(nis_avg[j]) else 0.0
+            evs[j].append(AlarmEvent(float(t[j]), "reinit", "raised", value))
+        for k in ks:
             self.counters[k]["accepted"] += 1
-            out[slot_of[j]] = self._output(
-                k, float(t[j]), z[j], mask[j], res.y[j], float(res.nis[j]), evs
-            )
+        outs = self._outputs(ks, t, z, mask, y, nis, evs)
+        for j, o in enumerate(outs):
+            out[slot_of[j]] = o
 
-    def _output(
-        self, k: int, t: float, z: NDArray, mask: NDArray, y: NDArray, nis: float, evs
-    ) -> MonitorOutput:
-        b, cfg, sc = self.baseline, self.config.alarms, self.scale
-        xs = self.x[k] * sc
-        sd = np.sqrt(np.maximum(np.diagonal(self.P[k]), 0.0)) * sc
-        est = {}
-        for j, name in enumerate(er.STATE_NAMES):
-            est[name] = float(xs[j])
-            est[name + "_sigma"] = float(sd[j])
-        est["p12"] = float(er.p12_state(xs[0], xs[3], xs[5], xs[6], self.rp))
-        est["c_lk_increase"] = float(xs[6] - b.c_lk)
-        zs = self._zscale
-        res = {f"innov_{c}": float(y[j] * zs[j]) for j, c in enumerate(MEAS_CHANNELS)}
-        res["nis"] = float(nis) if math.isfinite(nis) else 0.0
-        res["nis_dof"] = float(mask.sum())
-        olm = er.measure(self.ol[k], self.rp)
-        for j, c in enumerate(MEAS_CHANNELS):
-            res[f"ol_{c}"] = float(z[j] * zs[j] - olm[j]) if mask[j] else 0.0
-        leak_ratio = float(xs[6] / b.c_lk) if b.c_lk > 0 else 0.0
-        supply_ratio = float(xs[5] / b.p_sr_rated)
-        health = {"leak_ratio": leak_ratio, "supply_ratio": supply_ratio}
-        # alarms with hysteresis and persistence
-        cond_raise = (leak_ratio >= cfg.leak_raise, supply_ratio <= cfg.supply_raise)
-        cond_clear = (leak_ratio <= cfg.leak_clear, supply_ratio >= cfg.supply_clear)
-        values = (leak_ratio, supply_ratio)
-        for a, kind in enumerate(ALARM_KINDS):
-            on = self.alarm[k, a]
-            want = cond_clear[a] if on else cond_raise[a]
-            if want:
-                if math.isnan(self.pending[k, a]):
-                    self.pending[k, a] = t
-                if t - self.pending[k, a] >= cfg.hold_s - 1e-12:
-                    self.alarm[k, a] = not on
-                    self.pending[k, a] = np.nan
-                    evs.append(AlarmEvent(t, kind, "cleared" if on else "raised", values[a]))
-            else:
-                self.pending[k, a] = np.nan
-            health[f"alarm_{kind}"] = float(self.alarm[k, a])
-        health["nis_avg"] = float(self.nis_avg[k])
-        self.events_log[k].extend(evs)
-        return MonitorOutput(t=t, est=est, res=res, health=health, events=evs)
+    def _outputs(self, ks, t, z, mask, y, nis, evs) -> list[MonitorOutput]:
+        b, acfg, sc, zs = self.baseline, self.config.alarms, self.scale, self._zscale
+        xs = self.x[ks] * sc
+        sd = np.sqrt(np.maximum(np.diagonal(self.P[ks], axis1=1, axis2=2), 0.0)) * sc
+        p12 = er.p12_state(
+            xs[:, 0],
+            xs[:, 3],
+            np.maximum(xs[:, 5], self.rp.p_vap),
+            np.maximum(xs[:, 6], 0),
+            self.rp,
+        )
+        est = np.empty((len(ks), 2 * _NX + 2))
+        est[:, 0 : 2 * _NX : 2] = xs
+        est[:, 1 : 2 * _NX : 2] = sd
+        est[:, -2] = p12
+        est[:, -1] = xs[:, 6] - b.c_lk
+        olm = er.measure(self.ol[ks], self.rp)
+        res = np.zeros((len(ks), 2 * 5 + 2))
+        res[:, 0:5] = y * zs
+        res[:, 5] = nis
+        res[:, 6] = mask.sum(axis=1)
+        res[:, 7:12] = np.where(mask, z * zs - olm, 0.0)
+        n = len(ks)
+        leak_ratio = xs[:, 6] / b.c_lk if b.c_lk > 0 else np.zeros(n)
+        supply_ratio = xs[:, 5] / b.p_sr_rated
+        # alarms with hysteresis (raise/clear levels) and persistence (hold_s), vectorised
+        values = np.stack([leak_ratio, supply_ratio], axis=1)
+        raise_ = np.stack([leak_ratio >= acfg.leak_raise, supply_ratio <= acfg.supply_raise], 1)
+        clear_ = np.stack([leak_ratio <= acfg.leak_clear, supply_ratio >= acfg.supply_clear], 1)
+        on = self.alarm[ks]
+        armed = (t - self.t_init[ks] >= self.config.arm_s)[:, None]
+        want = np.where(on, clear_, raise_) & armed
+        pend = self.pending[ks]
+        pend = np.where(want, np.where(np.isnan(pend), t[:, None], pend), np.nan)
+        fire = want & (t[:, None] - pend >= acfg.hold_s - 1e-12)
+        self.alarm[ks] = on ^ fire
+        self.pending[ks] = np.where(fire, np.nan, pend)
+        for j, a in zip(*np.nonzero(fire), strict=True):
+            state = "cleared" if on[j, a] else "raised"
+            evs[j].append(AlarmEvent(float(t[j]), ALARM_KINDS[a], state, float(values[j, a])))
+        health = np.empty((n, 5))
+        health[:, 0:2] = values
+        health[:, 2:4] = self.alarm[ks]
+        health[:, 4] = self.nis_avg[ks]
+        est_l, res_l, h_l, t_l = est.tolist(), res.tolist(), health.tolist(), t.tolist()
+        out = []
+        for j, k in enumerate(ks.tolist()):
+            ev = evs[j]
+            if ev:
+                self.events_log[k].extend(ev)
+            out.append(
+                MonitorOutput(
+                    t=t_l[j],
+                    est=dict(zip(_EST_KEYS, est_l[j], strict=True)),
+                    res=dict(zip(_RES_KEYS, res_l[j], strict=True)),
+                    health=dict(zip(_HEALTH_KEYS, h_l[j], strict=True)),
+                    events=ev,
+                )
+            )
+        return out
+
+
+_EST_KEYS = tuple([k for n in er.STATE_NAMES for k in (n, n + "_sigma")] + ["p12", "c_lk_increase"])
+_HEALTH_KEYS = (
+    ("leak_ratio", "supply_ratio") + tuple(f"alarm_{k}" for k in ALARM_KINDS) + ("nis_avg",)
+)
+_RES_KEYS = tuple(
+    [f"innov_{c}" for c in MEAS_CHANNELS] + ["nis", "nis_dof"] + [f"ol_{c}" for c in MEAS_CHANNELS]
+)
+
+
+@njit(cache=True)
+def _ol_step_batch(ol, i_in, dt, n_sub, prm):
+    """Advance the parallel-model states (B, 7) in place."""
+    tmp = np.empty(ol.shape[1])
+    for b in range(ol.shape[0]):
+        step_nb(ol[b], i_in[b], dt[b], n_sub[b], prm, tmp)
+        ol[b, :] = tmp
 
 
 class Monitor:

@@ -14,14 +14,25 @@ changes neither x nor P and adds nothing to the NIS.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints
+from numba import njit
 from numpy.typing import NDArray
 
-__all__ = ["SigmaWeights", "merwe_weights", "BatchUKF", "UpdateResult", "nearest_spd"]
+from models.eha_reduced import measure_nb, step_nb
+
+__all__ = [
+    "SigmaWeights",
+    "merwe_weights",
+    "BatchUKF",
+    "UpdateResult",
+    "nearest_spd",
+    "ukf_step_batch",
+]
 
 
 @dataclass(frozen=True)
@@ -132,3 +143,179 @@ class BatchUKF:
         return UpdateResult(
             x=xn, P=Pn, y=y, S=S, zp=zp, nis=nis, dof=mask.sum(axis=1).astype(float)
         )
+
+
+# -- compiled kernel: one UKF step (predict + masked update) for each of B actuators --------
+# The model is models.eha_reduced (step_nb / measure_nb). tests/test_ukf.py holds this kernel
+# to BatchUKF with the numpy model, and BatchUKF to filterpy.
+
+
+@njit(cache=True)
+def _chol(A, L):
+    """Lower Cholesky factor of A into L; False when A is not positive definite."""
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not (s > 0.0):
+            return False
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            t = A[i, j]
+            for k in range(j):
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / d
+        for i in range(j):
+            L[i, j] = 0.0
+    return True
+
+
+@njit(cache=True)
+def _chol_solve(L, b, out):
+    """Solve (L L^T) out = b."""
+    n = L.shape[0]
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i, k] * out[k]
+        out[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):
+        s = out[i]
+        for k in range(i + 1, n):
+            s -= L[k, i] * out[k]
+        out[i] = s / L[i, i]
+
+
+@njit(cache=True)
+def ukf_step_batch(
+    x, P, z, mask, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, y_out, nis_out, status
+):
+    """Advance B filters in place. Scaled state x (B, n), P (B, n, n); measurements z (B, m)
+    in scaled units with mask (B, m); inputs i_in (B,), dt (B,); process noise intensities
+    q (n,) (Q = diag(q) dt); R (m, m). Writes innovations y_out (B, m), NIS nis_out (B,) and
+    status (B,): 0 ok, 1 covariance repaired with jitter, 2 failed (caller re-initialises)."""
+    B, n = x.shape
+    m = z.shape[1]
+    K = 2 * n + 1
+    A = np.empty((n, n))
+    L = np.empty((n, n))
+    sig = np.empty((K, n))
+    sig_f = np.empty((K, n))
+    zs = np.empty((K, m))
+    xs = np.empty(n)
+    xo = np.empty(n)
+    zo = np.empty(m)
+    xm = np.empty(n)
+    zm = np.empty(m)
+    S = np.empty((m, m))
+    LS = np.empty((m, m))
+    Pxz = np.empty((n, m))
+    Kg = np.empty((n, m))
+    col = np.empty(m)
+    sol = np.empty(m)
+    yv = np.empty(m)
+    for b in range(B):
+        status[b] = 0
+        for r in range(n):
+            for s_ in range(n):
+                A[r, s_] = c * P[b, r, s_]
+        if not _chol(A, L):
+            for r in range(n):
+                A[r, r] += c * 1e-9
+            if not _chol(A, L):
+                status[b] = 2
+                continue
+            status[b] = 1
+        # sigma points: x, x + rows of U = L^T (columns of L), x - ...
+        for r in range(n):
+            sig[0, r] = x[b, r]
+        for k in range(n):
+            for r in range(n):
+                sig[1 + k, r] = x[b, r] + L[r, k]
+                sig[1 + n + k, r] = x[b, r] - L[r, k]
+        # propagate through the model (SI units)
+        for k in range(K):
+            for r in range(n):
+                xs[r] = sig[k, r] * scale[r]
+            step_nb(xs, i_in[b], dt[b], n_sub[b], prm, xo)
+            for r in range(n):
+                sig_f[k, r] = xo[r] / scale[r]
+            measure_nb(xo, prm, zo)
+            for r in range(m):
+                zs[k, r] = zo[r] / zscale[r]
+        # unscented transform
+        for r in range(n):
+            acc = 0.0
+            for k in range(K):
+                acc += Wm[k] * sig_f[k, r]
+            xm[r] = acc
+        for r in range(m):
+            acc = 0.0
+            for k in range(K):
+                acc += Wm[k] * zs[k, r]
+            zm[r] = acc
+        for r in range(n):
+            for s_ in range(n):
+                acc = 0.0
+                for k in range(K):
+                    acc += Wc[k] * (sig_f[k, r] - xm[r]) * (sig_f[k, s_] - xm[s_])
+                P[b, r, s_] = acc
+            P[b, r, r] += q[r] * dt[b]
+        for r in range(m):
+            for s_ in range(m):
+                acc = 0.0
+                for k in range(K):
+                    acc += Wc[k] * (zs[k, r] - zm[r]) * (zs[k, s_] - zm[s_])
+                S[r, s_] = acc + R[r, s_]
+        for r in range(n):
+            for s_ in range(m):
+                acc = 0.0
+                for k in range(K):
+                    acc += Wc[k] * (sig_f[k, r] - xm[r]) * (zs[k, s_] - zm[s_])
+                Pxz[r, s_] = acc
+        # masked channels: no innovation, no cross-covariance, unit diagonal
+        for r in range(m):
+            if mask[b, r]:
+                yv[r] = z[b, r] - zm[r]
+            else:
+                yv[r] = 0.0
+                for s_ in range(m):
+                    S[r, s_] = 0.0
+                    S[s_, r] = 0.0
+                S[r, r] = 1.0
+                for s_ in range(n):
+                    Pxz[s_, r] = 0.0
+        if not _chol(S, LS):
+            status[b] = 2
+            continue
+        # K = Pxz S^-1 (row by row: S k_r = Pxz[r])
+        for r in range(n):
+            for s_ in range(m):
+                col[s_] = Pxz[r, s_]
+            _chol_solve(LS, col, sol)
+            for s_ in range(m):
+                Kg[r, s_] = sol[s_]
+        _chol_solve(LS, yv, sol)
+        nis = 0.0
+        for r in range(m):
+            nis += yv[r] * sol[r]
+        nis_out[b] = nis
+        for r in range(m):
+            y_out[b, r] = yv[r]
+        for r in range(n):
+            acc = 0.0
+            for s_ in range(m):
+                acc += Kg[r, s_] * yv[s_]
+            x[b, r] = xm[r] + acc
+        # P -= K S K^T = K Pxz^T, symmetrised
+        for r in range(n):
+            for s_ in range(n):
+                acc = 0.0
+                for k in range(m):
+                    acc += Kg[r, k] * Pxz[s_, k]
+                A[r, s_] = P[b, r, s_] - acc
+        for r in range(n):
+            for s_ in range(n):
+                P[b, r, s_] = 0.5 * (A[r, s_] + A[s_, r])
