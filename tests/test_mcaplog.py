@@ -202,3 +202,58 @@ def test_corrupt_chunk_stops_with_warning(tmp_path):
         got = list(read_log(q))
     assert 0 < len(got) < len(full)
     assert got == full[: len(got)]
+
+
+_WRITER = """
+import sys, time
+sys.path.insert(0, {root!r})
+from service.mcaplog import McapLogger
+lg = McapLogger({path!r}, flush_s=0.5)
+k = 0
+t0 = time.time()
+while True:
+    t = time.time()
+    lg.log("/fleet/AC001/elevator_L/meas", t, {{"seq": k, "t": t}})
+    k += 1
+    if k % 50 == 0:
+        print(k, t, flush=True)
+    time.sleep(0.001)
+"""
+
+
+@pytest.mark.slow
+def test_kill_9_loses_at_most_about_one_flush_period(tmp_path):
+    """A writer killed with SIGKILL leaves every chunk flushed up to ~flush_s before."""
+    import subprocess
+    import sys
+
+    root = str(Path(__file__).resolve().parent.parent)
+    p = tmp_path / "killed.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _WRITER.format(root=root, path=str(p))],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    last = None
+    try:
+        assert proc.stdout is not None
+        t_end = None
+        for line in proc.stdout:
+            k, t = line.split()
+            last = (int(k), float(t))
+            if t_end is None:
+                t_end = float(t) + 2.5
+            if float(t) >= t_end:
+                break
+    finally:
+        proc.kill()
+        proc.wait(10)
+    assert last is not None
+    st = LogReadStats()
+    with pytest.warns(TruncatedLogWarning):
+        got = list(read_log(p, stats=st))
+    seqs = [m["seq"] for _, _, m in got]
+    assert seqs == list(range(len(seqs)))  # a gapless prefix
+    assert len(seqs) > 0
+    lost_s = last[1] - got[-1][2]["t"]
+    assert lost_s <= 0.5 + 1.0  # flush_s plus scheduling slack
