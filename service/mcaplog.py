@@ -300,6 +300,12 @@ class McapLogger:
                     self._flush_locked()
                 self._maybe_rotate()
 
+    def log_many(self, records: Iterable[tuple[str, float, Mapping[str, Any]]]) -> None:
+        """:meth:`log` for each ``(topic, t, msg)``, taking the lock once (fewer switches)."""
+        with self._lock:
+            for topic, t, msg in records:
+                self.log(topic, t, msg)
+
     def _flush_locked(self) -> None:
         if self._writer is not None and self._dirty:
             self._writer.flush()  # ends the chunk in progress and flushes the stream

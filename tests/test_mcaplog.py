@@ -285,3 +285,13 @@ def test_fast_writer_writes_the_same_bytes_as_mcap_writer():
     fast = _FastWriter(io.BytesIO())
     assert fast._fast  # the fast path is active with the installed mcap
     assert run(_FastWriter) == run(Writer)
+
+
+def test_log_many_equals_log(tmp_path):
+    recs = [(MEAS, _meas(k)["t"], _meas(k)) for k in range(100)]
+    with McapLogger(tmp_path / "a.mcap", background_flush=False) as a:
+        for r in recs:
+            a.log(*r)
+    with McapLogger(tmp_path / "b.mcap", background_flush=False) as b:
+        b.log_many(recs)
+    assert list(read_log(tmp_path / "a.mcap")) == list(read_log(tmp_path / "b.mcap"))
