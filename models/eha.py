@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from models import compiled as C
+from models import compiled as kern
 from models.hf_valve import hf_static_pressures, orifice_slope
 from models.params import EHAParams, simplified_params
 from models.scenario import Scenario
@@ -79,7 +79,7 @@ class SimResult:
 
 def _check_valve(valve: str) -> int:
     try:
-        return C.MODEL_IDS[valve]
+        return kern.MODEL_IDS[valve]
     except KeyError:
         raise ValueError(f"unknown valve model {valve!r}; expected one of {VALVE_MODELS}") from None
 
@@ -97,7 +97,7 @@ def n_substeps(params: EHAParams, valve: str, step_s: float) -> int:
         1.0 / p.tau_tm,
         2.0 * p.omega_n,
         math.sqrt(p.k_stop / p.mass) + p.c_stop / p.mass,
-        1.0 / C.TAU_STICK,
+        1.0 / kern.TAU_STICK,
     ]
     if valve == "HF":
         a_max = max(abs(p.u1), abs(p.u2), abs(p.u3), abs(p.u4)) + p.x_sm
@@ -114,7 +114,7 @@ def initial_state(
 ) -> NDArray:
     """Rest state: I = 0, spool centred, jack at x_j at rest; HF chambers at the null balance
     pressures of ``hf_static_pressures(0, 0, p_sr)`` (about (P_S + P_R)/2 for a symmetric valve)."""
-    y = np.zeros(C.N_STATE)
+    y = np.zeros(kern.N_STATE)
     y[3] = x_j
     if valve == "HF":
         p1, p2 = hf_static_pressures(0.0, 0.0, p_sr, params, c_lk)
@@ -187,7 +187,7 @@ def simulate(
     if out_every < 1:
         raise ValueError("out_every must be >= 1")
     params = params or scenario.eha_params()
-    prm = C.param_array(params)
+    prm = kern.param_array(params)
     h = scenario.step_s
     n_steps = scenario.n_steps()
     n_sub = n_substeps(params, valve, h)
@@ -195,7 +195,7 @@ def simulate(
     t_out = np.arange(n_out) * (out_every * h)
     u0 = _inputs_matrix(scenario, params, np.array([0.5 * h]))[0]
     y = initial_state(params, valve, float(u0[2]), float(u0[3]))
-    states = np.empty((n_out, C.N_STATE))
+    states = np.empty((n_out, kern.N_STATE))
     states[0] = y
     # chunks: a whole number of output intervals, about 0.05-0.2 s of wall time each
     chunk = max(out_every, (20000 // out_every) * out_every)
@@ -207,7 +207,7 @@ def simulate(
         t_mid = (k + np.arange(m) + 0.5) * h
         u = _inputs_matrix(scenario, params, t_mid)
         out = states[1 + k // out_every :]
-        C.integrate(y, h, n_sub, m, u, prm, model, out_every, out)
+        kern.integrate(y, h, n_sub, m, u, prm, model, out_every, out)
         k += m
         if progress is not None:
             now = time.perf_counter()
@@ -244,12 +244,12 @@ class EHAStepper:
         self.valve = valve
         self.params = params
         self.step_s = float(step_s)
-        self._prm = C.param_array(params)
+        self._prm = kern.param_array(params)
         self._n_sub = n_substeps(params, valve, self.step_s)
         self._y: NDArray | None = None
         self._u = np.zeros((1, 4))
         self._u[0] = (0.0, 0.0, params.p_sr, params.c_lk)
-        self._out = np.empty((1, C.N_STATE))
+        self._out = np.empty((1, kern.N_STATE))
         self.t: float = 0.0
         self._k = 0
 
@@ -274,7 +274,7 @@ class EHAStepper:
             self._y = initial_state(self.params, self.valve, self._u[0, 2], self._u[0, 3])
         if n_steps <= 0:
             return
-        C.integrate(
+        kern.integrate(
             self._y, self.step_s, self._n_sub, int(n_steps), self._u, self._prm, self.model,
             int(n_steps) + 1, self._out,
         )  # fmt: skip
