@@ -330,7 +330,10 @@ class VirtualActuator:
                 ok = True
             except FaultRefused as e:
                 msg, ok = f"refused: {e}", False
-            return ok, msg, self.faults.active(t, u["c_lk"], u["p_sr"])
+            active = self.faults.active(t, u["c_lk"], u["p_sr"])
+            for d in active:  # when (sample clock) the actuator answered this command
+                d["t_ack"] = self.t_origin + t
+            return ok, msg, active
 
     # -- simulation ----------------------------------------------------------------------
     def produce(self, n: int) -> list[dict[str, float | None]]:

@@ -442,6 +442,7 @@ class Daemon:
         self.actuators: dict[str, ActuatorState] = {}
         self.unknown: dict[str, int] = {}  # reason -> count, for keys that name no actuator
         self._queue: deque = deque()
+        self._arrival: dict[str, float] = {}  # key -> time.monotonic() of the last message
         self._wake = threading.Event()
         self._lock = threading.Lock()  # guards self.actuators structure + status snapshot
         self._stop = threading.Event()
@@ -468,7 +469,9 @@ class Daemon:
         if len(self._queue) >= self.queue_size:
             self._count_drop(key)
             return False
-        self._queue.append((key, payload, time.monotonic() if t_recv is None else t_recv))
+        t_recv = time.monotonic() if t_recv is None else t_recv
+        self._arrival[key] = t_recv  # for silence detection, even while the worker lags
+        self._queue.append((key, payload, t_recv))
         n = len(self._queue)
         if n > self.queue_high:
             self.queue_high = n
@@ -650,11 +653,12 @@ class Daemon:
         """Mark actuators silent after ``silence_s`` without a message; return new ones."""
         now = time.monotonic() if now is None else now
         out = []
-        for st in list(self.actuators.values()):
-            if not st.silent and st.last_recv is not None and now - st.last_recv > self.silence_s:
+        for key, st in list(self.actuators.items()):
+            last = self._arrival.get(key, st.last_recv)
+            if not st.silent and last is not None and now - last > self.silence_s:
                 st.silent = True
                 out.append(st.name)
-                self._service_event(st, "silent", st.last_t, value=now - st.last_recv)
+                self._service_event(st, "silent", st.last_t, value=now - last)
         return out
 
     def _run_worker(self) -> None:

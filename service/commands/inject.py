@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="the fault clears itself after this long [s]",
     )
-    p.add_argument("--timeout", type=float, default=3.0, help="reply timeout [s]")
+    p.add_argument("--timeout", type=float, default=10.0, help="reply timeout [s]")
     p.add_argument("--json", action="store_true", help="print the acknowledgement as JSON")
     add_zenoh_arguments(p)
 
@@ -92,5 +92,5 @@ def run(args: argparse.Namespace) -> int:
         for f in ack.active:
             print("  active:", f)
     if not ack.ok:
-        print(f"servowatch: fault refused: {ack.message}", file=sys.stderr)
+        print(f"servowatch: {ack.message}", file=sys.stderr)
     return 0 if ack.ok else 1

@@ -1,0 +1,335 @@
+"""Benchmark: does the monitoring daemon keep up with N actuators at R Hz, with no drop?
+
+Three processes on loopback (a Zenoh router in this process):
+
+* a load generator (child process) publishing pre-computed samples of the virtual actuator
+  (``scenarios/demo.toml``, HF bench with sensor noise), ``--spm`` samples per message,
+  paced by the wall clock, bounded in count and time;
+* the daemon (child process): ``service.daemon.Daemon`` exactly as ``servowatch run`` builds
+  it, with the real ``MonitorBank`` (``--monitor real``) or a no-op monitor (``--monitor
+  null``, which isolates the transport, validation, MCAP logging and bookkeeping);
+* this process: router, orchestration, table.
+
+Reported per run: samples sent, received, processed, dropped (queue) and bad; the daemon's
+sample-receipt -> health-output latency p50/p99; the sample-time -> health age p50/p99 (it
+includes the publisher's batching); the worker's busy fraction; how long after the generator
+stopped the daemon needed to finish its queue ("drain"). "keeps up" = nothing dropped and
+the drain shorter than 1 s.
+
+    .venv/bin/python bench/service.py                       # default table
+    .venv/bin/python bench/service.py --actuators 20 --rate 1000 --duration 10 --monitor null
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+# --------------------------------------------------------------------------- children
+
+
+def _generator(args: argparse.Namespace) -> int:
+    import threading
+
+    import zenoh
+
+    from service import messages as m
+    from service.actuator import VirtualActuator
+    from service.scenarios import load_scenario
+    from service.zenoh_util import make_config
+
+    n_per = int(round(args.duration * args.rate))
+    spm = args.spm
+    # one actuator's worth of HF samples, reused by every generator actuator (own seq and t)
+    base_n = min(n_per, int(2 * args.rate))
+    va = VirtualActuator(load_scenario("demo"), rate_hz=args.rate)
+    base = va.produce(base_n)
+    t_start = time.time() + 1.5  # sample clock: Unix time, so the daemon can measure age
+    msgs = []  # (due offset s, publisher index, payload)
+    for a in range(args.actuators):
+        for j in range(0, n_per, spm):
+            chunk = []
+            for k in range(j, min(j + spm, n_per)):
+                s = dict(base[k % base_n])
+                s["seq"] = k
+                s["t"] = t_start + k / args.rate
+                chunk.append(s)
+            msgs.append(((j + len(chunk) - 1) / args.rate, a, m.encode_meas(chunk)))
+    msgs.sort(key=lambda x: (x[0], x[1]))
+    with zenoh.open(make_config("client", connect=[args.connect])) as s:
+        pubs = [
+            s.declare_publisher(
+                m.KEY_MEAS.format(aircraft=f"AC{a // 4:03d}", actuator=f"act{a % 4}"),
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
+            for a in range(args.actuators)
+        ]
+        time.sleep(max(0.0, t_start - time.time()))
+        w0 = time.monotonic()
+        late = 0.0
+        ev = threading.Event()
+        for due, a, payload in msgs:
+            wait = w0 + due - time.monotonic()
+            if wait > 0.0005:
+                ev.wait(wait)
+            else:
+                late = max(late, -wait)
+            pubs[a].put(payload)
+        wall = time.monotonic() - w0
+        time.sleep(0.5)
+    print(
+        json.dumps(
+            {
+                "sent_samples": n_per * args.actuators,
+                "sent_msgs": len(msgs),
+                "wall_s": wall,
+                "max_late_s": late,
+            }
+        ),
+        flush=True,
+    )
+    return 0
+
+
+class _NullMonitor:
+    """Returns a small output per sample without estimating anything."""
+
+    def __init__(self, aid):
+        self.n = 0
+
+    def update(self, s):
+        from service.monitor import MonitorOutput
+
+        self.n += 1
+        return MonitorOutput(
+            t=s["t"],
+            est={"x_j": s["x_j"] or 0.0},
+            res={"r": 0.0},
+            health={"leak_ratio": 1.0},
+            events=[],
+        )
+
+
+def _daemon(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    import zenoh
+
+    from service.config import ServiceConfig, ZenohSettings
+    from service.daemon import Daemon
+
+    cfg = ServiceConfig(
+        station="bench",
+        rotate_bytes=None,
+        rotate_s=None,
+        publish_every=args.publish_every,
+        silence_s=30.0,
+        zenoh=ZenohSettings(mode="client", connect=[args.connect]),
+    )
+    factory = _NullMonitor if args.monitor == "null" else None
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    with zenoh.open(cfg.zenoh.to_zenoh()) as session:
+        d = Daemon(cfg, log_path=args.log, monitor_factory=factory)
+        d.start(session)
+        print("ready", flush=True)
+        stop.wait()
+        # report how long the queue takes to empty once the generator has stopped
+        t0 = time.monotonic()
+        while d._queue and time.monotonic() - t0 < args.drain_cap:
+            time.sleep(0.02)
+        drain = time.monotonic() - t0
+        left = len(d._queue)
+        st = d.stop()
+    st["drain_s"] = drain
+    st["left_in_queue"] = left
+    print(json.dumps(st), flush=True)
+    return 0
+
+
+# --------------------------------------------------------------------------- orchestrator
+
+
+def run_one(
+    actuators: int,
+    rate: float,
+    duration: float,
+    monitor: str,
+    spm: int = 10,
+    publish_every: int = 10,
+    drain_cap: float = 60.0,
+) -> dict:
+    """One benchmark run; returns the row of the table."""
+    import zenoh
+
+    from service.mcaplog import read_log
+    from service.zenoh_util import free_port, loopback, make_config
+
+    ep = loopback(free_port())
+    router = zenoh.open(make_config("router", [ep]))
+    tmp = tempfile.mkdtemp(prefix="servowatch-bench-")
+    log = Path(tmp) / "bench.mcap"
+    py = sys.executable
+    me = str(Path(__file__).resolve())
+    common = ["--connect", ep]
+    try:
+        dproc = subprocess.Popen(
+            [
+                py,
+                me,
+                "_daemon",
+                *common,
+                "--log",
+                str(log),
+                "--monitor",
+                monitor,
+                "--publish-every",
+                str(publish_every),
+                "--drain-cap",
+                str(drain_cap),
+            ],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert dproc.stdout.readline().strip() == "ready"
+        time.sleep(0.5)
+        g = subprocess.run(
+            [
+                py,
+                me,
+                "_gen",
+                *common,
+                "--actuators",
+                str(actuators),
+                "--rate",
+                str(rate),
+                "--duration",
+                str(duration),
+                "--spm",
+                str(spm),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=duration + 120,
+        )
+        gen = json.loads(g.stdout.strip().splitlines()[-1])
+        dproc.terminate()
+        out, _ = dproc.communicate(timeout=drain_cap + 60)
+        st = json.loads(out.strip().splitlines()[-1])
+    finally:
+        router.close()
+    logged = sum(1 for topic, _t, _m in read_log(log) if topic.endswith("/meas"))
+    acts = st["actuators"].values()
+    processed = sum(a["outputs"] for a in acts)
+    with_bad = sum(a["bad_total"] for a in acts)
+    received = sum(a["messages"] for a in acts)
+    os.unlink(log)
+    os.rmdir(tmp)
+    return {
+        "actuators": actuators,
+        "rate_hz": rate,
+        "monitor": monitor,
+        "duration_s": duration,
+        "sent": gen["sent_samples"],
+        "sent_msgs": gen["sent_msgs"],
+        "received_msgs": received,
+        "accepted": st["samples"],
+        "logged": logged,
+        "processed": processed,
+        "dropped": st["dropped"],
+        "bad": with_bad,
+        "gaps": sum(a["gaps"] for a in acts),
+        "lat_p50_ms": st["latency_ms"]["p50"],
+        "lat_p99_ms": st["latency_ms"]["p99"],
+        "age_p50_ms": st["age_ms"]["p50"],
+        "age_p99_ms": st["age_ms"]["p99"],
+        "busy": st["busy_fraction"],
+        "drain_s": st["drain_s"],
+        "left_in_queue": st["left_in_queue"],
+        "gen_late_s": gen["max_late_s"],
+        "keeps_up": st["dropped"] == 0
+        and st["drain_s"] < 1.0
+        and st["samples"] == gen["sent_samples"],
+    }
+
+
+def _f(v, spec=".1f"):
+    return "-" if v is None else format(v, spec)
+
+
+def print_table(rows: list[dict]) -> None:
+    hdr = (
+        f"{'act x Hz':>10} {'monitor':>7} {'sent':>8} {'accepted':>8} {'logged':>8} "
+        f"{'processed':>9} {'dropped':>7} {'lat p50':>8} {'lat p99':>8} {'age p50':>8} "
+        f"{'age p99':>8} {'busy':>5} {'drain s':>7} {'keeps up':>8}"
+    )
+    print(hdr)
+    print("-" * len(hdr))
+    for r in rows:
+        print(
+            f"{r['actuators']:>4} x {r['rate_hz']:<4g} {r['monitor']:>7} {r['sent']:>8} "
+            f"{r['accepted']:>8} {r['logged']:>8} {r['processed']:>9} {r['dropped']:>7} "
+            f"{_f(r['lat_p50_ms']):>8} {_f(r['lat_p99_ms']):>8} {_f(r['age_p50_ms']):>8} "
+            f"{_f(r['age_p99_ms']):>8} {r['busy']:>5.2f} {r['drain_s']:>7.1f} "
+            f"{'yes' if r['keeps_up'] else 'NO':>8}"
+        )
+    print(
+        "latencies in ms: lat = receipt by the daemon -> health output; age = sample time "
+        "-> health output (includes the publisher's 10-sample batching)"
+    )
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("role", nargs="?", default="bench", choices=("bench", "_gen", "_daemon"))
+    p.add_argument("--connect")
+    p.add_argument("--log")
+    p.add_argument("--actuators", type=int, default=None)
+    p.add_argument("--rate", type=float, default=1000.0)
+    p.add_argument("--duration", type=float, default=10.0)
+    p.add_argument("--spm", type=int, default=10, help="samples per message")
+    p.add_argument("--monitor", choices=("real", "null"), default=None)
+    p.add_argument("--publish-every", type=int, default=10)
+    p.add_argument("--drain-cap", type=float, default=60.0)
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args(argv)
+    if args.role == "_gen":
+        return _generator(args)
+    if args.role == "_daemon":
+        return _daemon(args)
+    if args.actuators is not None or args.monitor is not None:
+        plan = [(args.actuators or 20, args.monitor or "real")]
+    else:
+        plan = [(20, "null"), (1, "real"), (20, "real")]
+    rows = []
+    for n, mon in plan:
+        dur = args.duration if not (mon == "real" and n > 1) else min(args.duration, 5.0)
+        print(
+            f"run: {n} actuators x {args.rate:g} Hz, {dur:g} s, monitor {mon} ...",
+            file=sys.stderr,
+            flush=True,
+        )
+        rows.append(run_one(n, args.rate, dur, mon, args.spm, args.publish_every, args.drain_cap))
+    print(
+        f"servowatch daemon benchmark ({os.cpu_count()} CPUs), {args.spm} samples/message, "
+        f"publish_every {args.publish_every}"
+    )
+    print_table(rows)
+    if args.json:
+        print(json.dumps(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
