@@ -58,7 +58,9 @@ class ReducedParams(NamedTuple):
     (calibrated against the plant, see ``service.calibration``)."""
 
     law: str = "C5"
-    g_pq: float = 7.4e11  # effective G_PQ [Pa s/m^3]
+    g_pq: float = 7.4e11  # effective G_PQ at the rated supply [Pa s/m^3]
+    p_sr_rated: float = 20e6  # [Pa]
+    g_pq_exp: float = 0.5  # G_PQ ~ (P_SR / rated)^g_pq_exp (physics.md section 3: sqrt)
     x_ss: float = 1e-4  # effective saturation spool displacement (G_P = P_SR / x_SS) [m]
     p_vap: float = 1e3  # [Pa]
     p_r: float = 0.5e6  # return pressure, absolute [Pa] (chamber pressures P1, P2)
@@ -85,6 +87,7 @@ def reduced_params(p: EHAParams | None = None, law: str = "C5", **overrides) -> 
         x_ss=p.x_ss,
         p_vap=p.p_vap,
         p_r=p.p_r,
+        p_sr_rated=p.p_sr,
         area=p.area,
         mass=p.mass,
         c_v=p.c_v,
@@ -121,7 +124,16 @@ def spool_step(x_s: NDArray, v_s: NDArray, i: NDArray, h: NDArray | float, rp: R
 
 def p12_state(x_s, v_j, p_sr, c_lk, rp: ReducedParams) -> NDArray:
     """Load pressure P12 = law(x_S, A v_J, P_SR) with the effective valve parameters."""
-    return LAWS[rp.law](x_s, rp.area * v_j, p_sr, rp.g_pq, rp.x_ss, c_lk, rp.p_vap)
+    g_pq = g_pq_at(p_sr, rp)
+    return LAWS[rp.law](x_s, rp.area * v_j, p_sr, g_pq, rp.x_ss, c_lk, rp.p_vap)
+
+
+def g_pq_at(p_sr, rp: ReducedParams):
+    """G_PQ at supply P_SR: G_PQ = sqrt(P_SR rho) / (Cd w x_SS) (physics.md section 3), i.e.
+    the rated value times (P_SR / rated)^g_pq_exp (exponent 0: the seed's constant G_PQ)."""
+    if rp.g_pq_exp == 0.0:
+        return rp.g_pq
+    return rp.g_pq * (np.maximum(p_sr, rp.p_vap) / rp.p_sr_rated) ** rp.g_pq_exp
 
 
 def jack_accel(x_s, v_j, f_r, p_sr, c_lk, rp: ReducedParams) -> NDArray:
@@ -190,8 +202,10 @@ def measure(x: NDArray, rp: ReducedParams) -> NDArray:
     K_I_MAX,
     K_H_MAX,
     K_LAW,
+    K_P_SR_RATED,
+    K_G_PQ_EXP,
     N_PRM,
-) = range(18)
+) = range(20)
 
 
 def param_vector(rp: ReducedParams) -> NDArray:
@@ -204,13 +218,21 @@ def param_vector(rp: ReducedParams) -> NDArray:
     a[K_K_SV], a[K_X_SM], a[K_OMEGA_N], a[K_ZETA] = rp.k_sv, rp.x_sm, rp.omega_n, rp.zeta
     a[K_K_P], a[K_I_MAX], a[K_H_MAX] = rp.k_p, rp.i_max, rp.h_max
     a[K_LAW] = MODEL_IDS[rp.law]
+    a[K_P_SR_RATED], a[K_G_PQ_EXP] = rp.p_sr_rated, rp.g_pq_exp
     return a
 
 
 @njit(cache=True)
-def _accel_nb(x_s, v_j, f_r, p_sr, c_lk, prm):
+def _g_pq_nb(p_sr, prm):
+    if prm[K_G_PQ_EXP] == 0.0:
+        return prm[K_G_PQ]
+    return prm[K_G_PQ] * (max(p_sr, prm[K_P_VAP]) / prm[K_P_SR_RATED]) ** prm[K_G_PQ_EXP]
+
+
+@njit(cache=True)
+def _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, prm):
     p12 = law_p12(
-        int(prm[K_LAW]), x_s, prm[K_AREA] * v_j, p_sr, prm[K_G_PQ], prm[K_X_SS], c_lk, prm[K_P_VAP]
+        int(prm[K_LAW]), x_s, prm[K_AREA] * v_j, p_sr, g_pq, prm[K_X_SS], c_lk, prm[K_P_VAP]
     )
     f = prm[K_AREA] * p12 - f_r - prm[K_C_V] * v_j - prm[K_F_D] * math.tanh(v_j / prm[K_V_F])
     return f / prm[K_MASS]
@@ -224,6 +246,7 @@ def step_nb(x, i, dt, n_sub, prm, out):
     f_r = x[4]
     p_sr = max(x[5], prm[K_P_VAP])
     c_lk = max(x[6], 0.0)
+    g_pq = _g_pq_nb(p_sr, prm)
     h = dt / n_sub
     w, z = prm[K_OMEGA_N], prm[K_ZETA]
     sig = z * w
@@ -238,8 +261,8 @@ def step_nb(x, i, dt, n_sub, prm, out):
         xn = x_ref + e * ((c + sig / wd * s) * dx + s / wd * v_s)
         v_s = e * (-(w * w) / wd * s * dx + (c - sig / wd * s) * v_s)
         x_s = min(max(xn, -x_sm), x_sm)
-        a0 = _accel_nb(x_s, v_j, f_r, p_sr, c_lk, prm)
-        a1 = _accel_nb(x_s, v_j + dv, f_r, p_sr, c_lk, prm)
+        a0 = _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, prm)
+        a1 = _accel_nb(x_s, v_j + dv, f_r, p_sr, c_lk, g_pq, prm)
         jac = min((a1 - a0) / dv, 0.0)
         v_j = v_j + h * a0 / (1.0 - h * jac)
         x_j = x_j + h * v_j
@@ -251,12 +274,13 @@ def step_nb(x, i, dt, n_sub, prm, out):
 def measure_nb(x, prm, out):
     """Scalar ``measure``: x (7,) -> out (5,) = x_S, x_J, P1, P2, P_SR."""
     p_sr = x[5]
+    p_ev = max(p_sr, prm[K_P_VAP])
     p12 = law_p12(
         int(prm[K_LAW]),
         x[0],
         prm[K_AREA] * x[3],
-        max(p_sr, prm[K_P_VAP]),
-        prm[K_G_PQ],
+        p_ev,
+        _g_pq_nb(p_ev, prm),
         prm[K_X_SS],
         max(x[6], 0.0),
         prm[K_P_VAP],

@@ -58,10 +58,10 @@ class _Cfg(BaseModel):
 class MeasurementNoise(_Cfg):
     """1-sigma measurement noise assumed by the filter (sensor noise plus model mismatch)."""
 
-    x_s_m: float = Field(1.0e-6, gt=0, description="spool LVDT [m]")
+    x_s_m: float = Field(0.5e-6, gt=0, description="spool LVDT [m]")
     x_j_m: float = Field(50e-6, gt=0, description="jack LVDT [m]")
-    p_pa: float = Field(80e3, gt=0, description="chamber pressure transducers [Pa]")
-    p_sr_pa: float = Field(80e3, gt=0, description="supply pressure transducer [Pa]")
+    p_pa: float = Field(55e3, gt=0, description="chamber pressure transducers [Pa]")
+    p_sr_pa: float = Field(55e3, gt=0, description="supply pressure transducer [Pa]")
 
 
 class ProcessNoise(_Cfg):
@@ -123,6 +123,9 @@ class Baseline(_Cfg):
     c_lk: float = Field(ge=0)
     p_r: float = Field(gt=0)
     p_sr_rated: float = Field(gt=0)
+    g_pq_exp: float = Field(
+        0.5, ge=0, description="G_PQ ~ (P_SR/rated)^exp; 0.5 per physics.md section 3, 0 = seed"
+    )
     area: float = 1e-3
     mass: float = 100.0
     c_v: float = 2000.0
@@ -177,6 +180,8 @@ class Baseline(_Cfg):
             g_pq=self.g_pq,
             x_ss=self.x_ss,
             p_r=self.p_r,
+            p_sr_rated=self.p_sr_rated,
+            g_pq_exp=self.g_pq_exp,
             area=self.area,
             mass=self.mass,
             c_v=self.c_v,
@@ -202,7 +207,13 @@ class Baseline(_Cfg):
 
 # Effective parameters identified by ``servowatch calibrate --scenario healthy_noise`` on the
 # HF bench (see docs/estimation.md); updated when the calibration is re-run.
-_DEFAULT_CALIBRATION: dict[str, dict[str, float]] = {}
+_CAL_HEALTHY_NOISE = {
+    "g_pq": 700136625446.0308,
+    "x_ss": 5.289681660662008e-05,
+    "p_r": 482287.3878735285,
+}
+# near null every C-law reduces to the same linear form, so one calibration serves them all
+_DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CAL_HEALTHY_NOISE)
 
 
 @dataclass

@@ -1,0 +1,101 @@
+"""``servowatch calibrate``: identify the monitor's baseline from a healthy run.
+
+The healthy run is a scenario (HF bench + its sensor noise) or a recorded MCAP log whose
+topic ending in ``/meas`` carries t, x_cmd, i, x_s, x_j, p1, p2 (as written by
+``servowatch estimate --out``). The method is in ``service.calibration``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from service.cliutil import emit_json, fail
+from service.progress import Progress
+from service.scenarios import ScenarioError, load_scenario
+
+NAME = "calibrate"
+HELP = "identify the monitor's nominal (baseline) parameters from a healthy run"
+
+__all__ = ["NAME", "HELP", "add_arguments", "run", "meas_from_log"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--scenario", help="healthy scenario TOML (or a bundled name)")
+    src.add_argument("--log", help="recorded MCAP log with a .../meas topic")
+    p.add_argument("--model", default="C5", help="valve law of the monitor (A, B, C1, C3, C5)")
+    p.add_argument("--out", required=True, help="write the baseline JSON here")
+    p.add_argument("--passes", type=int, default=2, help="bias-correction passes (default 2)")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def meas_from_log(path: str) -> dict[str, np.ndarray]:
+    """Measured arrays from the first ``.../meas`` topic of an MCAP log."""
+    from service.mcaplog import read_log
+
+    rows: list[dict] = []
+    topic0 = None
+    for topic, t, msg in read_log(path):
+        if not topic.endswith("/meas"):
+            continue
+        if topic0 is None:
+            topic0 = topic
+        if topic != topic0:
+            continue
+        rows.append({"t": t, **msg})
+    if not rows:
+        raise ValueError("no .../meas topic")
+    keys = [k for k in ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2") if k in rows[0]]
+    return {k: np.array([float(r.get(k, np.nan)) for r in rows]) for k in keys}
+
+
+def run(args: argparse.Namespace) -> int:
+    from models.valve_laws import LAW_NAMES
+    from service.calibration import calibrate, measured_run
+
+    if args.model not in LAW_NAMES:
+        return fail(f"unknown model {args.model!r}; expected one of {', '.join(LAW_NAMES)}")
+    if args.passes < 0:
+        return fail("--passes must be >= 0")
+    prog = Progress("calibrate")
+    t0 = time.perf_counter()
+    if args.scenario:
+        try:
+            scenario = load_scenario(args.scenario)
+        except ScenarioError as e:
+            return fail(str(e))
+        _, meas = measured_run(scenario, progress=prog)
+        source = f"scenario {scenario.name}"
+    else:
+        try:
+            meas = meas_from_log(args.log)
+        except (OSError, ValueError) as e:
+            return fail(f"{args.log}: cannot read a healthy run: {e}")
+        source = f"log {args.log}"
+    need = {"t", "x_s", "x_j", "p1", "p2"}
+    if not need <= set(meas):
+        return fail(f"calibration needs the full channel set {sorted(need)}")
+    try:
+        base = calibrate(meas, args.model, passes=args.passes)
+    except ValueError as e:
+        return fail(str(e))
+    prog.done()
+    base = base.model_copy(update={"source": f"calibrated on {source}"})
+    base.save(args.out)
+    out = {
+        "source": source,
+        "model": args.model,
+        "out": args.out,
+        "wall_s": time.perf_counter() - t0,
+        "baseline": base.model_dump(),
+    }
+    if args.json:
+        emit_json(out)
+        return 0
+    print(f"baseline for {args.model} from {source} written to {args.out}")
+    print(f"  effective x_SS {base.x_ss * 1e6:.2f} um (nominal 100), G_PQ {base.g_pq:.3e} Pa s/m^3")
+    print(f"  C_Lk (fixed, nominal) {base.c_lk:.2e}, P_R {base.p_r / 1e6:.3f} MPa")
+    return 0

@@ -1,0 +1,265 @@
+"""``servowatch estimate``: the HF bench as truth, the monitor offline, truth against estimate.
+
+Runs the scenario on the HF bench, adds the scenario's seeded sensor noise, feeds the monitor
+sample by sample (``service.monitor.Monitor``) and scores it: final C_Lk and P_SR against the
+truth, alarms (false ones and the detection delay after the true crossing of the raise level)
+and the share of samples whose NIS lies in its 95 % chi-square band.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+from service.cliutil import emit_json, fail
+from service.progress import Progress
+from service.scenarios import ScenarioError, load_scenario
+
+NAME = "estimate"
+HELP = "run the HF bench on a scenario and the degradation monitor (UKF) on its signals"
+
+__all__ = ["NAME", "HELP", "add_arguments", "run", "evaluate"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", required=True, help="scenario TOML file (or a bundled name)")
+    p.add_argument("--model", default="C5", help="valve law of the monitor (A, B, C1, C3, C5)")
+    p.add_argument("--channels", default="full", choices=("full", "reduced"))
+    p.add_argument("--baseline", default=None, help="baseline JSON from `servowatch calibrate`")
+    p.add_argument("--duration", type=float, default=None, help="override duration_s [s]")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.add_argument("--png", default=None, help="plot truth, estimate +-1 sigma, residuals")
+    p.add_argument("--out", default=None, help="write measurements and outputs to this MCAP")
+
+
+def _first_cross(t, cond) -> float | None:
+    k = np.flatnonzero(cond)
+    return float(t[k[0]]) if len(k) else None
+
+
+def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_outputs=False) -> dict:
+    """Run truth + monitor on ``scenario``; the summary dict of issue 3 item 6 (plus extras).
+
+    With ``keep_outputs`` the dict also holds ``_sim``, ``_meas`` and ``_outs`` (not JSON).
+    """
+    from service.calibration import measured_run
+    from service.monitor import Baseline, Monitor, MonitorConfig
+
+    config = config or MonitorConfig()
+    baseline = baseline or Baseline.default(config.model)
+    sim, meas = measured_run(scenario, progress=(lambda f: progress(0.3 * f)) if progress else None)
+    mon = Monitor(config, baseline)
+    keys = [k for k in ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr") if k in meas]
+    cols = [np.asarray(meas[k], float).tolist() for k in keys]
+    n = len(cols[0])
+    outs = [None] * n
+    dts = np.empty(n)
+    pc = time.perf_counter
+    w0 = pc()
+    every = max(1, n // 100)
+    for j in range(n):
+        s = {k: c[j] for k, c in zip(keys, cols, strict=True)}
+        a = pc()
+        outs[j] = mon.update(s)
+        dts[j] = pc() - a
+        if progress is not None and j % every == 0:
+            progress(0.3 + 0.7 * j / n)
+    wall = pc() - w0
+    if progress is not None:
+        progress(1.0)
+    t = sim.t
+    ok = [o for o in outs if o is not None]
+    last = ok[-1]
+    acfg = config.alarms
+    events = [e for o in ok for e in o.events if e.kind in ("leak", "supply")]
+    true_leak = sim.c_lk / baseline.c_lk
+    true_sup = sim.p_sr / baseline.p_sr_rated
+    false_alarms = 0
+    for e in events:
+        if e.state != "raised":
+            continue
+        j = min(int(np.searchsorted(t, e.t)), len(t) - 1)
+        if e.kind == "leak" and true_leak[j] < acfg.leak_clear:
+            false_alarms += 1
+        if e.kind == "supply" and true_sup[j] > acfg.supply_clear:
+            false_alarms += 1
+    delays: dict[str, float | None] = {}
+    for kind, cond in (
+        ("leak", true_leak >= acfg.leak_raise),
+        ("supply", true_sup <= acfg.supply_raise),
+    ):
+        tc = _first_cross(t, cond)
+        if tc is None:
+            continue
+        raised = [e.t for e in events if e.kind == kind and e.state == "raised" and e.t >= tc - 1]
+        delays[kind] = (raised[0] - tc) if raised else None
+    finite = [d for d in delays.values() if d is not None]
+    detection_delay = max(finite) if finite and len(finite) == len(delays) else None
+    # NIS inside its two-sided 95 % chi-square band (after the alarm arming time)
+    nis = np.array([o.res["nis"] for o in ok])
+    dof = np.array([o.res["nis_dof"] for o in ok])
+    tt = np.array([o.t for o in ok])
+    sel = (tt >= tt[0] + config.arm_s) & (dof > 0)
+    lo, hi = chi2.ppf(0.025, dof[sel]), chi2.ppf(0.975, dof[sel])
+    in_band = float(100.0 * np.mean((nis[sel] >= lo) & (nis[sel] <= hi))) if sel.any() else None
+    c_true, p_true = float(sim.c_lk[-1]), float(sim.p_sr[-1])
+    c_est, p_est = last.est["c_lk"], last.est["p_sr"]
+    inc_true = c_true - baseline.c_lk
+    out = {
+        "scenario": scenario.name,
+        "model": config.model,
+        "channels": config.channels,
+        "duration_s": float(t[-1] - t[0]),
+        "wall_s": wall,
+        "update_us_median": float(np.median(dts) * 1e6),
+        "truth": {"c_lk": c_true, "p_sr": p_true},
+        "estimate": {
+            "c_lk": c_est,
+            "c_lk_sigma": last.est["c_lk_sigma"],
+            "p_sr": p_est,
+            "p_sr_sigma": last.est["p_sr_sigma"],
+        },
+        "c_lk_error_pct": 100.0 * (c_est - c_true) / c_true,
+        "p_sr_error_pct": 100.0 * (p_est - p_true) / p_true,
+        "c_lk_increase_error_pct": (
+            100.0 * ((c_est - baseline.c_lk) - inc_true) / inc_true
+            if inc_true >= baseline.c_lk
+            else None
+        ),
+        "alarms": [{"t": e.t, "kind": e.kind, "state": e.state} for e in events],
+        "false_alarms": false_alarms,
+        "detection_delay_s": detection_delay,
+        "detection_delay_by_kind_s": delays,
+        "nis_in_band_pct": in_band,
+        "counters": dict(mon.counters),
+        "baseline": baseline.source,
+    }
+    if keep_outputs:
+        out["_sim"], out["_meas"], out["_outs"] = sim, meas, outs
+    return out
+
+
+def plot(res: dict, path: str | Path, baseline) -> None:
+    """Truth vs estimate with the 1-sigma band (C_Lk, P_SR, F_R), innovations, NIS, alarms."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sim, outs = res["_sim"], [o for o in res["_outs"] if o is not None]
+    t = np.array([o.t for o in outs])
+
+    def col(group, key):
+        return np.array([getattr(o, group)[key] for o in outs])
+
+    fig, ax = plt.subplots(5, 1, figsize=(10, 13), sharex=True)
+    for a, (key, scale, unit) in zip(
+        ax[:3], (("c_lk", 1e-13, "C_Lk [1e-13 m^3/s/Pa]"), ("p_sr", 1e6, "P_SR [MPa]"),
+                 ("f_r", 1e3, "F_R [kN]")), strict=True
+    ):  # fmt: skip
+        m, s = col("est", key) / scale, col("est", key + "_sigma") / scale
+        a.plot(sim.t, getattr(sim, key) / scale, "k", lw=1.5, label="truth (HF)")
+        a.plot(t, m, "C0", lw=1, label="estimate")
+        a.fill_between(t, m - s, m + s, color="C0", alpha=0.3, label="1 sigma")
+        a.set_ylabel(unit)
+        a.legend(loc="best", fontsize=8)
+    for ch, c in (("x_j", "C1"), ("p1", "C2"), ("p2", "C3"), ("x_s", "C4")):
+        y = col("res", f"innov_{ch}")
+        if np.any(y):
+            sd = np.std(y) or 1.0
+            ax[3].plot(t, y / sd, c, lw=0.5, label=f"innov {ch} / std")
+    ax[3].set_ylabel("normalised innovation")
+    ax[3].legend(loc="best", fontsize=8)
+    ax[4].semilogy(t, np.maximum(col("res", "nis"), 1e-3), "C0", lw=0.5, label="NIS")
+    ax[4].semilogy(t, np.maximum(col("health", "nis_avg"), 1e-3), "C1", lw=1, label="NIS/dof avg")
+    ax[4].set_ylabel("NIS")
+    ax[4].legend(loc="best", fontsize=8)
+    ax[4].set_xlabel("t [s]")
+    for e in res["alarms"]:
+        for a in ax:
+            a.axvline(e["t"], color="r" if e["state"] == "raised" else "g", ls="--", lw=0.8)
+    fig.suptitle(
+        f"{res['scenario']}: monitor {res['model']} ({res['channels']} channels), "
+        "red = alarm raised, green = cleared"
+    )
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def write_mcap(res: dict, path: str | Path) -> None:
+    """Measurements, truth and monitor outputs, one JSON message per sample and topic."""
+    from service.mcaplog import McapLogger
+
+    sim, meas, outs = res["_sim"], res["_meas"], res["_outs"]
+    base = f"/estimate/{res['scenario']}"
+    keys = list(meas)
+    with McapLogger(path) as log:
+        for j, o in enumerate(outs):
+            t = float(sim.t[j])
+            log.log(f"{base}/meas", t, {k: float(meas[k][j]) for k in keys})
+            log.log(
+                f"{base}/truth",
+                t,
+                {"c_lk": float(sim.c_lk[j]), "p_sr": float(sim.p_sr[j]), "f_r": float(sim.f_r[j])},
+            )
+            if o is None:
+                continue
+            log.log(f"{base}/est", t, o.est)
+            log.log(f"{base}/residual", t, o.res)
+            log.log(f"{base}/health", t, o.health)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        scenario = load_scenario(args.scenario)
+    except ScenarioError as e:
+        return fail(str(e))
+    from models.valve_laws import LAW_NAMES
+    from service.monitor import Baseline, MonitorConfig
+
+    if args.model not in LAW_NAMES:
+        return fail(f"unknown model {args.model!r}; expected one of {', '.join(LAW_NAMES)}")
+    if args.duration is not None:
+        if args.duration <= 0:
+            return fail("--duration must be positive")
+        scenario = scenario.model_copy(update={"duration_s": float(args.duration)})
+    try:
+        baseline = Baseline.load(args.baseline) if args.baseline else Baseline.default(args.model)
+    except (OSError, ValueError) as e:
+        return fail(f"{args.baseline}: cannot read baseline: {e}")
+    config = MonitorConfig(model=args.model, channels=args.channels)
+    prog = Progress(f"estimate {scenario.name}")
+    res = evaluate(scenario, config, baseline, progress=prog, keep_outputs=True)
+    prog.done()
+    if args.png:
+        plot(res, args.png, baseline)
+    if args.out:
+        write_mcap(res, args.out)
+    summary = {k: v for k, v in res.items() if not k.startswith("_")}
+    if args.json:
+        emit_json(summary)
+        return 0
+    tr, es = summary["truth"], summary["estimate"]
+    print(
+        f"scenario {summary['scenario']}, model {summary['model']}, {summary['channels']} channels"
+    )
+    print(f"  {summary['duration_s']:.2f} s simulated, monitor {summary['wall_s']:.2f} s wall, "
+          f"median update {summary['update_us_median']:.0f} us")  # fmt: skip
+    print(f"  C_Lk  truth {tr['c_lk']:.3e}  estimate {es['c_lk']:.3e} +- {es['c_lk_sigma']:.1e}"
+          f"  ({summary['c_lk_error_pct']:+.1f} %)")  # fmt: skip
+    print(f"  P_SR  truth {tr['p_sr'] / 1e6:.3f} MPa  estimate {es['p_sr'] / 1e6:.3f} +- "
+          f"{es['p_sr_sigma'] / 1e6:.3f} MPa  ({summary['p_sr_error_pct']:+.2f} %)")  # fmt: skip
+    for a in summary["alarms"]:
+        print(f"  alarm {a['kind']} {a['state']} at {a['t']:.3f} s")
+    print(f"  false alarms {summary['false_alarms']}, detection delay {summary['detection_delay_s']}"
+          f" s, NIS in 95 % band {summary['nis_in_band_pct']:.1f} %")  # fmt: skip
+    if args.png:
+        print(f"  plot written to {args.png}")
+    if args.out:
+        print(f"  log written to {args.out}")
+    return 0
