@@ -208,9 +208,9 @@ class Baseline(_Cfg):
 # Effective parameters identified by ``servowatch calibrate --scenario healthy_noise`` on the
 # HF bench (see docs/estimation.md); updated when the calibration is re-run.
 _CAL_HEALTHY_NOISE = {
-    "g_pq": 700136625446.0308,
-    "x_ss": 5.289681660662008e-05,
-    "p_r": 482287.3878735285,
+    "g_pq": 699201553178.1322,
+    "x_ss": 5.296755779139598e-05,
+    "p_r": 482296.72527612746,
 }
 # near null every C-law reduces to the same linear form, so one calibration serves them all
 _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CAL_HEALTHY_NOISE)

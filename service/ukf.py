@@ -102,12 +102,12 @@ class BatchUKF:
         return mean, cov, d
 
     def predict(self, x: NDArray, P: NDArray, fx: Callable[[NDArray], NDArray], Q: NDArray):
-        """Propagate sigma points through ``fx`` ((B, K, n) -> (B, K, n)), return
-        (sigmas_f, x_prior, P_prior)."""
+        """Propagate sigma points through ``fx`` ((B, K, n) -> (B, K, n)); return the sigma
+        points redrawn from the prior (as filterpy's predict does), x_prior and P_prior."""
         sig = self.sigma_points(x, P)
         sig_f = fx(sig)
         xp, Pp, _ = self.unscented_transform(sig_f, Q)
-        return sig_f, xp, Pp
+        return self.sigma_points(xp, Pp), xp, Pp
 
     def update(
         self,
@@ -119,7 +119,7 @@ class BatchUKF:
         R: NDArray,
         mask: NDArray | None = None,
     ) -> UpdateResult:
-        """Measurement update with the predicted sigma points (as filterpy does, no redraw)."""
+        """Measurement update with the sigma points returned by ``predict`` (filterpy algebra)."""
         zh = hx(sig_f)  # (B, K, m)
         zp, S, dz = self.unscented_transform(zh, R)
         dx = sig_f - x[:, None, :]
@@ -242,20 +242,12 @@ def ukf_step_batch(
             step_nb(xs, i_in[b], dt[b], n_sub[b], prm, xo)
             for r in range(n):
                 sig_f[k, r] = xo[r] / scale[r]
-            measure_nb(xo, prm, zo)
-            for r in range(m):
-                zs[k, r] = zo[r] / zscale[r]
         # unscented transform
         for r in range(n):
             acc = 0.0
             for k in range(K):
                 acc += Wm[k] * sig_f[k, r]
             xm[r] = acc
-        for r in range(m):
-            acc = 0.0
-            for k in range(K):
-                acc += Wm[k] * zs[k, r]
-            zm[r] = acc
         for r in range(n):
             for s_ in range(n):
                 acc = 0.0
@@ -263,6 +255,34 @@ def ukf_step_batch(
                     acc += Wc[k] * (sig_f[k, r] - xm[r]) * (sig_f[k, s_] - xm[s_])
                 P[b, r, s_] = acc
             P[b, r, r] += q[r] * dt[b]
+        # redraw the sigma points from the prior (as filterpy's predict does)
+        for r in range(n):
+            for s_ in range(n):
+                A[r, s_] = c * P[b, r, s_]
+        if not _chol(A, L):
+            for r in range(n):
+                A[r, r] += c * 1e-9
+            if not _chol(A, L):
+                status[b] = 2
+                continue
+            status[b] = 1
+        for r in range(n):
+            sig_f[0, r] = xm[r]
+        for k in range(n):
+            for r in range(n):
+                sig_f[1 + k, r] = xm[r] + L[r, k]
+                sig_f[1 + n + k, r] = xm[r] - L[r, k]
+        for k in range(K):
+            for r in range(n):
+                xs[r] = sig_f[k, r] * scale[r]
+            measure_nb(xs, prm, zo)
+            for r in range(m):
+                zs[k, r] = zo[r] / zscale[r]
+        for r in range(m):
+            acc = 0.0
+            for k in range(K):
+                acc += Wm[k] * zs[k, r]
+            zm[r] = acc
         for r in range(m):
             for s_ in range(m):
                 acc = 0.0
