@@ -5,7 +5,12 @@ decode+validate (to MeasSample objects and to plain dicts), the pydantic schema 
 comparison, and the bytes on the wire; then the CPU share that decoding takes at
 1 kHz x 20 and x 50 actuators. Prints one table; ``--json`` prints one JSON object.
 
-    .venv/bin/python bench/codec.py [--repeat 5] [--json]
+    .venv/bin/python bench/codec.py [--repeat 5] [--zenoh] [--json]
+
+``--zenoh`` adds a transport run: a publisher process sends 20 or 50 actuators x 1 kHz
+(10 samples per message) for 3 s through a router session that also subscribes and decodes;
+it reports the CPU share of that process, samples received and whether the publisher kept
+the pace.
 """
 
 from __future__ import annotations
@@ -54,10 +59,84 @@ def _time(fn, n_samples: int, min_s: float = 0.2, repeat: int = 5) -> float:
     return best
 
 
+_PUBLISHER = """
+import sys, time, zenoh
+sys.path.insert(0, {root!r})
+from service.messages import encode_meas
+from service.zenoh_util import make_config
+acts, secs, fmt, per = {acts}, {secs}, {fmt!r}, {per}
+s = zenoh.open(make_config("client", connect=[{ep!r}]))
+pubs = [s.declare_publisher(f"fleet/AC{{a // 10:03d}}/act{{a % 10}}/meas") for a in range(acts)]
+time.sleep(1.0)
+n_msg = int(secs * 1000 / per)
+t0 = time.perf_counter()
+for k in range(n_msg):
+    t = k * per * 1e-3
+    rows = [dict(seq=k * per + j, t=t + j * 1e-3, x_cmd=0.005, i=1.2e-3 + j * 1e-6, x_s=2.1e-5,
+                 x_j=4.9e-3 + j * 1e-7, p1=1.23e7 + j, p2=7.65e6 - j, p_sr=2e7) for j in range(per)]
+    for a, p in enumerate(pubs):
+        p.put(encode_meas(rows, fmt))
+    due = t0 + (k + 1) * per * 1e-3
+    while time.perf_counter() < due:
+        time.sleep(0.0005)
+print(time.perf_counter() - t0, flush=True)
+time.sleep(0.5)
+s.close()
+"""
+
+
+def zenoh_load(acts: int, fmt: str, secs: float = 3.0, per: int = 10) -> dict:
+    """``acts`` actuators x 1 kHz (``per`` samples/message) from a publisher process through
+    a router session that also subscribes and decodes; CPU of this process per traffic second."""
+    import subprocess
+    import threading
+
+    import zenoh
+
+    from service.zenoh_util import BoundedQueue, free_port, loopback, make_config
+
+    ep = loopback(free_port())
+    root = str(Path(__file__).resolve().parent.parent)
+    q: BoundedQueue[bytes] = BoundedQueue(1_000_000)
+    counts = {"samples": 0, "bad": 0}
+    stop = threading.Event()
+
+    def consume() -> None:
+        while not stop.is_set() or len(q):
+            for payload in q.get_batch(1000, timeout=0.05):
+                try:
+                    counts["samples"] += len(decode_meas_dicts(payload))
+                except Exception:
+                    counts["bad"] += 1
+
+    with zenoh.open(make_config("router", listen=[ep])) as router:
+        router.declare_subscriber("fleet/**/meas", lambda smp: q.put(smp.payload.to_bytes()))
+        th = threading.Thread(target=consume, daemon=True)
+        th.start()
+        code = _PUBLISHER.format(root=root, acts=acts, secs=secs, fmt=fmt, per=per, ep=ep)
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+        time.sleep(1.0)  # publisher start-up (its own 1 s settle)
+        c0, w0 = time.process_time(), time.perf_counter()
+        out, _ = proc.communicate(timeout=secs * 10 + 30)
+        stop.set()
+        th.join(30)
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+    expected = acts * int(secs * 1000 / per) * per
+    return {
+        "actuators": acts, "format": fmt, "expected": expected, "received": counts["samples"],
+        "bad": counts["bad"], "dropped_in_queue": q.dropped, "publish_wall_s": float(out or "nan"),
+        "cpu_percent_of_one_core": 100 * cpu / secs, "wall_s": wall,
+    }  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument(
+        "--zenoh", action="store_true",
+        help="also measure 20 and 50 actuators x 1 kHz through real Zenoh sessions",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     rows = []
     for n in (1, 10, 50):
@@ -89,6 +168,8 @@ def main(argv: list[str] | None = None) -> int:
                 out["load"][f"{r['format']}_{acts}x1kHz_MB_per_s"] = (
                     rate * r["bytes_per_sample"] / 1e6
                 )
+    if args.zenoh:
+        out["zenoh"] = [zenoh_load(a, f) for a in (20, 50) for f in ("json", "bin")]
     if args.json:
         print(json.dumps(out))
         return 0
@@ -108,6 +189,11 @@ def main(argv: list[str] | None = None) -> int:
             mb = out["load"][f"{fmt}_{acts}x1kHz_MB_per_s"]
             print(f"  {acts} actuators x 1 kHz, {fmt:<4}: {cpu:5.1f} % of one core, "
                   f"{mb:5.2f} MB/s on the wire")  # fmt: skip
+    for z in out.get("zenoh", []):
+        print(f"  Zenoh {z['actuators']} x 1 kHz {z['format']:<4} (router+subscriber+decode "
+              f"process): {z['cpu_percent_of_one_core']:5.1f} % CPU, received "
+              f"{z['received']}/{z['expected']} samples, bad {z['bad']}, "
+              f"publisher took {z['publish_wall_s']:.2f} s for 3 s")  # fmt: skip
     return 0
 
 
