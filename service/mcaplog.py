@@ -67,6 +67,38 @@ class TruncatedLogWarning(UserWarning):
 
 
 def _sanitize(v: Any) -> Any:
+    """A JSON-safe scalar: non-finite floats -> None, numpy scalars -> Python, containers ->
+    JSON text (flat fields for Foxglove), anything else -> str."""
+    if v is None or isinstance(v, bool | int | str):
+        return v
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, Mapping | list | tuple):
+        return (
+            json.dumps(v, default=str, allow_nan=False)
+            if _finite_tree(v)
+            else json.dumps(_null_nonfinite(v), default=str)
+        )
+    try:
+        f = float(v)  # numpy scalars
+    except (TypeError, ValueError):
+        return str(v)
+    return f if math.isfinite(f) else None
+
+
+def _finite_tree(v: Any) -> bool:
+    try:
+        json.dumps(v, default=str, allow_nan=False)
+    except ValueError:
+        return False
+    return True
+
+
+def _null_nonfinite(v: Any) -> Any:
+    if isinstance(v, Mapping):
+        return {str(k): _null_nonfinite(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_null_nonfinite(x) for x in v]
     if isinstance(v, float) and not math.isfinite(v):
         return None
     return v
@@ -273,14 +305,14 @@ class McapLogger:
     def log(self, topic: str, t: float, msg: Mapping[str, Any]) -> None:
         """Append ``msg`` (flat JSON-serialisable mapping) on ``topic`` at sample time ``t`` [s].
 
-        Non-finite floats are written as ``null`` (JSON has no NaN).
+        Non-finite floats are written as ``null`` (JSON has no NaN), numpy scalars as numbers,
+        nested lists or mappings as JSON text (the fields stay flat), other objects as text.
         """
         try:
             data = _ENCODE(msg).encode()
-        except ValueError:
-            data = json.dumps(
-                {k: _sanitize(v) for k, v in msg.items()}, separators=(",", ":")
-            ).encode()
+        except (ValueError, TypeError):
+            msg = {str(k): _sanitize(v) for k, v in msg.items()}
+            data = _ENCODE(msg).encode()
         t_ns = max(0, int(round(t * 1e9)))
         with self._lock:
             if self._closed:

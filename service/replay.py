@@ -200,11 +200,11 @@ def replay(
             fin["t"] = o.t
             fin["est"] = o.est
             fin["health"] = o.health
-            if writer is not None:
+            if writer is not None:  # McapLogger makes NaN, numpy and nested values JSON-safe
                 b = f"/fleet/{ac}/{act}/"
-                writer.log(b + "est", o.t, _flat(o.est))
-                writer.log(b + "residual", o.t, _flat(o.res))
-                writer.log(b + "health", o.t, _flat(o.health))
+                writer.log(b + "est", o.t, o.est)
+                writer.log(b + "residual", o.t, o.res)
+                writer.log(b + "health", o.t, o.health)
             for ev in o.events:
                 d = _event_dict(ev)
                 summary.alarms.append({"actuator": name, **d})

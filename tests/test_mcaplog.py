@@ -295,3 +295,20 @@ def test_log_many_equals_log(tmp_path):
     with McapLogger(tmp_path / "b.mcap", background_flush=False) as b:
         b.log_many(recs)
     assert list(read_log(tmp_path / "a.mcap")) == list(read_log(tmp_path / "b.mcap"))
+
+
+def test_non_json_values_made_safe(tmp_path):
+    import numpy as np
+
+    p = tmp_path / "np.mcap"
+    with McapLogger(p) as lg:
+        lg.log(
+            RES,
+            1.0,
+            {"a": np.float32(1.5), "b": np.int64(3), "c": [1.0, float("nan")], "d": {"x": 1},
+             "e": object, "f": np.float64("inf")},
+        )  # fmt: skip
+    ((_, _, m),) = list(read_log(p))
+    assert m["a"] == 1.5 and m["b"] == 3 and m["f"] is None
+    assert json.loads(m["c"]) == [1.0, None] and json.loads(m["d"]) == {"x": 1}
+    assert isinstance(m["e"], str)
