@@ -160,13 +160,15 @@ def hf_static_pressures(
     c_lk: ArrayLike | None = None,
     *,
     tol_pa: float = 1e-3,
+    newton_iter: int = 80,
 ) -> tuple[NDArray, NDArray]:
     """Steady-state absolute chamber pressures (P1, P2) of the HF valve (physics.md section 3).
 
     Solves Q1 - Q2 - Q_Lk = Q_J and Q3 - Q4 + Q_Lk = -Q_J, Q_Lk = C_Lk (P1 - P2), with
     x_s, q_j, p_sr (and c_lk, default params.c_lk) broadcast. Method: damped 2-D Newton
     from the null balance; points that do not converge (kinks, beyond capacity) are solved
-    by nested bisection on the monotone reduced residual f1(P1, P2*(P1)).
+    by nested bisection on the monotone reduced residual f1(P1, P2*(P1))
+    (``newton_iter=0`` forces bisection everywhere).
 
     Clipping: pressures are confined to [P_vap, P_S + 10 P_SR]. When Q_J exceeds what the
     valve can feed (e.g. the supply side of a chamber would have to go below vapour
@@ -192,32 +194,47 @@ def hf_static_pressures(
     a1, a2, a3, a4 = land_openings(x_s, p)
     max_step = 0.25 * p_sr
     converged = np.zeros(x_s.shape, bool)
-    for _ in range(60):
-        f1, f2 = _residuals(x_s, q_j, p_s, c, p1, p2, p)
-        j11 = -orifice_slope(a1, p_s - p1, p) - orifice_slope(a2, p1 - p_r, p) - c
-        j22 = -orifice_slope(a3, p_s - p2, p) - orifice_slope(a4, p2 - p_r, p) - c
-        det = j11 * j22 - c * c
-        d1 = -(f1 * j22 - c * f2) / det
-        d2 = -(j11 * f2 - c * f1) / det
-        d1 = np.clip(d1, -max_step, max_step)
-        d2 = np.clip(d2, -max_step, max_step)
-        p1 = np.clip(p1 + d1, lo, hi)
-        p2 = np.clip(p2 + d2, lo, hi)
-        converged = (np.abs(d1) < tol_pa) & (np.abs(d2) < tol_pa)
-        if converged.all():
+    act = np.arange(x_s.size)  # indices still iterating (compacted each pass)
+    for _ in range(newton_iter):
+        xa, qa, psa, ca = x_s[act], q_j[act], p_s[act], c[act]
+        loa, hia, msa = lo[act], hi[act], max_step[act]
+        q1, q2 = p1[act], p2[act]
+        f1, f2 = _residuals(xa, qa, psa, ca, q1, q2, p)
+        j11 = -orifice_slope(a1[act], psa - q1, p) - orifice_slope(a2[act], q1 - p_r, p) - ca
+        j22 = -orifice_slope(a3[act], psa - q2, p) - orifice_slope(a4[act], q2 - p_r, p) - ca
+        det = j11 * j22 - ca * ca
+        d1 = -(f1 * j22 - ca * f2) / det
+        d2 = -(j11 * f2 - ca * f1) / det
+        # active set: a pressure held at a bound that Newton pushes further stays there,
+        # the other one takes the 1-D Newton step
+        out1 = ((q1 <= loa) & (d1 < 0)) | ((q1 >= hia) & (d1 > 0))
+        out2 = ((q2 <= loa) & (d2 < 0)) | ((q2 >= hia) & (d2 > 0))
+        d1 = np.where(out1, 0.0, np.where(out2, -f1 / j11, d1))
+        d2 = np.where(out2, 0.0, np.where(out1, -f2 / j22, d2))
+        p1n = np.clip(q1 + np.clip(d1, -msa, msa), loa, hia)
+        p2n = np.clip(q2 + np.clip(d2, -msa, msa), loa, hia)
+        done = (np.abs(p1n - q1) < tol_pa) & (np.abs(p2n - q2) < tol_pa)
+        p1[act] = p1n
+        p2[act] = p2n
+        converged[act[done]] = True
+        act = act[~done]
+        if act.size == 0:
             break
-    # verify against the flow scale; anything not converged or clipped goes to bisection
+    # verify: a free pressure must balance its chamber; a clipped one must have its
+    # residual pointing beyond the bound (f decreasing in its own pressure)
     f1, f2 = _residuals(x_s, q_j, p_s, c, p1, p2, p)
     q_scale = p.g_q * p.x_ss * 1e-9 + 1e-16
-    ok = converged & (np.abs(f1) < q_scale) & (np.abs(f2) < q_scale)
+    ok1 = (np.abs(f1) < q_scale) | ((p1 <= lo) & (f1 < 0)) | ((p1 >= hi) & (f1 > 0))
+    ok2 = (np.abs(f2) < q_scale) | ((p2 <= lo) & (f2 < 0)) | ((p2 >= hi) & (f2 > 0))
+    ok = converged & ok1 & ok2
     bad = ~ok
     if bad.any():
         xs_b, qj_b, ps_b, c_b = x_s[bad], q_j[bad], p_s[bad], c[bad]
         lo_b, hi_b = lo[bad], hi[bad]
         a = lo_b.copy()
         b = hi_b.copy()
-        n_in = 64
-        for _ in range(64):
+        n_in = 56
+        for _ in range(56):
             m = 0.5 * (a + b)
             p2m = _bisect_p2(xs_b, qj_b, ps_b, c_b, m, lo_b, hi_b, p, n_in)
             f1m, _ = _residuals(xs_b, qj_b, ps_b, c_b, m, p2m, p)
