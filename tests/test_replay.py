@@ -168,3 +168,12 @@ def test_rotation_set_replays_as_one_log(tmp_path, run_rows):
     assert s.files == [str(p) for p in lg.paths]
     assert s.samples == 200 and not s.truncated
     assert s.final["AC001/elevator_L"]["est"] == _direct(rows)[-1].est
+
+
+def test_paced_replay_takes_at_least_the_scaled_duration(tmp_path, run_rows):
+    rows = run_rows[:101]  # 0.1 s of data
+    log = _log(tmp_path / "live.mcap", rows)
+    s = replay(log, speed=0.5)  # half real time: at least 0.2 s
+    assert s.samples == 101
+    assert s.wall_s >= 0.1 / 0.5 * 0.95
+    assert s.final["AC001/elevator_L"]["est"] == _direct(rows)[-1].est

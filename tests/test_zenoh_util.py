@@ -153,3 +153,43 @@ def test_pub_sub_query_liveliness_through_a_router(router):
         )
         sub.undeclare()
         qbl.undeclare()
+
+
+def test_router_command_routes_and_stops_on_sigterm():
+    import signal
+    import subprocess
+    import sys
+
+    port = free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "router", "--listen", loopback(port)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+        assert f"listening on tcp/127.0.0.1:{port}" in first
+        ep = [loopback(port)]
+        with (
+            zenoh.open(make_config("client", connect=ep)) as a,
+            zenoh.open(make_config("client", connect=ep)) as b,
+        ):
+            q: BoundedQueue[bytes] = BoundedQueue(100)
+            a.declare_subscriber("fleet/**", lambda s: q.put(s.payload.to_bytes()))
+            assert wait_until(lambda: b.put("fleet/x/y/meas", b"hi") or len(q) > 0, timeout=10)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+        assert proc.returncode == 0, err
+        assert "stopped" in out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+
+
+def test_router_command_refuses_remote_listen():
+    from service.cli import main
+
+    assert main(["router", "--listen", "tcp/0.0.0.0:7447"]) == 2
