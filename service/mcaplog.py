@@ -354,12 +354,14 @@ class McapLogger:
             self._maybe_rotate()
 
     def _flush_loop(self) -> None:
-        period = self.flush_s / 2
+        # wake 5 times per period and flush once the oldest unflushed data could be older
+        # than flush_s by the next wake-up: nothing stays unwritten for more than flush_s
+        period = self.flush_s / 5
         while not self._stop.wait(period):
             with self._lock:
                 if self._closed:
                     return
-                if time.monotonic() - self._last_flush >= self.flush_s * 0.9:
+                if time.monotonic() - self._last_flush >= self.flush_s - period:
                     try:
                         self._flush_locked()
                         self._maybe_rotate()
