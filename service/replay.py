@@ -94,8 +94,13 @@ def _event_dict(ev: Any) -> dict[str, Any]:
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:
-    """The ``servowatch`` metadata record of an MCAP file ({} if absent or unreadable)."""
-    from mcap.records import Metadata
+    """The ``servowatch`` metadata record of an MCAP file ({} if absent or unreadable).
+
+    McapLogger writes it right after the header, so the scan stops at the first chunk; a
+    file from another writer is looked up through its summary's metadata index.
+    """
+    from mcap.reader import make_reader
+    from mcap.records import Chunk, Metadata
     from mcap.stream_reader import StreamReader
 
     try:
@@ -103,6 +108,12 @@ def read_metadata(path: str | Path) -> dict[str, str]:
             for rec in StreamReader(fh, emit_chunks=True).records:
                 if isinstance(rec, Metadata) and rec.name == "servowatch":
                     return dict(rec.metadata)
+                if isinstance(rec, Chunk):
+                    break
+        with open(path, "rb") as fh:
+            for md in make_reader(fh).iter_metadata():
+                if md.name == "servowatch":
+                    return dict(md.metadata)
     except Exception:
         return {}
     return {}
