@@ -187,8 +187,10 @@ def encode_meas(
         return json.dumps({"v": 1, "samples": out}, separators=(",", ":")).encode()
     if fmt != "bin":
         raise ValueError(f"unknown format {fmt!r}")
+    if n > MAX_SAMPLES:
+        raise MessageError(f"{n} samples exceed {MAX_SAMPLES} per message", "samples")
     parts = [_HEADER.pack(_MAGIC, _VERSION, _KIND_MEAS, n)]
-    for r in rows:
+    for j, r in enumerate(rows):
         mask = 0
         vals = []
         for k, c in enumerate(CHANNELS):
@@ -198,7 +200,12 @@ def encode_meas(
             else:
                 mask |= 1 << k
                 vals.append(v)
-        parts.append(_REC.pack(r["seq"], r["t"], mask, *vals))
+        try:
+            parts.append(_REC.pack(r["seq"], r["t"], mask, *vals))
+        except KeyError as e:
+            raise MessageError("required", f"samples[{j}].{e.args[0]}") from None
+        except struct.error as e:
+            raise MessageError(f"cannot pack: {e}", f"samples[{j}]") from None
     return b"".join(parts)
 
 

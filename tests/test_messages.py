@@ -245,3 +245,18 @@ def test_keys():
             parse_meas_key(bad)
     with pytest.raises(MessageError):
         key(KEY_MEAS, aircraft="**", actuator="x")
+
+
+def test_encode_refuses_what_it_cannot_pack():
+    with pytest.raises(MessageError) as ei:
+        encode_meas([{"seq": 0, "t": 0.0}, {"t": 1.0}], "bin")
+    assert ei.value.field == "samples[1].seq"
+    with pytest.raises(MessageError) as ei:
+        encode_meas([{"seq": 0, "t": 0.0, "p1": "high"}], "bin")
+    assert ei.value.field == "samples[0]"
+    with pytest.raises(MessageError):
+        encode_meas([])
+    with pytest.raises(MessageError):
+        encode_meas([{"seq": k, "t": float(k)} for k in range(4097)], "bin")
+    with pytest.raises(ValueError):
+        encode_meas(_samples(1), "xml")  # type: ignore[arg-type]
