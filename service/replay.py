@@ -254,15 +254,14 @@ def replay(
                     t_first = float(t)
                     summary.t_start = t_first
                 summary.t_end = float(t)
+                if speed is not None:  # paced: process what is due, wait for this sample
+                    due = wall0 + (float(t) - t_first) / speed
+                    if due > time.perf_counter() + 0.002:
+                        flush_batch()
+                        time.sleep(max(0.0, due - time.perf_counter()))
                 if writer is not None:
                     writer.log(topic, float(t), msg)
                 batch.append((name, sample))
-                if speed is not None:
-                    due = wall0 + (float(t) - t_first) / speed
-                    now = time.perf_counter()
-                    if due > now + 0.002:
-                        flush_batch()
-                        time.sleep(max(0.0, due - time.perf_counter()))
                 if len(batch) >= _BATCH:
                     flush_batch()
                     if progress is not None:
