@@ -312,3 +312,26 @@ def test_non_json_values_made_safe(tmp_path):
     assert m["a"] == 1.5 and m["b"] == 3 and m["f"] is None
     assert json.loads(m["c"]) == [1.0, None] and json.loads(m["d"]) == {"x": 1}
     assert isinstance(m["e"], str)
+
+
+def test_random_corruption_never_raises_and_yields_a_prefix(tmp_path):
+    import random
+
+    p = tmp_path / "src.mcap"
+    with _write(p, 600, chunk_size=2048, background_flush=False):
+        pass
+    full = list(read_log(p))
+    data = p.read_bytes()
+    rng = random.Random(5)
+    q = tmp_path / "fuzz.mcap"
+    for _ in range(150):
+        b = bytearray(data)
+        for _ in range(rng.randint(1, 3)):
+            b[rng.randrange(len(b))] = rng.randrange(256)
+        if rng.random() < 0.3:
+            b = b[: rng.randrange(len(b))]
+        q.write_bytes(bytes(b))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", TruncatedLogWarning)
+            got = list(read_log(q))
+        assert got == full[: len(got)]
