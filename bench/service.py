@@ -141,7 +141,14 @@ def _daemon(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     with zenoh.open(cfg.zenoh.to_zenoh()) as session:
-        d = Daemon(cfg, log_path=args.log, monitor_factory=factory)
+        d = Daemon(cfg, log_path=args.log, monitor_factory=factory, log_every=args.log_every)
+        prof = None
+        if args.profile:
+            import cProfile
+
+            prof = cProfile.Profile()
+            inner = d.process_pending
+            d.process_pending = lambda: prof.runcall(inner)
         d.start(session)
         print("ready", flush=True)
         stop.wait()
@@ -152,6 +159,10 @@ def _daemon(args: argparse.Namespace) -> int:
         drain = time.monotonic() - t0
         left = len(d._queue)
         st = d.stop()
+    if prof is not None:
+        import pstats
+
+        pstats.Stats(prof, stream=sys.stderr).sort_stats("tottime").print_stats(25)
     st["drain_s"] = drain
     st["left_in_queue"] = left
     print(json.dumps(st), flush=True)
@@ -169,6 +180,8 @@ def run_one(
     spm: int = 10,
     publish_every: int = 10,
     drain_cap: float = 60.0,
+    log_every: int = 1,
+    profile: bool = False,
 ) -> dict:
     """One benchmark run; returns the row of the table."""
     import zenoh
@@ -198,6 +211,9 @@ def run_one(
                 str(publish_every),
                 "--drain-cap",
                 str(drain_cap),
+                "--log-every",
+                str(log_every),
+                *(["--profile"] if profile else []),
             ],
             stdout=subprocess.PIPE,
             text=True,
@@ -240,6 +256,7 @@ def run_one(
         "actuators": actuators,
         "rate_hz": rate,
         "monitor": monitor,
+        "log_every": log_every,
         "duration_s": duration,
         "sent": gen["sent_samples"],
         "sent_msgs": gen["sent_msgs"],
@@ -270,7 +287,7 @@ def _f(v, spec=".1f"):
 
 def print_table(rows: list[dict]) -> None:
     hdr = (
-        f"{'act x Hz':>10} {'monitor':>7} {'sent':>8} {'accepted':>8} {'logged':>8} "
+        f"{'act x Hz':>10} {'monitor':>7} {'log est':>7} {'sent':>8} {'accepted':>8} {'logged':>8} "
         f"{'processed':>9} {'dropped':>7} {'lat p50':>8} {'lat p99':>8} {'age p50':>8} "
         f"{'age p99':>8} {'busy':>5} {'drain s':>7} {'keeps up':>8}"
     )
@@ -278,7 +295,8 @@ def print_table(rows: list[dict]) -> None:
     print("-" * len(hdr))
     for r in rows:
         print(
-            f"{r['actuators']:>4} x {r['rate_hz']:<4g} {r['monitor']:>7} {r['sent']:>8} "
+            f"{r['actuators']:>4} x {r['rate_hz']:<4g} {r['monitor']:>7} "
+            f"{'1/' + str(r['log_every']):>7} {r['sent']:>8} "
             f"{r['accepted']:>8} {r['logged']:>8} {r['processed']:>9} {r['dropped']:>7} "
             f"{_f(r['lat_p50_ms']):>8} {_f(r['lat_p99_ms']):>8} {_f(r['age_p50_ms']):>8} "
             f"{_f(r['age_p99_ms']):>8} {r['busy']:>5.2f} {r['drain_s']:>7.1f} "
@@ -286,7 +304,8 @@ def print_table(rows: list[dict]) -> None:
         )
     print(
         "latencies in ms: lat = receipt by the daemon -> health output; age = sample time "
-        "-> health output (includes the publisher's 10-sample batching)"
+        "-> health output (includes the publisher's 10-sample batching); log est = est and "
+        "residual logged for 1 output in N (every sample is always logged)"
     )
 
 
@@ -301,26 +320,40 @@ def main(argv=None) -> int:
     p.add_argument("--spm", type=int, default=10, help="samples per message")
     p.add_argument("--monitor", choices=("real", "null"), default=None)
     p.add_argument("--publish-every", type=int, default=10)
+    p.add_argument("--log-every", type=int, default=1, help="log est/res every N outputs")
     p.add_argument("--drain-cap", type=float, default=60.0)
     p.add_argument("--json", action="store_true")
+    p.add_argument("--profile", action="store_true", help="profile the daemon's worker")
     args = p.parse_args(argv)
     if args.role == "_gen":
         return _generator(args)
     if args.role == "_daemon":
         return _daemon(args)
     if args.actuators is not None or args.monitor is not None:
-        plan = [(args.actuators or 20, args.monitor or "real")]
+        plan = [(args.actuators or 20, args.monitor or "real", args.log_every)]
     else:
-        plan = [(20, "null"), (1, "real"), (20, "real")]
+        plan = [(20, "null", 1), (20, "null", 10), (1, "real", 1), (20, "real", 10)]
     rows = []
-    for n, mon in plan:
+    for n, mon, le in plan:
         dur = args.duration if not (mon == "real" and n > 1) else min(args.duration, 5.0)
         print(
-            f"run: {n} actuators x {args.rate:g} Hz, {dur:g} s, monitor {mon} ...",
+            f"run: {n} actuators x {args.rate:g} Hz, {dur:g} s, monitor {mon}, log_every {le} ...",
             file=sys.stderr,
             flush=True,
         )
-        rows.append(run_one(n, args.rate, dur, mon, args.spm, args.publish_every, args.drain_cap))
+        rows.append(
+            run_one(
+                n,
+                args.rate,
+                dur,
+                mon,
+                args.spm,
+                args.publish_every,
+                args.drain_cap,
+                le,
+                args.profile,
+            )
+        )
     print(
         f"servowatch daemon benchmark ({os.cpu_count()} CPUs), {args.spm} samples/message, "
         f"publish_every {args.publish_every}"

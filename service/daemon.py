@@ -7,8 +7,10 @@ Data path (design.md, "Data flow" and "Backpressure"):
 * one worker thread drains the queue every tick, decodes and validates each message
   (``service.messages.decode_meas_dicts``), checks sequence numbers and sample times per
   actuator, logs every accepted sample, feeds the whole tick's samples to the monitors in one
-  ``MonitorBank.update_many`` call, logs every estimate, residual, health and alarm event,
-  and publishes est/res/health every ``publish_every``-th output per actuator;
+  ``MonitorBank.update_many`` call, logs the estimate and residual of every ``log_every``-th
+  output (default 1: every one), health every ``publish_every``-th output, and every alarm
+  event (with the est/res/health of that sample), and publishes est/res/health every
+  ``publish_every``-th output per actuator;
 * the status queryable ``monitor/{station}/{shard}/status`` answers a JSON snapshot.
 
 Bad input (malformed payload, wrong schema, NaN/inf, duplicate or out-of-order samples,
@@ -43,6 +45,7 @@ from service import messages as m
 __all__ = [
     "ActuatorState",
     "Daemon",
+    "ProcessLogger",
     "MAX_ACTUATORS",
     "RateLimitedLog",
     "add_zenoh_arguments",
@@ -254,6 +257,11 @@ def _jsonable(d: Any) -> Any:
 
 def _flat(d: dict) -> dict:
     """A flat mapping for the MCAP log (scalars kept; lists/dicts as JSON text)."""
+    for v in d.values():  # fast path: the monitor's outputs are plain finite floats
+        if type(v) is not float or v - v != 0.0:
+            break
+    else:
+        return d
     out = {}
     for k, v in d.items():
         v = _jsonable(v)
@@ -294,6 +302,152 @@ def _output_parts(out: Any) -> tuple[float, dict, dict, dict, list]:
             list(out.get("events", [])),
         )
     return out.t, out.est, out.res, out.health, list(out.events or [])
+
+
+# --------------------------------------------------------------------------- log process
+
+
+def _log_process_entry() -> None:
+    """``python -c`` entry of the log process: argv[1] is JSON {fd, path, kwargs}."""
+    import sys
+    from multiprocessing.connection import Connection
+
+    a = json.loads(sys.argv[1])
+    _log_process_main(Connection(a["fd"]), a["path"], a["kwargs"])
+
+
+def _log_process_main(conn, path: str, kwargs: dict) -> None:
+    """Child process of :class:`ProcessLogger`: decode forwarded messages, write the MCAP."""
+    import signal as _signal
+
+    from service.mcaplog import McapLogger
+
+    # the parent decides when to stop (systemd and terminals signal the whole group): the
+    # child ends on the parent's close or when the pipe closes because the parent died
+    _signal.signal(_signal.SIGINT, _signal.SIG_IGN)
+    _signal.signal(_signal.SIGTERM, _signal.SIG_IGN)
+    try:
+        lg = McapLogger(path, **kwargs)
+    except Exception as e:
+        conn.send(("error", f"{type(e).__name__}: {e}"))
+        return
+    conn.send(("paths", [str(p) for p in lg.paths]))
+    n_paths = len(lg.paths)
+    try:
+        while True:
+            try:
+                batch = conn.recv()
+            except EOFError:  # the daemon died: finish the file with what we have
+                break
+            if batch is None:
+                break
+            for rec in batch:
+                if rec[0] == "m":  # (m, topic, payload, indices or None)
+                    _, topic, payload, idx = rec
+                    rows = m.decode_meas_dicts(payload, max(len(payload), m.MAX_BYTES))
+                    for row in rows if idx is None else (rows[i] for i in idx):
+                        lg.log(topic, row["t"], row)
+                else:  # (l, topic, t, msg)
+                    lg.log(rec[1], rec[2], rec[3])
+            if len(lg.paths) != n_paths:
+                n_paths = len(lg.paths)
+                conn.send(("paths", [str(p) for p in lg.paths]))
+    finally:
+        lg.close()
+        with contextlib.suppress(OSError, ValueError):
+            conn.send(("closed", [str(p) for p in lg.paths], lg.message_count))
+
+
+class ProcessLogger:
+    """An ``McapLogger`` in a child process, fed through a pipe once per worker tick.
+
+    JSON encoding and MCAP writing (about half of the per-sample cost) then run on another
+    core instead of sharing the daemon's GIL with decoding and the monitors. Measurement
+    messages are forwarded as the received payload plus the indices of the accepted samples;
+    the child decodes them again. Same ``log``/``close``/``paths`` interface; ``commit``
+    sends what was logged since the last call. If the daemon dies, the child sees the pipe
+    close and finishes the file (a ``kill -9`` of both loses at most ``flush_s``).
+    """
+
+    def __init__(self, path: str | Path, **kwargs: Any) -> None:
+        import subprocess
+        import sys
+        from multiprocessing.connection import Connection
+
+        # a plain child interpreter (not multiprocessing's spawn, which re-imports __main__)
+        # talking over a socket pair; the child needs only service.mcaplog
+        a, b = socket.socketpair()
+        arg = json.dumps({"fd": b.fileno(), "path": str(path), "kwargs": kwargs})
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", "import service.daemon as d; d._log_process_entry()", arg],
+            pass_fds=(b.fileno(),),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+        )
+        b.close()
+        self._conn = Connection(a.detach())
+        self._buf: list[tuple] = []
+        self._lock = threading.Lock()
+        self._closed = False
+        self.paths: list[Path] = []
+        self.message_count = 0
+        kind, *rest = self._conn.recv()
+        if kind == "error":
+            self._proc.wait(5)
+            raise OSError(f"{path}: cannot open the MCAP log: {rest[0]}")
+        self.paths = [Path(p) for p in rest[0]]
+
+    def log(self, topic: str, t: float, msg: Any) -> None:
+        """Queue one message (sent at the next ``commit``)."""
+        self._buf.append(("l", topic, t, msg))
+
+    def log_payload(self, topic: str, payload: bytes, idx: list[int] | None) -> None:
+        """Queue the samples ``idx`` (None = all) of a received measurement message."""
+        self._buf.append(("m", topic, payload, idx))
+
+    def _poll(self) -> None:
+        while self._conn.poll():
+            kind, *rest = self._conn.recv()
+            if kind in ("paths", "closed"):
+                self.paths = [Path(p) for p in rest[0]]
+            if kind == "closed":
+                self.message_count = rest[1]
+
+    def commit(self) -> None:
+        """Send the queued messages to the log process."""
+        with self._lock:
+            if self._closed:
+                return
+            if self._buf:
+                buf, self._buf = self._buf, []
+                self._conn.send(buf)
+            self._poll()
+
+    def close(self, timeout: float = 60.0) -> None:
+        """Send the rest, finish the file, wait for the log process. Idempotent."""
+        self.commit()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._conn.send(None)
+                deadline = time.monotonic() + timeout
+                while time.monotonic() < deadline and self._proc.poll() is None:
+                    if self._conn.poll(0.1):
+                        kind, *rest = self._conn.recv()
+                        if kind in ("paths", "closed"):
+                            self.paths = [Path(p) for p in rest[0]]
+                        if kind == "closed":
+                            self.message_count = rest[1]
+                            break
+            except (EOFError, OSError):
+                pass
+            try:
+                self._proc.wait(timeout)
+            except Exception:
+                self._proc.kill()
+            self._conn.close()
 
 
 # --------------------------------------------------------------------------- monitors
@@ -398,8 +552,10 @@ class Daemon:
         baseline: Any = None,
         tick_s: float = 0.05,
         gather_s: float = 0.005,
-        max_batch: int = 20000,
+        max_batch: int = 500,
         bad_log_interval_s: float = 5.0,
+        log_every: int | None = None,
+        log_process: bool = True,
     ) -> None:
         if config is None:
             from service.config import ServiceConfig
@@ -410,6 +566,9 @@ class Daemon:
         self.shard = str(getattr(config, "shard", "0"))
         self.key_expr = str(getattr(config, "key_expr", "fleet/**/meas"))
         self.publish_every = max(1, int(getattr(config, "publish_every", 10) or 1))
+        if log_every is None:
+            log_every = getattr(config, "log_every", 1)
+        self.log_every = max(1, int(log_every or 1))
         self.silence_s = float(getattr(config, "silence_s", 2.0) or 2.0)
         self.queue_size = max(1, int(getattr(config, "queue_size", 10000) or 10000))
         self.max_bytes = int(getattr(config, "max_bytes", m.MAX_BYTES) or m.MAX_BYTES)
@@ -430,13 +589,13 @@ class Daemon:
                     str(getattr(config, "log_name", "servowatch")),
                 )
             Path(log_path).parent.mkdir(parents=True, exist_ok=True)
-            logger = McapLogger(
-                log_path,
-                rotate_bytes=getattr(config, "rotate_bytes", None),
-                rotate_s=getattr(config, "rotate_s", None),
-                flush_s=float(getattr(config, "flush_s", 1.0) or 1.0),
-                metadata=self.monitors.metadata(self.station, self.shard),
-            )
+            kw = {
+                "rotate_bytes": getattr(config, "rotate_bytes", None),
+                "rotate_s": getattr(config, "rotate_s", None),
+                "flush_s": float(getattr(config, "flush_s", 1.0) or 1.0),
+                "metadata": self.monitors.metadata(self.station, self.shard),
+            }
+            logger = ProcessLogger(log_path, **kw) if log_process else McapLogger(log_path, **kw)
         self.logger = logger
         self.log_path = Path(log_path) if log_path is not None else None
         self.actuators: dict[str, ActuatorState] = {}
@@ -526,6 +685,7 @@ class Daemon:
         recv: list[float] = []
         states: list[ActuatorState] = []
         logger = self.logger
+        log_payload = getattr(logger, "log_payload", None)
         for key, payload, t_recv in msgs:
             st = self._state_for_key(key)
             if st is None:
@@ -550,7 +710,8 @@ class Daemon:
                 self.bad_log.warning(st.name, "bad message from %s: %s (%s)", st.name, e, reason)
                 continue
             topic = m.mcap_topic(st.aircraft, st.actuator, "meas")
-            for row in rows:
+            idx: list[int] = []
+            for j, row in enumerate(rows):
                 seq, t = row["seq"], row["t"]
                 if st.last_t is not None and t <= st.last_t:
                     why = "duplicate" if seq == st.last_seq or t == st.last_t else "out_of_order"
@@ -573,10 +734,15 @@ class Daemon:
                         self._service_event(st, "restart", t, value=seq)
                 st.last_seq, st.last_t = seq, t
                 st.samples += 1
-                logger.log(topic, t, row)
+                if log_payload is None:
+                    logger.log(topic, t, row)
+                else:
+                    idx.append(j)
                 batch.append((key, {k: row[k] for k in INPUT_KEYS}))
                 recv.append(t_recv)
                 states.append(st)
+            if log_payload is not None and idx:
+                log_payload(topic, payload, None if len(idx) == len(rows) else idx)
         if batch:
             try:
                 outs = self.monitors.update_many(batch)
@@ -589,6 +755,9 @@ class Daemon:
             for out, st, t_recv in zip(outs, states, recv, strict=True):
                 if out is not None:
                     self._handle_output(st, out, now_m - t_recv, now_w)
+        commit = getattr(logger, "commit", None)
+        if commit is not None:
+            commit()
         self.ticks += 1
         self.busy_s += time.perf_counter() - t0
         return len(batch)
@@ -603,9 +772,12 @@ class Daemon:
             self.age.append(now_w - t)
         lg = self.logger
         base = f"/fleet/{st.aircraft}/{st.actuator}/"
-        lg.log(base + "est", t, _flat(est))
-        lg.log(base + "residual", t, _flat(res))
-        lg.log(base + "health", t, _flat(health))
+        n = st.outputs
+        if events or n % self.log_every == 0:
+            lg.log(base + "est", t, _flat(est))
+            lg.log(base + "residual", t, _flat(res))
+        if events or n % self.publish_every == 0:
+            lg.log(base + "health", t, _flat(health))
         for ev in events:
             d = _event_dict(ev)
             lg.log(base + "events", float(d.get("t") or t), _flat(d))
@@ -616,7 +788,7 @@ class Daemon:
                 st.alarms.pop(kind, None)
             st.events.append(d)
             log.info("alarm %s %s: %s", st.name, kind, d)
-        if st.outputs % self.publish_every == 0 and self._session is not None:
+        if n % self.publish_every == 0 and self._session is not None:
             self._publish(st, t, est, res, health)
 
     def _publish(self, st: ActuatorState, t: float, est: dict, res: dict, health: dict) -> None:
@@ -671,7 +843,10 @@ class Daemon:
                 now = time.monotonic()
                 if now - self._last_silence_check > 0.2:
                     self._last_silence_check = now
-                    self.check_silence(now)
+                    if self.check_silence(now):
+                        commit = getattr(self.logger, "commit", None)
+                        if commit is not None:
+                            commit()
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now
                     sd_notify("WATCHDOG=1")

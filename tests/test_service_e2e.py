@@ -49,8 +49,8 @@ class Net:
         self.session = zenoh.open(make_config("client", connect=[self.ep]))
         self.procs: list[subprocess.Popen] = []
 
-    def start(self, *args: str, env: dict | None = None) -> subprocess.Popen:
-        p = cli(*args, "--connect", self.ep, env=env)
+    def start(self, *args: str, env: dict | None = None, **kw) -> subprocess.Popen:
+        p = cli(*args, "--connect", self.ep, env=env, **kw)
         self.procs.append(p)
         return p
 
@@ -74,6 +74,10 @@ class Net:
             if p.poll() is None:
                 p.kill()
                 p.wait(5)
+            if p.stdout is not None:
+                p.stdout.close()
+            if p.stderr is not None:
+                p.stderr.close()
         self.session.close()
         self.router.close()
 
@@ -208,15 +212,18 @@ def test_live_estimates_equal_replay(leak_run):
 
 
 def test_kill_9_loses_at_most_the_last_second_and_the_rest_replays(net, tmp_path):
+    """Worst case: SIGKILL to the daemon and its MCAP log process at once (as systemd does
+    to a whole cgroup); the file has no footer, everything older than ~1 s is readable."""
     from service.replay import replay
 
     log = tmp_path / "killed.mcap"
-    d = start_daemon(net, log)
+    d = net.start("run", "--log", str(log), "--no-rotate", "--json", start_new_session=True)
+    net.wait(lambda st: True, what="the daemon's status queryable")
     net.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "30")
     net.wait(lambda st: act_samples(st) > RATE * 4 and st["queue"] == 0, what="4 s of data")
     time.sleep(0.5)
     t_kill = time.time()
-    d.send_signal(signal.SIGKILL)
+    os.killpg(d.pid, signal.SIGKILL)
     d.wait(10)
     rows, warned = read(log, [MEAS])
     assert warned and "truncated" in warned[0]
@@ -226,6 +233,22 @@ def test_kill_9_loses_at_most_the_last_second_and_the_rest_replays(net, tmp_path
     assert t_kill - last_t <= 1.5, f"lost {t_kill - last_t:.2f} s"  # flush_s = 1 s
     s = replay(log)
     assert s.truncated and s.samples == len(rows) and s.outputs > 0
+
+
+def test_kill_9_of_the_daemon_alone_loses_nothing_it_received(net, tmp_path):
+    """SIGKILL to the daemon process only: its log process sees the pipe close and finishes
+    the file with every sample the daemon had forwarded."""
+    log = tmp_path / "killed1.mcap"
+    d = start_daemon(net, log)
+    net.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "30")
+    st = net.wait(lambda st: act_samples(st) > RATE * 3, what="3 s of data")
+    d.send_signal(signal.SIGKILL)
+    d.wait(10)
+    time.sleep(2.0)  # the log process finishes the file
+    rows, warned = read(log, [MEAS])
+    assert warned == []
+    seqs = [r[2]["seq"] for r in rows]
+    assert seqs == list(range(len(seqs))) and len(seqs) >= act_samples(st)
 
 
 def test_sigterm_mid_stream_finishes_a_contiguous_log(net, tmp_path):
