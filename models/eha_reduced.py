@@ -44,6 +44,8 @@ __all__ = [
     "ecu_current",
     "param_vector",
     "step_nb",
+    "step_core_nb",
+    "spool_coef_nb",
     "measure_nb",
 ]
 
@@ -239,27 +241,34 @@ def _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, prm):
 
 
 @njit(cache=True)
-def step_nb(x, i, dt, n_sub, prm, out):
-    """Scalar ``step`` (same algebra): x (7,) -> out (7,); parameters clipped for evaluation
-    (C_Lk >= 0, P_SR >= P_vap) but copied through unchanged."""
-    x_s, v_s, x_j, v_j = x[0], x[1], x[2], x[3]
-    f_r = x[4]
-    p_sr = max(x[5], prm[K_P_VAP])
-    c_lk = max(x[6], 0.0)
-    g_pq = _g_pq_nb(p_sr, prm)
-    h = dt / n_sub
+def spool_coef_nb(h, prm, coef):
+    """Zero-order-hold transition of the spool over a substep h: coef = (a11, a12, a21, a22)."""
     w, z = prm[K_OMEGA_N], prm[K_ZETA]
     sig = z * w
     wd = w * math.sqrt(1.0 - z * z)
     e = math.exp(-sig * h)
     c, s = math.cos(wd * h), math.sin(wd * h)
+    coef[0] = e * (c + sig / wd * s)
+    coef[1] = e * s / wd
+    coef[2] = -e * (w * w) / wd * s
+    coef[3] = e * (c - sig / wd * s)
+
+
+@njit(cache=True)
+def step_core_nb(x, i, h, n_sub, prm, coef, out):
+    """``step_nb`` with the spool transition ``coef`` of the substep h precomputed."""
+    x_s, v_s, x_j, v_j = x[0], x[1], x[2], x[3]
+    f_r = x[4]
+    p_sr = max(x[5], prm[K_P_VAP])
+    c_lk = max(x[6], 0.0)
+    g_pq = _g_pq_nb(p_sr, prm)
     x_sm = prm[K_X_SM]
     x_ref = min(max(prm[K_K_SV] * i, -x_sm), x_sm)
     dv = 1e-5
     for _ in range(n_sub):
         dx = x_s - x_ref
-        xn = x_ref + e * ((c + sig / wd * s) * dx + s / wd * v_s)
-        v_s = e * (-(w * w) / wd * s * dx + (c - sig / wd * s) * v_s)
+        xn = x_ref + coef[0] * dx + coef[1] * v_s
+        v_s = coef[2] * dx + coef[3] * v_s
         x_s = min(max(xn, -x_sm), x_sm)
         a0 = _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, prm)
         a1 = _accel_nb(x_s, v_j + dv, f_r, p_sr, c_lk, g_pq, prm)
@@ -268,6 +277,16 @@ def step_nb(x, i, dt, n_sub, prm, out):
         x_j = x_j + h * v_j
     out[0], out[1], out[2], out[3] = x_s, v_s, x_j, v_j
     out[4], out[5], out[6] = x[4], x[5], x[6]
+
+
+@njit(cache=True)
+def step_nb(x, i, dt, n_sub, prm, out):
+    """Scalar ``step`` (same algebra): x (7,) -> out (7,); parameters clipped for evaluation
+    (C_Lk >= 0, P_SR >= P_vap) but copied through unchanged."""
+    coef = np.empty(4)
+    h = dt / n_sub
+    spool_coef_nb(h, prm, coef)
+    step_core_nb(x, i, h, n_sub, prm, coef, out)
 
 
 @njit(cache=True)

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from models import eha_reduced as er
-from models.eha_reduced import step_nb
+from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
 from service.ukf import BatchUKF, ukf_step_batch
@@ -42,8 +42,12 @@ __all__ = [
     "MonitorOutput",
     "Monitor",
     "MonitorBank",
+    "BankRows",
     "MEAS_CHANNELS",
     "ALARM_KINDS",
+    "EST_KEYS",
+    "RES_KEYS",
+    "HEALTH_KEYS",
 ]
 
 MEAS_CHANNELS: tuple[str, ...] = er.MEAS_NAMES  # x_s, x_j, p1, p2, p_sr
@@ -237,6 +241,30 @@ class MonitorOutput:
     events: list[AlarmEvent] = field(default_factory=list)
 
 
+@dataclass
+class BankRows:
+    """Outputs of ``MonitorBank.update_rows``: one row per accepted sample, in input order.
+    Columns are named by ``EST_KEYS``, ``RES_KEYS`` and ``HEALTH_KEYS`` (same values as the
+    dicts of ``MonitorOutput``)."""
+
+    index: NDArray  # (R,) position of each accepted sample in the input sequence
+    t: NDArray  # (R,)
+    est: NDArray  # (R, len(EST_KEYS))
+    res: NDArray  # (R, len(RES_KEYS))
+    health: NDArray  # (R, len(HEALTH_KEYS))
+    events: list[list[AlarmEvent]]
+
+    def output(self, r: int) -> MonitorOutput:
+        """Row ``r`` as a ``MonitorOutput``."""
+        return MonitorOutput(
+            t=float(self.t[r]),
+            est=dict(zip(EST_KEYS, self.est[r].tolist(), strict=True)),
+            res=dict(zip(RES_KEYS, self.res[r].tolist(), strict=True)),
+            health=dict(zip(HEALTH_KEYS, self.health[r].tolist(), strict=True)),
+            events=self.events[r],
+        )
+
+
 _COUNTERS = (
     "accepted",
     "skipped_nan",
@@ -303,6 +331,7 @@ class MonitorBank:
         self._prm = er.param_vector(self.rp)
         self._p_sr_max = b.p_sr_rated / self.scale[5]
         self.ids: dict[str, int] = {}
+        self._rows: list | None = None
         self._alloc(capacity)
 
     # -- storage -------------------------------------------------------------------------
@@ -351,6 +380,35 @@ class MonitorBank:
         """Process samples (actuator id, sample) in order. The n-th sample of each actuator
         goes into round n, so the result equals feeding them one by one."""
         out: list[MonitorOutput | None] = [None] * len(samples)
+        self._run_rounds(samples, out)
+        return out
+
+    def update_rows(self, samples: Sequence[tuple[str, Mapping]]) -> BankRows:
+        """As ``update_many`` (same numbers) but the outputs stay numpy rows (``BankRows``):
+        no per-sample dicts, for a fleet that logs or publishes arrays."""
+        self._rows = []
+        try:
+            self._run_rounds(samples, None)
+            parts = self._rows
+        finally:
+            self._rows = None
+        if not parts:
+            z = np.zeros((0,))
+            return BankRows(np.zeros(0, int), z, z.reshape(0, len(_EST_KEYS)),
+                            z.reshape(0, len(_RES_KEYS)), z.reshape(0, len(_HEALTH_KEYS)), [])  # fmt: skip
+        idx = np.concatenate([np.asarray(p[0], int) for p in parts])
+        order = np.argsort(idx, kind="stable")
+        evs = [e for p in parts for e in p[5]]
+        return BankRows(
+            index=idx[order],
+            t=np.concatenate([p[1] for p in parts])[order],
+            est=np.concatenate([p[2] for p in parts])[order],
+            res=np.concatenate([p[3] for p in parts])[order],
+            health=np.concatenate([p[4] for p in parts])[order],
+            events=[evs[j] for j in order],
+        )
+
+    def _run_rounds(self, samples, out) -> None:
         seen: dict[str, int] = {}
         rounds: list[list[int]] = []
         for j, (key, _) in enumerate(samples):
@@ -361,46 +419,52 @@ class MonitorBank:
             rounds[r].append(j)
         for r in rounds:
             self._round([samples[j] for j in r], r, out)
-        return out
 
     # -- core ----------------------------------------------------------------------------
     def _parse(self, k: int, s: Mapping):
         """(t, z list (scaled), mask list, i, x_cmd) or None (counted)."""
-        cnt = self.counters[k]
-        t = _f(s.get("t"))
-        if t is None:
-            cnt["skipped_nan"] += 1
-            return None
+        get = s.get
+        t = get("t")
+        if type(t) is not float or t - t != 0.0:
+            t = _f(t)
+            if t is None:
+                self.counters[k]["skipped_nan"] += 1
+                return None
         z = [0.0] * 5
         mask = [False] * 5
         bad = 0
         for c, name, zs in self._chan:
-            raw = s.get(name)
-            if raw is None:
-                continue
-            v = _f(raw)
+            v = get(name)
             if v is None:
-                bad += 1
                 continue
+            if type(v) is not float or v - v != 0.0:
+                v = _f(v)
+                if v is None:
+                    bad += 1
+                    continue
             z[c] = v / zs
             mask[c] = True
-        i = _f(s.get("i"))
-        if i is None and s.get("i") is not None:
-            bad += 1
-        x_cmd = _f(s.get("x_cmd"))
-        if x_cmd is None and s.get("x_cmd") is not None:
-            bad += 1
+        i = get("i")
+        if i is not None and (type(i) is not float or i - i != 0.0):
+            i = _f(i)
+            if i is None:
+                bad += 1
+        x_cmd = get("x_cmd")
+        if x_cmd is not None and (type(x_cmd) is not float or x_cmd - x_cmd != 0.0):
+            x_cmd = _f(x_cmd)
+            if x_cmd is None:
+                bad += 1
         if bad:
-            cnt["bad_channel"] += bad
-        if not any(mask) and i is None and x_cmd is None:
-            cnt["skipped_nan"] += 1
+            self.counters[k]["bad_channel"] += bad
+        if i is None and x_cmd is None and not any(mask):
+            self.counters[k]["skipped_nan"] += 1
             return None
         if t <= self.t_last[k]:
-            cnt["skipped_time"] += 1
+            self.counters[k]["skipped_time"] += 1
             return None
-        miss = sum(1 for c in self._expect_idx if not mask[c])
-        if miss:
-            cnt["missing_channel"] += miss
+        for c in self._expect_idx:
+            if not mask[c]:
+                self.counters[k]["missing_channel"] += 1
         return t, z, mask, i, x_cmd
 
     def _init_state(self, k: int, z: NDArray, mask: NDArray, i, x_cmd) -> None:
@@ -452,9 +516,10 @@ class MonitorBank:
                 self.t_init[k] = t
                 self.i_last[k] = p[3] if p[3] is not None else 0.0
                 self.counters[k]["accepted"] += 1
-                out[slot] = self._outputs(
-                    np.array([k]), np.array([t]), z1, m1, np.zeros((1, 5)), np.zeros(1), [[]]
-                )[0]
+                self._outputs(
+                    np.array([k]), np.array([t]), z1, m1, np.zeros((1, 5)), np.zeros(1), [[]],
+                    [slot], out,
+                )  # fmt: skip
                 continue
             idx.append(k)
             parsed.append(p)
@@ -519,33 +584,17 @@ class MonitorBank:
             evs[j].append(AlarmEvent(float(t[j]), "reinit", "raised", value))
         for k in ks:
             self.counters[k]["accepted"] += 1
-        outs = self._outputs(ks, t, z, mask, y, nis, evs)
-        for j, o in enumerate(outs):
-            out[slot_of[j]] = o
+        self._outputs(ks, t, z, mask, y, nis, evs, slot_of, out)
 
-    def _outputs(self, ks, t, z, mask, y, nis, evs) -> list[MonitorOutput]:
+    def _outputs(self, ks, t, z, mask, y, nis, evs, slots, out) -> None:
         b, acfg, sc, zs = self.baseline, self.config.alarms, self.scale, self._zscale
-        xs = self.x[ks] * sc
-        sd = np.sqrt(np.maximum(np.diagonal(self.P[ks], axis1=1, axis2=2), 0.0)) * sc
-        p12 = er.p12_state(
-            xs[:, 0],
-            xs[:, 3],
-            np.maximum(xs[:, 5], self.rp.p_vap),
-            np.maximum(xs[:, 6], 0),
-            self.rp,
-        )
-        est = np.empty((len(ks), 2 * _NX + 2))
-        est[:, 0 : 2 * _NX : 2] = xs
-        est[:, 1 : 2 * _NX : 2] = sd
-        est[:, -2] = p12
-        est[:, -1] = xs[:, 6] - b.c_lk
-        olm = er.measure(self.ol[ks], self.rp)
-        res = np.zeros((len(ks), 2 * 5 + 2))
-        res[:, 0:5] = y * zs
-        res[:, 5] = nis
-        res[:, 6] = mask.sum(axis=1)
-        res[:, 7:12] = np.where(mask, z * zs - olm, 0.0)
         n = len(ks)
+        est = np.empty((n, 2 * _NX + 2))
+        res = np.empty((n, 2 * 5 + 2))
+        _output_rows(
+            self.x, self.P, self.ol, ks, sc, zs, self._prm, b.c_lk, z, mask, y, nis, est, res
+        )
+        xs = est[:, 0 : 2 * _NX : 2]
         leak_ratio = xs[:, 6] / b.c_lk if b.c_lk > 0 else np.zeros(n)
         supply_ratio = xs[:, 5] / b.p_sr_rated
         # alarms with hysteresis (raise/clear levels) and persistence (hold_s), vectorised
@@ -567,22 +616,20 @@ class MonitorBank:
         health[:, 0:2] = values
         health[:, 2:4] = self.alarm[ks]
         health[:, 4] = self.nis_avg[ks]
+        for j in np.flatnonzero([bool(e) for e in evs]):
+            self.events_log[int(ks[j])].extend(evs[j])
+        if self._rows is not None:  # update_rows: keep the arrays
+            self._rows.append((slots, t, est, res, health, evs))
+            return
         est_l, res_l, h_l, t_l = est.tolist(), res.tolist(), health.tolist(), t.tolist()
-        out = []
-        for j, k in enumerate(ks.tolist()):
-            ev = evs[j]
-            if ev:
-                self.events_log[k].extend(ev)
-            out.append(
-                MonitorOutput(
-                    t=t_l[j],
-                    est=dict(zip(_EST_KEYS, est_l[j], strict=True)),
-                    res=dict(zip(_RES_KEYS, res_l[j], strict=True)),
-                    health=dict(zip(_HEALTH_KEYS, h_l[j], strict=True)),
-                    events=ev,
-                )
+        for j, slot in enumerate(slots):
+            out[slot] = MonitorOutput(
+                t=t_l[j],
+                est=dict(zip(_EST_KEYS, est_l[j], strict=False)),
+                res=dict(zip(_RES_KEYS, res_l[j], strict=False)),
+                health=dict(zip(_HEALTH_KEYS, h_l[j], strict=False)),
+                events=evs[j],
             )
-        return out
 
 
 _EST_KEYS = tuple([k for n in er.STATE_NAMES for k in (n, n + "_sigma")] + ["p12", "c_lk_increase"])
@@ -595,11 +642,44 @@ _RES_KEYS = tuple(
 
 
 @njit(cache=True)
+def _output_rows(x, P, ol, ks, scale, zscale, prm, c_lk0, z, mask, y, nis, est, res):
+    """Flat output rows: est = (state, sigma) pairs, P12, C_Lk increase; res = innovations,
+    NIS, dof, open-loop residuals (measured minus parallel model), all SI."""
+    n = x.shape[1]
+    m = z.shape[1]
+    xs = np.empty(n)
+    zo = np.empty(m)
+    for j in range(ks.shape[0]):
+        k = ks[j]
+        for r in range(n):
+            xs[r] = x[k, r] * scale[r]
+            est[j, 2 * r] = xs[r]
+            est[j, 2 * r + 1] = math.sqrt(max(P[k, r, r], 0.0)) * scale[r]
+        measure_nb(xs, prm, zo)
+        est[j, 2 * n] = zo[2] - zo[3]  # P12
+        est[j, 2 * n + 1] = xs[6] - c_lk0
+        measure_nb(ol[k], prm, zo)
+        dof = 0.0
+        for r in range(m):
+            res[j, r] = y[j, r] * zscale[r]
+            if mask[j, r]:
+                dof += 1.0
+                res[j, 7 + r] = z[j, r] * zscale[r] - zo[r]
+            else:
+                res[j, 7 + r] = 0.0
+        res[j, 5] = nis[j]
+        res[j, 6] = dof
+
+
+@njit(cache=True)
 def _ol_step_batch(ol, i_in, dt, n_sub, prm):
     """Advance the parallel-model states (B, 7) in place."""
     tmp = np.empty(ol.shape[1])
+    coef = np.empty(4)
     for b in range(ol.shape[0]):
-        step_nb(ol[b], i_in[b], dt[b], n_sub[b], prm, tmp)
+        h = dt[b] / n_sub[b]
+        spool_coef_nb(h, prm, coef)
+        step_core_nb(ol[b], i_in[b], h, n_sub[b], prm, coef, tmp)
         ol[b, :] = tmp
 
 
@@ -628,3 +708,6 @@ class Monitor:
         """Process one sample (keys t, x_cmd, i, x_s, x_j, p1, p2, p_sr; all but t optional);
         None when the sample is skipped (counted in ``counters``)."""
         return self._bank.update_many([(self._key, sample)])[0]
+
+
+EST_KEYS, RES_KEYS, HEALTH_KEYS = _EST_KEYS, _RES_KEYS, _HEALTH_KEYS

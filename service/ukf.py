@@ -23,7 +23,7 @@ from filterpy.kalman import MerweScaledSigmaPoints
 from numba import njit
 from numpy.typing import NDArray
 
-from models.eha_reduced import measure_nb, step_nb
+from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
 
 __all__ = [
     "SigmaWeights",
@@ -216,6 +216,7 @@ def ukf_step_batch(
     col = np.empty(m)
     sol = np.empty(m)
     yv = np.empty(m)
+    coef = np.empty(4)
     for b in range(B):
         status[b] = 0
         for r in range(n):
@@ -236,10 +237,12 @@ def ukf_step_batch(
                 sig[1 + k, r] = x[b, r] + L[r, k]
                 sig[1 + n + k, r] = x[b, r] - L[r, k]
         # propagate through the model (SI units)
+        h = dt[b] / n_sub[b]
+        spool_coef_nb(h, prm, coef)
         for k in range(K):
             for r in range(n):
                 xs[r] = sig[k, r] * scale[r]
-            step_nb(xs, i_in[b], dt[b], n_sub[b], prm, xo)
+            step_core_nb(xs, i_in[b], h, n_sub[b], prm, coef, xo)
             for r in range(n):
                 sig_f[k, r] = xo[r] / scale[r]
         # unscented transform

@@ -185,3 +185,17 @@ def test_baseline_and_config_validation():
     assert nominal.x_ss == pytest.approx(1e-4) and nominal.c_lk == 2e-13
     # the calibrated effective pressure gain is about twice the secant one (physics.md 3)
     assert 1.7 < nominal.x_ss / b.x_ss < 2.1
+
+
+def test_update_rows_equals_update_many():
+    sim, meas = hf_run("healthy_noise", 1.5)
+    good = samples(meas)[:200]
+    a, b = MonitorBank(), MonitorBank()
+    for j in range(len(good)):
+        batch = [("A", good[j]), ("B", dict(good[j], p1=good[j]["p1"] + 2e5)), ("A", {"t": 0.0})]
+        outs = a.update_many(batch)
+        rows = b.update_rows(batch)
+        assert list(rows.index) == [0, 1]  # the stale third sample is skipped
+        for r, k in enumerate(rows.index):
+            o = rows.output(r)
+            assert o.est == outs[k].est and o.res == outs[k].res and o.health == outs[k].health

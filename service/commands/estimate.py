@@ -106,6 +106,18 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     sel = (tt >= tt[0] + config.arm_s) & (dof > 0)
     lo, hi = chi2.ppf(0.025, dof[sel]), chi2.ppf(0.975, dof[sel])
     in_band = float(100.0 * np.mean((nis[sel] >= lo) & (nis[sel] <= hi))) if sel.any() else None
+    # supply tracking: time after the last change of the true P_SR from which the estimate
+    # stays within 5 % of the truth
+    p_settle = None
+    steps = np.flatnonzero(np.abs(np.diff(sim.p_sr)) > 1e3)
+    if len(steps):
+        t_drop = float(t[steps[-1] + 1])
+        p_est_all = np.array([o.est["p_sr"] for o in ok])
+        p_true_all = np.interp(tt, t, sim.p_sr)
+        bad = np.flatnonzero((np.abs(p_est_all - p_true_all) > 0.05 * p_true_all) & (tt >= t_drop))
+        p_settle = float(tt[bad[-1] + 1] - t_drop) if len(bad) and bad[-1] + 1 < len(tt) else 0.0
+        if len(bad) and bad[-1] + 1 >= len(tt):
+            p_settle = None
     c_true, p_true = float(sim.c_lk[-1]), float(sim.p_sr[-1])
     c_est, p_est = last.est["c_lk"], last.est["p_sr"]
     inc_true = c_true - baseline.c_lk
@@ -134,6 +146,7 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
         "false_alarms": false_alarms,
         "detection_delay_s": detection_delay,
         "detection_delay_by_kind_s": delays,
+        "p_sr_settle_s": p_settle,
         "nis_in_band_pct": in_band,
         "counters": dict(mon.counters),
         "baseline": baseline.source,

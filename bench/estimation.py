@@ -1,0 +1,306 @@
+"""Benchmark of the degradation monitor (issue 3): accuracy over the scenario set and speed
+side by side (this monitor, a plain filterpy UKF calling the model once per sigma point, and
+NASA ProgPy 1.9's UnscentedKalmanFilter on the same model as a PrognosticsModel).
+
+    .venv/bin/python bench/estimation.py                 # everything (about 10 min)
+    .venv/bin/python bench/estimation.py --healthy-s 60  # shorter false-alarm run
+    .venv/bin/python bench/estimation.py --skip-accuracy # speed only
+    .venv/bin/python bench/estimation.py --json out.json # also write the figures as JSON
+
+The truth is the HF bench with the scenarios' seeded sensor noise. ProgPy is optional
+(``pip install 'progpy==1.9.*'``, the ``bench`` extra); without it that column reads
+"progpy not installed". Speed figures are wall-clock medians on this machine, one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from models import eha_reduced as er  # noqa: E402
+from service.calibration import measured_run  # noqa: E402
+from service.monitor import Baseline, Monitor, MonitorBank, MonitorConfig  # noqa: E402
+from service.scenarios import load_scenario  # noqa: E402
+from service.ukf import ukf_step_batch  # noqa: E402
+
+SCENARIOS = ("healthy_noise", "leak_ramp", "leak_step", "supply_drop", "combined")
+
+
+# -- accuracy ------------------------------------------------------------------------------
+def _one(args) -> dict:
+    name, channels, duration = args
+    from service.commands.estimate import evaluate
+
+    sc = load_scenario(name)
+    if duration is not None:
+        sc = sc.model_copy(update={"duration_s": duration, "name": f"{name}_{duration:g}s"})
+    r = evaluate(sc, MonitorConfig(channels=channels))
+    return {k: v for k, v in r.items() if not k.startswith("_")}
+
+
+def accuracy(healthy_s: float, workers: int) -> list[dict]:
+    jobs = [(n, ch, None) for ch in ("full", "reduced") for n in SCENARIOS]
+    jobs.insert(0, ("healthy_noise", "full", healthy_s))
+    with ProcessPoolExecutor(max_workers=workers) as ex:
+        return list(ex.map(_one, jobs))
+
+
+def _fmt(v, spec: str) -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def print_accuracy(rows: list[dict]) -> None:
+    print("\nAccuracy (truth: HF bench + sensor noise; values at the end of each run)")
+    hdr = (
+        f"{'scenario':<22}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'incr err%':>10}"
+        f"{'P_SR err%':>10}{'P_SR 5% s':>10}{'delay s':>8}{'false':>6}{'NIS in%':>8}"
+        f"{'reinit':>7}"
+    )
+    print(hdr)
+    print("-" * len(hdr))
+    for r in rows:
+        print(
+            f"{r['scenario']:<22}{r['channels']:<8}{r['duration_s']:>6.0f}"
+            f"{_fmt(r['c_lk_error_pct'], '+10.1f')}{_fmt(r['c_lk_increase_error_pct'], '+10.1f')}"
+            f"{_fmt(r['p_sr_error_pct'], '+10.2f')}{_fmt(r['p_sr_settle_s'], '10.3f')}"
+            f"{_fmt(r['detection_delay_s'], '8.3f')}{r['false_alarms']:>6d}"
+            f"{_fmt(r['nis_in_band_pct'], '8.1f')}{r['counters']['reinit']:>7d}"
+        )
+
+
+# -- speed ---------------------------------------------------------------------------------
+def _samples(n: int) -> list[dict]:
+    sc = load_scenario("healthy_noise").model_copy(update={"duration_s": n / 1000 + 0.01})
+    _, meas = measured_run(sc)
+    keys = ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2")
+    cols = [np.asarray(meas[k], float).tolist() for k in keys]
+    return [dict(zip(keys, row, strict=True)) for row in zip(*cols, strict=True)][:n]
+
+
+def speed_monitor(samples: list[dict]) -> float:
+    mon = Monitor()
+    dts = []
+    pc = time.perf_counter
+    for s in samples:
+        a = pc()
+        mon.update(s)
+        dts.append(pc() - a)
+    return float(np.median(dts[50:]) * 1e6)
+
+
+def speed_bank(samples: list[dict], n_act: int, rows: bool = False) -> float:
+    """MonitorBank.update_many (dict outputs) or update_rows (array outputs), per actuator."""
+    bank = MonitorBank()
+    ids = [f"act{k:03d}" for k in range(n_act)]
+    dts = []
+    pc = time.perf_counter
+    call = bank.update_rows if rows else bank.update_many
+    for s in samples:
+        batch = [(a, s) for a in ids]
+        t0 = pc()
+        call(batch)
+        dts.append(pc() - t0)
+    return float(np.median(dts[20:]) * 1e6 / n_act)
+
+
+def speed_kernel(samples: list[dict], n_act: int) -> float:
+    """The compiled UKF step alone (no sample parsing, no output dicts), per actuator."""
+    bank = MonitorBank()
+    ids = [f"act{k:03d}" for k in range(n_act)]
+    for s in samples[:2]:
+        bank.update_many([(a, s) for a in ids])
+    ks = np.arange(n_act)
+    x, P = bank.x[ks].copy(), bank.P[ks].copy()
+    w = bank.ukf.w
+    z = np.tile(np.array([[1.1e-5 / bank._zscale[0], 0.0, 12.4, 8.4, 0.0]]), (n_act, 1))
+    mask = np.tile(np.array([[True, True, True, True, False]]), (n_act, 1))
+    i_in, dt, n_sub = np.full(n_act, 2e-4), np.full(n_act, 1e-3), np.ones(n_act, np.int64)
+    y, nis, st = np.zeros((n_act, 5)), np.zeros(n_act), np.zeros(n_act, np.int64)
+    dts = []
+    for _ in range(300):
+        xx, PP = x.copy(), P.copy()
+        t0 = time.perf_counter()
+        ukf_step_batch(
+            xx, PP, z, mask, i_in, dt, n_sub, bank._q, bank.R, bank.scale, bank._zscale,
+            w.Wm, w.Wc, w.c, bank._prm, y, nis, st,
+        )  # fmt: skip
+        dts.append(time.perf_counter() - t0)
+    return float(np.median(dts) * 1e6 / n_act)
+
+
+def _filter_setup():
+    bank = MonitorBank()
+    return bank, bank.baseline.reduced_params()
+
+
+def speed_filterpy(samples: list[dict]) -> float:
+    """filterpy's UnscentedKalmanFilter, the numpy model called once per sigma point."""
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    bank, rp = _filter_setup()
+    sc, zs = bank.scale, bank._zscale
+    cur = {"i": 0.0}
+
+    def fx(x, dt):
+        ev = x * sc
+        ev[6], ev[5] = max(ev[6], 0.0), max(ev[5], rp.p_vap)
+        out = er.step(ev, cur["i"], dt, rp, 1)
+        out[5:] = (x * sc)[5:]
+        return out / sc
+
+    def hx(x):
+        return er.measure(x * sc, rp)[:4] / zs[:4]
+
+    pts = MerweScaledSigmaPoints(7, alpha=0.5, beta=2.0, kappa=0.0)
+    f = UnscentedKalmanFilter(dim_x=7, dim_z=4, dt=1e-3, hx=hx, fx=fx, points=pts)
+    s0 = samples[0]
+    f.x = np.array([s0["x_s"], 0, s0["x_j"], 0, 1e-3 * (s0["p1"] - s0["p2"]), 20e6, 2e-13]) / sc
+    f.P = np.diag((np.array([2e-6, 1e-3, 1e-4, 5e-3, 5e3, 2e6, 2e-13]) / sc) ** 2)
+    f.Q = np.diag(bank._q) * 1e-3
+    f.R = bank.R[:4, :4]
+    dts = []
+    for s in samples[1:]:
+        z = np.array([s["x_s"], s["x_j"], s["p1"], s["p2"]]) / zs[:4]
+        cur["i"] = s["i"]
+        t0 = time.perf_counter()
+        f.predict()
+        f.update(z)
+        dts.append(time.perf_counter() - t0)
+    return float(np.median(dts) * 1e6)
+
+
+def speed_progpy(samples: list[dict]) -> float | None:
+    """ProgPy 1.9's UnscentedKalmanFilter on the same model as a PrognosticsModel."""
+    try:
+        from progpy import PrognosticsModel
+        from progpy.state_estimators import UnscentedKalmanFilter
+        from progpy.uncertain_data import MultivariateNormalDist
+    except ImportError:
+        return None
+    bank, rp = _filter_setup()
+    sc, zs = bank.scale, bank._zscale
+    names = list(er.STATE_NAMES)
+
+    class EHAReduced(PrognosticsModel):
+        """The C5 EHA process model of models.eha_reduced (filter units)."""
+
+        inputs = ["i"]
+        states = names
+        outputs = ["x_s_m", "x_j_m", "p1", "p2"]
+        default_parameters = {"process_noise": 0.0, "measurement_noise": 0.0, "x0": {}}
+
+        def next_state(self, x, u, dt):
+            v = np.array([x[k] for k in names], float) * sc
+            v[6], v[5] = max(v[6], 0.0), max(v[5], rp.p_vap)
+            out = er.step(v, float(u["i"]), dt, rp, 1) / sc
+            out[5:] = [x["p_sr"], x["c_lk"]]
+            return self.StateContainer(dict(zip(names, out.tolist(), strict=True)))
+
+        def output(self, x):
+            v = np.array([x[k] for k in names], float) * sc
+            z = er.measure(v, rp)[:4] / zs[:4]
+            return self.OutputContainer(dict(zip(self.outputs, z.tolist(), strict=True)))
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = EHAReduced()
+        s0 = samples[0]
+        x0 = np.array([s0["x_s"], 0, s0["x_j"], 0, 1e-3 * (s0["p1"] - s0["p2"]), 20e6, 2e-13])
+        cov = np.diag((np.array([2e-6, 1e-3, 1e-4, 5e-3, 5e3, 2e6, 2e-13]) / sc) ** 2)
+        xd = MultivariateNormalDist(names, (x0 / sc).tolist(), cov)
+        f = UnscentedKalmanFilter(
+            m, xd, Q=np.diag(bank._q) * 1e-3, R=bank.R[:4, :4], alpha=0.5, beta=2.0, kappa=0.0,
+            t0=s0["t"], dt=1e-3,
+        )  # fmt: skip
+        dts = []
+        for s in samples[1:]:
+            u = m.InputContainer({"i": s["i"]})
+            z = m.OutputContainer(
+                dict(zip(m.outputs, (np.array([s["x_s"], s["x_j"], s["p1"], s["p2"]]) / zs[:4])
+                         .tolist(), strict=True))
+            )  # fmt: skip
+            t0 = time.perf_counter()
+            f.estimate(s["t"], u, z)
+            dts.append(time.perf_counter() - t0)
+    return float(np.median(dts) * 1e6)
+
+
+def speed(n: int, fleet: int) -> dict:
+    samples = _samples(n)
+    out = {
+        "monitor_single_us": speed_monitor(samples),
+        f"monitor_bank{fleet}_us_per_actuator": speed_bank(samples, fleet),
+        f"monitor_bank{fleet}_rows_us_per_actuator": speed_bank(samples, fleet, rows=True),
+        f"kernel{fleet}_us_per_actuator": speed_kernel(samples, fleet),
+        "filterpy_per_sigma_point_us": speed_filterpy(samples[: min(n, 1000)]),
+        "progpy_ukf_us": speed_progpy(samples[: min(n, 300)]),
+    }
+    return out
+
+
+def print_speed(sp: dict, fleet: int) -> None:
+    print("\nSpeed per update (median wall time, one core, 7 states, 4 channels, 1 kHz data)")
+    mono = sp["monitor_single_us"]
+    bank = sp[f"monitor_bank{fleet}_us_per_actuator"]
+    rows_ = sp[f"monitor_bank{fleet}_rows_us_per_actuator"]
+    rows = [
+        ("servowatch Monitor, one actuator", mono),
+        (f"servowatch MonitorBank.update_many, {fleet} actuators (per actuator)", bank),
+        (f"servowatch MonitorBank.update_rows, {fleet} actuators (per actuator)", rows_),
+        (f"compiled UKF kernel alone, {fleet} actuators (per actuator)", sp[f"kernel{fleet}_us_per_actuator"]),
+        ("filterpy UKF, model called per sigma point", sp["filterpy_per_sigma_point_us"]),
+        ("ProgPy 1.9 UnscentedKalmanFilter (PrognosticsModel)", sp["progpy_ukf_us"]),
+    ]  # fmt: skip
+    for label, v in rows:
+        print(f"  {label:<62}" + ("progpy not installed" if v is None else f"{v:10.1f} us"))
+    pp = sp["progpy_ukf_us"]
+    if pp is not None:
+        print(f"  ProgPy / Monitor (one actuator)        {pp / mono:8.1f} x   (target >= 20 x)")
+        print(f"  ProgPy / MonitorBank (per actuator)    {pp / bank:8.1f} x")
+        print(f"  ProgPy / MonitorBank rows (per act.)   {pp / rows_:8.1f} x")
+    print(
+        f"  filterpy / Monitor (one actuator)      {sp['filterpy_per_sigma_point_us'] / mono:8.1f} x"
+    )
+    print(
+        f"  actuators per core at 1 kHz (target >= 50): {1e3 / rows_:6.1f} update_rows, "
+        f"{1e3 / bank:6.1f} update_many, {1e3 / mono:6.1f} one Monitor each"
+    )
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--healthy-s", type=float, default=600.0, help="false-alarm run length [s]")
+    ap.add_argument("--skip-accuracy", action="store_true")
+    ap.add_argument("--skip-speed", action="store_true")
+    ap.add_argument("--fleet", type=int, default=50, help="actuators in the MonitorBank")
+    ap.add_argument("--n", type=int, default=2000, help="samples for the speed runs")
+    ap.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)))
+    ap.add_argument("--json", default=None, help="write every figure to this JSON file")
+    args = ap.parse_args()
+    print(f"baseline: {Baseline.default().source}")
+    out: dict = {}
+    if not args.skip_speed:  # first, while nothing else runs
+        out["speed"] = speed(args.n, args.fleet)
+        print_speed(out["speed"], args.fleet)
+    if not args.skip_accuracy:
+        t0 = time.perf_counter()
+        out["accuracy"] = accuracy(args.healthy_s, args.workers)
+        print_accuracy(out["accuracy"])
+        print(f"(accuracy runs: {time.perf_counter() - t0:.0f} s wall)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1, default=float) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
