@@ -25,7 +25,7 @@ import threading
 import time
 import warnings
 import zlib
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
@@ -498,20 +498,28 @@ def read_log(
     topics: Iterable[str] | None = None,
     *,
     stats: LogReadStats | None = None,
+    match: Callable[[str], bool] | None = None,
 ) -> Iterator[tuple[str, float, dict]]:
     """Yield ``(topic, t_s, msg)`` for every message of every complete chunk, in file order.
 
     ``t_s`` is ``log_time`` in seconds; ``msg`` the decoded JSON object. ``topics`` keeps only
-    those topics. A file that ends early or holds a corrupt chunk yields everything before
+    those topics, ``match`` only the topics it accepts (messages of other topics are not
+    decoded). A file that ends early or holds a corrupt chunk yields everything before
     it and then warns once with :class:`TruncatedLogWarning` (also logged). ``stats``, if
     given, is filled as the iteration proceeds.
     """
     p = Path(path)
     st = stats if stats is not None else LogReadStats()
     want = None if topics is None else set(topics)
+    decided: dict[str, bool] = {}
     loads = json.loads
     for topic, lt, data in _iter_raw(p, st):
-        if want is not None and topic not in want:
+        keep = decided.get(topic)
+        if keep is None:
+            keep = decided[topic] = (want is None or topic in want) and (
+                match is None or bool(match(topic))
+            )
+        if not keep:
             continue
         try:
             msg = loads(data)

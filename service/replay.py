@@ -122,10 +122,14 @@ def read_metadata(path: str | Path) -> dict[str, str]:
 def _read_files(files: list[Path], stats: LogReadStats):
     for f in files:
         st = LogReadStats()
-        yield from read_log(f, stats=st)
+        yield from read_log(f, stats=st, match=_is_meas)
         stats.chunks += st.chunks
         stats.messages += st.messages
         stats.truncated = stats.truncated or st.truncated
+
+
+def _is_meas(topic: str) -> bool:
+    return topic.startswith("/fleet/") and topic.endswith("/meas")
 
 
 def _parse_topic(topic: str) -> tuple[str, str] | None:

@@ -335,3 +335,12 @@ def test_random_corruption_never_raises_and_yields_a_prefix(tmp_path):
             warnings.simplefilter("ignore", TruncatedLogWarning)
             got = list(read_log(q))
         assert got == full[: len(got)]
+
+
+def test_read_log_match_filters_topics(tmp_path):
+    p = tmp_path / "m.mcap"
+    with _write(p, 50):
+        pass
+    got = list(read_log(p, match=lambda t: t.endswith("/residual")))
+    assert len(got) == 5 and {t for t, _, _ in got} == {RES}
+    assert list(read_log(p, topics=[MEAS], match=lambda t: t.endswith("/residual"))) == []
