@@ -208,6 +208,7 @@ class ActuatorState:
     health: dict = field(default_factory=dict)
     alarms: dict[str, Any] = field(default_factory=dict)  # kind -> last event dict (active)
     events: deque = field(default_factory=lambda: deque(maxlen=20))
+    lazy: Any = None  # (BankRows, row) of the latest output when its dicts were not built
 
     @property
     def name(self) -> str:
@@ -217,6 +218,10 @@ class ActuatorState:
         self.bad[reason] = self.bad.get(reason, 0) + n
 
     def snapshot(self, now: float) -> dict[str, Any]:
+        lazy = self.lazy
+        if lazy is not None:  # latest output kept as a row of update_rows
+            out = lazy[0].output(lazy[1])
+            self.est, self.health = out.est, out.health
         return {
             "aircraft": self.aircraft,
             "actuator": self.actuator,
@@ -507,6 +512,11 @@ class _Monitors:
                     return
         self.monitors.pop(aid, None)
 
+    @property
+    def rows(self) -> bool:
+        """True when the bank offers ``update_rows`` (numpy rows, no per-sample dicts)."""
+        return self.bank is not None and hasattr(self.bank, "update_rows")
+
     def update_many(self, batch: list[tuple[str, dict]]) -> list[Any]:
         if self.bank is not None:
             return list(self.bank.update_many(batch))
@@ -602,6 +612,7 @@ class Daemon:
         self.unknown: dict[str, int] = {}  # reason -> count, for keys that name no actuator
         self._queue: deque = deque()
         self._arrival: dict[str, float] = {}  # key -> time.monotonic() of the last message
+        self.alive_tokens: dict[str, bool] = {}  # fleet/{ac}/{act}/alive -> token present
         self._wake = threading.Event()
         self._lock = threading.Lock()  # guards self.actuators structure + status snapshot
         self._stop = threading.Event()
@@ -744,23 +755,48 @@ class Daemon:
             if log_payload is not None and idx:
                 log_payload(topic, payload, None if len(idx) == len(rows) else idx)
         if batch:
+            rows = outs = None
             try:
-                outs = self.monitors.update_many(batch)
+                if self.monitors.rows:
+                    rows = self.monitors.bank.update_rows(batch)
+                else:
+                    outs = self.monitors.update_many(batch)
             except Exception as e:  # a monitor failure must not kill the daemon
                 self.errors += 1
                 log.exception("monitor update failed: %s", e)
-                outs = [None] * len(batch)
             now_m = time.monotonic()
             now_w = time.time()
-            for out, st, t_recv in zip(outs, states, recv, strict=True):
-                if out is not None:
-                    self._handle_output(st, out, now_m - t_recv, now_w)
+            if rows is not None:
+                self._handle_rows(rows, states, recv, now_m, now_w)
+            elif outs is not None:
+                for out, st, t_recv in zip(outs, states, recv, strict=True):
+                    if out is not None:
+                        self._handle_output(st, out, now_m - t_recv, now_w)
         commit = getattr(logger, "commit", None)
         if commit is not None:
             commit()
         self.ticks += 1
         self.busy_s += time.perf_counter() - t0
         return len(batch)
+
+    def _handle_rows(self, rows: Any, states: list, recv: list, now_m: float, now_w: float) -> None:
+        """Outputs of ``MonitorBank.update_rows``: dicts are built only for the outputs that
+        are logged or published (or carry an event); the rest only count."""
+        lat, age = self.latency, self.age
+        ts = rows.t.tolist()
+        for r, j in enumerate(rows.index.tolist()):
+            st = states[j]
+            n = st.outputs + 1
+            if rows.events[r] or n % self.log_every == 0 or n % self.publish_every == 0:
+                self._handle_output(st, rows.output(r), now_m - recv[j], now_w)
+                st.lazy = None
+                continue
+            st.outputs = n
+            st.lazy = (rows, r)
+            t = ts[r]
+            lat.append(now_m - recv[j])
+            if t > 1e9:
+                age.append(now_w - t)
 
     def _handle_output(self, st: ActuatorState, out: Any, latency: float, now_w: float) -> None:
         t, est, res, health, events = _output_parts(out)
@@ -902,11 +938,23 @@ class Daemon:
                     for a in acts.values()
                     for al in a["alarms"]
                 ],
+                "alive_tokens": sorted(k for k, v in self.alive_tokens.items() if v),
+                "lost_tokens": sorted(k for k, v in self.alive_tokens.items() if not v),
                 "silent": [
                     a["aircraft"] + "/" + a["actuator"] for a in acts.values() if a["silent"]
                 ],
             }
         )
+
+    def _on_alive(self, sample) -> None:
+        """Liveliness token of an actuator appeared (PUT) or vanished (DELETE)."""
+        try:
+            import zenoh
+
+            key = str(sample.key_expr)
+            self.alive_tokens[key] = sample.kind == zenoh.SampleKind.PUT
+        except Exception:
+            self.errors += 1
 
     def _on_status_query(self, query) -> None:
         try:
@@ -926,6 +974,14 @@ class Daemon:
             self._decl.append(
                 session.liveliness().declare_token(f"monitor/{self.station}/{self.shard}/alive")
             )
+            try:  # actuators' liveliness tokens (virtual actuators hold one)
+                self._decl.append(
+                    session.liveliness().declare_subscriber(
+                        m.KEY_ALIVE.format(aircraft="*", actuator="*"), self._on_alive, history=True
+                    )
+                )
+            except Exception as e:  # an older zenoh without history: data silence still works
+                log.warning("no liveliness subscriber: %s", e)
         self._worker = threading.Thread(
             target=self._run_worker, name="servowatch-worker", daemon=True
         )

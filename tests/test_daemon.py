@@ -295,3 +295,32 @@ def test_watchdog_interval_is_half_the_systemd_period():
     assert watchdog_interval({"WATCHDOG_USEC": "4000000"}) == pytest.approx(2.0)
     assert watchdog_interval({}) is None
     assert watchdog_interval({"WATCHDOG_USEC": "4000000", "WATCHDOG_PID": "1"}) is None
+
+
+def test_decimated_logging_keeps_counting_and_status_shows_the_latest_output(tmp_path):
+    """log_every=7, publish_every=5: every sample is logged and processed, est/residual for
+    1 output in 7, health for 1 in 5; the status holds the last output, equal to a Monitor
+    fed the same samples one by one."""
+    from service.mcaplog import read_log
+    from service.monitor import Monitor
+
+    cfg = ServiceConfig(rotate_bytes=None, rotate_s=None, publish_every=5)
+    path = tmp_path / "dec.mcap"
+    d = Daemon(cfg, log_path=path, log_every=7)
+    samples = [sample(k, x_j=1e-3, p1=12e6, p2=8e6) for k in range(53)]
+    for j in range(0, 53, 10):
+        d.submit(KEY, m.encode_meas(samples[j : j + 10]))
+    d.process_pending()
+    final = d.stop()
+    a = final["actuators"][KEY]
+    mon = Monitor()
+    outs = [mon.update({k: s[k] for k in ("t", *m.CHANNELS)}) for s in samples]
+    outs = [o for o in outs if o is not None]
+    assert a["outputs"] == len(outs)
+    assert a["est"] == outs[-1].est and a["health"] == outs[-1].health
+    rows = list(read_log(path))
+    topics = [r[0].rsplit("/", 1)[1] for r in rows]
+    n_ev = topics.count("events")
+    assert topics.count("meas") == 53
+    assert len(outs) // 7 <= topics.count("est") <= len(outs) // 7 + n_ev
+    assert len(outs) // 5 <= topics.count("health") <= len(outs) // 5 + n_ev

@@ -334,6 +334,8 @@ def test_publisher_that_stops_and_restarts(net, tmp_path):
         out, _ = a.communicate(timeout=60)
         runs.append(json.loads(out.strip().splitlines()[-1])["samples"])
         st = net.wait(lambda st: st["silent"] == [f"{AC}/{ACT}"], what="silence detection")
+        # the actuator's liveliness token went with it
+        assert st["lost_tokens"] == [f"fleet/{AC}/{ACT}/alive"] and st["alive_tokens"] == []
     total = sum(runs)
     st = net.wait(lambda st: act_samples(st) == total and st["queue"] == 0,
                   what="both runs")  # fmt: skip
