@@ -239,6 +239,9 @@ def run_one(
             text=True,
             timeout=duration + 120,
         )
+        if g.returncode != 0 or not g.stdout.strip():
+            dproc.kill()
+            raise RuntimeError(f"load generator failed ({g.returncode}):\n{g.stderr[-3000:]}")
         gen = json.loads(g.stdout.strip().splitlines()[-1])
         dproc.terminate()
         out, _ = dproc.communicate(timeout=drain_cap + 60)
@@ -332,7 +335,14 @@ def main(argv=None) -> int:
     if args.actuators is not None or args.monitor is not None:
         plan = [(args.actuators or 20, args.monitor or "real", args.log_every)]
     else:
-        plan = [(20, "null", 1), (20, "null", 10), (1, "real", 1), (20, "real", 10)]
+        plan = [
+            (20, "null", 1),
+            (20, "null", 10),
+            (1, "real", 1),
+            (5, "real", 10),
+            (10, "real", 10),
+            (20, "real", 10),
+        ]
     rows = []
     for n, mon, le in plan:
         dur = args.duration if not (mon == "real" and n > 1) else min(args.duration, 5.0)

@@ -749,7 +749,7 @@ class Daemon:
                     logger.log(topic, t, row)
                 else:
                     idx.append(j)
-                batch.append((key, {k: row[k] for k in INPUT_KEYS}))
+                batch.append((key, row))  # t and the channels (and seq, which is ignored)
                 recv.append(t_recv)
                 states.append(st)
             if log_payload is not None and idx:
@@ -841,7 +841,11 @@ class Daemon:
                 )
                 self._publishers[k] = pub
             try:
-                pub.put(m.encode_json({"t": t, **_jsonable(d)}))
+                try:  # the monitor's outputs are finite floats: plain json.dumps
+                    payload = m.encode_json({"t": t, **d})
+                except ValueError:
+                    payload = m.encode_json({"t": t, **_jsonable(d)})
+                pub.put(payload)
             except Exception as e:
                 self.errors += 1
                 self.bad_log.warning("publish", "publish failed: %s", e)
