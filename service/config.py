@@ -105,6 +105,9 @@ class ServiceConfig(BaseModel):
     rotate_s: float | None = Field(3600.0, gt=0, description="rotate after this long [s]")
     flush_s: float = Field(1.0, gt=0, le=60, description="MCAP flush period [s]")
     publish_every: int = Field(10, ge=1, description="publish est/res/health every N samples")
+    log_every: int = Field(
+        1, ge=1, description="log est/residual every N outputs (events always; 1 = all)"
+    )
     silence_s: float = Field(2.0, gt=0, description="an actuator is silent after this long [s]")
     queue_size: int = Field(200_000, ge=1, description="receive queue length (messages)")
     max_bytes: int = Field(65536, ge=64, description="largest accepted message [bytes]")
