@@ -56,7 +56,11 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     keys = [k for k in ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr") if k in meas]
     cols = [np.asarray(meas[k], float).tolist() for k in keys]
     n = len(cols[0])
-    outs = [None] * n
+    outs = [None] * n if keep_outputs else None
+    tt = np.full(n, np.nan)
+    nis, dof, p_est_all = np.zeros(n), np.zeros(n), np.zeros(n)
+    events = []
+    last = None
     dts = np.empty(n)
     pc = time.perf_counter
     w0 = pc()
@@ -64,18 +68,24 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     for j in range(n):
         s = {k: c[j] for k, c in zip(keys, cols, strict=True)}
         a = pc()
-        outs[j] = mon.update(s)
+        o = mon.update(s)
         dts[j] = pc() - a
+        if o is not None:
+            last = o
+            tt[j], nis[j], dof[j], p_est_all[j] = o.t, o.res["nis"], o.res["nis_dof"], o.est["p_sr"]
+            if o.events:
+                events += [e for e in o.events if e.kind in ("leak", "supply")]
+            if keep_outputs:
+                outs[j] = o
         if progress is not None and j % every == 0:
             progress(0.3 + 0.7 * j / n)
     wall = pc() - w0
     if progress is not None:
         progress(1.0)
     t = sim.t
-    ok = [o for o in outs if o is not None]
-    last = ok[-1]
+    good = ~np.isnan(tt)
+    tt, nis, dof, p_est_all = tt[good], nis[good], dof[good], p_est_all[good]
     acfg = config.alarms
-    events = [e for o in ok for e in o.events if e.kind in ("leak", "supply")]
     true_leak = sim.c_lk / baseline.c_lk
     true_sup = sim.p_sr / baseline.p_sr_rated
     false_alarms = 0
@@ -100,9 +110,6 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     finite = [d for d in delays.values() if d is not None]
     detection_delay = max(finite) if finite and len(finite) == len(delays) else None
     # NIS inside its two-sided 95 % chi-square band (after the alarm arming time)
-    nis = np.array([o.res["nis"] for o in ok])
-    dof = np.array([o.res["nis_dof"] for o in ok])
-    tt = np.array([o.t for o in ok])
     sel = (tt >= tt[0] + config.arm_s) & (dof > 0)
     lo, hi = chi2.ppf(0.025, dof[sel]), chi2.ppf(0.975, dof[sel])
     in_band = float(100.0 * np.mean((nis[sel] >= lo) & (nis[sel] <= hi))) if sel.any() else None
@@ -112,7 +119,6 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     steps = np.flatnonzero(np.abs(np.diff(sim.p_sr)) > 1e3)
     if len(steps):
         t_drop = float(t[steps[-1] + 1])
-        p_est_all = np.array([o.est["p_sr"] for o in ok])
         p_true_all = np.interp(tt, t, sim.p_sr)
         bad = np.flatnonzero((np.abs(p_est_all - p_true_all) > 0.05 * p_true_all) & (tt >= t_drop))
         p_settle = float(tt[bad[-1] + 1] - t_drop) if len(bad) and bad[-1] + 1 < len(tt) else 0.0
