@@ -351,19 +351,16 @@ def main(argv=None) -> int:
             file=sys.stderr,
             flush=True,
         )
-        rows.append(
-            run_one(
-                n,
-                args.rate,
-                dur,
-                mon,
-                args.spm,
-                args.publish_every,
-                args.drain_cap,
-                le,
+        try:
+            row = run_one(
+                n, args.rate, dur, mon, args.spm, args.publish_every, args.drain_cap, le,
                 args.profile,
-            )
-        )
+            )  # fmt: skip
+        except Exception as e:  # report the others
+            print(f"  failed: {e}", file=sys.stderr, flush=True)
+            continue
+        print("  " + json.dumps(row), file=sys.stderr, flush=True)
+        rows.append(row)
     print(
         f"servowatch daemon benchmark ({os.cpu_count()} CPUs), {args.spm} samples/message, "
         f"publish_every {args.publish_every}"

@@ -28,6 +28,11 @@ HELP = "Self-contained live demo: router, virtual actuator with a leak, daemon, 
 
 AIRCRAFT = "AC001"
 ACTUATOR = "elevator_L"
+# ``servowatch actuator`` without the dispatcher (which imports every command module)
+_ACTUATOR_MAIN = (
+    "import argparse, sys; from service.commands import actuator as a; "
+    "p = argparse.ArgumentParser(); a.add_arguments(p); sys.exit(a.run(p.parse_args()))"
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -277,9 +282,8 @@ def run(args: argparse.Namespace) -> int:
             daemon.start(session)
             cmd = [
                 sys.executable,
-                "-m",
-                "service.cli",
-                "actuator",
+                "-c",
+                _ACTUATOR_MAIN,
                 "--connect",
                 ep,
                 "--scenario",
