@@ -2,7 +2,8 @@
 
 Everything the fixed-step integrator needs is here as scalar ``@njit(cache=True)`` code:
 the simplified laws (one function, model id branch), the HF land flows, the effective
-bulk modulus, the 7-state right-hand side and the RK4 stepping loop. Parameters travel as
+bulk modulus, the 7-state right-hand side and the stepping loop (RK4 for HF, ROS2 for the
+simplified valves). Parameters travel as
 one float64 array built by :func:`param_array`. The numpy functions in
 ``models.valve_laws`` and ``models.hf_valve`` are the readable reference; the tests hold
 these kernels to them.
@@ -77,8 +78,13 @@ TAU_STICK = 1e-3
     I_G_PQ,
     I_X_SS,
     I_TAU_STICK,
+    I_INV_TAU_TM,
+    I_WN2,
+    I_C2ZW,
+    I_INV_MASS,
+    I_INV_TAU_STICK,
     N_PRM,
-) = range(38)
+) = range(43)
 
 
 def param_array(p: EHAParams) -> np.ndarray:
@@ -118,10 +124,16 @@ def param_array(p: EHAParams) -> np.ndarray:
     a[I_G_PQ] = p.g_pq
     a[I_X_SS] = p.x_ss
     a[I_TAU_STICK] = TAU_STICK
+    # reciprocals and products precomputed for the stepping loop
+    a[I_INV_TAU_TM] = 1.0 / p.tau_tm
+    a[I_WN2] = p.omega_n**2
+    a[I_C2ZW] = 2.0 * p.zeta * p.omega_n
+    a[I_INV_MASS] = 1.0 / p.mass
+    a[I_INV_TAU_STICK] = 1.0 / TAU_STICK
     return a
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def law_p12(model, x_s, q_j, p_sr, g_pq, x_ss, c_lk, p_vap):
     """Simplified law ``model`` (1=A, 2=B, 3=C1, 4=C3, 5=C5), physics.md section 2."""
     if model == 1:
@@ -141,7 +153,7 @@ def law_p12(model, x_s, q_j, p_sr, g_pq, x_ss, c_lk, p_vap):
     return math.nan
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def orifice_flow(a, dp, cd, w, rho, dp_tr, c_r, mu, l_min):
     """One metering land (physics.md section 3): smoothed turbulent orifice + radial leakage."""
     turb = cd * w * max(a, 0.0) * math.sqrt(2.0 / rho) * dp / (dp * dp + dp_tr * dp_tr) ** 0.25
@@ -149,7 +161,7 @@ def orifice_flow(a, dp, cd, w, rho, dp_tr, c_r, mu, l_min):
     return turb + g_lam * dp
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def beta_eff(p, beta_l, alpha0, kappa, p_vap, p_atm):
     """Entrained-air bulk modulus beta(P) with vapour floor (physics.md section 3)."""
     ps = max(p - p_vap, 1.0)
@@ -157,7 +169,7 @@ def beta_eff(p, beta_l, alpha0, kappa, p_vap, p_atm):
     return beta_l / (1.0 + alpha * beta_l / (kappa * ps))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _p12_of_state(y, p_sr, c_lk, prm, model):
     if model == 0:
         return y[5] - y[6]
@@ -168,7 +180,7 @@ def _p12_of_state(y, p_sr, c_lk, prm, model):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
     """Right-hand side of the closed-loop EHA (physics.md section 3), written into ``dy``."""
     i_max = prm[I_I_MAX]
@@ -180,11 +192,10 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
     v_j = y[4]
     # ECU and torque motor
     i_c = min(max(prm[I_K_P] * (x_cmd - x_j), -i_max), i_max)
-    dy[0] = (i_c - cur) / prm[I_TAU_TM]
+    dy[0] = (i_c - cur) * prm[I_INV_TAU_TM]
     # spool: second order towards x_ref, hard limit +-x_SM (position frozen when pushing out)
     x_ref = min(max(prm[I_K_SV] * cur, -x_sm), x_sm)
-    wn = prm[I_OMEGA_N]
-    dy[2] = wn * wn * (x_ref - x_s) - 2.0 * prm[I_ZETA] * wn * v_s
+    dy[2] = prm[I_WN2] * (x_ref - x_s) - prm[I_C2ZW] * v_s
     if (x_s >= x_sm and v_s > 0.0) or (x_s <= -x_sm and v_s < 0.0):
         dy[1] = 0.0
     else:
@@ -233,25 +244,32 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
     elif x_j < -stroke:
         f_e = min(prm[I_K_STOP] * (x_j + stroke) + prm[I_C_STOP] * v_j, 0.0)
     f_a = area * p12 - f_r - f_e
-    m = prm[I_MASS]
+    inv_m = prm[I_INV_MASS]
     f_s = prm[I_F_S]
     dy[3] = v_j
     if abs(v_j) < prm[I_DV_K]:
         if abs(f_a) <= f_s:
-            dy[4] = -v_j / prm[I_TAU_STICK]  # stuck
+            dy[4] = -v_j * prm[I_INV_TAU_STICK]  # stuck
         else:
-            dy[4] = (f_a - prm[I_C_V] * v_j - math.copysign(f_s, f_a)) / m  # breakaway
+            dy[4] = (f_a - prm[I_C_V] * v_j - math.copysign(f_s, f_a)) * inv_m  # breakaway
     else:
-        dy[4] = (f_a - prm[I_C_V] * v_j - math.copysign(prm[I_F_D], v_j)) / m
+        dy[4] = (f_a - prm[I_C_V] * v_j - math.copysign(prm[I_F_D], v_j)) * inv_m
 
 
-@njit(cache=True)
-def integrate(y, h, n_sub, n_steps, u, prm, model, out_every, out):
-    """RK4 over ``n_steps`` steps of ``h`` (each split into ``n_sub`` substeps), in place on y.
+@njit(cache=True, error_model="numpy")
+def integrate(y, h, n_sub, k0, n_steps, u, prm, model, scheme, out_every, out):
+    """Advance ``y`` in place over ``n_steps`` fixed steps of ``h`` (global steps k0..k0+n-1).
 
-    ``u`` is (n_u, 4): x_cmd, f_r, p_sr, c_lk held over step k (row min(k, n_u - 1)).
-    After step k the state is written to ``out[(k + 1) // out_every - 1]`` whenever
-    ``(k + 1) % out_every == 0``.
+    ``scheme`` 0: classic RK4 (all models; the default of ``models.eha``). ``scheme`` 1
+    (simplified valves only; HF always uses RK4): Verwer's two-stage Rosenbrock-W method ROS2 (order 2 for any W, L-stable on the modes in W) with a diagonal W holding the
+    torque-motor pole -1/tau_tm and the jack-velocity stiffness (A^2 dP12/dQ_J - c_v) / m
+    of the valve law (about -A^2 G_PQ / m in the linear zone, 0 when saturated; the stick
+    pole inside the Karnopp band), by central difference of the law each substep; the
+    rest is explicit (Heun). Each step may be split into ``n_sub`` substeps.
+
+    ``u`` is (n_u, 4): x_cmd, f_r, p_sr, c_lk held over local step k (row min(k, n_u - 1)).
+    After global step g = k0 + k the state goes to ``out[(g + 1) // out_every]`` whenever
+    ``(g + 1) % out_every == 0`` (row 0 is left for the initial state).
     """
     n = y.shape[0]
     k1 = np.empty(n)
@@ -261,26 +279,66 @@ def integrate(y, h, n_sub, n_steps, u, prm, model, out_every, out):
     yt = np.empty(n)
     hs = h / n_sub
     n_u = u.shape[0]
+    gam = 1.0 + 1.0 / math.sqrt(2.0)
+    area = prm[I_AREA]
+    g_pq = prm[I_G_PQ]
+    d0 = 1.0 / (1.0 + gam * hs * prm[I_INV_TAU_TM])
+    x_sm = prm[I_X_SM]
+    x_ss = prm[I_X_SS]
+    p_vap = prm[I_P_VAP]
+    c_v = prm[I_C_V]
+    inv_m = prm[I_INV_MASS]
+    for j in range(n):
+        yt[j] = y[j]
+    ns = n if model == 0 else 5  # P1, P2 are not states of the simplified models
     for k in range(n_steps):
         r = min(k, n_u - 1)
         x_cmd = u[r, 0]
         f_r = u[r, 1]
         p_sr = u[r, 2]
         c_lk = u[r, 3]
-        for _ in range(n_sub):
-            rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, k1)
-            for j in range(n):
-                yt[j] = y[j] + 0.5 * hs * k1[j]
-            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k2)
-            for j in range(n):
-                yt[j] = y[j] + 0.5 * hs * k2[j]
-            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k3)
-            for j in range(n):
-                yt[j] = y[j] + hs * k3[j]
-            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k4)
-            for j in range(n):
-                y[j] += hs / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
-        if (k + 1) % out_every == 0:
-            row = (k + 1) // out_every - 1
+        if model == 0 or scheme == 0:
+            for _ in range(n_sub):
+                rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, k1)
+                for j in range(ns):
+                    yt[j] = y[j] + 0.5 * hs * k1[j]
+                rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k2)
+                for j in range(ns):
+                    yt[j] = y[j] + 0.5 * hs * k2[j]
+                rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k3)
+                for j in range(ns):
+                    yt[j] = y[j] + hs * k3[j]
+                rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k4)
+                for j in range(ns):
+                    y[j] += hs / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+        else:
+            for _ in range(n_sub):
+                # W's jack-velocity entry: d(dv_J/dt)/dv_J = (A^2 dP12/dQ_J - c_v) / m from a
+                # central difference of the law (0 slope when saturated), or the stick pole
+                if abs(y[4]) < prm[I_DV_K]:
+                    j_v = -prm[I_INV_TAU_STICK]
+                else:
+                    xse = min(max(y[1], -x_sm), x_sm)
+                    q = area * y[4]
+                    dq = 1e-10 + 1e-7 * abs(q)
+                    pp = law_p12(model, xse, q + dq, p_sr, g_pq, x_ss, c_lk, p_vap)
+                    pm = law_p12(model, xse, q - dq, p_sr, g_pq, x_ss, c_lk, p_vap)
+                    j_v = (area * area * (pp - pm) / (2.0 * dq) - c_v) * inv_m
+                d4 = 1.0 / (1.0 - gam * hs * j_v)
+                rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, k1)
+                k1[0] *= d0
+                k1[4] *= d4
+                for j in range(5):
+                    yt[j] = y[j] + hs * k1[j]
+                rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k2)
+                for j in range(5):
+                    k2[j] -= 2.0 * k1[j]
+                k2[0] *= d0
+                k2[4] *= d4
+                for j in range(5):
+                    y[j] += hs * (1.5 * k1[j] + 0.5 * k2[j])
+        g1 = k0 + k + 1
+        if g1 % out_every == 0:
+            row = g1 // out_every
             for j in range(n):
                 out[row, j] = y[j]

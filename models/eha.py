@@ -6,10 +6,14 @@ Karnopp dry friction, end stops). The valve is either the HF model ("HF", 7 stat
 the two compressible chambers) or a simplified algebraic law ("A", "B", "C1", "C3", "C5",
 5 states; P12 = law(x_S, A v_J, P_SR) with parameters from ``simplified_params``).
 
-Integration: classic RK4 on the compiled right-hand side (``models.compiled``), default
-step 1e-4 s, inputs held constant over each step at their mid-step value, so input
+Integration (``models.compiled.integrate``): classic RK4 by default for every valve
+(the simplified laws are stiff in v_J, dP12/dQ_J ~ -G_PQ, |h lambda| = 0.64 at 1e-4 s:
+inside RK4's region); ``scheme="ros2"`` selects for the simplified valves Verwer's ROS2
+Rosenbrock-W scheme with that stiffness and the torque motor in W (half the cost, less
+accurate on sharp transients). Default step 1e-4 s, inputs held constant over each step at their mid-step value, so input
 discontinuities placed on step boundaries are honoured exactly. If the stiffness estimate
-of :func:`n_substeps` exceeds RK4's stability limit the step is split into substeps.
+of :func:`n_substeps` exceeds the explicit part's stability limit the step is split into
+substeps.
 
 Karnopp friction (physics.md section 3): stuck while |v_J| < dv_k and |A P12 - F_R -
 F_endstop| <= F_s (v_J then relaxes to 0 with time constant ``compiled.TAU_STICK``);
@@ -42,12 +46,14 @@ __all__ = [
     "EHAStepper",
     "initial_state",
     "n_substeps",
+    "SCHEMES",
     "state_outputs",
 ]
 
 VALVE_MODELS: tuple[str, ...] = ("HF", "A", "B", "C1", "C3", "C5")
 
 _RK4_LIMIT = 2.5  # |h lambda| kept below RK4's real-axis stability bound 2.785
+_HEUN_LIMIT = 1.5  # explicit part of ROS2 (Heun): real-axis bound 2, margin for complex modes
 
 
 @dataclass
@@ -84,29 +90,48 @@ def _check_valve(valve: str) -> int:
         raise ValueError(f"unknown valve model {valve!r}; expected one of {VALVE_MODELS}") from None
 
 
-def n_substeps(params: EHAParams, valve: str, step_s: float) -> int:
-    """RK4 substeps per step so that h |lambda| <= 2.5 for a conservative stiffness estimate.
+SCHEMES: dict[str, int] = {"rk4": 0, "ros2": 1}
+"""Fixed-step schemes: classic RK4 (default, all valves) and, for the simplified valves only,
+ROS2 (two-stage Rosenbrock-W, half the right-hand-side evaluations; see
+``models.compiled.integrate``). HF always integrates with RK4."""
 
-    Estimates: torque motor 1/tau_tm, spool 2 w_n, end stop sqrt(k/m) + c/m, stick relaxation,
-    simplified valve A^2 G_PQ / m (dP12/dQ_J ~ -G_PQ); HF chambers
-    beta_l / V_dead (2 max orifice slope + C_Lk) (orifice slope bounded via dp_tr) and the
-    hydraulic natural frequency near a stop.
+
+def _check_scheme(scheme: str) -> int:
+    try:
+        return SCHEMES[scheme]
+    except KeyError:
+        raise ValueError(f"unknown scheme {scheme!r}; expected one of {tuple(SCHEMES)}") from None
+
+
+def n_substeps(params: EHAParams, valve: str, step_s: float, scheme: str = "rk4") -> int:
+    """Substeps per step keeping the explicit part of the scheme inside its stability region.
+
+    RK4 (|h lambda| <= 2.5): torque motor 1/tau_tm, spool 2 w_n, end stop sqrt(k/m) + c/m,
+    stick relaxation; HF adds the chambers beta_l / V_dead (2 max orifice slope + C_Lk)
+    (orifice slope bounded via dp_tr) and the hydraulic frequency near a stop; the
+    simplified valves add the jack-velocity stiffness A^2 G_PQ / m (dP12/dQ_J ~ -G_PQ).
+    ROS2 (simplified only; torque motor and jack velocity are in W, the explicit Heun part
+    keeps |h lambda| <= 1.5): spool, end stop, stick relaxation.
     """
     p = params
     lam = [
-        1.0 / p.tau_tm,
         2.0 * p.omega_n,
         math.sqrt(p.k_stop / p.mass) + p.c_stop / p.mass,
         1.0 / kern.TAU_STICK,
     ]
+    limit = _RK4_LIMIT
     if valve == "HF":
+        lam.append(1.0 / p.tau_tm)
         a_max = max(abs(p.u1), abs(p.u2), abs(p.u3), abs(p.u4)) + p.x_sm
         s_max = float(orifice_slope(a_max, 0.0, p))
         lam.append(p.beta_l / p.v_dead * (2.0 * s_max + p.c_lk))
         lam.append(math.sqrt(p.beta_l * p.area**2 * (1.0 / p.v_dead) / p.mass))
-    else:
+    elif _check_scheme(scheme) == 0:
+        lam.append(1.0 / p.tau_tm)
         lam.append(p.area**2 * p.g_pq / p.mass)
-    return max(1, math.ceil(step_s * max(lam) / _RK4_LIMIT))
+    else:
+        limit = _HEUN_LIMIT
+    return max(1, math.ceil(step_s * max(lam) / limit))
 
 
 def initial_state(
@@ -168,6 +193,39 @@ def _inputs_matrix(scenario: Scenario, params: EHAParams, t: NDArray) -> NDArray
     return np.ascontiguousarray(np.stack([u["x_cmd"], u["f_r"], u["p_sr"], u["c_lk"]], axis=1))
 
 
+_CHUNK = 20000  # steps per kernel call (progress granularity, input buffer size)
+
+
+def _piecewise_constant(scenario: Scenario) -> bool:
+    profiles = [scenario.command, scenario.load, scenario.supply]
+    if scenario.leak is not None:
+        profiles.append(scenario.leak)
+    return all(not p.periodic and all(e.ramp_s == 0 for e in p.events) for p in profiles)
+
+
+def _segments(scenario: Scenario, params: EHAParams, h: float, n_steps: int):
+    """Yield (k0, n, u): ``n`` steps from global step k0 with inputs ``u`` (one row per step,
+    or a single row when the inputs are constant over the segment). Inputs are the profiles
+    at mid-step, so a step or kink placed on a step boundary is honoured exactly."""
+    if _piecewise_constant(scenario):
+        cuts = {0, n_steps}
+        for prof in (scenario.command, scenario.load, scenario.supply, scenario.leak):
+            if prof is None:
+                continue
+            for tb in prof.breakpoints():
+                kb = math.ceil(tb / h - 0.5)  # first step whose midpoint is at or after tb
+                if 0 < kb < n_steps:
+                    cuts.add(kb)
+        cuts.update(range(_CHUNK, n_steps, _CHUNK))
+        edges = sorted(cuts)
+        for a, b in zip(edges[:-1], edges[1:], strict=True):
+            yield a, b - a, _inputs_matrix(scenario, params, np.array([(a + 0.5) * h]))
+    else:
+        for a in range(0, n_steps, _CHUNK):
+            m = min(_CHUNK, n_steps - a)
+            yield a, m, _inputs_matrix(scenario, params, (a + np.arange(m) + 0.5) * h)
+
+
 def simulate(
     scenario: Scenario,
     valve: str = "HF",
@@ -175,44 +233,39 @@ def simulate(
     *,
     out_every: int = 1,
     progress: Callable[[float], None] | None = None,
+    scheme: str = "rk4",
 ) -> SimResult:
-    """Run the closed-loop bench over ``scenario`` with valve model ``valve`` (fixed-step RK4).
+    """Run the closed-loop bench over ``scenario`` with valve model ``valve`` (fixed step).
 
     Step = scenario.step_s (substeps from :func:`n_substeps`); params=None uses
     scenario.eha_params(). Inputs are held at their mid-step value. Output every
     ``out_every`` steps from t = 0. ``progress`` receives the fraction done, at most about
-    five times per second and once at the end.
+    five times per second and once at the end. ``scheme``: "rk4" (default) or "ros2"
+    (simplified valves only, about twice as fast, less accurate on sharp transients).
     """
     model = _check_valve(valve)
+    sch = _check_scheme(scheme)
     if out_every < 1:
         raise ValueError("out_every must be >= 1")
     params = params or scenario.eha_params()
     prm = kern.param_array(params)
     h = scenario.step_s
     n_steps = scenario.n_steps()
-    n_sub = n_substeps(params, valve, h)
+    n_sub = n_substeps(params, valve, h, scheme)
     n_out = n_steps // out_every + 1
     t_out = np.arange(n_out) * (out_every * h)
     u0 = _inputs_matrix(scenario, params, np.array([0.5 * h]))[0]
     y = initial_state(params, valve, float(u0[2]), float(u0[3]))
     states = np.empty((n_out, kern.N_STATE))
     states[0] = y
-    # chunks: a whole number of output intervals, about 0.05-0.2 s of wall time each
-    chunk = max(out_every, (20000 // out_every) * out_every)
     wall0 = time.perf_counter()
     last_report = wall0
-    k = 0
-    while k < n_steps:
-        m = min(chunk, n_steps - k)
-        t_mid = (k + np.arange(m) + 0.5) * h
-        u = _inputs_matrix(scenario, params, t_mid)
-        out = states[1 + k // out_every :]
-        kern.integrate(y, h, n_sub, m, u, prm, model, out_every, out)
-        k += m
+    for k0, m, u in _segments(scenario, params, h, n_steps):
+        kern.integrate(y, h, n_sub, k0, m, u, prm, model, sch, out_every, states)
         if progress is not None:
             now = time.perf_counter()
-            if now - last_report >= 0.2 and k < n_steps:
-                progress(k / n_steps)
+            if now - last_report >= 0.2 and k0 + m < n_steps:
+                progress((k0 + m) / n_steps)
                 last_report = now
     wall = time.perf_counter() - wall0
     if progress is not None:
@@ -239,13 +292,16 @@ class EHAStepper:
     the first ``advance``'s supply pressure and leakage.
     """
 
-    def __init__(self, params: EHAParams, valve: str = "HF", step_s: float = 1e-4) -> None:
+    def __init__(
+        self, params: EHAParams, valve: str = "HF", step_s: float = 1e-4, *, scheme: str = "rk4"
+    ) -> None:
         self.model = _check_valve(valve)
+        self._scheme = _check_scheme(scheme)
         self.valve = valve
         self.params = params
         self.step_s = float(step_s)
         self._prm = kern.param_array(params)
-        self._n_sub = n_substeps(params, valve, self.step_s)
+        self._n_sub = n_substeps(params, valve, self.step_s, scheme)
         self._y: NDArray | None = None
         self._u = np.zeros((1, 4))
         self._u[0] = (0.0, 0.0, params.p_sr, params.c_lk)
@@ -275,8 +331,8 @@ class EHAStepper:
         if n_steps <= 0:
             return
         kern.integrate(
-            self._y, self.step_s, self._n_sub, int(n_steps), self._u, self._prm, self.model,
-            int(n_steps) + 1, self._out,
+            self._y, self.step_s, self._n_sub, 0, int(n_steps), self._u, self._prm, self.model,
+            self._scheme, int(n_steps) + 1, self._out,
         )  # fmt: skip
         self._k += int(n_steps)
         self.t = getattr(self, "_t0", 0.0) + self._k * self.step_s

@@ -1,0 +1,182 @@
+"""Benchmark of the physics core: valve-law throughput and the bench's real-time factor.
+
+Prints, side by side in one run:
+  * law evaluations per second on N random points (numpy laws A..C5, HF static balance);
+  * real-time factor (simulated s / wall s, after JIT warm-up) of ``simulate`` on
+    scenarios/paper_bench.toml for HF and each simplified valve at the scenario step, both
+    for the integration loop alone (SimResult.wall_s) and for the whole call;
+  * the incremental ``EHAStepper`` driven in 1 ms chunks (as a paced virtual actuator);
+  * HF NRMSE against the solve_ivp reference (Radau, rtol 1e-8) in the same run;
+  * whether the targets are met: simplified >= 1000x real time, HF >= 20x within 1 % NRMSE.
+
+Usage: .venv/bin/python bench/models.py [--points N] [--hf-points N] [--repeat R] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from models.eha import VALVE_MODELS, EHAStepper, simulate  # noqa: E402
+from models.hf_valve import hf_static_p12  # noqa: E402
+from models.metrics import nrmse_pct  # noqa: E402
+from models.params import simplified_params  # noqa: E402
+from models.reference import reference_solution  # noqa: E402
+from models.valve_laws import LAW_NAMES, p12  # noqa: E402
+from service.scenarios import load_scenario  # noqa: E402
+
+TARGET_SIMPLIFIED_RTF = 1000.0
+TARGET_HF_RTF = 20.0
+TARGET_HF_NRMSE = 1.0
+
+
+def _best(fn, repeat: int) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def law_throughput(n: int, n_hf: int, repeat: int) -> dict[str, dict[str, float]]:
+    sc = load_scenario("paper_bench")
+    params = sc.eha_params()
+    vp = simplified_params(params)
+    rng = np.random.default_rng(0)
+    x_s = rng.uniform(-params.x_sm, params.x_sm, n)
+    q_j = rng.uniform(-1.5e-4, 1.5e-4, n)  # within +-the no-load capacity
+    p_sr = rng.uniform(5e6, 20e6, n)
+    out: dict[str, dict[str, float]] = {}
+    for law in LAW_NAMES:
+        dt = _best(lambda law=law: p12(law, x_s, q_j, p_sr, vp), repeat)
+        out[law] = {"points": n, "seconds": dt, "evals_per_s": n / dt}
+    xs, qj, ps = x_s[:n_hf], q_j[:n_hf], p_sr[:n_hf]
+    dt = _best(lambda: hf_static_p12(xs, qj, ps, params), max(1, repeat // 2))
+    out["HF static"] = {"points": n_hf, "seconds": dt, "evals_per_s": n_hf / dt}
+    return out
+
+
+def bench_rtf(repeat: int) -> dict[str, dict[str, float]]:
+    sc = load_scenario("paper_bench")
+    dur = sc.n_steps() * sc.step_s
+    out: dict[str, dict[str, float]] = {}
+    for valve in VALVE_MODELS:
+        t0 = time.perf_counter()
+        simulate(sc, valve)  # warm-up (JIT compile or cache load)
+        first = time.perf_counter() - t0
+        loop, call = float("inf"), float("inf")
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            r = simulate(sc, valve)
+            call = min(call, time.perf_counter() - t0)
+            loop = min(loop, r.wall_s)
+        out[valve] = {
+            "step_s": sc.step_s,
+            "sim_s": dur,
+            "first_call_s": first,
+            "loop_wall_s": loop,
+            "call_wall_s": call,
+            "rtf_loop": dur / loop,
+            "rtf_call": dur / call,
+        }
+    return out
+
+
+def stepper_rtf(valve: str, sim_s: float = 1.0) -> float:
+    """EHAStepper advanced in 10-step (1 ms) chunks with signals() read each chunk."""
+    sc = load_scenario("paper_bench")
+    st = EHAStepper(sc.eha_params(), valve, step_s=1e-4)
+    st.advance(10, 0.0, 0.0, 20e6, 2e-13)
+    n = int(round(sim_s / 1e-3))
+    t0 = time.perf_counter()
+    for k in range(n):
+        st.advance(10, 0.02 if k > 0 else 0.0, 0.0, 20e6, 2e-13)
+        st.signals()
+    return sim_s / (time.perf_counter() - t0)
+
+
+def hf_accuracy() -> dict[str, float]:
+    sc = load_scenario("paper_bench")
+    r = simulate(sc, "HF")
+    t0 = time.perf_counter()
+    ref = reference_solution(sc, "HF")
+    t_ref = time.perf_counter() - t0
+    out = {
+        f"nrmse_{k}_pct": nrmse_pct(getattr(r, k), getattr(ref, k))
+        for k in ("x_j", "v_j", "p12", "x_s")
+    }
+    out["reference_wall_s"] = t_ref
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=1_000_000, help="points per simplified law")
+    ap.add_argument("--hf-points", type=int, default=1_000_000, help="points for HF static")
+    ap.add_argument("--repeat", type=int, default=5, help="repeats (best time kept)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object instead")
+    a = ap.parse_args(argv)
+
+    laws = law_throughput(a.points, a.hf_points, a.repeat)
+    rtf = bench_rtf(a.repeat)
+    step = {v: stepper_rtf(v) for v in ("HF", "C5")}
+    acc = hf_accuracy()
+    simp_min = min(rtf[v]["rtf_loop"] for v in VALVE_MODELS if v != "HF")
+    targets = {
+        "simplified_rtf>=1000": simp_min >= TARGET_SIMPLIFIED_RTF,
+        "hf_rtf>=20": rtf["HF"]["rtf_loop"] >= TARGET_HF_RTF,
+        "hf_nrmse<1%": max(acc["nrmse_x_j_pct"], acc["nrmse_p12_pct"]) < TARGET_HF_NRMSE,
+    }
+    report = {
+        "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count()},
+        "law_throughput": laws,
+        "bench_rtf": rtf,
+        "stepper_rtf_1ms_chunks": step,
+        "hf_vs_reference": acc,
+        "targets_met": targets,
+    }
+    if a.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print("Valve-law throughput (numpy, vectorised)")
+    print(f"  {'law':<10} {'points':>9} {'seconds':>9} {'evals/s':>12}")
+    for k, v in laws.items():
+        print(f"  {k:<10} {v['points']:>9d} {v['seconds']:>9.4f} {v['evals_per_s']:>12.3e}")
+    print("\nClosed-loop bench on paper_bench (1.0 s simulated), RK4, real-time factor")
+    print(
+        f"  {'valve':<6} {'step':>7} {'1st call':>9} {'loop s':>9} {'RTF loop':>10} {'RTF call':>10}"
+    )
+    for v, d in rtf.items():
+        print(
+            f"  {v:<6} {d['step_s']:>7.0e} {d['first_call_s']:>8.2f}s {d['loop_wall_s']:>9.5f} "
+            f"{d['rtf_loop']:>9.0f}x {d['rtf_call']:>9.0f}x"
+        )
+    print("\nEHAStepper in 1 ms chunks (advance(10) + signals()):")
+    for v, x in step.items():
+        print(f"  {v:<6} {x:>9.0f}x real time")
+    print("\nHF fixed-step vs solve_ivp Radau rtol 1e-8 (NRMSE %, physics.md section 5):")
+    print(
+        "  x_J {nrmse_x_j_pct:.4f}  v_J {nrmse_v_j_pct:.4f}  P12 {nrmse_p12_pct:.4f}  "
+        "x_S {nrmse_x_s_pct:.4f}   (reference solve {reference_wall_s:.1f} s)".format(**acc)
+    )
+    print("\nTargets:")
+    print(f"  simplified >= {TARGET_SIMPLIFIED_RTF:.0f}x real time (min {simp_min:.0f}x): "
+          f"{'MET' if targets['simplified_rtf>=1000'] else 'NOT MET'}")  # fmt: skip
+    print(f"  HF >= {TARGET_HF_RTF:.0f}x real time ({rtf['HF']['rtf_loop']:.0f}x): "
+          f"{'MET' if targets['hf_rtf>=20'] else 'NOT MET'}")  # fmt: skip
+    print(f"  HF NRMSE < {TARGET_HF_NRMSE:.0f} % on x_J and P12: "
+          f"{'MET' if targets['hf_nrmse<1%'] else 'NOT MET'}")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
