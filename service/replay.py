@@ -148,6 +148,7 @@ def replay(
     monitor_config: MonitorConfig | None = None,
     baseline: Baseline | None = None,
     publish_every: int = 10,
+    log_every: int = 1,
     progress: Callable[[ReplaySummary], None] | None = None,
 ) -> ReplaySummary:
     """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
@@ -161,6 +162,8 @@ def replay(
     out : a new MCAP log of the replay (meas, est, residual, health, events), or None.
     publish : a zenoh session; est/res/health are put on ``fleet/{ac}/{act}/{est,res,health}``
         every ``publish_every`` outputs per actuator.
+    log_every : est/residual/health go to ``out`` every ``log_every`` outputs per actuator
+        (1 = every output; events always).
     monitor_config, baseline : None takes the log's ``servowatch`` metadata (``monitor_config``,
         ``baseline`` JSON) when present, else ``MonitorConfig()`` and ``Baseline.default()``.
 
@@ -169,6 +172,8 @@ def replay(
     """
     if speed is not None and not speed > 0:
         raise ValueError("speed must be > 0 or None")
+    if log_every < 1 or publish_every < 1:
+        raise ValueError("log_every and publish_every must be >= 1")
     log_path = Path(log_path)
     files = rotated_files(log_path)
     if not files:
@@ -215,7 +220,9 @@ def replay(
             fin["t"] = o.t
             fin["est"] = o.est
             fin["health"] = o.health
-            if writer is not None:  # McapLogger makes NaN, numpy and nested values JSON-safe
+            k = n_out[name] = n_out.get(name, 0) + 1
+            if writer is not None and (k % log_every == 0 or o.events):
+                # McapLogger makes NaN, numpy and nested values JSON-safe
                 b = f"/fleet/{ac}/{act}/"
                 writer.log(b + "est", o.t, o.est)
                 writer.log(b + "residual", o.t, o.res)
@@ -225,11 +232,9 @@ def replay(
                 summary.alarms.append({"actuator": name, **d})
                 if writer is not None:
                     writer.log(f"/fleet/{ac}/{act}/events", float(d.get("t") or o.t), _flat(d))
-            if publish is not None:
-                k = n_out[name] = n_out.get(name, 0) + 1
-                if k % publish_every == 0:
-                    _publish(publish, pubs, ac, act, o)
-                    summary.published += 1
+            if publish is not None and k % publish_every == 0:
+                _publish(publish, pubs, ac, act, o)
+                summary.published += 1
         batch.clear()
 
     with warnings.catch_warnings(record=True) as caught:

@@ -177,3 +177,19 @@ def test_paced_replay_takes_at_least_the_scaled_duration(tmp_path, run_rows):
     assert s.samples == 101
     assert s.wall_s >= 0.1 / 0.5 * 0.95
     assert s.final["AC001/elevator_L"]["est"] == _direct(rows)[-1].est
+
+
+def test_log_every_decimates_outputs_not_estimates(tmp_path, run_rows):
+    rows = run_rows[:100]
+    log = _log(tmp_path / "live.mcap", rows)
+    s = replay(log, out=tmp_path / "dec.mcap", log_every=7)
+    got = [(t, m) for t, _, m in read_log(tmp_path / "dec.mcap")]
+    est = [m for t, m in got if t.endswith("/est")]
+    n_ev = sum(1 for t, _ in got if t.endswith("/events"))
+    assert len([m for t, m in got if t.endswith("/meas")]) == 100  # every sample kept
+    assert 100 // 7 <= len(est) <= 100 // 7 + n_ev
+    direct = _direct(rows)
+    assert est[0] == direct[6].est  # the 7th output
+    assert s.final["AC001/elevator_L"]["est"] == direct[-1].est
+    with pytest.raises(ValueError):
+        replay(log, log_every=0)

@@ -38,6 +38,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--connect", action="append", default=None, metavar="ENDPOINT",
         help="Zenoh endpoint for --publish (default tcp/127.0.0.1:7447; repeatable)",
     )  # fmt: skip
+    p.add_argument(
+        "--log-every", type=int, default=1, metavar="N",
+        help="with --out: log est/residual/health every N outputs (default 1 = all)",
+    )  # fmt: skip
     p.add_argument("--config", default=None, help="service TOML (its [monitor] and baseline)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
@@ -104,7 +108,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         s = replay(
             args.log, speed=args.speed, out=args.out, publish=session,
-            monitor_config=monitor_config, baseline=baseline,
+            monitor_config=monitor_config, baseline=baseline, log_every=args.log_every,
+            publish_every=cfg.publish_every if cfg is not None else 10,
         )  # fmt: skip
     except (OSError, ValueError) as e:
         return fail(str(e))
