@@ -2,8 +2,7 @@
 
 Everything the fixed-step integrator needs is here as scalar ``@njit(cache=True)`` code:
 the simplified laws (one function, model id branch), the HF land flows, the effective
-bulk modulus, the 7-state right-hand side and the stepping loop (RK4 for HF, ROS2 for the
-simplified valves). Parameters travel as
+bulk modulus, the 7-state right-hand side and the RK4 stepping loop. Parameters travel as
 one float64 array built by :func:`param_array`. The numpy functions in
 ``models.valve_laws`` and ``models.hf_valve`` are the readable reference; the tests hold
 these kernels to them.
@@ -257,15 +256,9 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
 
 
 @njit(cache=True, error_model="numpy")
-def integrate(y, h, n_sub, k0, n_steps, u, prm, model, scheme, out_every, out):
-    """Advance ``y`` in place over ``n_steps`` fixed steps of ``h`` (global steps k0..k0+n-1).
-
-    ``scheme`` 0: classic RK4 (all models; the default of ``models.eha``). ``scheme`` 1
-    (simplified valves only; HF always uses RK4): Verwer's two-stage Rosenbrock-W method ROS2 (order 2 for any W, L-stable on the modes in W) with a diagonal W holding the
-    torque-motor pole -1/tau_tm and the jack-velocity stiffness (A^2 dP12/dQ_J - c_v) / m
-    of the valve law (about -A^2 G_PQ / m in the linear zone, 0 when saturated; the stick
-    pole inside the Karnopp band), by central difference of the law each substep; the
-    rest is explicit (Heun). Each step may be split into ``n_sub`` substeps.
+def integrate(y, h, n_sub, k0, n_steps, u, prm, model, out_every, out):
+    """Advance ``y`` in place over ``n_steps`` classic RK4 steps of ``h`` (global steps
+    k0..k0+n-1), each split into ``n_sub`` substeps.
 
     ``u`` is (n_u, 4): x_cmd, f_r, p_sr, c_lk held over local step k (row min(k, n_u - 1)).
     After global step g = k0 + k the state goes to ``out[(g + 1) // out_every]`` whenever
@@ -279,15 +272,6 @@ def integrate(y, h, n_sub, k0, n_steps, u, prm, model, scheme, out_every, out):
     yt = np.empty(n)
     hs = h / n_sub
     n_u = u.shape[0]
-    gam = 1.0 + 1.0 / math.sqrt(2.0)
-    area = prm[I_AREA]
-    g_pq = prm[I_G_PQ]
-    d0 = 1.0 / (1.0 + gam * hs * prm[I_INV_TAU_TM])
-    x_sm = prm[I_X_SM]
-    x_ss = prm[I_X_SS]
-    p_vap = prm[I_P_VAP]
-    c_v = prm[I_C_V]
-    inv_m = prm[I_INV_MASS]
     for j in range(n):
         yt[j] = y[j]
     ns = n if model == 0 else 5  # P1, P2 are not states of the simplified models
@@ -297,46 +281,19 @@ def integrate(y, h, n_sub, k0, n_steps, u, prm, model, scheme, out_every, out):
         f_r = u[r, 1]
         p_sr = u[r, 2]
         c_lk = u[r, 3]
-        if model == 0 or scheme == 0:
-            for _ in range(n_sub):
-                rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, k1)
-                for j in range(ns):
-                    yt[j] = y[j] + 0.5 * hs * k1[j]
-                rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k2)
-                for j in range(ns):
-                    yt[j] = y[j] + 0.5 * hs * k2[j]
-                rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k3)
-                for j in range(ns):
-                    yt[j] = y[j] + hs * k3[j]
-                rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k4)
-                for j in range(ns):
-                    y[j] += hs / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
-        else:
-            for _ in range(n_sub):
-                # W's jack-velocity entry: d(dv_J/dt)/dv_J = (A^2 dP12/dQ_J - c_v) / m from a
-                # central difference of the law (0 slope when saturated), or the stick pole
-                if abs(y[4]) < prm[I_DV_K]:
-                    j_v = -prm[I_INV_TAU_STICK]
-                else:
-                    xse = min(max(y[1], -x_sm), x_sm)
-                    q = area * y[4]
-                    dq = 1e-10 + 1e-7 * abs(q)
-                    pp = law_p12(model, xse, q + dq, p_sr, g_pq, x_ss, c_lk, p_vap)
-                    pm = law_p12(model, xse, q - dq, p_sr, g_pq, x_ss, c_lk, p_vap)
-                    j_v = (area * area * (pp - pm) / (2.0 * dq) - c_v) * inv_m
-                d4 = 1.0 / (1.0 - gam * hs * j_v)
-                rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, k1)
-                k1[0] *= d0
-                k1[4] *= d4
-                for j in range(5):
-                    yt[j] = y[j] + hs * k1[j]
-                rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k2)
-                for j in range(5):
-                    k2[j] -= 2.0 * k1[j]
-                k2[0] *= d0
-                k2[4] *= d4
-                for j in range(5):
-                    y[j] += hs * (1.5 * k1[j] + 0.5 * k2[j])
+        for _ in range(n_sub):
+            rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, k1)
+            for j in range(ns):
+                yt[j] = y[j] + 0.5 * hs * k1[j]
+            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k2)
+            for j in range(ns):
+                yt[j] = y[j] + 0.5 * hs * k2[j]
+            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k3)
+            for j in range(ns):
+                yt[j] = y[j] + hs * k3[j]
+            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k4)
+            for j in range(ns):
+                y[j] += hs / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
         g1 = k0 + k + 1
         if g1 % out_every == 0:
             row = g1 // out_every

@@ -6,11 +6,10 @@ Karnopp dry friction, end stops). The valve is either the HF model ("HF", 7 stat
 the two compressible chambers) or a simplified algebraic law ("A", "B", "C1", "C3", "C5",
 5 states; P12 = law(x_S, A v_J, P_SR) with parameters from ``simplified_params``).
 
-Integration (``models.compiled.integrate``): classic RK4 by default for every valve
-(the simplified laws are stiff in v_J, dP12/dQ_J ~ -G_PQ, |h lambda| = 0.64 at 1e-4 s:
-inside RK4's region); ``scheme="ros2"`` selects for the simplified valves Verwer's ROS2
-Rosenbrock-W scheme with that stiffness and the torque motor in W (half the cost, less
-accurate on sharp transients). Default step 1e-4 s, inputs held constant over each step at their mid-step value, so input
+Integration (``models.compiled.integrate``): classic RK4 for every valve. The
+simplified laws are stiff in v_J (dP12/dQ_J ~ -G_PQ, lambda ~ -A^2 G_PQ / m = -6446 1/s,
+|h lambda| = 0.64 at 1e-4 s: well inside RK4's region; a Rosenbrock-W ROS2 variant was
+tried and, at equal cost, was less accurate than RK4 at a larger step). Default step 1e-4 s, inputs held constant over each step at their mid-step value, so input
 discontinuities placed on step boundaries are honoured exactly. If the stiffness estimate
 of :func:`n_substeps` exceeds the explicit part's stability limit the step is split into
 substeps.
@@ -46,14 +45,12 @@ __all__ = [
     "EHAStepper",
     "initial_state",
     "n_substeps",
-    "SCHEMES",
     "state_outputs",
 ]
 
 VALVE_MODELS: tuple[str, ...] = ("HF", "A", "B", "C1", "C3", "C5")
 
 _RK4_LIMIT = 2.5  # |h lambda| kept below RK4's real-axis stability bound 2.785
-_HEUN_LIMIT = 1.5  # explicit part of ROS2 (Heun): real-axis bound 2, margin for complex modes
 
 
 @dataclass
@@ -90,48 +87,31 @@ def _check_valve(valve: str) -> int:
         raise ValueError(f"unknown valve model {valve!r}; expected one of {VALVE_MODELS}") from None
 
 
-SCHEMES: dict[str, int] = {"rk4": 0, "ros2": 1}
-"""Fixed-step schemes: classic RK4 (default, all valves) and, for the simplified valves only,
-ROS2 (two-stage Rosenbrock-W, half the right-hand-side evaluations; see
-``models.compiled.integrate``). HF always integrates with RK4."""
+def n_substeps(params: EHAParams, valve: str, step_s: float) -> int:
+    """RK4 substeps per step so that |h lambda| <= 2.5 (real-axis bound 2.785) for a
+    conservative estimate of the fastest modes.
 
-
-def _check_scheme(scheme: str) -> int:
-    try:
-        return SCHEMES[scheme]
-    except KeyError:
-        raise ValueError(f"unknown scheme {scheme!r}; expected one of {tuple(SCHEMES)}") from None
-
-
-def n_substeps(params: EHAParams, valve: str, step_s: float, scheme: str = "rk4") -> int:
-    """Substeps per step keeping the explicit part of the scheme inside its stability region.
-
-    RK4 (|h lambda| <= 2.5): torque motor 1/tau_tm, spool 2 w_n, end stop sqrt(k/m) + c/m,
-    stick relaxation; HF adds the chambers beta_l / V_dead (2 max orifice slope + C_Lk)
-    (orifice slope bounded via dp_tr) and the hydraulic frequency near a stop; the
-    simplified valves add the jack-velocity stiffness A^2 G_PQ / m (dP12/dQ_J ~ -G_PQ).
-    ROS2 (simplified only; torque motor and jack velocity are in W, the explicit Heun part
-    keeps |h lambda| <= 1.5): spool, end stop, stick relaxation.
+    All valves: torque motor 1/tau_tm, spool 2 w_n, end stop sqrt(k/m) + c/m, stick
+    relaxation. HF: the chambers beta_l / V_dead (2 max orifice slope + C_Lk) (orifice
+    slope bounded via dp_tr) and the hydraulic frequency near a stop. Simplified valves:
+    the jack-velocity stiffness A^2 G_PQ / m (dP12/dQ_J ~ -G_PQ): 6446 1/s with the
+    defaults, so one substep up to 3.9e-4 s, three at a 1 ms step.
     """
     p = params
     lam = [
+        1.0 / p.tau_tm,
         2.0 * p.omega_n,
         math.sqrt(p.k_stop / p.mass) + p.c_stop / p.mass,
         1.0 / kern.TAU_STICK,
     ]
-    limit = _RK4_LIMIT
     if valve == "HF":
-        lam.append(1.0 / p.tau_tm)
         a_max = max(abs(p.u1), abs(p.u2), abs(p.u3), abs(p.u4)) + p.x_sm
         s_max = float(orifice_slope(a_max, 0.0, p))
         lam.append(p.beta_l / p.v_dead * (2.0 * s_max + p.c_lk))
         lam.append(math.sqrt(p.beta_l * p.area**2 * (1.0 / p.v_dead) / p.mass))
-    elif _check_scheme(scheme) == 0:
-        lam.append(1.0 / p.tau_tm)
-        lam.append(p.area**2 * p.g_pq / p.mass)
     else:
-        limit = _HEUN_LIMIT
-    return max(1, math.ceil(step_s * max(lam) / limit))
+        lam.append(p.area**2 * p.g_pq / p.mass)
+    return max(1, math.ceil(step_s * max(lam) / _RK4_LIMIT))
 
 
 def initial_state(
@@ -233,25 +213,22 @@ def simulate(
     *,
     out_every: int = 1,
     progress: Callable[[float], None] | None = None,
-    scheme: str = "rk4",
 ) -> SimResult:
     """Run the closed-loop bench over ``scenario`` with valve model ``valve`` (fixed step).
 
     Step = scenario.step_s (substeps from :func:`n_substeps`); params=None uses
     scenario.eha_params(). Inputs are held at their mid-step value. Output every
     ``out_every`` steps from t = 0. ``progress`` receives the fraction done, at most about
-    five times per second and once at the end. ``scheme``: "rk4" (default) or "ros2"
-    (simplified valves only, about twice as fast, less accurate on sharp transients).
+    five times per second and once at the end.
     """
     model = _check_valve(valve)
-    sch = _check_scheme(scheme)
     if out_every < 1:
         raise ValueError("out_every must be >= 1")
     params = params or scenario.eha_params()
     prm = kern.param_array(params)
     h = scenario.step_s
     n_steps = scenario.n_steps()
-    n_sub = n_substeps(params, valve, h, scheme)
+    n_sub = n_substeps(params, valve, h)
     n_out = n_steps // out_every + 1
     t_out = np.arange(n_out) * (out_every * h)
     u0 = _inputs_matrix(scenario, params, np.array([0.5 * h]))[0]
@@ -261,7 +238,7 @@ def simulate(
     wall0 = time.perf_counter()
     last_report = wall0
     for k0, m, u in _segments(scenario, params, h, n_steps):
-        kern.integrate(y, h, n_sub, k0, m, u, prm, model, sch, out_every, states)
+        kern.integrate(y, h, n_sub, k0, m, u, prm, model, out_every, states)
         if progress is not None:
             now = time.perf_counter()
             if now - last_report >= 0.2 and k0 + m < n_steps:
@@ -292,16 +269,13 @@ class EHAStepper:
     the first ``advance``'s supply pressure and leakage.
     """
 
-    def __init__(
-        self, params: EHAParams, valve: str = "HF", step_s: float = 1e-4, *, scheme: str = "rk4"
-    ) -> None:
+    def __init__(self, params: EHAParams, valve: str = "HF", step_s: float = 1e-4) -> None:
         self.model = _check_valve(valve)
-        self._scheme = _check_scheme(scheme)
         self.valve = valve
         self.params = params
         self.step_s = float(step_s)
         self._prm = kern.param_array(params)
-        self._n_sub = n_substeps(params, valve, self.step_s, scheme)
+        self._n_sub = n_substeps(params, valve, self.step_s)
         self._y: NDArray | None = None
         self._u = np.zeros((1, 4))
         self._u[0] = (0.0, 0.0, params.p_sr, params.c_lk)
@@ -332,22 +306,46 @@ class EHAStepper:
             return
         kern.integrate(
             self._y, self.step_s, self._n_sub, 0, int(n_steps), self._u, self._prm, self.model,
-            self._scheme, int(n_steps) + 1, self._out,
+            int(n_steps) + 1, self._out,
         )  # fmt: skip
         self._k += int(n_steps)
         self.t = getattr(self, "_t0", 0.0) + self._k * self.step_s
 
     def signals(self) -> dict[str, float]:
         """Current t, x_cmd, i (A), x_s, v_s, x_j, v_j, p1, p2, p12, p_sr, c_lk (SI)."""
-        y = self.state
-        x_cmd, _, p_sr, c_lk = self._u[0]
-        s = state_outputs(
-            self.valve, self.params, y[None, :], np.array([x_cmd]), np.array([p_sr]),
-            np.array([c_lk]),
-        )  # fmt: skip
-        out = {"t": self.t, "x_cmd": float(x_cmd)}
-        for k in ("i", "x_s", "v_s", "x_j", "v_j", "p1", "p2", "p12"):
-            out[k] = float(s[k][0])
-        out["p_sr"] = float(p_sr)
-        out["c_lk"] = float(c_lk)
-        return out
+        if self._y is None:
+            self._y = initial_state(self.params, self.valve, self._u[0, 2], self._u[0, 3])
+        y = self._y
+        p = self.params
+        x_cmd, _, p_sr, c_lk = (float(v) for v in self._u[0])
+        x_s = min(max(float(y[1]), -p.x_sm), p.x_sm)
+        v_s = float(y[2])
+        if (y[1] >= p.x_sm and v_s > 0) or (y[1] <= -p.x_sm and v_s < 0):
+            v_s = 0.0
+        if self.model == 0:
+            p1, p2 = float(y[5]), float(y[6])
+            p12 = p1 - p2
+        else:
+            prm = self._prm
+            p12 = float(
+                kern.law_p12(
+                    self.model, x_s, p.area * float(y[4]), p_sr, prm[kern.I_G_PQ],
+                    prm[kern.I_X_SS], c_lk, p.p_vap,
+                )
+            )  # fmt: skip
+            p1 = p.p_r + 0.5 * (p_sr + p12)
+            p2 = p.p_r + 0.5 * (p_sr - p12)
+        return {
+            "t": self.t,
+            "x_cmd": x_cmd,
+            "i": float(y[0]),
+            "x_s": x_s,
+            "v_s": v_s,
+            "x_j": float(y[3]),
+            "v_j": float(y[4]),
+            "p1": p1,
+            "p2": p2,
+            "p12": p12,
+            "p_sr": p_sr,
+            "c_lk": c_lk,
+        }
