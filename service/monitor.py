@@ -88,6 +88,12 @@ class AlarmConfig(_Cfg):
     supply_raise: float = Field(0.85, gt=0, description="raise when P_SR / rated <= this")
     supply_clear: float = Field(0.90, gt=0, description="clear when P_SR / rated >= this")
     hold_s: float = Field(0.05, ge=0, description="condition must persist this long [s]")
+    leak_max_sigma: float = Field(
+        1.0, gt=0, description="raise a leak alarm only if sigma(C_Lk) / baseline is below this"
+    )
+    supply_max_sigma: float = Field(
+        0.05, gt=0, description="raise a supply alarm only if sigma(P_SR) / rated is below this"
+    )
 
 
 class MonitorConfig(_Cfg):
@@ -111,6 +117,12 @@ class MonitorConfig(_Cfg):
     nis_reinit: float = Field(30.0, gt=1, description="re-init when mean NIS/dof exceeds this")
     c_lk_max: float = Field(1e-10, gt=0, description="upper clip of C_Lk [m^3/s/Pa]")
     arm_s: float = Field(0.5, ge=0, description="alarms armed this long after a (re)init [s]")
+    reduced_param_q: float = Field(
+        0.01,
+        ge=0,
+        description="reduced channel set: scale of the C_Lk and P_SR random walks (they are "
+        "not observable from x_J alone, see docs/estimation.md)",
+    )
 
 
 class Baseline(_Cfg):
@@ -308,9 +320,10 @@ class MonitorBank:
             [b.x_ss, b.x_ss * b.omega_n, 1e-3, 1e-2, 1e3, 1e6, 1e-13], float
         )  # filter units
         pn = c.process
-        self._q = (
-            np.array([pn.x_s, pn.v_s, pn.x_j, pn.v_j, pn.f_r, pn.p_sr, pn.c_lk]) / self.scale
-        ) ** 2
+        q = np.array([pn.x_s, pn.v_s, pn.x_j, pn.v_j, pn.f_r, pn.p_sr, pn.c_lk])
+        if c.channels == "reduced":
+            q[5:7] *= c.reduced_param_q
+        self._q = (q / self.scale) ** 2
         nz = c.noise
         r = np.array([nz.x_s_m, nz.x_j_m, nz.p_pa, nz.p_pa, nz.p_sr_pa])
         self._zscale = np.array([b.x_ss, 1e-3, 1e6, 1e6, 1e6])
@@ -599,7 +612,15 @@ class MonitorBank:
         supply_ratio = xs[:, 5] / b.p_sr_rated
         # alarms with hysteresis (raise/clear levels) and persistence (hold_s), vectorised
         values = np.stack([leak_ratio, supply_ratio], axis=1)
-        raise_ = np.stack([leak_ratio >= acfg.leak_raise, supply_ratio <= acfg.supply_raise], 1)
+        sd_leak = est[:, 13] / b.c_lk if b.c_lk > 0 else np.zeros(n)
+        sd_sup = est[:, 11] / b.p_sr_rated
+        raise_ = np.stack(
+            [
+                (leak_ratio >= acfg.leak_raise) & (sd_leak < acfg.leak_max_sigma),
+                (supply_ratio <= acfg.supply_raise) & (sd_sup < acfg.supply_max_sigma),
+            ],
+            1,
+        )
         clear_ = np.stack([leak_ratio <= acfg.leak_clear, supply_ratio >= acfg.supply_clear], 1)
         on = self.alarm[ks]
         armed = (t - self.t_init[ks] >= self.config.arm_s)[:, None]

@@ -199,3 +199,12 @@ def test_update_rows_equals_update_many():
         for r, k in enumerate(rows.index):
             o = rows.output(r)
             assert o.est == outs[k].est and o.res == outs[k].res and o.health == outs[k].health
+
+
+def test_alarms_need_an_observable_indicator():
+    """The reduced set cannot observe P_SR (docs/estimation.md): its supply estimate is too
+    uncertain for the sigma gate, so a real drop raises no (possibly wrong) supply alarm."""
+    sim, meas = hf_run("supply_drop", 2.2)
+    outs, _ = run_monitor(meas, MonitorConfig(channels="reduced"))
+    assert not [e for o in outs for e in o.events if e.kind == "supply"]
+    assert outs[-1].est["p_sr_sigma"] > 0.05 * 20e6
