@@ -198,8 +198,9 @@ def _segments(scenario: Scenario, params: EHAParams, h: float, n_steps: int):
                     cuts.add(kb)
         cuts.update(range(_CHUNK, n_steps, _CHUNK))
         edges = sorted(cuts)
-        for a, b in zip(edges[:-1], edges[1:], strict=True):
-            yield a, b - a, _inputs_matrix(scenario, params, np.array([(a + 0.5) * h]))
+        u = _inputs_matrix(scenario, params, (np.array(edges[:-1]) + 0.5) * h)
+        for i, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+            yield a, b - a, u[i : i + 1]
     else:
         for a in range(0, n_steps, _CHUNK):
             m = min(_CHUNK, n_steps - a)
