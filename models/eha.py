@@ -282,6 +282,7 @@ class EHAStepper:
         self._u[0] = (0.0, 0.0, params.p_sr, params.c_lk)
         self._out = np.empty((1, kern.N_STATE))
         self.t: float = 0.0
+        self._t0 = 0.0
         self._k = 0
 
     @property
@@ -293,6 +294,10 @@ class EHAStepper:
 
     def reset(self, state: NDArray | None = None, t: float = 0.0) -> None:
         """Back to rest (or to ``state``) at time ``t``."""
+        if state is not None and np.shape(state) != (kern.N_STATE,):
+            raise ValueError(
+                f"state must have {kern.N_STATE} entries (I, x_S, v_S, x_J, v_J, P1, P2)"
+            )
         self._y = None if state is None else np.array(state, float)
         self._k = 0
         self._t0 = t
@@ -310,7 +315,7 @@ class EHAStepper:
             int(n_steps) + 1, self._out,
         )  # fmt: skip
         self._k += int(n_steps)
-        self.t = getattr(self, "_t0", 0.0) + self._k * self.step_s
+        self.t = self._t0 + self._k * self.step_s
 
     def signals(self) -> dict[str, float]:
         """Current t, x_cmd, i (A), x_s, v_s, x_j, v_j, p1, p2, p12, p_sr, c_lk (SI)."""

@@ -7,11 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.eha import VALVE_MODELS, EHAStepper, SimResult, simulate
+from models.eha import VALVE_MODELS, EHAStepper, SimResult, n_substeps, simulate
 from models.metrics import nrmse_pct
 from models.params import DEFAULT_PARAMS
 from models.reference import reference_solution
-from models.scenario import Event, Profile, Scenario
+from models.scenario import Event, Periodic, Profile, Scenario
 from service.scenarios import load_scenario
 
 P = DEFAULT_PARAMS
@@ -211,3 +211,52 @@ def test_simulate_output_grid_and_progress(paper: Scenario) -> None:
     np.testing.assert_array_equal(r.x_j, full.x_j[::20])
     with pytest.raises(ValueError):
         simulate(paper, "D7")
+
+
+def test_supply_loss_and_leak_growth_stay_finite() -> None:
+    """P_SR ramps to 0 and back, C_Lk x25, sine command, 5 kN load: every valve stays finite;
+    HF chamber pressures stay above vapour pressure less a few Pa."""
+    sc = Scenario(
+        name="supply_loss",
+        duration_s=1.0,
+        command=Profile(periodic=[Periodic(amplitude=0.01, freq_hz=2.0)]),
+        load=Profile(initial=5000.0),
+        supply=Profile(
+            initial=20e6, events=[Event(t=0.3, value=0.0, ramp_s=0.1), Event(t=0.7, value=20e6)]
+        ),
+        leak=Profile(initial=2e-13, events=[Event(t=0.2, value=5e-12)]),
+    )
+    for valve in VALVE_MODELS:
+        r = simulate(sc, valve, out_every=10)
+        for k in ("x_j", "v_j", "x_s", "p1", "p2", "p12"):
+            assert np.all(np.isfinite(getattr(r, k))), (valve, k)
+        # without supply the 5 kN load pushes the jack back (cannot be held)
+        assert r.x_j[np.searchsorted(r.t, 0.7)] < r.x_j[np.searchsorted(r.t, 0.3)] - 5e-3, valve
+    r = simulate(sc, "HF", out_every=10)
+    assert min(r.p1.min(), r.p2.min()) > P.p_vap - 10.0
+
+
+def test_coarse_step_uses_substeps_and_stays_accurate(paper: Scenario) -> None:
+    """At a 1 ms scenario step (monitor rate) RK4 substeps keep HF and C5 stable; the result
+    stays close to the reference on the same grid (HF: 10 substeps, C5: 3)."""
+    coarse = paper.model_copy(update={"step_s": 1e-3})
+    assert n_substeps(coarse.eha_params(), "HF", 1e-3) == 10
+    assert n_substeps(coarse.eha_params(), "C5", 1e-3) == 3
+    for valve in ("HF", "C5"):
+        r = simulate(coarse, valve)
+        ref = reference_solution(coarse, valve)
+        assert nrmse_pct(r.x_j, ref.x_j) < 0.1, valve
+        assert nrmse_pct(r.p12, ref.p12) < 1.0, valve
+
+
+def test_stepper_reset() -> None:
+    st = EHAStepper(P, "C3")
+    st.advance(200, 0.01, 0.0, 20e6, 2e-13)
+    x1 = st.signals()["x_j"]
+    assert x1 > 0
+    st.reset()
+    assert st.t == 0.0 and st.signals()["x_j"] == 0.0
+    st.advance(200, 0.01, 0.0, 20e6, 2e-13)
+    assert st.signals()["x_j"] == x1
+    with pytest.raises(ValueError):
+        st.reset(np.zeros(3))
