@@ -512,6 +512,25 @@ class _Monitors:
                     return
         self.monitors.pop(aid, None)
 
+    def warm_up(self) -> float:
+        """Run a throwaway bank of the same kind on a few synthetic samples, so that JIT
+        compilation happens before the first real sample (and before READY). Seconds taken."""
+        t0 = time.perf_counter()
+        if self.bank is None:
+            return 0.0
+        try:
+            bank = type(self.bank)(self.bank.config, self.bank.baseline)
+            p = 10e6
+            rows = [
+                ("_warm", {"t": k * 1e-3, "x_cmd": 0.0, "i": 0.0, "x_s": 0.0, "x_j": 0.0,
+                           "p1": p, "p2": p, "p_sr": 20e6})
+                for k in range(5)
+            ]  # fmt: skip
+            (bank.update_rows if self.rows else bank.update_many)(rows)
+        except Exception as e:  # warming up is an optimisation only
+            log.warning("monitor warm-up failed: %s", e)
+        return time.perf_counter() - t0
+
     @property
     def rows(self) -> bool:
         """True when the bank offers ``update_rows`` (numpy rows, no per-sample dicts)."""
@@ -986,6 +1005,9 @@ class Daemon:
                 )
             except Exception as e:  # an older zenoh without history: data silence still works
                 log.warning("no liveliness subscriber: %s", e)
+        warm = self.monitors.warm_up()
+        if warm > 0.05:
+            log.info("monitor warm-up (JIT) took %.2f s", warm)
         self._worker = threading.Thread(
             target=self._run_worker, name="servowatch-worker", daemon=True
         )
