@@ -141,7 +141,10 @@ def _daemon(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     with zenoh.open(cfg.zenoh.to_zenoh()) as session:
-        d = Daemon(cfg, log_path=args.log, monitor_factory=factory, log_every=args.log_every)
+        d = Daemon(
+            cfg, log_path=args.log, monitor_factory=factory, log_every=args.log_every,
+            gather_s=args.gather,
+        )  # fmt: skip
         prof = None
         if args.profile:
             import cProfile
@@ -182,6 +185,7 @@ def run_one(
     drain_cap: float = 60.0,
     log_every: int = 1,
     profile: bool = False,
+    gather: float = 0.005,
 ) -> dict:
     """One benchmark run; returns the row of the table."""
     import zenoh
@@ -214,6 +218,8 @@ def run_one(
                 "--log-every",
                 str(log_every),
                 *(["--profile"] if profile else []),
+                "--gather",
+                str(gather),
             ],
             stdout=subprocess.PIPE,
             text=True,
@@ -326,6 +332,7 @@ def main(argv=None) -> int:
     p.add_argument("--log-every", type=int, default=1, help="log est/res every N outputs")
     p.add_argument("--drain-cap", type=float, default=60.0)
     p.add_argument("--json", action="store_true")
+    p.add_argument("--gather", type=float, default=0.005, help="daemon batch gathering [s]")
     p.add_argument("--profile", action="store_true", help="profile the daemon's worker")
     args = p.parse_args(argv)
     if args.role == "_gen":
@@ -354,7 +361,7 @@ def main(argv=None) -> int:
         try:
             row = run_one(
                 n, args.rate, dur, mon, args.spm, args.publish_every, args.drain_cap, le,
-                args.profile,
+                args.profile, args.gather,
             )  # fmt: skip
         except Exception as e:  # report the others
             print(f"  failed: {e}", file=sys.stderr, flush=True)
