@@ -38,12 +38,16 @@ SCENARIOS = ("healthy_noise", "leak_ramp", "leak_step", "supply_drop", "combined
 
 # -- accuracy ------------------------------------------------------------------------------
 def _one(args) -> dict:
-    name, channels, duration = args
+    name, channels, duration, *leak = args
+    from models.scenario import Event, Profile
     from service.commands.estimate import evaluate
 
     sc = load_scenario(name)
     if duration is not None:
         sc = sc.model_copy(update={"duration_s": duration, "name": f"{name}_{duration:g}s"})
+    if leak:  # a leak step to leak[0] at 1.5 s (e.g. 2x nominal = an increase of 1x)
+        prof = Profile(initial=2e-13, events=[Event(t=1.5, value=leak[0])])
+        sc = sc.model_copy(update={"leak": prof, "name": f"{name}_{leak[0] / 2e-13:g}x"})
     r = evaluate(sc, MonitorConfig(channels=channels))
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
@@ -51,18 +55,20 @@ def _one(args) -> dict:
 def accuracy(healthy_s: float, workers: int) -> list[dict]:
     jobs = [(n, ch, None) for ch in ("full", "reduced") for n in SCENARIOS]
     jobs.insert(0, ("healthy_noise", "full", healthy_s))
+    jobs.insert(4, ("leak_step", "full", None, 4e-13))  # the smallest target: +1x nominal
     with ProcessPoolExecutor(max_workers=workers) as ex:
         return list(ex.map(_one, jobs))
 
 
 def _fmt(v, spec: str) -> str:
-    return "-" if v is None else format(v, spec)
+    width = int("".join(c for c in spec.split(".")[0] if c.isdigit()) or 0)
+    return "-".rjust(width) if v is None else format(v, spec)
 
 
 def print_accuracy(rows: list[dict]) -> None:
     print("\nAccuracy (truth: HF bench + sensor noise; values at the end of each run)")
     hdr = (
-        f"{'scenario':<22}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'incr err%':>10}"
+        f"{'scenario':<22}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'incr err%':>10}{'1s-mean%':>9}"
         f"{'P_SR err%':>10}{'P_SR 5% s':>10}{'delay s':>8}{'false':>6}{'NIS in%':>8}"
         f"{'reinit':>7}"
     )
@@ -72,6 +78,7 @@ def print_accuracy(rows: list[dict]) -> None:
         print(
             f"{r['scenario']:<22}{r['channels']:<8}{r['duration_s']:>6.0f}"
             f"{_fmt(r['c_lk_error_pct'], '+10.1f')}{_fmt(r['c_lk_increase_error_pct'], '+10.1f')}"
+            f"{_fmt(r['c_lk_increase_error_settled_pct'], '+9.1f')}"
             f"{_fmt(r['p_sr_error_pct'], '+10.2f')}{_fmt(r['p_sr_settle_s'], '10.3f')}"
             f"{_fmt(r['detection_delay_s'], '8.3f')}{r['false_alarms']:>6d}"
             f"{_fmt(r['nis_in_band_pct'], '8.1f')}{r['counters']['reinit']:>7d}"

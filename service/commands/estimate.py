@@ -58,7 +58,7 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     n = len(cols[0])
     outs = [None] * n if keep_outputs else None
     tt = np.full(n, np.nan)
-    nis, dof, p_est_all = np.zeros(n), np.zeros(n), np.zeros(n)
+    nis, dof, p_est_all, c_est_all = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
     events = []
     last = None
     dts = np.empty(n)
@@ -73,6 +73,7 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
         if o is not None:
             last = o
             tt[j], nis[j], dof[j], p_est_all[j] = o.t, o.res["nis"], o.res["nis_dof"], o.est["p_sr"]
+            c_est_all[j] = o.est["c_lk"]
             if o.events:
                 events += [e for e in o.events if e.kind in ("leak", "supply")]
             if keep_outputs:
@@ -85,6 +86,7 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     t = sim.t
     good = ~np.isnan(tt)
     tt, nis, dof, p_est_all = tt[good], nis[good], dof[good], p_est_all[good]
+    c_est_all = c_est_all[good]
     acfg = config.alarms
     true_leak = sim.c_lk / baseline.c_lk
     true_sup = sim.p_sr / baseline.p_sr_rated
@@ -127,6 +129,13 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     c_true, p_true = float(sim.c_lk[-1]), float(sim.p_sr[-1])
     c_est, p_est = last.est["c_lk"], last.est["p_sr"]
     inc_true = c_true - baseline.c_lk
+    # settled leak estimate: mean over the last second when the true C_Lk is constant there
+    last_s = tt >= tt[-1] - 1.0
+    c_settled = None
+    if np.ptp(np.interp(tt[last_s], t, sim.c_lk)) < 1e-3 * c_true and inc_true >= baseline.c_lk:
+        c_settled = (
+            100.0 * ((float(np.mean(c_est_all[last_s])) - baseline.c_lk) - inc_true) / inc_true
+        )
     out = {
         "scenario": scenario.name,
         "model": config.model,
@@ -148,6 +157,7 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
             if inc_true >= baseline.c_lk
             else None
         ),
+        "c_lk_increase_error_settled_pct": c_settled,
         "alarms": [{"t": e.t, "kind": e.kind, "state": e.state} for e in events],
         "false_alarms": false_alarms,
         "detection_delay_s": detection_delay,
