@@ -29,7 +29,7 @@ zenoh = pytest.importorskip("zenoh")
 AC, ACT = "AC001", "elevator_L"
 MEAS = f"/fleet/{AC}/{ACT}/meas"
 EST = f"/fleet/{AC}/{ACT}/est"
-RATE = 250  # Hz: what this 2-core machine's monitor sustains per actuator with margin
+RATE = 250  # Hz: light enough to leave CPU to the rest of the suite on a 2-core machine
 
 
 def cli(*args: str, env: dict | None = None, **kw) -> subprocess.Popen:

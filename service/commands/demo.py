@@ -52,8 +52,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rate",
         type=finite_float,
-        default=250.0,
-        help="actuator sample rate [Hz] (default 250; see the README on 1 kHz)",
+        default=1000.0,
+        help="actuator sample rate [Hz] (default 1000)",
     )
     p.add_argument("--scenario", default="demo", help="actuator scenario (default demo)")
     p.add_argument("--out", default="demo.mcap", help="MCAP log (default demo.mcap)")
@@ -306,6 +306,7 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.monotonic()
             deadline = t0 + args.duration + 20.0  # the actuator needs a few s to start
             t_first: float | None = None
+            t0_sample: float | None = None
             while time.monotonic() < deadline:
                 st = daemon.status()
                 a = next(iter(st["actuators"].values()), None)
@@ -329,7 +330,10 @@ def run(args: argparse.Namespace) -> int:
                         (x.get("t_ack") for x in (ack.active if ack else []) if "t_ack" in x),
                         (a or {}).get("last_t"),
                     )
-                st["_t0"] = (a or {}).get("last_t", 0) - t_run if a else 0
+                if a is not None and t0_sample is None and a.get("last_t") is not None:
+                    # sample clock at the first sample (the actuator counts from seq 0)
+                    t0_sample = a["last_t"] - a["last_seq"] / args.rate
+                st["_t0"] = t0_sample or 0.0
                 screen.show(_view(st, t_run, args, fault))
                 if proc.poll() is not None:
                     break
