@@ -3,7 +3,9 @@
 Everything the fixed-step integrator needs is here as scalar ``@njit(cache=True)`` code:
 the simplified laws (one function, model id branch), the HF land flows, the effective
 bulk modulus, the 7-state right-hand side and the RK4 stepping loop. Parameters travel as
-one float64 array built by :func:`param_array`. The numpy functions in
+one float64 array built by :func:`param_array`. ``error_model="numpy"``: a division by
+zero gives inf/nan instead of raising; helpers are inlined into the loop
+(``inline="always"``) and remain callable from Python for the tests. The numpy functions in
 ``models.valve_laws`` and ``models.hf_valve`` are the readable reference; the tests hold
 these kernels to them.
 
