@@ -45,6 +45,7 @@ def test_noisy_identification_close_to_noise_free(healthy):
     assert b.g_pq == pytest.approx(a.g_pq, rel=0.05)
 
 
+@pytest.mark.slow
 def test_calibrated_monitor_reads_nominal_leakage_on_healthy_data(healthy):
     _, meas = healthy
     nominal = Baseline.nominal()

@@ -41,6 +41,7 @@ def test_reduced_channels_and_another_law(capsys):
     assert r["counters"]["accepted"] == 1001
 
 
+@pytest.mark.slow
 def test_png_and_mcap_outputs(tmp_path, capsys):
     png, mcap = tmp_path / "e.png", tmp_path / "e.mcap"
     rc = main(["estimate", "--scenario", "healthy_noise", "--duration", "0.6",
