@@ -80,9 +80,12 @@ def sd_notify(state: str, env: dict[str, str] | None = None) -> bool:
         addr = "\0" + addr[1:]
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
-            s.connect(addr)
-            s.sendall(state.encode())
+            s.setblocking(False)  # a full receiver queue must never stall the worker
+            s.sendto(state.encode(), addr)
         return True
+    except BlockingIOError:
+        _NOTIFY_LOG.warning("notify", "sd_notify(%s): the notify socket is full; dropped", state)
+        return False
     except OSError as e:
         log.warning("sd_notify(%s) failed: %s", state, e)
         return False
@@ -134,6 +137,9 @@ class RateLimitedLog:
         suffix = f" ({n} similar suppressed)" if n else ""
         self.logger.warning(msg + suffix, *args)
         return True
+
+
+_NOTIFY_LOG = RateLimitedLog(log, 30.0)
 
 
 def default_log_path(log_dir: Path, station: str, shard: str, prefix: str = "servowatch") -> Path:
@@ -635,6 +641,7 @@ class Daemon:
         self._wake = threading.Event()
         self._lock = threading.Lock()  # guards self.actuators structure + status snapshot
         self._stop = threading.Event()
+        self._notify_lock = threading.Lock()
         self._worker: threading.Thread | None = None
         self._session = None
         self._decl: list[Any] = []
@@ -908,7 +915,9 @@ class Daemon:
                             commit()
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now
-                    sd_notify("WATCHDOG=1")
+                    with self._notify_lock:  # never a WATCHDOG after STOPPING
+                        if not self._stop.is_set():
+                            sd_notify("WATCHDOG=1")
             except Exception:
                 self.errors += 1
                 log.exception("worker tick failed")
@@ -981,7 +990,8 @@ class Daemon:
 
     def _on_status_query(self, query) -> None:
         try:
-            query.reply(query.key_expr, m.encode_json(self.status()))
+            key = m.KEY_STATUS.format(station=self.station, shard=self.shard)
+            query.reply(key, m.encode_json(self.status()))
         except Exception as e:
             self.errors += 1
             log.warning("status query failed: %s", e)
@@ -1027,12 +1037,13 @@ class Daemon:
         Returns the final status."""
         if self._closed:
             return self.status()
-        sd_notify("STOPPING=1")
+        with self._notify_lock:
+            self._stop.set()
+            sd_notify("STOPPING=1")
         # stop the inflow first: the subscriber goes, queued messages are still processed
         for d in self._decl[:1]:
             with contextlib.suppress(Exception):
                 d.undeclare()
-        self._stop.set()
         self._wake.set()
         if self._worker is not None:
             self._worker.join(timeout)

@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -129,6 +130,8 @@ def leak_run(tmp_path_factory):
         refused = cli("inject", "--connect", n.ep, "--aircraft", AC, "--actuator", ACT,
                       "--fault", "leak", "--value", "1.0", "--json")  # fmt: skip
         ref_out, ref_err = refused.communicate(timeout=30)
+        status = cli("status", "--connect", n.ep, "--json")
+        status_out, _ = status.communicate(timeout=30)
         a_out, _ = a.communicate(timeout=60)
         n.wait(lambda st: st["queue"] == 0, what="the daemon to catch up")
         d.send_signal(signal.SIGTERM)
@@ -138,6 +141,7 @@ def leak_run(tmp_path_factory):
     return {
         "log": log, "tmp": tmp, "inject": (0 if ack and ack.ok else 1, ack.model_dump()),
         "refused": (refused.returncode, ref_out, ref_err),
+        "status": (status.returncode, status_out),
         "actuator": json.loads(a_out.strip().splitlines()[-1]),
         "daemon_rc": d.returncode, "final": json.loads(d_out.strip().splitlines()[-1]),
     }  # fmt: skip
@@ -152,6 +156,17 @@ def test_inject_acknowledged_and_refused(leak_run):
     ans = json.loads(out)
     assert not ans["ok"] and "outside" in ans["message"] and "refused" in err
     assert ans["active"][0]["target"] == 8e-13  # the refusal changed nothing
+
+
+def test_status_command_reports_the_daemon(leak_run):
+    rc, out = leak_run["status"]
+    assert rc == 0
+    daemons = json.loads(out)["daemons"]
+    st = daemons["monitor/ground1/0/status"]
+    a = st["actuators"][f"fleet/{AC}/{ACT}/meas"]
+    assert a["samples"] > 0 and a["dropped"] == 0 and a["bad_total"] == 0
+    assert st["latency_ms"]["p50"] is not None
+    assert st["alive_tokens"] == [f"fleet/{AC}/{ACT}/alive"]
 
 
 def test_leak_detected_and_mcap_readable_with_the_mcap_reader(leak_run):
@@ -252,14 +267,39 @@ def test_kill_9_of_the_daemon_alone_loses_nothing_it_received(net, tmp_path):
 
 
 def test_sigterm_mid_stream_finishes_a_contiguous_log(net, tmp_path):
+    """Also: systemd notifications (READY, WATCHDOG, STOPPING) on NOTIFY_SOCKET."""
+    import socket
+
     log = tmp_path / "mid.mcap"
-    d = start_daemon(net, log)
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(tmp_path / "notify"))
+    sock.settimeout(0.2)
+    notes: list[str] = []
+    reading = threading.Event()
+
+    def reader():  # systemd reads continuously; so does this
+        while not reading.is_set():
+            try:
+                notes.append(sock.recv(64).decode())
+            except TimeoutError:
+                continue
+
+    th = threading.Thread(target=reader, daemon=True)
+    th.start()
+    env = {"NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "400000"}
+    d = start_daemon(net, log, env=env)
     net.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "30")
     net.wait(lambda st: act_samples(st) > RATE * 2, what="2 s of data")
     d.send_signal(signal.SIGTERM)
     out, _ = d.communicate(timeout=30)
     final = json.loads(out.strip().splitlines()[-1])
     assert d.returncode == 0
+    time.sleep(0.3)
+    reading.set()
+    th.join(2)
+    sock.close()
+    assert notes[0] == "READY=1" and notes[-1] == "STOPPING=1"
+    assert notes.count("WATCHDOG=1") >= 3  # every 0.2 s while running
     rows, warned = read(log, [MEAS])
     assert warned == []
     seqs = [r[2]["seq"] for r in rows]
