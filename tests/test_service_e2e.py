@@ -61,7 +61,8 @@ class Net:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
 
-    def wait(self, pred, timeout: float = 30.0, what: str = "condition") -> dict:
+    def wait(self, pred, timeout: float = 60.0, what: str = "condition") -> dict:
+        # generous: a cold numba cache (fresh clone, edited kernels) compiles for a while
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             st = self.status()
