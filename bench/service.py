@@ -154,7 +154,10 @@ def _daemon(args: argparse.Namespace) -> int:
             d.process_pending = lambda: prof.runcall(inner)
         d.start(session)
         print("ready", flush=True)
-        stop.wait()
+        ppid = os.getppid()
+        while not stop.wait(0.5):
+            if os.getppid() != ppid:  # the orchestrator died: do not linger
+                break
         # report how long the queue takes to empty once the generator has stopped
         t0 = time.monotonic()
         while d._queue and time.monotonic() - t0 < args.drain_cap:

@@ -637,6 +637,7 @@ class Daemon:
         self.unknown: dict[str, int] = {}  # reason -> count, for keys that name no actuator
         self._queue: deque = deque()
         self._arrival: dict[str, float] = {}  # key -> time.monotonic() of the last message
+        self.first_arrival: dict[str, float] = {}  # key -> time.monotonic() of the first one
         self.alive_tokens: dict[str, bool] = {}  # fleet/{ac}/{act}/alive -> token present
         self._wake = threading.Event()
         self._lock = threading.Lock()  # guards self.actuators structure + status snapshot
@@ -667,6 +668,8 @@ class Daemon:
             return False
         t_recv = time.monotonic() if t_recv is None else t_recv
         self._arrival[key] = t_recv  # for silence detection, even while the worker lags
+        if key not in self.first_arrival:
+            self.first_arrival[key] = t_recv
         self._queue.append((key, payload, t_recv))
         n = len(self._queue)
         if n > self.queue_high:

@@ -37,10 +37,10 @@ _ACTUATOR_MAIN = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--duration", type=finite_float, default=30.0, help="actuator run time [s] (default 30)"
+        "--duration", type=finite_float, default=25.0, help="actuator run time [s] (default 25)"
     )
     p.add_argument(
-        "--inject-at", type=finite_float, default=8.0, help="leak injection time [s] (default 8)"
+        "--inject-at", type=finite_float, default=7.0, help="leak injection time [s] (default 7)"
     )
     p.add_argument(
         "--leak",
@@ -113,8 +113,9 @@ def _view(st: dict, t_run: float, args, fault: dict | None) -> list[str]:
 class _Screen:
     """ANSI redraw on a terminal, a line per second otherwise."""
 
-    def __init__(self, tty: bool):
+    def __init__(self, tty: bool, stream=None):
         self.tty = tty
+        self.stream = stream or sys.stdout
         self.n = 0
         self.last = 0.0
 
@@ -131,7 +132,7 @@ class _Screen:
             self.n = len(lines)
         elif time.monotonic() - self.last >= 1.0:
             self.last = time.monotonic()
-            print(" | ".join(lines[:1] + lines[2:5]), flush=True)
+            print(" | ".join(lines[:1] + lines[2:5]), file=self.stream, flush=True)
 
 
 # --------------------------------------------------------------------------- plot
@@ -265,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
         zenoh=ZenohSettings(mode="client", connect=[ep]),
     )
     tty = sys.stdout.isatty() and not args.lines and not args.json
-    screen = _Screen(tty)
+    screen = _Screen(tty, sys.stderr if args.json else sys.stdout)
     err_log = tempfile.NamedTemporaryFile(  # noqa: SIM115 (closed after the child exits)
         "w+", prefix="servowatch-demo-actuator-", suffix=".log", delete=False
     )
@@ -310,8 +311,9 @@ def run(args: argparse.Namespace) -> int:
             while time.monotonic() < deadline:
                 st = daemon.status()
                 a = next(iter(st["actuators"].values()), None)
-                if a is not None and t_first is None:
-                    t_first = time.monotonic()
+                if t_first is None:  # first message received (not processed: the demo
+                    # clock follows the actuator even while the daemon is catching up)
+                    t_first = next(iter(daemon.first_arrival.values()), None)
                 t_run = 0.0 if t_first is None else time.monotonic() - t_first
                 if fault is None and t_first is not None and t_run >= args.inject_at:
                     ack = send_fault(
