@@ -933,12 +933,20 @@ class Daemon:
     def status(self) -> dict[str, Any]:
         """A JSON-ready snapshot: actuators, counters, latency, alarms, silent actuators."""
         now = time.monotonic()
-        with self._lock:
-            acts = {k: st.snapshot(now) for k, st in list(self.actuators.items())}
-        for k, a in acts.items():
-            a["monitor"] = self.monitors.counters_of(k)
-        p50, p99 = percentiles(list(self.latency))
-        a50, a99 = percentiles(list(self.age))
+        for attempt in range(5):  # the worker mutates counters meanwhile: retry a torn read
+            try:
+                with self._lock:
+                    acts = {k: st.snapshot(now) for k, st in list(self.actuators.items())}
+                for k, a in acts.items():
+                    a["monitor"] = self.monitors.counters_of(k)
+                lat, age = list(self.latency), list(self.age)
+                break
+            except RuntimeError:  # "changed size during iteration"
+                if attempt == 4:
+                    raise
+                time.sleep(0.001)
+        p50, p99 = percentiles(lat)
+        a50, a99 = percentiles(age)
         up = time.time() - self.started
         return _jsonable(
             {
