@@ -30,7 +30,7 @@ from models import eha_reduced as er
 from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
-from service.ukf import BatchUKF, ukf_step_batch
+from service.ukf import BatchUKF, ukf_one, workspace
 
 __all__ = [
     "MeasurementNoise",
@@ -342,7 +342,28 @@ class MonitorBank:
         )
         self.ukf = BatchUKF(_NX, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
         self._prm = er.param_vector(self.rp)
-        self._p_sr_max = b.p_sr_rated / self.scale[5]
+        a = c.alarms
+        self._cst = np.array(
+            [
+                self.rp.h_max,
+                c.c_lk_max / self.scale[6],
+                self.rp.p_vap / self.scale[5],
+                b.p_sr_rated / self.scale[5],
+                c.nis_tau_s,
+                c.nis_reinit,
+                b.c_lk,
+                b.p_sr_rated,
+                c.arm_s,
+                a.leak_raise,
+                a.leak_clear,
+                a.supply_raise,
+                a.supply_clear,
+                a.hold_s,
+                a.leak_max_sigma,
+                a.supply_max_sigma,
+            ]
+        )  # layout: the _C_* constants
+        self._ws = workspace(_NX, 5)
         self.ids: dict[str, int] = {}
         self._rows: list | None = None
         self._alloc(capacity)
@@ -544,44 +565,19 @@ class MonitorBank:
         t = np.array([p[0] for p in parsed])
         z = np.array([p[1] for p in parsed])
         mask = np.array([p[2] for p in parsed], bool)
-        dt = t - self.t_last[ks]
-        x, P = self.x[ks], self.P[ks]
-        # inputs: measured current, else the ECU law on the command and the estimated x_J
-        rp = self.rp
         nan = math.nan
         i_m = np.array([nan if p[3] is None else p[3] for p in parsed])
         x_c = np.array([nan if p[4] is None else p[4] for p in parsed])
-        ecu = np.clip(rp.k_p * (x_c - x[:, 2] * self.scale[2]), -rp.i_max, rp.i_max)
-        i_f = np.where(np.isnan(i_m), np.where(np.isnan(x_c), self.i_last[ks], ecu), i_m)
-        ecu_ol = np.clip(rp.k_p * (x_c - self.ol[ks, 2]), -rp.i_max, rp.i_max)
-        i_ol = np.where(np.isnan(x_c), i_f, ecu_ol)
-        self.i_last[ks] = i_f
-        n_sub = np.maximum(np.ceil(dt / rp.h_max - 1e-9), 1).astype(np.int64)
         y = np.zeros((B, 5))
         nis = np.zeros(B)
-        status = np.zeros(B, np.int64)
-        w = self.ukf.w
-        ukf_step_batch(
-            x, P, z, mask, i_f, dt, n_sub, self._q, self.R, self.scale, self._zscale,
-            w.Wm, w.Wc, w.c, self._prm, y, nis, status,
+        nis_avg = np.zeros(B)
+        flag = np.zeros(B, np.int64)
+        _bank_step(
+            ks, t, z, mask, i_m, x_c, self.x, self.P, self.ol, self.t_last, self.i_last,
+            self.nis_avg, self._q, self.R, self.scale, self._zscale, self.ukf.w.Wm,
+            self.ukf.w.Wc, self.ukf.w.c, self._prm, self._cst, self._ws, y, nis, nis_avg, flag,
         )  # fmt: skip
-        # the parallel (open-loop) model: same simplified model, driven by the command
-        ol = self.ol[ks]
-        ol[:, 4] = x[:, 4] * self.scale[4]  # it takes the estimated (unmeasured) load
-        _ol_step_batch(ol, i_ol, dt, n_sub, self._prm)
-        self.ol[ks] = ol
-        # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
-        x[:, 6] = np.clip(x[:, 6], 0.0, cfg.c_lk_max / self.scale[6])
-        x[:, 5] = np.clip(x[:, 5], rp.p_vap / self.scale[5], self._p_sr_max)
-        # divergence: NIS per channel, exponentially averaged
-        dof = np.maximum(mask.sum(axis=1), 1)
-        a = 1.0 - np.exp(-dt / cfg.nis_tau_s)
-        nis_avg = self.nis_avg[ks] + a * (nis / dof - self.nis_avg[ks])
-        bad = (status == 2) | ~(np.isfinite(x).all(axis=1) & np.isfinite(P).all(axis=(1, 2)))
-        bad |= ~np.isfinite(nis_avg)
-        diverged = nis_avg > cfg.nis_reinit
-        self.x[ks], self.P[ks], self.t_last[ks] = x, P, t
-        self.nis_avg[ks] = np.where(bad, 0.0, nis_avg)
+        bad, diverged = flag == 1, flag == 2
         evs: list[list[AlarmEvent]] = [[] for _ in range(B)]
         for j in np.flatnonzero(bad | diverged):
             k = int(ks[j])
@@ -600,43 +596,19 @@ class MonitorBank:
         self._outputs(ks, t, z, mask, y, nis, evs, slot_of, out)
 
     def _outputs(self, ks, t, z, mask, y, nis, evs, slots, out) -> None:
-        b, acfg, sc, zs = self.baseline, self.config.alarms, self.scale, self._zscale
         n = len(ks)
         est = np.empty((n, 2 * _NX + 2))
         res = np.empty((n, 2 * 5 + 2))
+        health = np.empty((n, len(_HEALTH_KEYS)))
+        fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
         _output_rows(
-            self.x, self.P, self.ol, ks, sc, zs, self._prm, b.c_lk, z, mask, y, nis, est, res
-        )
-        xs = est[:, 0 : 2 * _NX : 2]
-        leak_ratio = xs[:, 6] / b.c_lk if b.c_lk > 0 else np.zeros(n)
-        supply_ratio = xs[:, 5] / b.p_sr_rated
-        # alarms with hysteresis (raise/clear levels) and persistence (hold_s), vectorised
-        values = np.stack([leak_ratio, supply_ratio], axis=1)
-        sd_leak = est[:, 13] / b.c_lk if b.c_lk > 0 else np.zeros(n)
-        sd_sup = est[:, 11] / b.p_sr_rated
-        raise_ = np.stack(
-            [
-                (leak_ratio >= acfg.leak_raise) & (sd_leak < acfg.leak_max_sigma),
-                (supply_ratio <= acfg.supply_raise) & (sd_sup < acfg.supply_max_sigma),
-            ],
-            1,
-        )
-        clear_ = np.stack([leak_ratio <= acfg.leak_clear, supply_ratio >= acfg.supply_clear], 1)
-        on = self.alarm[ks]
-        armed = (t - self.t_init[ks] >= self.config.arm_s)[:, None]
-        want = np.where(on, clear_, raise_) & armed
-        pend = self.pending[ks]
-        pend = np.where(want, np.where(np.isnan(pend), t[:, None], pend), np.nan)
-        fire = want & (t[:, None] - pend >= acfg.hold_s - 1e-12)
-        self.alarm[ks] = on ^ fire
-        self.pending[ks] = np.where(fire, np.nan, pend)
+            self.x, self.P, self.ol, ks, self.scale, self._zscale, self._prm, z, mask, y, nis,
+            t, self.t_init, self.nis_avg, self.alarm, self.pending, self._cst, est, res,
+            health, fire,
+        )  # fmt: skip
         for j, a in zip(*np.nonzero(fire), strict=True):
-            state = "cleared" if on[j, a] else "raised"
-            evs[j].append(AlarmEvent(float(t[j]), ALARM_KINDS[a], state, float(values[j, a])))
-        health = np.empty((n, 5))
-        health[:, 0:2] = values
-        health[:, 2:4] = self.alarm[ks]
-        health[:, 4] = self.nis_avg[ks]
+            state = "raised" if fire[j, a] == 1 else "cleared"
+            evs[j].append(AlarmEvent(float(t[j]), ALARM_KINDS[a], state, float(health[j, a])))
         for j in np.flatnonzero([bool(e) for e in evs]):
             self.events_log[int(ks[j])].extend(evs[j])
         if self._rows is not None:  # update_rows: keep the arrays
@@ -662,24 +634,112 @@ _RES_KEYS = tuple(
 )
 
 
+(
+    _C_H_MAX,
+    _C_C_LK_MAX,
+    _C_P_VAP,
+    _C_P_SR_MAX,
+    _C_NIS_TAU,
+    _C_NIS_REINIT,
+    _C_C_LK0,
+    _C_P_RATED,
+    _C_ARM,
+    _C_LEAK_RAISE,
+    _C_LEAK_CLEAR,
+    _C_SUP_RAISE,
+    _C_SUP_CLEAR,
+    _C_HOLD,
+    _C_LEAK_SIG,
+    _C_SUP_SIG,
+) = range(16)
+
+
 @njit(cache=True)
-def _output_rows(x, P, ol, ks, scale, zscale, prm, c_lk0, z, mask, y, nis, est, res):
-    """Flat output rows: est = (state, sigma) pairs, P12, C_Lk increase; res = innovations,
-    NIS, dof, open-loop residuals (measured minus parallel model), all SI."""
-    n = x.shape[1]
+def _bank_step(
+    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale, zscale, Wm, Wc,
+    c, prm, cst, ws, y, nis, nis_avg, flag,
+):  # fmt: skip
+    """One sample for each actuator ks[j] (in place on the bank arrays): inputs (measured
+    current, else the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average.
+    flag: 0 ok, 1 broken (non-finite / not positive definite), 2 diverged (NIS average)."""
+    n = X.shape[1]
+    k_p, i_max = prm[er.K_K_P], prm[er.K_I_MAX]
+    coef = np.empty(4)
+    tmp = np.empty(n)
+    for j in range(ks.shape[0]):
+        k = ks[j]
+        dt = t[j] - T_LAST[k]
+        n_sub = max(1, int(math.ceil(dt / cst[_C_H_MAX] - 1e-9)))
+        if not math.isnan(i_m[j]):
+            i_f = i_m[j]
+        elif not math.isnan(x_c[j]):
+            i_f = min(max(k_p * (x_c[j] - X[k, 2] * scale[2]), -i_max), i_max)
+        else:
+            i_f = I_LAST[k]
+        i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, 2]), -i_max), i_max)
+        I_LAST[k] = i_f
+        nis_j, st = ukf_one(
+            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
+            y[j], ws,
+        )  # fmt: skip
+        nis[j] = nis_j
+        # the parallel (open-loop) model, driven by the command, with the estimated load
+        OL[k, 4] = X[k, 4] * scale[4]
+        h = dt / n_sub
+        spool_coef_nb(h, prm, coef)
+        step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
+        for r in range(n):
+            OL[k, r] = tmp[r]
+        # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
+        X[k, 6] = min(max(X[k, 6], 0.0), cst[_C_C_LK_MAX])
+        X[k, 5] = min(max(X[k, 5], cst[_C_P_VAP]), cst[_C_P_SR_MAX])
+        dof = 0.0
+        for r in range(mask.shape[1]):
+            if mask[j, r]:
+                dof += 1.0
+        a = 1.0 - math.exp(-dt / cst[_C_NIS_TAU])
+        avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
+        nis_avg[j] = avg
+        ok = st != 2 and math.isfinite(avg)
+        for r in range(n):
+            if not math.isfinite(X[k, r]):
+                ok = False
+            for s_ in range(n):
+                if not math.isfinite(PP[k, r, s_]):
+                    ok = False
+        T_LAST[k] = t[j]
+        if ok:
+            NIS_AVG[k] = avg
+            flag[j] = 2 if avg > cst[_C_NIS_REINIT] else 0
+        else:
+            NIS_AVG[k] = 0.0
+            flag[j] = 1
+
+
+@njit(cache=True)
+def _output_rows(
+    X, PP, OL, ks, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING, cst,
+    est, res, health, fire,
+):  # fmt: skip
+    """Flat output rows (est: (state, sigma) pairs, P12, C_Lk increase; res: innovations, NIS,
+    dof, open-loop residuals = measured minus parallel model; health: leak and supply ratios,
+    alarm states, NIS average) and the alarms with hysteresis, persistence and the sigma gate
+    (fire: 1 raised, 2 cleared this sample)."""
+    n = X.shape[1]
     m = z.shape[1]
     xs = np.empty(n)
     zo = np.empty(m)
+    c_lk0, p_rated = cst[_C_C_LK0], cst[_C_P_RATED]
     for j in range(ks.shape[0]):
         k = ks[j]
         for r in range(n):
-            xs[r] = x[k, r] * scale[r]
+            xs[r] = X[k, r] * scale[r]
             est[j, 2 * r] = xs[r]
-            est[j, 2 * r + 1] = math.sqrt(max(P[k, r, r], 0.0)) * scale[r]
+            est[j, 2 * r + 1] = math.sqrt(max(PP[k, r, r], 0.0)) * scale[r]
         measure_nb(xs, prm, zo)
         est[j, 2 * n] = zo[2] - zo[3]  # P12
         est[j, 2 * n + 1] = xs[6] - c_lk0
-        measure_nb(ol[k], prm, zo)
+        measure_nb(OL[k], prm, zo)
         dof = 0.0
         for r in range(m):
             res[j, r] = y[j, r] * zscale[r]
@@ -690,18 +750,40 @@ def _output_rows(x, P, ol, ks, scale, zscale, prm, c_lk0, z, mask, y, nis, est, 
                 res[j, 7 + r] = 0.0
         res[j, 5] = nis[j]
         res[j, 6] = dof
-
-
-@njit(cache=True)
-def _ol_step_batch(ol, i_in, dt, n_sub, prm):
-    """Advance the parallel-model states (B, 7) in place."""
-    tmp = np.empty(ol.shape[1])
-    coef = np.empty(4)
-    for b in range(ol.shape[0]):
-        h = dt[b] / n_sub[b]
-        spool_coef_nb(h, prm, coef)
-        step_core_nb(ol[b], i_in[b], h, n_sub[b], prm, coef, tmp)
-        ol[b, :] = tmp
+        lr = xs[6] / c_lk0 if c_lk0 > 0 else 0.0
+        sr = xs[5] / p_rated
+        sd_l = est[j, 13] / c_lk0 if c_lk0 > 0 else 0.0
+        sd_s = est[j, 11] / p_rated
+        armed = t[j] - T_INIT[k] >= cst[_C_ARM]
+        for a in range(2):
+            on = ALARM[k, a]
+            if a == 0:
+                want = (
+                    lr <= cst[_C_LEAK_CLEAR]
+                    if on
+                    else (lr >= cst[_C_LEAK_RAISE] and sd_l < cst[_C_LEAK_SIG])
+                )
+            else:
+                want = (
+                    sr >= cst[_C_SUP_CLEAR]
+                    if on
+                    else (sr <= cst[_C_SUP_RAISE] and sd_s < cst[_C_SUP_SIG])
+                )
+            fire[j, a] = 0
+            if want and armed:
+                if math.isnan(PENDING[k, a]):
+                    PENDING[k, a] = t[j]
+                if t[j] - PENDING[k, a] >= cst[_C_HOLD] - 1e-12:
+                    ALARM[k, a] = not on
+                    PENDING[k, a] = math.nan
+                    fire[j, a] = 2 if on else 1
+            else:
+                PENDING[k, a] = math.nan
+        health[j, 0] = lr
+        health[j, 1] = sr
+        health[j, 2] = 1.0 if ALARM[k, 0] else 0.0
+        health[j, 3] = 1.0 if ALARM[k, 1] else 0.0
+        health[j, 4] = NIS_AVG[k]
 
 
 class Monitor:

@@ -32,6 +32,8 @@ __all__ = [
     "UpdateResult",
     "nearest_spd",
     "ukf_step_batch",
+    "ukf_one",
+    "workspace",
 ]
 
 
@@ -189,6 +191,149 @@ def _chol_solve(L, b, out):
 
 
 @njit(cache=True)
+def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
+    """One filter step in place (state xb (n,), covariance Pb (n, n), measurement zb (m,)
+    with mask mb); ``ws`` is the workspace of ``workspace(n, m)``. Returns (NIS, status)."""
+    A, L, sig, sig_f, zs, xs, xo, zo, xm, zm, S, LS, Pxz, Kg, col, sol, yv, coef = ws
+    n = xb.shape[0]
+    m = zb.shape[0]
+    K = 2 * n + 1
+    st = 0
+    for r in range(n):
+        for s_ in range(n):
+            A[r, s_] = c * Pb[r, s_]
+    if not _chol(A, L):
+        for r in range(n):
+            A[r, r] += c * 1e-9
+        if not _chol(A, L):
+            return 0.0, 2
+        st = 1
+    # sigma points: x, x + rows of U = L^T (columns of L), x - ...
+    for r in range(n):
+        sig[0, r] = xb[r]
+    for k in range(n):
+        for r in range(n):
+            sig[1 + k, r] = xb[r] + L[r, k]
+            sig[1 + n + k, r] = xb[r] - L[r, k]
+    # propagate through the model (SI units)
+    h = dt / n_sub
+    spool_coef_nb(h, prm, coef)
+    for k in range(K):
+        for r in range(n):
+            xs[r] = sig[k, r] * scale[r]
+        step_core_nb(xs, i_in, h, n_sub, prm, coef, xo)
+        for r in range(n):
+            sig_f[k, r] = xo[r] / scale[r]
+    # unscented transform
+    for r in range(n):
+        acc = 0.0
+        for k in range(K):
+            acc += Wm[k] * sig_f[k, r]
+        xm[r] = acc
+    for r in range(n):
+        for s_ in range(n):
+            acc = 0.0
+            for k in range(K):
+                acc += Wc[k] * (sig_f[k, r] - xm[r]) * (sig_f[k, s_] - xm[s_])
+            Pb[r, s_] = acc
+        Pb[r, r] += q[r] * dt
+    # redraw the sigma points from the prior (as filterpy's predict does)
+    for r in range(n):
+        for s_ in range(n):
+            A[r, s_] = c * Pb[r, s_]
+    if not _chol(A, L):
+        for r in range(n):
+            A[r, r] += c * 1e-9
+        if not _chol(A, L):
+            return 0.0, 2
+        st = 1
+    for r in range(n):
+        sig_f[0, r] = xm[r]
+    for k in range(n):
+        for r in range(n):
+            sig_f[1 + k, r] = xm[r] + L[r, k]
+            sig_f[1 + n + k, r] = xm[r] - L[r, k]
+    for k in range(K):
+        for r in range(n):
+            xs[r] = sig_f[k, r] * scale[r]
+        measure_nb(xs, prm, zo)
+        for r in range(m):
+            zs[k, r] = zo[r] / zscale[r]
+    for r in range(m):
+        acc = 0.0
+        for k in range(K):
+            acc += Wm[k] * zs[k, r]
+        zm[r] = acc
+    for r in range(m):
+        for s_ in range(m):
+            acc = 0.0
+            for k in range(K):
+                acc += Wc[k] * (zs[k, r] - zm[r]) * (zs[k, s_] - zm[s_])
+            S[r, s_] = acc + R[r, s_]
+    for r in range(n):
+        for s_ in range(m):
+            acc = 0.0
+            for k in range(K):
+                acc += Wc[k] * (sig_f[k, r] - xm[r]) * (zs[k, s_] - zm[s_])
+            Pxz[r, s_] = acc
+    # masked channels: no innovation, no cross-covariance, unit diagonal
+    for r in range(m):
+        if mb[r]:
+            yv[r] = zb[r] - zm[r]
+        else:
+            yv[r] = 0.0
+            for s_ in range(m):
+                S[r, s_] = 0.0
+                S[s_, r] = 0.0
+            S[r, r] = 1.0
+            for s_ in range(n):
+                Pxz[s_, r] = 0.0
+    if not _chol(S, LS):
+        return 0.0, 2
+    # K = Pxz S^-1 (row by row: S k_r = Pxz[r])
+    for r in range(n):
+        for s_ in range(m):
+            col[s_] = Pxz[r, s_]
+        _chol_solve(LS, col, sol)
+        for s_ in range(m):
+            Kg[r, s_] = sol[s_]
+    _chol_solve(LS, yv, sol)
+    nis = 0.0
+    for r in range(m):
+        nis += yv[r] * sol[r]
+    for r in range(m):
+        yb[r] = yv[r]
+    for r in range(n):
+        acc = 0.0
+        for s_ in range(m):
+            acc += Kg[r, s_] * yv[s_]
+        xb[r] = xm[r] + acc
+    # P -= K S K^T = K Pxz^T, symmetrised
+    for r in range(n):
+        for s_ in range(n):
+            acc = 0.0
+            for k in range(m):
+                acc += Kg[r, k] * Pxz[s_, k]
+            A[r, s_] = Pb[r, s_] - acc
+    for r in range(n):
+        for s_ in range(n):
+            Pb[r, s_] = 0.5 * (A[r, s_] + A[s_, r])
+    return nis, st
+
+
+@njit(cache=True)
+def workspace(n, m):
+    """Scratch arrays of ``ukf_one``."""
+    K = 2 * n + 1
+    return (
+        np.empty((n, n)), np.empty((n, n)), np.empty((K, n)), np.empty((K, n)),
+        np.empty((K, m)), np.empty(n), np.empty(n), np.empty(m), np.empty(n), np.empty(m),
+        np.empty((m, m)), np.empty((m, m)), np.empty((n, m)), np.empty((n, m)), np.empty(m),
+        np.empty(m), np.empty(m), np.empty(4),
+    )  # fmt: skip
+
+
+@njit(cache=True)
 def ukf_step_batch(
     x, P, z, mask, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, y_out, nis_out, status
 ):
@@ -198,147 +343,11 @@ def ukf_step_batch(
     status (B,): 0 ok, 1 covariance repaired with jitter, 2 failed (caller re-initialises)."""
     B, n = x.shape
     m = z.shape[1]
-    K = 2 * n + 1
-    A = np.empty((n, n))
-    L = np.empty((n, n))
-    sig = np.empty((K, n))
-    sig_f = np.empty((K, n))
-    zs = np.empty((K, m))
-    xs = np.empty(n)
-    xo = np.empty(n)
-    zo = np.empty(m)
-    xm = np.empty(n)
-    zm = np.empty(m)
-    S = np.empty((m, m))
-    LS = np.empty((m, m))
-    Pxz = np.empty((n, m))
-    Kg = np.empty((n, m))
-    col = np.empty(m)
-    sol = np.empty(m)
-    yv = np.empty(m)
-    coef = np.empty(4)
+    ws = workspace(n, m)
     for b in range(B):
-        status[b] = 0
-        for r in range(n):
-            for s_ in range(n):
-                A[r, s_] = c * P[b, r, s_]
-        if not _chol(A, L):
-            for r in range(n):
-                A[r, r] += c * 1e-9
-            if not _chol(A, L):
-                status[b] = 2
-                continue
-            status[b] = 1
-        # sigma points: x, x + rows of U = L^T (columns of L), x - ...
-        for r in range(n):
-            sig[0, r] = x[b, r]
-        for k in range(n):
-            for r in range(n):
-                sig[1 + k, r] = x[b, r] + L[r, k]
-                sig[1 + n + k, r] = x[b, r] - L[r, k]
-        # propagate through the model (SI units)
-        h = dt[b] / n_sub[b]
-        spool_coef_nb(h, prm, coef)
-        for k in range(K):
-            for r in range(n):
-                xs[r] = sig[k, r] * scale[r]
-            step_core_nb(xs, i_in[b], h, n_sub[b], prm, coef, xo)
-            for r in range(n):
-                sig_f[k, r] = xo[r] / scale[r]
-        # unscented transform
-        for r in range(n):
-            acc = 0.0
-            for k in range(K):
-                acc += Wm[k] * sig_f[k, r]
-            xm[r] = acc
-        for r in range(n):
-            for s_ in range(n):
-                acc = 0.0
-                for k in range(K):
-                    acc += Wc[k] * (sig_f[k, r] - xm[r]) * (sig_f[k, s_] - xm[s_])
-                P[b, r, s_] = acc
-            P[b, r, r] += q[r] * dt[b]
-        # redraw the sigma points from the prior (as filterpy's predict does)
-        for r in range(n):
-            for s_ in range(n):
-                A[r, s_] = c * P[b, r, s_]
-        if not _chol(A, L):
-            for r in range(n):
-                A[r, r] += c * 1e-9
-            if not _chol(A, L):
-                status[b] = 2
-                continue
-            status[b] = 1
-        for r in range(n):
-            sig_f[0, r] = xm[r]
-        for k in range(n):
-            for r in range(n):
-                sig_f[1 + k, r] = xm[r] + L[r, k]
-                sig_f[1 + n + k, r] = xm[r] - L[r, k]
-        for k in range(K):
-            for r in range(n):
-                xs[r] = sig_f[k, r] * scale[r]
-            measure_nb(xs, prm, zo)
-            for r in range(m):
-                zs[k, r] = zo[r] / zscale[r]
-        for r in range(m):
-            acc = 0.0
-            for k in range(K):
-                acc += Wm[k] * zs[k, r]
-            zm[r] = acc
-        for r in range(m):
-            for s_ in range(m):
-                acc = 0.0
-                for k in range(K):
-                    acc += Wc[k] * (zs[k, r] - zm[r]) * (zs[k, s_] - zm[s_])
-                S[r, s_] = acc + R[r, s_]
-        for r in range(n):
-            for s_ in range(m):
-                acc = 0.0
-                for k in range(K):
-                    acc += Wc[k] * (sig_f[k, r] - xm[r]) * (zs[k, s_] - zm[s_])
-                Pxz[r, s_] = acc
-        # masked channels: no innovation, no cross-covariance, unit diagonal
-        for r in range(m):
-            if mask[b, r]:
-                yv[r] = z[b, r] - zm[r]
-            else:
-                yv[r] = 0.0
-                for s_ in range(m):
-                    S[r, s_] = 0.0
-                    S[s_, r] = 0.0
-                S[r, r] = 1.0
-                for s_ in range(n):
-                    Pxz[s_, r] = 0.0
-        if not _chol(S, LS):
-            status[b] = 2
-            continue
-        # K = Pxz S^-1 (row by row: S k_r = Pxz[r])
-        for r in range(n):
-            for s_ in range(m):
-                col[s_] = Pxz[r, s_]
-            _chol_solve(LS, col, sol)
-            for s_ in range(m):
-                Kg[r, s_] = sol[s_]
-        _chol_solve(LS, yv, sol)
-        nis = 0.0
-        for r in range(m):
-            nis += yv[r] * sol[r]
+        nis, st = ukf_one(
+            x[b], P[b], z[b], mask[b], i_in[b], dt[b], n_sub[b], q, R, scale, zscale, Wm, Wc,
+            c, prm, y_out[b], ws,
+        )  # fmt: skip
         nis_out[b] = nis
-        for r in range(m):
-            y_out[b, r] = yv[r]
-        for r in range(n):
-            acc = 0.0
-            for s_ in range(m):
-                acc += Kg[r, s_] * yv[s_]
-            x[b, r] = xm[r] + acc
-        # P -= K S K^T = K Pxz^T, symmetrised
-        for r in range(n):
-            for s_ in range(n):
-                acc = 0.0
-                for k in range(m):
-                    acc += Kg[r, k] * Pxz[s_, k]
-                A[r, s_] = P[b, r, s_] - acc
-        for r in range(n):
-            for s_ in range(n):
-                P[b, r, s_] = 0.5 * (A[r, s_] + A[s_, r])
+        status[b] = st
