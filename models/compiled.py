@@ -4,10 +4,15 @@ Everything the fixed-step integrator needs is here as scalar ``@njit(cache=True)
 the simplified laws (one function, model id branch), the HF land flows, the effective
 bulk modulus, the 7-state right-hand side and the RK4 stepping loop. Parameters travel as
 one float64 array built by :func:`param_array`. ``error_model="numpy"``: a division by
-zero gives inf/nan instead of raising; helpers are inlined into the loop
-(``inline="always"``) and remain callable from Python for the tests. The numpy functions in
-``models.valve_laws`` and ``models.hf_valve`` are the readable reference; the tests hold
-these kernels to them.
+zero gives inf/nan instead of raising. The numpy functions in ``models.valve_laws`` and
+``models.hf_valve`` are the readable reference; the tests hold these kernels to them.
+
+Speed path: :func:`integrate` runs one loop per valve model (the law branch resolved at
+compile time), with the RK4 stages in scalar locals (no arrays, no stores in the loop) and
+the parameter- and input-only factors hoisted out of it. Those factors keep the association
+order of the formulas, so the results are bitwise those of classic RK4 on :func:`rhs`
+(tests/test_compiled_speedpath.py). The simplified loops are then bound by the latency of
+the v_J dependency chain (about 60 cycles per stage).
 
 State vector (always 7 slots): I, x_S, v_S, x_J, v_J, P1, P2. For the simplified valves
 P1, P2 are unused (derivative 0) and P12 is algebraic.
@@ -134,40 +139,162 @@ def param_array(p: EHAParams) -> np.ndarray:
     return a
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def law_p12(model, x_s, q_j, p_sr, g_pq, x_ss, c_lk, p_vap):
-    """Simplified law ``model`` (1=A, 2=B, 3=C1, 4=C3, 5=C5), physics.md section 2."""
+# -- scalar building blocks ------------------------------------------------------------------
+# Every quantity that depends only on the parameters or on the inputs held over a step is
+# computed once outside the stepping loop; the expressions keep the association order of
+# the original formulas (e.g. ``p_sr / x_ss * x_s`` = ``g_p * x_s`` with g_p = p_sr / x_ss),
+# so the results are bitwise those of the straightforward evaluation.
+
+
+@njit(cache=True, error_model="numpy")
+def _law_consts(model, p_sr, c_lk, g_pq, x_ss, p_vap):
+    """Input-only factors (s_a, s_b) of law ``model`` for :func:`_law_step`."""
+    if model == 4:
+        return g_pq * x_ss * c_lk, 0.0
+    if model == 5:
+        return max(p_sr, p_vap), c_lk * g_pq * x_ss
+    return p_sr / x_ss, 1.0 + g_pq * c_lk
+
+
+@njit(cache=True, error_model="numpy")
+def _law_step(model, x_s, q_j, p_sr, g_pq, x_ss, s_a, s_b):
+    """Law ``model`` with the input-only factors of :func:`_law_consts` (physics.md section 2)."""
     if model == 1:
-        return (p_sr / x_ss * x_s - g_pq * q_j) / (1.0 + g_pq * c_lk)
+        return (s_a * x_s - g_pq * q_j) / s_b
     if model == 2:
-        y = min(max(p_sr / x_ss * x_s, -p_sr), p_sr)
-        return (y - g_pq * q_j) / (1.0 + g_pq * c_lk)
+        y = min(max(s_a * x_s, -p_sr), p_sr)
+        return (y - g_pq * q_j) / s_b
     if model == 3:
-        y = min(max(p_sr / x_ss * x_s - g_pq * q_j, -p_sr), p_sr)
-        return y / (1.0 + g_pq * c_lk)
+        y = min(max(s_a * x_s - g_pq * q_j, -p_sr), p_sr)
+        return y / s_b
     if model == 4:
         y = min(max(p_sr * x_s / x_ss - g_pq * q_j, -p_sr), p_sr)
-        return y / (1.0 + g_pq * x_ss * c_lk / max(abs(x_s), x_ss))
+        return y / (1.0 + s_a / max(abs(x_s), x_ss))
     if model == 5:
-        x_st = x_s - q_j * g_pq * x_ss / max(p_sr, p_vap)
-        return x_st * p_sr / (max(abs(x_st), x_ss) + c_lk * g_pq * x_ss)
+        x_st = x_s - q_j * g_pq * x_ss / s_a
+        return x_st * p_sr / (max(abs(x_st), x_ss) + s_b)
     return math.nan
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def law_p12(model, x_s, q_j, p_sr, g_pq, x_ss, c_lk, p_vap):
+    """Simplified law ``model`` (1=A, 2=B, 3=C1, 4=C3, 5=C5), physics.md section 2.
+
+    A: (P_SR/x_SS x_S - G_PQ Q_J) / (1 + G_PQ C_Lk); B clips the flow-free term, C1 the
+    numerator to +-P_SR; C3 with the leakage term scaled by x_SS / max(|x_S|, x_SS); C5 on
+    the equivalent opening x_S* = x_S - Q_J G_PQ x_SS / P_SR.
+    """
+    s_a, s_b = _law_consts(model, p_sr, c_lk, g_pq, x_ss, p_vap)
+    return _law_step(model, x_s, q_j, p_sr, g_pq, x_ss, s_a, s_b)
+
+
+@njit(cache=True, error_model="numpy")
+def _orifice(a, dp, cw, s2r, dtr2, wc3, mu12, l_min):
+    # cw = cd w, s2r = sqrt(2 / rho), dtr2 = dp_tr^2, wc3 = w c_r^3, mu12 = 12 mu
+    turb = cw * max(a, 0.0) * s2r * dp / (dp * dp + dtr2) ** 0.25
+    g_lam = wc3 / (mu12 * (max(-a, 0.0) + l_min))
+    return turb + g_lam * dp
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def orifice_flow(a, dp, cd, w, rho, dp_tr, c_r, mu, l_min):
     """One metering land (physics.md section 3): smoothed turbulent orifice + radial leakage."""
-    turb = cd * w * max(a, 0.0) * math.sqrt(2.0 / rho) * dp / (dp * dp + dp_tr * dp_tr) ** 0.25
-    g_lam = w * c_r**3 / (12.0 * mu * (max(-a, 0.0) + l_min))
-    return turb + g_lam * dp
+    return _orifice(
+        a, dp, cd * w, math.sqrt(2.0 / rho), dp_tr * dp_tr, w * c_r**3, 12.0 * mu, l_min
+    )
+
+
+@njit(cache=True, error_model="numpy")
+def _beta(p, beta_l, alpha0, kappa, inv_kappa, p_vap, p_atm):
+    ps = max(p - p_vap, 1.0)
+    alpha = alpha0 * (p_atm / ps) ** inv_kappa
+    return beta_l / (1.0 + alpha * beta_l / (kappa * ps))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def beta_eff(p, beta_l, alpha0, kappa, p_vap, p_atm):
     """Entrained-air bulk modulus beta(P) with vapour floor (physics.md section 3)."""
-    ps = max(p - p_vap, 1.0)
-    alpha = alpha0 * (p_atm / ps) ** (1.0 / kappa)
-    return beta_l / (1.0 + alpha * beta_l / (kappa * ps))
+    return _beta(p, beta_l, alpha0, kappa, 1.0 / kappa, p_vap, p_atm)
+
+
+@njit(cache=True, error_model="numpy")
+def _drive_consts(prm):
+    return (
+        prm[I_K_P], prm[I_I_MAX], prm[I_INV_TAU_TM], prm[I_K_SV], prm[I_X_SM], prm[I_WN2],
+        prm[I_C2ZW],
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def _drive(cur, x_s, v_s, x_j, x_cmd, dc):
+    """ECU, torque motor and spool (physics.md section 3): dI, dx_S, dv_S and x_S clipped."""
+    k_p, i_max, inv_tau_tm, k_sv, x_sm, wn2, c2zw = dc
+    i_c = min(max(k_p * (x_cmd - x_j), -i_max), i_max)
+    d_cur = (i_c - cur) * inv_tau_tm
+    # spool: second order towards x_ref, hard limit +-x_SM (position frozen when pushing out)
+    x_ref = min(max(k_sv * cur, -x_sm), x_sm)
+    d_vs = wn2 * (x_ref - x_s) - c2zw * v_s
+    pushing_out = (x_s >= x_sm and v_s > 0.0) or (x_s <= -x_sm and v_s < 0.0)
+    d_xs = 0.0 if pushing_out else v_s
+    return d_cur, d_xs, d_vs, min(max(x_s, -x_sm), x_sm)
+
+
+@njit(cache=True, error_model="numpy")
+def _jack_consts(prm):
+    return (
+        prm[I_AREA], prm[I_STROKE], prm[I_K_STOP], prm[I_C_STOP], prm[I_C_V], prm[I_F_S],
+        prm[I_F_D], prm[I_DV_K], prm[I_INV_MASS], prm[I_INV_TAU_STICK],
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy")
+def _jack_accel(x_j, v_j, p12, f_r, jc):
+    """dv_J: end stops (spring-damper on penetration, never pulling) and Karnopp friction."""
+    area, stroke, k_stop, c_stop, c_v, f_s, f_d, dv_k, inv_m, inv_tau_stick = jc
+    f_e = 0.0
+    if x_j > stroke:
+        f_e = max(k_stop * (x_j - stroke) + c_stop * v_j, 0.0)
+    elif x_j < -stroke:
+        f_e = min(k_stop * (x_j + stroke) + c_stop * v_j, 0.0)
+    f_a = area * p12 - f_r - f_e
+    if abs(v_j) < dv_k:
+        if abs(f_a) <= f_s:
+            return -v_j * inv_tau_stick  # stuck
+        return (f_a - c_v * v_j - math.copysign(f_s, f_a)) * inv_m  # breakaway
+    return (f_a - c_v * v_j - math.copysign(f_d, v_j)) * inv_m
+
+
+@njit(cache=True, error_model="numpy")
+def _hf_consts(prm):
+    cd = prm[I_CD]
+    w = prm[I_W]
+    c_r = prm[I_C_R]
+    kappa = prm[I_KAPPA]
+    v_dead = prm[I_V_DEAD]
+    area = prm[I_AREA]
+    return (
+        prm[I_P_R], prm[I_U1], prm[I_U2], prm[I_U3], prm[I_U4],
+        cd * w, math.sqrt(2.0 / prm[I_RHO]), prm[I_DP_TR] * prm[I_DP_TR], w * c_r**3,
+        12.0 * prm[I_MU], prm[I_L_MIN], area, area * prm[I_STROKE] + v_dead, 1e-3 * v_dead,
+        prm[I_BETA_L], prm[I_ALPHA0], kappa, 1.0 / kappa, prm[I_P_VAP], prm[I_P_ATM],
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _chambers(xse, x_j, q_j, p1, p2, p_s, c_lk, hc):
+    """dP1, dP2 of the HF valve's chambers (physics.md section 3)."""
+    p_r, u1, u2, u3, u4, cw, s2r, dtr2, wc3, mu12, l_min = hc[:11]
+    area, v0, v_min, bl, a0, kap, ikap, pv, pa = hc[11:]
+    q1 = _orifice(u1 + xse, p_s - p1, cw, s2r, dtr2, wc3, mu12, l_min)
+    q2 = _orifice(u2 - xse, p1 - p_r, cw, s2r, dtr2, wc3, mu12, l_min)
+    q3 = _orifice(u3 - xse, p_s - p2, cw, s2r, dtr2, wc3, mu12, l_min)
+    q4 = _orifice(u4 + xse, p2 - p_r, cw, s2r, dtr2, wc3, mu12, l_min)
+    q_lk = c_lk * (p1 - p2)
+    v1 = max(v0 + area * x_j, v_min)
+    v2 = max(v0 - area * x_j, v_min)
+    d_p1 = _beta(p1, bl, a0, kap, ikap, pv, pa) / v1 * (q1 - q2 - q_lk - q_j)
+    d_p2 = _beta(p2, bl, a0, kap, ikap, pv, pa) / v2 * (q3 - q4 + q_lk + q_j)
+    return d_p1, d_p2
 
 
 @njit(cache=True, error_model="numpy")
@@ -183,78 +310,177 @@ def _p12_of_state(y, p_sr, c_lk, prm, model):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
-    """Right-hand side of the closed-loop EHA (physics.md section 3), written into ``dy``."""
-    i_max = prm[I_I_MAX]
-    x_sm = prm[I_X_SM]
-    cur = y[0]
-    x_s = y[1]
-    v_s = y[2]
-    x_j = y[3]
+    """Right-hand side of the closed-loop EHA (physics.md section 3), written into ``dy``.
+
+    The readable array form (used by ``models.reference`` and the tests); :func:`integrate`
+    evaluates the same scalar blocks with the constants hoisted out of its loop.
+    """
+    d_cur, d_xs, d_vs, xse = _drive(y[0], y[1], y[2], y[3], x_cmd, _drive_consts(prm))
+    jc = _jack_consts(prm)
     v_j = y[4]
-    # ECU and torque motor
-    i_c = min(max(prm[I_K_P] * (x_cmd - x_j), -i_max), i_max)
-    dy[0] = (i_c - cur) * prm[I_INV_TAU_TM]
-    # spool: second order towards x_ref, hard limit +-x_SM (position frozen when pushing out)
-    x_ref = min(max(prm[I_K_SV] * cur, -x_sm), x_sm)
-    dy[2] = prm[I_WN2] * (x_ref - x_s) - prm[I_C2ZW] * v_s
-    if (x_s >= x_sm and v_s > 0.0) or (x_s <= -x_sm and v_s < 0.0):
-        dy[1] = 0.0
-    else:
-        dy[1] = v_s
-    xse = min(max(x_s, -x_sm), x_sm)
-    area = prm[I_AREA]
-    q_j = area * v_j
+    q_j = jc[0] * v_j
     if model == 0:
         p1 = y[5]
         p2 = y[6]
-        p_r = prm[I_P_R]
-        p_s = p_r + p_sr
-        cd = prm[I_CD]
-        w = prm[I_W]
-        rho = prm[I_RHO]
-        dp_tr = prm[I_DP_TR]
-        c_r = prm[I_C_R]
-        mu = prm[I_MU]
-        l_min = prm[I_L_MIN]
-        q1 = orifice_flow(prm[I_U1] + xse, p_s - p1, cd, w, rho, dp_tr, c_r, mu, l_min)
-        q2 = orifice_flow(prm[I_U2] - xse, p1 - p_r, cd, w, rho, dp_tr, c_r, mu, l_min)
-        q3 = orifice_flow(prm[I_U3] - xse, p_s - p2, cd, w, rho, dp_tr, c_r, mu, l_min)
-        q4 = orifice_flow(prm[I_U4] + xse, p2 - p_r, cd, w, rho, dp_tr, c_r, mu, l_min)
-        q_lk = c_lk * (p1 - p2)
-        v0 = area * prm[I_STROKE] + prm[I_V_DEAD]
-        v_min = 1e-3 * prm[I_V_DEAD]
-        v1 = max(v0 + area * x_j, v_min)
-        v2 = max(v0 - area * x_j, v_min)
-        bl = prm[I_BETA_L]
-        a0 = prm[I_ALPHA0]
-        kap = prm[I_KAPPA]
-        pv = prm[I_P_VAP]
-        pa = prm[I_P_ATM]
-        dy[5] = beta_eff(p1, bl, a0, kap, pv, pa) / v1 * (q1 - q2 - q_lk - q_j)
-        dy[6] = beta_eff(p2, bl, a0, kap, pv, pa) / v2 * (q3 - q4 + q_lk + q_j)
+        d_p1, d_p2 = _chambers(xse, y[3], q_j, p1, p2, prm[I_P_R] + p_sr, c_lk, _hf_consts(prm))
         p12 = p1 - p2
     else:
-        p12 = law_p12(model, xse, q_j, p_sr, prm[I_G_PQ], prm[I_X_SS], c_lk, prm[I_P_VAP])
-        dy[5] = 0.0
-        dy[6] = 0.0
-    # jack: end stops (spring-damper on penetration, never pulling) and Karnopp friction
-    stroke = prm[I_STROKE]
-    f_e = 0.0
-    if x_j > stroke:
-        f_e = max(prm[I_K_STOP] * (x_j - stroke) + prm[I_C_STOP] * v_j, 0.0)
-    elif x_j < -stroke:
-        f_e = min(prm[I_K_STOP] * (x_j + stroke) + prm[I_C_STOP] * v_j, 0.0)
-    f_a = area * p12 - f_r - f_e
-    inv_m = prm[I_INV_MASS]
-    f_s = prm[I_F_S]
+        g_pq = prm[I_G_PQ]
+        x_ss = prm[I_X_SS]
+        s_a, s_b = _law_consts(model, p_sr, c_lk, g_pq, x_ss, prm[I_P_VAP])
+        p12 = _law_step(model, xse, q_j, p_sr, g_pq, x_ss, s_a, s_b)
+        d_p1 = 0.0
+        d_p2 = 0.0
+    dy[0] = d_cur
+    dy[1] = d_xs
+    dy[2] = d_vs
     dy[3] = v_j
-    if abs(v_j) < prm[I_DV_K]:
-        if abs(f_a) <= f_s:
-            dy[4] = -v_j * prm[I_INV_TAU_STICK]  # stuck
-        else:
-            dy[4] = (f_a - prm[I_C_V] * v_j - math.copysign(f_s, f_a)) * inv_m  # breakaway
-    else:
-        dy[4] = (f_a - prm[I_C_V] * v_j - math.copysign(prm[I_F_D], v_j)) * inv_m
+    dy[4] = _jack_accel(y[3], v_j, p12, f_r, jc)
+    dy[5] = d_p1
+    dy[6] = d_p2
+
+
+# -- fixed-step RK4 loops, one specialisation per valve model -----------------------------
+# Scalar locals for the stages (no arrays, no stores in the loop), the law branch resolved
+# at compile time (``model`` is a closure constant of each simplified loop), the input-only
+# factors recomputed only while the input row changes, no modulo per step for the output
+# stride. The small helpers are inlined by LLVM; _rhs7 and _chambers at the numba IR level
+# (LLVM left them as calls). IR-level inlining of everything tripled the compile time.
+
+
+@njit(cache=True, error_model="numpy")
+def _rhs5(model, cur, x_s, v_s, x_j, v_j, x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc):
+    d_cur, d_xs, d_vs, xse = _drive(cur, x_s, v_s, x_j, x_cmd, dc)
+    p12 = _law_step(model, xse, jc[0] * v_j, p_sr, g_pq, x_ss, s_a, s_b)
+    return d_cur, d_xs, d_vs, v_j, _jack_accel(x_j, v_j, p12, f_r, jc)
+
+
+def _make_simplified_loop(model: int):
+    @njit(cache=True, error_model="numpy")
+    def _integrate_simplified(y, h, n_sub, k0, n_steps, u, prm, out_every, out):
+        dc = _drive_consts(prm)
+        jc = _jack_consts(prm)
+        g_pq = prm[I_G_PQ]
+        x_ss = prm[I_X_SS]
+        p_vap = prm[I_P_VAP]
+        hs = h / n_sub
+        hh = 0.5 * hs
+        h6 = hs / 6.0
+        n_u = u.shape[0]
+        y0, y1, y2, y3, y4, y5, y6 = y[0], y[1], y[2], y[3], y[4], y[5], y[6]
+        x_cmd = f_r = p_sr = s_a = s_b = 0.0
+        cnt = k0 % out_every
+        for k in range(n_steps):
+            if k < n_u:  # row min(k, n_u - 1)
+                x_cmd = u[k, 0]
+                f_r = u[k, 1]
+                p_sr = u[k, 2]
+                s_a, s_b = _law_consts(model, p_sr, u[k, 3], g_pq, x_ss, p_vap)
+            for _ in range(n_sub):
+                a0, a1, a2, a3, a4 = _rhs5(
+                    model, y0, y1, y2, y3, y4, x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc
+                )
+                b0, b1, b2, b3, b4 = _rhs5(
+                    model, y0 + hh * a0, y1 + hh * a1, y2 + hh * a2, y3 + hh * a3, y4 + hh * a4,
+                    x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc,
+                )  # fmt: skip
+                c0, c1, c2, c3, c4 = _rhs5(
+                    model, y0 + hh * b0, y1 + hh * b1, y2 + hh * b2, y3 + hh * b3, y4 + hh * b4,
+                    x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc,
+                )  # fmt: skip
+                d0, d1, d2, d3, d4 = _rhs5(
+                    model, y0 + hs * c0, y1 + hs * c1, y2 + hs * c2, y3 + hs * c3, y4 + hs * c4,
+                    x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc,
+                )  # fmt: skip
+                y0 += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
+                y1 += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+                y2 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
+                y3 += h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+                y4 += h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
+            cnt += 1
+            if cnt == out_every:
+                cnt = 0
+                row = (k0 + k + 1) // out_every
+                out[row, 0] = y0
+                out[row, 1] = y1
+                out[row, 2] = y2
+                out[row, 3] = y3
+                out[row, 4] = y4
+                out[row, 5] = y5
+                out[row, 6] = y6
+        y[0], y[1], y[2], y[3], y[4] = y0, y1, y2, y3, y4
+
+    return _integrate_simplified
+
+
+_LOOP_A = _make_simplified_loop(1)
+_LOOP_B = _make_simplified_loop(2)
+_LOOP_C1 = _make_simplified_loop(3)
+_LOOP_C3 = _make_simplified_loop(4)
+_LOOP_C5 = _make_simplified_loop(5)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rhs7(cur, x_s, v_s, x_j, v_j, p1, p2, x_cmd, f_r, p_s, c_lk, dc, jc, hc):
+    d_cur, d_xs, d_vs, xse = _drive(cur, x_s, v_s, x_j, x_cmd, dc)
+    d_p1, d_p2 = _chambers(xse, x_j, jc[0] * v_j, p1, p2, p_s, c_lk, hc)
+    return d_cur, d_xs, d_vs, v_j, _jack_accel(x_j, v_j, p1 - p2, f_r, jc), d_p1, d_p2
+
+
+@njit(cache=True, error_model="numpy")
+def _integrate_hf(y, h, n_sub, k0, n_steps, u, prm, out_every, out):
+    dc = _drive_consts(prm)
+    jc = _jack_consts(prm)
+    hc = _hf_consts(prm)
+    p_r = prm[I_P_R]
+    hs = h / n_sub
+    hh = 0.5 * hs
+    h6 = hs / 6.0
+    n_u = u.shape[0]
+    y0, y1, y2, y3, y4, y5, y6 = y[0], y[1], y[2], y[3], y[4], y[5], y[6]
+    x_cmd = f_r = p_s = c_lk = 0.0
+    cnt = k0 % out_every
+    for k in range(n_steps):
+        if k < n_u:  # row min(k, n_u - 1)
+            x_cmd = u[k, 0]
+            f_r = u[k, 1]
+            p_s = p_r + u[k, 2]
+            c_lk = u[k, 3]
+        for _ in range(n_sub):
+            a0, a1, a2, a3, a4, a5, a6 = _rhs7(
+                y0, y1, y2, y3, y4, y5, y6, x_cmd, f_r, p_s, c_lk, dc, jc, hc
+            )
+            b0, b1, b2, b3, b4, b5, b6 = _rhs7(
+                y0 + hh * a0, y1 + hh * a1, y2 + hh * a2, y3 + hh * a3, y4 + hh * a4,
+                y5 + hh * a5, y6 + hh * a6, x_cmd, f_r, p_s, c_lk, dc, jc, hc,
+            )  # fmt: skip
+            c0, c1, c2, c3, c4, c5, c6 = _rhs7(
+                y0 + hh * b0, y1 + hh * b1, y2 + hh * b2, y3 + hh * b3, y4 + hh * b4,
+                y5 + hh * b5, y6 + hh * b6, x_cmd, f_r, p_s, c_lk, dc, jc, hc,
+            )  # fmt: skip
+            d0, d1, d2, d3, d4, d5, d6 = _rhs7(
+                y0 + hs * c0, y1 + hs * c1, y2 + hs * c2, y3 + hs * c3, y4 + hs * c4,
+                y5 + hs * c5, y6 + hs * c6, x_cmd, f_r, p_s, c_lk, dc, jc, hc,
+            )  # fmt: skip
+            y0 += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
+            y1 += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+            y2 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
+            y3 += h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+            y4 += h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
+            y5 += h6 * (a5 + 2.0 * b5 + 2.0 * c5 + d5)
+            y6 += h6 * (a6 + 2.0 * b6 + 2.0 * c6 + d6)
+        cnt += 1
+        if cnt == out_every:
+            cnt = 0
+            row = (k0 + k + 1) // out_every
+            out[row, 0] = y0
+            out[row, 1] = y1
+            out[row, 2] = y2
+            out[row, 3] = y3
+            out[row, 4] = y4
+            out[row, 5] = y5
+            out[row, 6] = y6
+    y[0], y[1], y[2], y[3], y[4], y[5], y[6] = y0, y1, y2, y3, y4, y5, y6
 
 
 @njit(cache=True, error_model="numpy")
@@ -264,40 +490,20 @@ def integrate(y, h, n_sub, k0, n_steps, u, prm, model, out_every, out):
 
     ``u`` is (n_u, 4): x_cmd, f_r, p_sr, c_lk held over local step k (row min(k, n_u - 1)).
     After global step g = k0 + k the state goes to ``out[(g + 1) // out_every]`` whenever
-    ``(g + 1) % out_every == 0`` (row 0 is left for the initial state).
+    ``(g + 1) % out_every == 0`` (row 0 is left for the initial state). Same results as RK4
+    on :func:`rhs`; one specialised loop per valve model.
     """
-    n = y.shape[0]
-    k1 = np.empty(n)
-    k2 = np.empty(n)
-    k3 = np.empty(n)
-    k4 = np.empty(n)
-    yt = np.empty(n)
-    hs = h / n_sub
-    n_u = u.shape[0]
-    for j in range(n):
-        yt[j] = y[j]
-    ns = n if model == 0 else 5  # P1, P2 are not states of the simplified models
-    for k in range(n_steps):
-        r = min(k, n_u - 1)
-        x_cmd = u[r, 0]
-        f_r = u[r, 1]
-        p_sr = u[r, 2]
-        c_lk = u[r, 3]
-        for _ in range(n_sub):
-            rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, k1)
-            for j in range(ns):
-                yt[j] = y[j] + 0.5 * hs * k1[j]
-            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k2)
-            for j in range(ns):
-                yt[j] = y[j] + 0.5 * hs * k2[j]
-            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k3)
-            for j in range(ns):
-                yt[j] = y[j] + hs * k3[j]
-            rhs(yt, x_cmd, f_r, p_sr, c_lk, prm, model, k4)
-            for j in range(ns):
-                y[j] += hs / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
-        g1 = k0 + k + 1
-        if g1 % out_every == 0:
-            row = g1 // out_every
-            for j in range(n):
-                out[row, j] = y[j]
+    if model == 0:
+        _integrate_hf(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
+    elif model == 1:
+        _LOOP_A(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
+    elif model == 2:
+        _LOOP_B(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
+    elif model == 3:
+        _LOOP_C1(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
+    elif model == 4:
+        _LOOP_C3(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
+    elif model == 5:
+        _LOOP_C5(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
+    else:
+        raise ValueError("unknown valve model id")

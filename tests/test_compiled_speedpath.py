@@ -1,0 +1,176 @@
+"""The specialised RK4 loops of ``models.compiled.integrate`` against plain RK4 on the array
+right-hand side ``compiled.rhs`` and against values recorded before the loops were
+specialised (physics.md sections 3 and 5): the speed-up must not change the results beyond
+round-off (rtol 1e-9)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models import compiled as kern
+from models.eha import VALVE_MODELS, EHAStepper, initial_state, n_substeps, simulate
+from models.params import DEFAULT_PARAMS
+from service.scenarios import load_scenario
+
+RTOL = 1e-9
+# absolute floors where a signal crosses zero: 1e-9 of its range on paper_bench
+SCALE = {"i": 1e-2, "x_j": 5e-2, "v_j": 1.0, "p12": 2e7, "p": 2e7}
+
+# Recorded with the generic loop (commit 07093f7: array stages, model branch in the rhs) on
+# paper_bench at step 1e-4 s: (step k, I [A], x_J [m], v_J [m/s], P12 [Pa]) at t = k * 1e-4 s.
+RECORDED = {
+    "HF": [
+        (1000, 0.009001906347442535, 0.015578305162523292, 0.15793010954772485, 510046.76302290335),
+        (3200, 0.0007430383065967874, 0.019641919013197204, 0.01808918232522023, 10236244.471355706),
+        (4000, 0.0029553129491557933, 0.018510339342960622, -0.02410464002336833, 11535100.91753249),
+        (6000, 0.009999999999999997, 0.009523285567897987, -0.05340063132471767, 11493216.839504978),
+        (8000, 0.009999999999999997, 0.014368289913502532, 0.18187657488828368, -11311893.582889572),
+        (10000, -0.008905622699072389, 0.02447647858422667, 0.0475183079088209, -11468071.184654886),
+    ],
+    "A": [
+        (1000, 0.009999999999999997, 0.01310961984331013, 0.13409852673327083, 668197.0534665374),
+        (3200, 0.000619178243335163, 0.019685307690030917, -0.010060173221444932, 11608701.358058907),
+        (4000, 0.001842442784145178, 0.019075930411149637, -0.005656865940688296, 11596536.934194759),
+        (6000, 0.0026122081634007417, 0.018693718445476102, -0.0003524826580237464, 11599784.214324195),
+        (8000, 1.6441184768588637e-05, 0.020001077057795427, 0.018466266460434724, -11588695.172097031),
+        (10000, -0.002496380005337592, 0.021248769344743203, 0.0011506439703526672, -11599295.589496106),
+    ],
+    "B": [
+        (1000, 0.009999999999999997, 0.0026058478526038665, 0.02632480843221572, 452649.61686443206),
+        (3200, 0.009999999999999997, 0.008029003212752468, 0.007766174140774033, 12415532.34828155),
+        (4000, 0.009999999999999997, 0.008040280058435628, -0.00446829836076174, 11591063.403278476),
+        (6000, 0.009999999999999997, 0.007146620386283581, -0.00446829836076174, 11591063.403278476),
+        (8000, 0.009999999999999997, 0.008041433613955377, 0.031411727936025514, -11537176.544127945),
+        (10000, 0.009999999999999997, 0.014323779201159879, 0.031411727936025514, -11537176.544127945),
+    ],
+    "C1": [
+        (1000, 0.009999999999999997, 0.01310961984331013, 0.13409852673327083, 668197.0534665374),
+        (3200, 0.000619178243335163, 0.019685307690030917, -0.010060173221444932, 11608701.358058907),
+        (4000, 0.009999999999999997, -0.007238984443204451, -0.9149057537672651, 8710801.393728225),
+        (6000, 0.009999999999999997, -0.050030160838218554, -1.5037279759896639e-69, 8710801.393728225),
+        (8000, 0.009999999999999997, -0.021398454778687955, 0.9372777443381625, -8710801.393728225),
+        (10000, -0.009999999999999997, 0.05003013164279628, 3.8583346108646827e-60, -8710801.393728225),
+    ],
+    "C3": [
+        (1000, 0.009999999999999997, 0.013121439232698486, 0.13420514158439112, 668410.283168785),
+        (3200, 0.0006190736131845264, 0.0196853592557081, -0.010061650547905102, 11608702.635859795),
+        (4000, 0.009999999999999997, -0.001549371392582808, -0.6496024323331985, 9712509.712509712),
+        (6000, 0.009999999999999997, -0.050020248268730645, -1.4111038330202322e-59, 9712509.712509712),
+        (8000, 0.009999999999999997, -0.030437880211187714, 0.6225907760604251, -9712509.712509712),
+        (10000, -0.009999999999999997, 0.05002022718349185, 4.810878777679426e-44, -9712509.712509712),
+    ],
+    "C5": [
+        (1000, 0.009999999999999997, 0.01310961984331013, 0.13409852673327083, 668197.0534665266),
+        (3200, 0.000619178243335163, 0.019685307690030917, -0.010060173221444932, 11608701.358058907),
+        (4000, 0.009999999999999997, 0.003443659054196692, -0.5308800590169543, 9966691.516271345),
+        (6000, 0.009999999999999997, -0.0500195764587534, -4.225729640154913e-52, 9712509.712509712),
+        (8000, 0.009999999999999997, -0.03176322483380423, 0.5590726816825483, -9959473.5709358),
+        (10000, -0.009999999999999997, 0.05001958963978615, 7.285687465583407e-37, -9712509.712509712),
+    ],
+}  # fmt: skip
+
+
+def _close(a, b, scale: float) -> None:
+    np.testing.assert_allclose(a, b, rtol=RTOL, atol=RTOL * scale)
+
+
+def _rk4_reference(y, h, n_sub, u, prm, model, n_steps):
+    """Classic RK4 on the array rhs, inputs row min(k, n_u - 1) over step k; all states."""
+    y = np.array(y, float)
+    ns = 7 if model == 0 else 5
+    hs = h / n_sub
+    out = np.empty((n_steps + 1, 7))
+    out[0] = y
+    k1, k2, k3, k4 = (np.empty(7) for _ in range(4))
+    for k in range(n_steps):
+        x_cmd, f_r, p_sr, c_lk = u[min(k, len(u) - 1)]
+        for _ in range(n_sub):
+            kern.rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, k1)
+            kern.rhs(y + 0.5 * hs * k1, x_cmd, f_r, p_sr, c_lk, prm, model, k2)
+            kern.rhs(y + 0.5 * hs * k2, x_cmd, f_r, p_sr, c_lk, prm, model, k3)
+            kern.rhs(y + hs * k3, x_cmd, f_r, p_sr, c_lk, prm, model, k4)
+            y[:ns] += hs / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)[:ns]
+        out[k + 1] = y
+    return out
+
+
+@pytest.fixture(scope="module")
+def paper():
+    return load_scenario("paper_bench")
+
+
+@pytest.mark.parametrize("valve", VALVE_MODELS)
+def test_simulate_equals_recorded_generic_loop(valve: str, paper) -> None:
+    r = simulate(paper, valve)
+    rows = [v[0] for v in RECORDED[valve]]
+    rec = np.array([v[1:] for v in RECORDED[valve]])
+    _close(r.i[rows], rec[:, 0], SCALE["i"])
+    _close(r.x_j[rows], rec[:, 1], SCALE["x_j"])
+    _close(r.v_j[rows], rec[:, 2], SCALE["v_j"])
+    _close(r.p12[rows], rec[:, 3], SCALE["p12"])
+
+
+@pytest.mark.parametrize("valve", VALVE_MODELS)
+def test_simulate_equals_rk4_on_rhs_over_paper_bench(valve: str, paper) -> None:
+    """Every step of the 1 s bench (three input changes, end stops, stick and slip)."""
+    params = paper.eha_params()
+    h = paper.step_s
+    n = paper.n_steps()
+    u = paper.inputs((np.arange(n) + 0.5) * h, params)
+    u = np.stack([u["x_cmd"], u["f_r"], u["p_sr"], u["c_lk"]], axis=1)
+    y0 = initial_state(params, valve, u[0, 2], u[0, 3])
+    model = kern.MODEL_IDS[valve]
+    ref = _rk4_reference(y0, h, 1, u, kern.param_array(params), model, n)
+    r = simulate(paper, valve)
+    _close(r.i, ref[:, 0], SCALE["i"])
+    _close(r.x_j, ref[:, 3], SCALE["x_j"])
+    _close(r.v_j, ref[:, 4], SCALE["v_j"])
+    if valve == "HF":
+        _close(r.p1, ref[:, 5], SCALE["p"])
+        _close(r.p2, ref[:, 6], SCALE["p"])
+    # the output stride skips rows without changing them (segments start at 0.3/0.35/0.75 s)
+    r7 = simulate(paper, valve, out_every=7)
+    assert np.array_equal(r7.x_j, r.x_j[::7]) and np.array_equal(r7.v_j, r.v_j[::7])
+
+
+@pytest.mark.parametrize("valve", ["HF", "A", "C3", "C5"])
+def test_integrate_per_step_inputs_substeps_and_offset(valve: str) -> None:
+    """Inputs varying every step then held (row min(k, n_u - 1)), 3 substeps, k0 > 0."""
+    params = DEFAULT_PARAMS
+    h = 1e-3
+    n_sub = n_substeps(params, valve, h)
+    assert n_sub > 1
+    n, n_u = 120, 80
+    t = (np.arange(n_u) + 0.5) * h
+    u = np.stack(
+        [0.02 * np.sin(40 * t), 3e3 * np.cos(25 * t), 20e6 - 5e7 * t, 2e-13 * (1 + 10 * t)],
+        axis=1,
+    )
+    model = kern.MODEL_IDS[valve]
+    prm = kern.param_array(params)
+    y0 = initial_state(params, valve, u[0, 2], u[0, 3])
+    ref = _rk4_reference(y0, h, n_sub, u, prm, model, n)
+    y = y0.copy()
+    k0, every = 5, 4  # global steps 5..124: rows (g + 1) / 4 for g + 1 = 8, 12, ..., 124
+    out = np.full((32, 7), np.nan)
+    kern.integrate(y, h, n_sub, k0, n, u, prm, model, every, out)
+    for s in range(7):
+        _close(y[s], ref[-1, s], max(abs(ref[:, s]).max(), 1e-30))
+    g1 = np.arange(k0 + 1, k0 + n + 1)
+    stored = g1 % every == 0
+    np.testing.assert_array_equal(out[g1[stored] // every], ref[1:][stored])
+    assert np.isnan(out[:2]).all()  # rows before the first stored step are untouched
+
+
+@pytest.mark.parametrize("valve", ["HF", "C1"])
+def test_stepper_equals_rk4_on_rhs(valve: str) -> None:
+    st = EHAStepper(DEFAULT_PARAMS, valve, step_s=1e-4)
+    st.advance(0, 0.0, 0.0, 20e6, 2e-13)
+    y0 = st.state
+    st.advance(150, 0.01, 2e3, 20e6, 2e-13)
+    st.advance(150, 0.01, 2e3, 20e6, 2e-13)
+    u = np.array([[0.01, 2e3, 20e6, 2e-13]])
+    ref = _rk4_reference(y0, 1e-4, 1, u, kern.param_array(DEFAULT_PARAMS), st.model, 300)
+    for s in range(7):
+        _close(st.state[s], ref[-1, s], max(abs(ref[:, s]).max(), 1e-30))
