@@ -9,10 +9,14 @@ zero gives inf/nan instead of raising. The numpy functions in ``models.valve_law
 
 Speed path: :func:`integrate` runs one loop per valve model (the law branch resolved at
 compile time), with the RK4 stages in scalar locals (no arrays, no stores in the loop) and
-the parameter- and input-only factors hoisted out of it. Those factors keep the association
-order of the formulas, so the results are bitwise those of classic RK4 on :func:`rhs`
-(tests/test_compiled_speedpath.py). The simplified loops are then bound by the latency of
-the v_J dependency chain (about 60 cycles per stage).
+the parameter- and input-only factors hoisted out of it. The loops are bound by the latency
+of the v_J -> dv_J dependency chain of each RK4 stage, so the simplified loops evaluate the
+law and the jack force rearranged to shorten it (:func:`_law_fast`: products with step
+factors such as 1/(1 + G_PQ C_Lk) instead of divisions; :func:`_jack_accel_fast`: A/m P12
+split off the other forces). That changes the results by round-off only (about 1e-14 of
+each state's range on the bundled scenarios); the HF loop keeps the association order of
+:func:`rhs` and is bitwise equal to classic RK4 on it. tests/test_compiled_speedpath.py
+holds all loops to RK4 on :func:`rhs` and to values recorded before (rtol 1e-9).
 
 State vector (always 7 slots): I, x_S, v_S, x_J, v_J, P1, P2. For the simplified valves
 P1, P2 are unused (derivative 0) and P12 is algebraic.
@@ -140,10 +144,10 @@ def param_array(p: EHAParams) -> np.ndarray:
 
 
 # -- scalar building blocks ------------------------------------------------------------------
-# Every quantity that depends only on the parameters or on the inputs held over a step is
-# computed once outside the stepping loop; the expressions keep the association order of
-# the original formulas (e.g. ``p_sr / x_ss * x_s`` = ``g_p * x_s`` with g_p = p_sr / x_ss),
-# so the results are bitwise those of the straightforward evaluation.
+# Split so that the factors depending only on the parameters or on the inputs held over a
+# step can be computed once outside a stepping loop; these keep the association order of
+# the formulas (e.g. ``p_sr / x_ss * x_s`` = ``s_a * x_s`` with s_a = p_sr / x_ss), so
+# law_p12, rhs and the HF loop are bitwise the straightforward evaluation.
 
 
 @njit(cache=True, error_model="numpy")
@@ -344,15 +348,67 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
 # Scalar locals for the stages (no arrays, no stores in the loop), the law branch resolved
 # at compile time (``model`` is a closure constant of each simplified loop), the input-only
 # factors recomputed only while the input row changes, no modulo per step for the output
-# stride. The small helpers are inlined by LLVM; _rhs7 and _chambers at the numba IR level
-# (LLVM left them as calls). IR-level inlining of everything tripled the compile time.
+# stride, no division on the simplified loops' v_J path (except C5 past |x_S*| > x_SS).
+# The small helpers are inlined by LLVM; _rhs7 and _chambers at the numba IR level (LLVM
+# left them as calls). IR-level inlining of everything tripled the compile time.
 
 
 @njit(cache=True, error_model="numpy")
-def _rhs5(model, cur, x_s, v_s, x_j, v_j, x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc):
+def _law_fast_consts(model, p_sr, c_lk, area, g_pq, x_ss, p_vap):
+    """Step factors (f0, f1, f2) of law ``model`` for :func:`_law_fast`."""
+    if model == 4:  # C3
+        return p_sr / x_ss, g_pq * area, g_pq * x_ss * c_lk
+    if model == 5:  # C5; f2: P12 / x_S* while |x_S*| <= x_SS
+        f1 = c_lk * g_pq * x_ss
+        return area * g_pq * x_ss / max(p_sr, p_vap), f1, p_sr / (x_ss + f1)
+    return p_sr / x_ss, g_pq * area, 1.0 / (1.0 + g_pq * c_lk)  # A, B, C1
+
+
+@njit(cache=True, error_model="numpy")
+def _law_fast(model, x_s, v_j, p_sr, x_ss, f0, f1, f2):
+    """:func:`law_p12` at Q_J = A v_J, rearranged for a short v_J -> P12 latency (products of
+    step factors instead of divisions): equal up to round-off (physics.md section 2)."""
+    if model == 1:
+        return (f0 * x_s - f1 * v_j) * f2
+    if model == 2:
+        return (min(max(f0 * x_s, -p_sr), p_sr) - f1 * v_j) * f2
+    if model == 3:
+        return min(max(f0 * x_s - f1 * v_j, -p_sr), p_sr) * f2
+    if model == 4:
+        r = 1.0 / (1.0 + f2 / max(abs(x_s), x_ss))  # x_S only: off the v_J chain
+        return min(max(f0 * x_s - f1 * v_j, -p_sr), p_sr) * r
+    if model == 5:
+        x_st = x_s - f0 * v_j
+        a = abs(x_st)
+        if a <= x_ss:
+            return x_st * f2
+        return x_st * p_sr / (a + f1)
+    return math.nan
+
+
+@njit(cache=True, error_model="numpy")
+def _jack_accel_fast(x_j, v_j, p12, f_r, jc, area_m):
+    """:func:`_jack_accel` with A P12 / m split off the other forces (area_m = A / m): equal
+    up to round-off, P12 -> dv_J in one product and one difference."""
+    area, stroke, k_stop, c_stop, c_v, f_s, f_d, dv_k, inv_m, inv_tau_stick = jc
+    f_e = 0.0
+    if x_j > stroke:
+        f_e = max(k_stop * (x_j - stroke) + c_stop * v_j, 0.0)
+    elif x_j < -stroke:
+        f_e = min(k_stop * (x_j + stroke) + c_stop * v_j, 0.0)
+    if abs(v_j) < dv_k:
+        f_a = area * p12 - f_r - f_e
+        if abs(f_a) <= f_s:
+            return -v_j * inv_tau_stick  # stuck
+        return area_m * p12 - (f_r + f_e + c_v * v_j + math.copysign(f_s, f_a)) * inv_m
+    return area_m * p12 - (f_r + f_e + c_v * v_j + math.copysign(f_d, v_j)) * inv_m
+
+
+@njit(cache=True, error_model="numpy")
+def _rhs5(model, cur, x_s, v_s, x_j, v_j, x_cmd, f_r, p_sr, f0, f1, f2, x_ss, area_m, dc, jc):
     d_cur, d_xs, d_vs, xse = _drive(cur, x_s, v_s, x_j, x_cmd, dc)
-    p12 = _law_step(model, xse, jc[0] * v_j, p_sr, g_pq, x_ss, s_a, s_b)
-    return d_cur, d_xs, d_vs, v_j, _jack_accel(x_j, v_j, p12, f_r, jc)
+    p12 = _law_fast(model, xse, v_j, p_sr, x_ss, f0, f1, f2)
+    return d_cur, d_xs, d_vs, v_j, _jack_accel_fast(x_j, v_j, p12, f_r, jc, area_m)
 
 
 def _make_simplified_loop(model: int):
@@ -368,29 +424,31 @@ def _make_simplified_loop(model: int):
         h6 = hs / 6.0
         n_u = u.shape[0]
         y0, y1, y2, y3, y4, y5, y6 = y[0], y[1], y[2], y[3], y[4], y[5], y[6]
-        x_cmd = f_r = p_sr = s_a = s_b = 0.0
+        area = prm[I_AREA]
+        area_m = area * prm[I_INV_MASS]
+        x_cmd = f_r = p_sr = f0 = f1 = f2 = 0.0
         cnt = k0 % out_every
         for k in range(n_steps):
             if k < n_u:  # row min(k, n_u - 1)
                 x_cmd = u[k, 0]
                 f_r = u[k, 1]
                 p_sr = u[k, 2]
-                s_a, s_b = _law_consts(model, p_sr, u[k, 3], g_pq, x_ss, p_vap)
+                f0, f1, f2 = _law_fast_consts(model, p_sr, u[k, 3], area, g_pq, x_ss, p_vap)
             for _ in range(n_sub):
                 a0, a1, a2, a3, a4 = _rhs5(
-                    model, y0, y1, y2, y3, y4, x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc
+                    model, y0, y1, y2, y3, y4, x_cmd, f_r, p_sr, f0, f1, f2, x_ss, area_m, dc, jc
                 )
                 b0, b1, b2, b3, b4 = _rhs5(
                     model, y0 + hh * a0, y1 + hh * a1, y2 + hh * a2, y3 + hh * a3, y4 + hh * a4,
-                    x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc,
+                    x_cmd, f_r, p_sr, f0, f1, f2, x_ss, area_m, dc, jc,
                 )  # fmt: skip
                 c0, c1, c2, c3, c4 = _rhs5(
                     model, y0 + hh * b0, y1 + hh * b1, y2 + hh * b2, y3 + hh * b3, y4 + hh * b4,
-                    x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc,
+                    x_cmd, f_r, p_sr, f0, f1, f2, x_ss, area_m, dc, jc,
                 )  # fmt: skip
                 d0, d1, d2, d3, d4 = _rhs5(
                     model, y0 + hs * c0, y1 + hs * c1, y2 + hs * c2, y3 + hs * c3, y4 + hs * c4,
-                    x_cmd, f_r, p_sr, s_a, s_b, g_pq, x_ss, dc, jc,
+                    x_cmd, f_r, p_sr, f0, f1, f2, x_ss, area_m, dc, jc,
                 )  # fmt: skip
                 y0 += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
                 y1 += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
@@ -490,8 +548,8 @@ def integrate(y, h, n_sub, k0, n_steps, u, prm, model, out_every, out):
 
     ``u`` is (n_u, 4): x_cmd, f_r, p_sr, c_lk held over local step k (row min(k, n_u - 1)).
     After global step g = k0 + k the state goes to ``out[(g + 1) // out_every]`` whenever
-    ``(g + 1) % out_every == 0`` (row 0 is left for the initial state). Same results as RK4
-    on :func:`rhs`; one specialised loop per valve model.
+    ``(g + 1) % out_every == 0`` (row 0 is left for the initial state). Classic RK4 on
+    :func:`rhs` up to round-off; one specialised loop per valve model (see module docstring).
     """
     if model == 0:
         _integrate_hf(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
