@@ -2,7 +2,7 @@
 side by side (this monitor, a plain filterpy UKF calling the model once per sigma point, and
 NASA ProgPy 1.9's UnscentedKalmanFilter on the same model as a PrognosticsModel).
 
-    .venv/bin/python bench/estimation.py                 # everything (about 10 min)
+    .venv/bin/python bench/estimation.py                 # everything (about 4 min)
     .venv/bin/python bench/estimation.py --healthy-s 60  # shorter false-alarm run
     .venv/bin/python bench/estimation.py --skip-accuracy # speed only
     .venv/bin/python bench/estimation.py --json out.json # also write the figures as JSON
