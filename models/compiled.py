@@ -349,8 +349,8 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
 # at compile time (``model`` is a closure constant of each simplified loop), the input-only
 # factors recomputed only while the input row changes, no modulo per step for the output
 # stride, no division on the simplified loops' v_J path (except C5 past |x_S*| > x_SS).
-# The small helpers are inlined by LLVM; _rhs7 and _chambers at the numba IR level (LLVM
-# left them as calls). IR-level inlining of everything tripled the compile time.
+# The small helpers are inlined by LLVM; _rhs5, _rhs7 and _chambers at the numba IR level
+# (LLVM left some as calls). IR-level inlining of everything tripled the compile time.
 
 
 @njit(cache=True, error_model="numpy")
@@ -404,7 +404,7 @@ def _jack_accel_fast(x_j, v_j, p12, f_r, jc, area_m):
     return area_m * p12 - (f_r + f_e + c_v * v_j + math.copysign(f_d, v_j)) * inv_m
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _rhs5(model, cur, x_s, v_s, x_j, v_j, x_cmd, f_r, p_sr, f0, f1, f2, x_ss, area_m, dc, jc):
     d_cur, d_xs, d_vs, xse = _drive(cur, x_s, v_s, x_j, x_cmd, dc)
     p12 = _law_fast(model, xse, v_j, p_sr, x_ss, f0, f1, f2)
