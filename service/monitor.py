@@ -15,6 +15,7 @@ x_cmd). Measurements: any of x_s, x_j, p1, p2, p_sr. See docs/estimation.md.
 from __future__ import annotations
 
 import json
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -49,6 +50,8 @@ __all__ = [
     "RES_KEYS",
     "HEALTH_KEYS",
 ]
+
+log = logging.getLogger(__name__)
 
 MEAS_CHANNELS: tuple[str, ...] = er.MEAS_NAMES  # x_s, x_j, p1, p2, p_sr
 ALARM_KINDS: tuple[str, ...] = ("leak", "supply")
@@ -396,6 +399,12 @@ class MonitorBank:
         self.counters[:n_old] = counters
         self.events_log[:n_old] = events
 
+    def _key_of(self, k: int) -> str:
+        for key, v in self.ids.items():
+            if v == k:
+                return key
+        return "?"
+
     def _index(self, key: str) -> int:
         k = self.ids.get(key)
         if k is None:
@@ -591,6 +600,11 @@ class MonitorBank:
             self.t_init[k] = t[j]
             value = float(nis_avg[j]) if math.isfinite(nis_avg[j]) else 0.0
             evs[j].append(AlarmEvent(float(t[j]), "reinit", "raised", value))
+            log.warning(
+                "monitor %s re-initialised at t=%.6f (%s, NIS/dof average %.3g)",
+                self._key_of(k), float(t[j]), "non-finite or not positive definite"
+                if bad[j] else "diverged", value,
+            )  # fmt: skip
         for k in ks:
             self.counters[k]["accepted"] += 1
         self._outputs(ks, t, z, mask, y, nis, evs, slot_of, out)
