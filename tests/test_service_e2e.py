@@ -116,22 +116,23 @@ def read(path: Path, topics=None):
 
 @pytest.fixture(scope="module")
 def leak_run(tmp_path_factory):
-    """Daemon + actuator (10 s at 250 Hz); a leak injected with ``servowatch inject``;
+    """Daemon + actuator (16 s at 250 Hz); a leak injected through the @fault queryable,
     the actuator ends; then SIGTERM to the daemon."""
     tmp = tmp_path_factory.mktemp("leak")
     log = tmp / "live.mcap"
     n = Net()
     try:
         d = start_daemon(n, log)
-        a = n.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "12",
+        a = n.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "16",
                     "--json")  # fmt: skip
         n.wait(lambda st: act_samples(st) > RATE * 3, what="3 s of samples")
         # the acknowledged command straight through the queryable (CLI start-up takes seconds)
         ack = send_fault(n.session, AC, ACT, m.FaultCommand(kind="leak", value=8e-13))
+        # both CLIs at once, while the actuator still runs
         refused = cli("inject", "--connect", n.ep, "--aircraft", AC, "--actuator", ACT,
                       "--fault", "leak", "--value", "1.0", "--json")  # fmt: skip
-        ref_out, ref_err = refused.communicate(timeout=30)
         status = cli("status", "--connect", n.ep, "--json")
+        ref_out, ref_err = refused.communicate(timeout=30)
         status_out, _ = status.communicate(timeout=30)
         a_out, _ = a.communicate(timeout=60)
         n.wait(lambda st: st["queue"] == 0, what="the daemon to catch up")
@@ -191,7 +192,7 @@ def test_leak_detected_and_mcap_readable_with_the_mcap_reader(leak_run):
             elif channel.topic.endswith("/events"):
                 events.append(msg)
     n = leak_run["actuator"]["samples"]
-    assert n == 12 * RATE
+    assert n == 16 * RATE
     assert counts[MEAS] == n
     assert counts[EST] == counts[f"/fleet/{AC}/{ACT}/residual"] == leak_run["final"]["samples"]
     before = [c for t, c in est if t < t_ack]
