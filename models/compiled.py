@@ -9,14 +9,15 @@ zero gives inf/nan instead of raising. The numpy functions in ``models.valve_law
 
 Speed path: :func:`integrate` runs one loop per valve model (the law branch resolved at
 compile time), with the RK4 stages in scalar locals (no arrays, no stores in the loop) and
-the parameter- and input-only factors hoisted out of it. The loops are bound by the latency
-of the v_J -> dv_J dependency chain of each RK4 stage, so the simplified loops evaluate the
-law and the jack force rearranged to shorten it (:func:`_law_fast`: products with step
-factors such as 1/(1 + G_PQ C_Lk) instead of divisions; :func:`_jack_accel_fast`: A/m P12
-split off the other forces). That changes the results by round-off only (about 1e-14 of
-each state's range on the bundled scenarios); the HF loop keeps the association order of
-:func:`rhs` and is bitwise equal to classic RK4 on it. tests/test_compiled_speedpath.py
-holds all loops to RK4 on :func:`rhs` and to values recorded before (rtol 1e-9).
+the parameter- and input-only factors hoisted out of it. The simplified loops are bound by
+the latency of the v_J -> dv_J dependency chain of each RK4 stage, so they evaluate the law
+and the jack force rearranged to shorten it (:func:`_law_fast`: products with step factors
+such as 1/(1 + G_PQ C_Lk) instead of divisions; :func:`_jack_accel_fast`: A/m P12 split off
+the other forces); the HF loop is bound by pow() and takes the orifices' 4th root as two
+square roots. Both change the results by round-off only (about 1e-14 of each state's range
+on the bundled scenarios). :func:`rhs`, :func:`law_p12`, :func:`orifice_flow` keep the
+plain formulas (bitwise as before); tests/test_compiled_speedpath.py holds every loop to
+classic RK4 on :func:`rhs` and to values recorded before the speed path (rtol 1e-9).
 
 State vector (always 7 slots): I, x_S, v_S, x_J, v_J, P1, P2. For the simplified valves
 P1, P2 are unused (derivative 0) and P12 is algebraic.
@@ -193,9 +194,11 @@ def law_p12(model, x_s, q_j, p_sr, g_pq, x_ss, c_lk, p_vap):
 
 
 @njit(cache=True, error_model="numpy")
-def _orifice(a, dp, cw, s2r, dtr2, wc3, mu12, l_min):
-    # cw = cd w, s2r = sqrt(2 / rho), dtr2 = dp_tr^2, wc3 = w c_r^3, mu12 = 12 mu
-    turb = cw * max(a, 0.0) * s2r * dp / (dp * dp + dtr2) ** 0.25
+def _orifice(a, dp, cw, s2r, dtr2, wc3, mu12, l_min, fast):
+    # cw = cd w, s2r = sqrt(2 / rho), dtr2 = dp_tr^2, wc3 = w c_r^3, mu12 = 12 mu;
+    # fast: the 4th root as two square roots (round-off apart from pow, several times cheaper)
+    r = dp * dp + dtr2
+    turb = cw * max(a, 0.0) * s2r * dp / (math.sqrt(math.sqrt(r)) if fast else r**0.25)
     g_lam = wc3 / (mu12 * (max(-a, 0.0) + l_min))
     return turb + g_lam * dp
 
@@ -204,7 +207,7 @@ def _orifice(a, dp, cw, s2r, dtr2, wc3, mu12, l_min):
 def orifice_flow(a, dp, cd, w, rho, dp_tr, c_r, mu, l_min):
     """One metering land (physics.md section 3): smoothed turbulent orifice + radial leakage."""
     return _orifice(
-        a, dp, cd * w, math.sqrt(2.0 / rho), dp_tr * dp_tr, w * c_r**3, 12.0 * mu, l_min
+        a, dp, cd * w, math.sqrt(2.0 / rho), dp_tr * dp_tr, w * c_r**3, 12.0 * mu, l_min, False
     )
 
 
@@ -285,14 +288,14 @@ def _hf_consts(prm):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _chambers(xse, x_j, q_j, p1, p2, p_s, c_lk, hc):
-    """dP1, dP2 of the HF valve's chambers (physics.md section 3)."""
+def _chambers(xse, x_j, q_j, p1, p2, p_s, c_lk, hc, fast):
+    """dP1, dP2 of the HF valve's chambers (physics.md section 3); ``fast``: see _orifice."""
     p_r, u1, u2, u3, u4, cw, s2r, dtr2, wc3, mu12, l_min = hc[:11]
     area, v0, v_min, bl, a0, kap, ikap, pv, pa = hc[11:]
-    q1 = _orifice(u1 + xse, p_s - p1, cw, s2r, dtr2, wc3, mu12, l_min)
-    q2 = _orifice(u2 - xse, p1 - p_r, cw, s2r, dtr2, wc3, mu12, l_min)
-    q3 = _orifice(u3 - xse, p_s - p2, cw, s2r, dtr2, wc3, mu12, l_min)
-    q4 = _orifice(u4 + xse, p2 - p_r, cw, s2r, dtr2, wc3, mu12, l_min)
+    q1 = _orifice(u1 + xse, p_s - p1, cw, s2r, dtr2, wc3, mu12, l_min, fast)
+    q2 = _orifice(u2 - xse, p1 - p_r, cw, s2r, dtr2, wc3, mu12, l_min, fast)
+    q3 = _orifice(u3 - xse, p_s - p2, cw, s2r, dtr2, wc3, mu12, l_min, fast)
+    q4 = _orifice(u4 + xse, p2 - p_r, cw, s2r, dtr2, wc3, mu12, l_min, fast)
     q_lk = c_lk * (p1 - p2)
     v1 = max(v0 + area * x_j, v_min)
     v2 = max(v0 - area * x_j, v_min)
@@ -326,7 +329,9 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
     if model == 0:
         p1 = y[5]
         p2 = y[6]
-        d_p1, d_p2 = _chambers(xse, y[3], q_j, p1, p2, prm[I_P_R] + p_sr, c_lk, _hf_consts(prm))
+        d_p1, d_p2 = _chambers(
+            xse, y[3], q_j, p1, p2, prm[I_P_R] + p_sr, c_lk, _hf_consts(prm), False
+        )
         p12 = p1 - p2
     else:
         g_pq = prm[I_G_PQ]
@@ -348,7 +353,8 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
 # Scalar locals for the stages (no arrays, no stores in the loop), the law branch resolved
 # at compile time (``model`` is a closure constant of each simplified loop), the input-only
 # factors recomputed only while the input row changes, no modulo per step for the output
-# stride, no division on the simplified loops' v_J path (except C5 past |x_S*| > x_SS).
+# stride, no division on the simplified loops' v_J path (except C5 past |x_S*| > x_SS),
+# no pow() for the HF orifices.
 # The small helpers are inlined by LLVM; _rhs5, _rhs7 and _chambers at the numba IR level
 # (LLVM left some as calls). IR-level inlining of everything tripled the compile time.
 
@@ -481,7 +487,7 @@ _LOOP_C5 = _make_simplified_loop(5)
 @njit(cache=True, error_model="numpy", inline="always")
 def _rhs7(cur, x_s, v_s, x_j, v_j, p1, p2, x_cmd, f_r, p_s, c_lk, dc, jc, hc):
     d_cur, d_xs, d_vs, xse = _drive(cur, x_s, v_s, x_j, x_cmd, dc)
-    d_p1, d_p2 = _chambers(xse, x_j, jc[0] * v_j, p1, p2, p_s, c_lk, hc)
+    d_p1, d_p2 = _chambers(xse, x_j, jc[0] * v_j, p1, p2, p_s, c_lk, hc, True)
     return d_cur, d_xs, d_vs, v_j, _jack_accel(x_j, v_j, p1 - p2, f_r, jc), d_p1, d_p2
 
 

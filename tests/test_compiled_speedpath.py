@@ -227,3 +227,16 @@ def test_fast_jack_equals_jack_accel() -> None:
         n_stuck += ref == -v_j * prm[kern.I_INV_TAU_STICK]
         n_stop += abs(x_j) > stroke
     assert n_stuck > 100 and n_stop > 100  # stick band and end stops both exercised
+
+
+def test_fast_orifice_root_equals_pow() -> None:
+    """The HF loop's 4th root as two square roots: within 2 ulp of pow(., 0.25)."""
+    p = DEFAULT_PARAMS
+    rng = np.random.default_rng(3)
+    args = (p.cd * p.w_eff, np.sqrt(2.0 / p.rho), p.dp_tr**2, p.w_eff * p.c_r**3, 12.0 * p.mu)
+    for _ in range(2000):
+        a = rng.uniform(-2e-4, 6e-4)
+        dp = rng.choice([-1.0, 1.0]) * 10.0 ** rng.uniform(-2, 7.5)
+        exact = kern._orifice(a, dp, *args, p.l_min, False)
+        fast = kern._orifice(a, dp, *args, p.l_min, True)
+        assert fast == pytest.approx(exact, rel=5e-16, abs=0.0)
