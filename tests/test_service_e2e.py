@@ -261,8 +261,12 @@ def test_kill_9_of_the_daemon_alone_loses_nothing_it_received(net, tmp_path):
     st = net.wait(lambda st: act_samples(st) > RATE * 3, what="3 s of data")
     d.send_signal(signal.SIGKILL)
     d.wait(10)
-    time.sleep(2.0)  # the log process finishes the file
-    rows, warned = read(log, [MEAS])
+    deadline = time.monotonic() + 20.0  # the log process writes its backlog, then the footer
+    while True:
+        rows, warned = read(log, [MEAS])
+        if not warned or time.monotonic() > deadline:
+            break
+        time.sleep(0.5)
     assert warned == []
     seqs = [r[2]["seq"] for r in rows]
     assert seqs == list(range(len(seqs))) and len(seqs) >= act_samples(st)
