@@ -9,14 +9,20 @@ Prints, side by side in one run:
     coarser 5e-4 s step;
   * the incremental ``EHAStepper`` driven in 1 ms chunks (as a paced virtual actuator);
   * HF NRMSE against the solve_ivp reference (Radau, rtol 1e-8) in the same run;
-  * whether the targets are met: simplified >= 1000x real time, HF >= 20x within 1 % NRMSE.
+  * whether the targets are met: simplified >= 1000x real time, HF >= 20x within 1 % NRMSE;
+  * with ``--ref-kernel FILE`` (a copy of an earlier models/compiled.py kept outside the
+    repo), the integration loop of ``simulate`` with that kernel and with the current one,
+    interleaved run by run on paper_bench: best loop wall and CPU time, speed-up, and the
+    largest state difference between the two (relative to each state's range).
 
 Usage: .venv/bin/python bench/models.py [--points N] [--hf-points N] [--repeat R] [--json]
+                                        [--ref-kernel FILE] [--ab-only]
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import platform
@@ -27,6 +33,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
+from models import eha  # noqa: E402
 from models.eha import VALVE_MODELS, EHAStepper, n_substeps, simulate  # noqa: E402
 from models.hf_valve import hf_static_p12  # noqa: E402
 from models.metrics import nrmse_pct  # noqa: E402
@@ -104,6 +111,74 @@ def bench_rtf(repeat: int, step_s: float | None = None) -> dict[str, dict[str, f
     return out
 
 
+def _load_kernel(path: str):
+    # registered under its file stem: numba's on-disk cache re-imports the module by name
+    name = os.path.splitext(os.path.basename(path))[0]
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _timed_simulate(sc, valve: str, kernel) -> tuple[float, float, np.ndarray]:
+    """simulate() with ``kernel`` in place of models.compiled: (loop wall, CPU, states)."""
+    saved = eha.kern
+    eha.kern = kernel
+    try:
+        c0 = time.process_time()
+        r = simulate(sc, valve)
+        cpu = time.process_time() - c0
+    finally:
+        eha.kern = saved
+    return r.wall_s, cpu, np.stack([r.i, r.x_s, r.v_s, r.x_j, r.v_j, r.p1, r.p2], axis=1)
+
+
+def bench_kernel_ab(ref_path: str, repeat: int) -> dict[str, dict[str, float]]:
+    """Loop RTF of the reference kernel file and of the current models.compiled, side by
+    side (interleaved, best of ``repeat``) on paper_bench at its step."""
+    sc = load_scenario("paper_bench")
+    dur = sc.n_steps() * sc.step_s
+    kernels = {"ref": _load_kernel(ref_path), "new": eha.kern}
+    out: dict[str, dict[str, float]] = {}
+    for valve in VALVE_MODELS:
+        states = {k: _timed_simulate(sc, valve, m)[2] for k, m in kernels.items()}  # warm-up
+        best = {k: [float("inf"), float("inf")] for k in kernels}
+        for _ in range(repeat):
+            for k, m in kernels.items():
+                wall, cpu, _ = _timed_simulate(sc, valve, m)
+                best[k] = [min(best[k][0], wall), min(best[k][1], cpu)]
+        scale = np.max(np.abs(states["ref"]), axis=0)
+        scale[scale == 0] = 1.0
+        dev = float(np.max(np.abs(states["new"] - states["ref"]) / scale))
+        out[valve] = {
+            "ref_loop_wall_s": best["ref"][0],
+            "new_loop_wall_s": best["new"][0],
+            "ref_call_cpu_s": best["ref"][1],
+            "new_call_cpu_s": best["new"][1],
+            "ref_rtf_loop": dur / best["ref"][0],
+            "new_rtf_loop": dur / best["new"][0],
+            "speedup_loop": best["ref"][0] / best["new"][0],
+            "max_state_diff_rel_range": dev,
+        }
+    return out
+
+
+def print_kernel_ab(ab: dict[str, dict[str, float]], ref_path: str) -> None:
+    print(f"\nIntegration loop, reference kernel {ref_path} vs current models/compiled.py")
+    print("  paper_bench 1.0 s at 1e-4 s, interleaved, best of runs; loop = SimResult.wall_s,")
+    print("  cpu = process time of the whole simulate(); diff = max |new - ref| / state range")
+    print(f"  {'valve':<6} {'ref loop s':>10} {'new loop s':>10} {'ref RTF':>8} {'new RTF':>8} "
+          f"{'speed-up':>8} {'ref cpu s':>9} {'new cpu s':>9} {'diff':>8}")  # fmt: skip
+    for v, d in ab.items():
+        print(
+            f"  {v:<6} {d['ref_loop_wall_s']:>10.5f} {d['new_loop_wall_s']:>10.5f} "
+            f"{d['ref_rtf_loop']:>7.0f}x {d['new_rtf_loop']:>7.0f}x {d['speedup_loop']:>7.2f}x "
+            f"{d['ref_call_cpu_s']:>9.5f} {d['new_call_cpu_s']:>9.5f} "
+            f"{d['max_state_diff_rel_range']:>8.1e}"
+        )
+
+
 def stepper_rtf(valve: str, sim_s: float = 1.0) -> float:
     """EHAStepper advanced in 10-step (1 ms) chunks with signals() read each chunk."""
     sc = load_scenario("paper_bench")
@@ -137,7 +212,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hf-points", type=int, default=1_000_000, help="points for HF static")
     ap.add_argument("--repeat", type=int, default=5, help="repeats (best time kept)")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead")
+    ap.add_argument(
+        "--ref-kernel",
+        metavar="FILE",
+        help="an earlier models/compiled.py (copied outside the repo) to time side by side",
+    )
+    ap.add_argument("--ab-only", action="store_true", help="with --ref-kernel: only that table")
     a = ap.parse_args(argv)
+
+    ab = bench_kernel_ab(a.ref_kernel, a.repeat) if a.ref_kernel else None
+    if a.ab_only:
+        if ab is None:
+            ap.error("--ab-only needs --ref-kernel")
+        if a.json:
+            print(json.dumps({"kernel_ab": ab, "load_average": os.getloadavg()}, indent=2))
+        else:
+            print_kernel_ab(ab, a.ref_kernel)
+        return 0
 
     laws = law_throughput(a.points, a.hf_points, a.repeat)
     rtf = bench_rtf(a.repeat)
@@ -164,6 +255,8 @@ def main(argv: list[str] | None = None) -> int:
         "hf_vs_reference": acc,
         "targets_met": targets,
     }
+    if ab is not None:
+        report["kernel_ab"] = ab
     if a.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -191,6 +284,8 @@ def main(argv: list[str] | None = None) -> int:
         "  x_J {nrmse_x_j_pct:.4f}  v_J {nrmse_v_j_pct:.4f}  P12 {nrmse_p12_pct:.4f}  "
         "x_S {nrmse_x_s_pct:.4f}   (reference solve {reference_wall_s:.1f} s)".format(**acc)
     )
+    if ab is not None:
+        print_kernel_ab(ab, a.ref_kernel)
     la = os.getloadavg()
     print(f"\nTargets (load average {la[0]:.1f} on {os.cpu_count()} CPUs while measuring):")
     print(f"  simplified >= {TARGET_SIMPLIFIED_RTF:.0f}x real time, RK4 (min {simp_min:.0f}x): "

@@ -36,6 +36,7 @@ __all__ = [
     "MODEL_IDS",
     "N_STATE",
     "TAU_STICK",
+    "V_J_ZERO",
     "param_array",
     "law_p12",
     "orifice_flow",
@@ -49,6 +50,11 @@ N_STATE = 7
 TAU_STICK = 1e-3
 """Relaxation time of v_J while stuck (Karnopp band) [s]: removes the classic drift at
 |v| < dv_k without a velocity reset that a smooth reference solver could not follow."""
+V_J_ZERO = 1e-200
+"""|v_J| below which the fixed-step loops set v_J to 0 [m/s]. While stuck, v_J decays by
+exp(-h / TAU_STICK) per step into the subnormal range and then stays at a few times 5e-324
+(the RK4 increment rounds to nothing); every operation on it is then a slow subnormal one
+(about 30x slower steps). 1e-200 m/s is far below the round-off of any state."""
 
 # parameter array layout
 (
@@ -461,6 +467,8 @@ def _make_simplified_loop(model: int):
                 y2 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
                 y3 += h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
                 y4 += h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
+                if abs(y4) < V_J_ZERO:
+                    y4 = 0.0
             cnt += 1
             if cnt == out_every:
                 cnt = 0
@@ -531,6 +539,8 @@ def _integrate_hf(y, h, n_sub, k0, n_steps, u, prm, out_every, out):
             y2 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
             y3 += h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
             y4 += h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
+            if abs(y4) < V_J_ZERO:
+                y4 = 0.0
             y5 += h6 * (a5 + 2.0 * b5 + 2.0 * c5 + d5)
             y6 += h6 * (a6 + 2.0 * b6 + 2.0 * c6 + d6)
         cnt += 1

@@ -240,3 +240,19 @@ def test_fast_orifice_root_equals_pow() -> None:
         exact = kern._orifice(a, dp, *args, p.l_min, False)
         fast = kern._orifice(a, dp, *args, p.l_min, True)
         assert fast == pytest.approx(exact, rel=5e-16, abs=0.0)
+
+
+@pytest.mark.parametrize("valve", ["HF", "A", "C5"])
+def test_stuck_jack_velocity_reaches_zero_not_subnormal(valve: str) -> None:
+    """Stuck, v_J relaxes by exp(-h / TAU_STICK) per step; without the V_J_ZERO flush it
+    ends parked at a subnormal (~2.5e-323, every later step ~30x slower)."""
+    st = EHAStepper(DEFAULT_PARAMS, valve, step_s=1e-4)
+    st.advance(5000, 0.02, 0.0, 20e6, 2e-13)  # 0.5 s: settled and stuck, |v_J| ~ 1e-60
+    x_j, v_mid = st.state[3], st.state[4]
+    assert 0.0 < abs(v_mid) < 1e-40
+    st.advance(10000, 0.02, 0.0, 20e6, 2e-13)
+    y = st.state
+    assert y[4] == 0.0
+    assert y[3] == pytest.approx(x_j, abs=1e-40)  # held where it stuck
+    tiny = np.finfo(float).tiny
+    assert not np.any((y != 0.0) & (np.abs(y) < tiny))
