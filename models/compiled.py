@@ -154,7 +154,7 @@ def param_array(p: EHAParams) -> np.ndarray:
 # Split so that the factors depending only on the parameters or on the inputs held over a
 # step can be computed once outside a stepping loop; these keep the association order of
 # the formulas (e.g. ``p_sr / x_ss * x_s`` = ``s_a * x_s`` with s_a = p_sr / x_ss), so
-# law_p12, rhs and the HF loop are bitwise the straightforward evaluation.
+# law_p12, orifice_flow, beta_eff and rhs are bitwise the plain formulas.
 
 
 @njit(cache=True, error_model="numpy")
@@ -326,7 +326,8 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
     """Right-hand side of the closed-loop EHA (physics.md section 3), written into ``dy``.
 
     The readable array form (used by ``models.reference`` and the tests); :func:`integrate`
-    evaluates the same scalar blocks with the constants hoisted out of its loop.
+    evaluates the same blocks with the constants hoisted out of its loop and the fast
+    variants (_law_fast, _jack_accel_fast, the orifices' square roots): equal up to round-off.
     """
     d_cur, d_xs, d_vs, xse = _drive(y[0], y[1], y[2], y[3], x_cmd, _drive_consts(prm))
     jc = _jack_consts(prm)
