@@ -177,7 +177,7 @@ def add_zenoh_arguments(parser) -> None:
 
 def service_config_from_args(args) -> Any:
     """``load_config(args.config)`` with the command line's Zenoh overrides applied."""
-    from service.config import ZenohSettings, load_config
+    from service.config import ConfigError, ZenohSettings, load_config
 
     cfg = load_config(getattr(args, "config", None))
     z = cfg.zenoh.model_dump()
@@ -189,7 +189,16 @@ def service_config_from_args(args) -> Any:
         z["mode"] = args.mode
     elif z["mode"] == "peer" and not z["listen"] and z["connect"]:
         z["mode"] = "client"
-    return cfg.model_copy(update={"zenoh": ZenohSettings.model_validate(z)})
+    try:
+        zs = ZenohSettings.model_validate(z)
+    except ValueError as e:  # pydantic.ValidationError: name the field, skip the URL
+        errs = getattr(e, "errors", None)
+        if errs is None:
+            raise
+        err = errs()[0]
+        loc = ".".join(str(x) for x in err["loc"])
+        raise ConfigError(err["msg"], f"zenoh.{loc}", "command line") from None
+    return cfg.model_copy(update={"zenoh": zs})
 
 
 @dataclass
