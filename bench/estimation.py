@@ -168,11 +168,11 @@ def speed_filterpy(samples: list[dict]) -> float:
     def hx(x):
         return er.measure(x * sc, rp)[:4] / zs[:4]
 
-    pts = MerweScaledSigmaPoints(7, alpha=0.5, beta=2.0, kappa=0.0)
-    f = UnscentedKalmanFilter(dim_x=7, dim_z=4, dt=1e-3, hx=hx, fx=fx, points=pts)
+    pts = MerweScaledSigmaPoints(8, alpha=0.5, beta=2.0, kappa=0.0)
+    f = UnscentedKalmanFilter(dim_x=8, dim_z=4, dt=1e-3, hx=hx, fx=fx, points=pts)
     s0 = samples[0]
-    f.x = np.array([s0["x_s"], 0, s0["x_j"], 0, 1e-3 * (s0["p1"] - s0["p2"]), 20e6, 2e-13]) / sc
-    f.P = np.diag((np.array([2e-6, 1e-3, 1e-4, 5e-3, 5e3, 2e6, 2e-13]) / sc) ** 2)
+    f.x = np.array([s0["x_s"], 0, s0["x_j"], 0, 1e-3 * (s0["p1"] - s0["p2"]), 20e6, 2e-13, 0]) / sc
+    f.P = np.diag((np.array([2e-6, 1e-3, 1e-4, 5e-3, 5e3, 2e6, 2e-13, 2e-4]) / sc) ** 2)
     f.Q = np.diag(bank._q) * 1e-3
     f.R = bank.R[:4, :4]
     dts = []
@@ -210,7 +210,7 @@ def speed_progpy(samples: list[dict]) -> float | None:
             v = np.array([x[k] for k in names], float) * sc
             v[6], v[5] = max(v[6], 0.0), max(v[5], rp.p_vap)
             out = er.step(v, float(u["i"]), dt, rp, 1) / sc
-            out[5:] = [x["p_sr"], x["c_lk"]]
+            out[5:] = [x["p_sr"], x["c_lk"], x["i_b"]]
             return self.StateContainer(dict(zip(names, out.tolist(), strict=True)))
 
         def output(self, x):
@@ -222,8 +222,8 @@ def speed_progpy(samples: list[dict]) -> float | None:
         warnings.simplefilter("ignore")
         m = EHAReduced()
         s0 = samples[0]
-        x0 = np.array([s0["x_s"], 0, s0["x_j"], 0, 1e-3 * (s0["p1"] - s0["p2"]), 20e6, 2e-13])
-        cov = np.diag((np.array([2e-6, 1e-3, 1e-4, 5e-3, 5e3, 2e6, 2e-13]) / sc) ** 2)
+        x0 = np.array([s0["x_s"], 0, s0["x_j"], 0, 1e-3 * (s0["p1"] - s0["p2"]), 20e6, 2e-13, 0])
+        cov = np.diag((np.array([2e-6, 1e-3, 1e-4, 5e-3, 5e3, 2e6, 2e-13, 2e-4]) / sc) ** 2)
         xd = MultivariateNormalDist(names, (x0 / sc).tolist(), cov)
         f = UnscentedKalmanFilter(
             m, xd, Q=np.diag(bank._q) * 1e-3, R=bank.R[:4, :4], alpha=0.5, beta=2.0, kappa=0.0,
@@ -266,7 +266,7 @@ def speed(n: int, fleet: int, repeats: int = 3) -> dict:
 def print_speed(sp: dict, fleet: int) -> None:
     print(
         f"\nSpeed per update (median wall time, best of {sp['repeats']} runs, one core, "
-        "7 states, 4 channels, 1 kHz data)"
+        "8 states, 4 channels, 1 kHz data)"
     )
     mono = sp["monitor_single_us"]
     bank = sp[f"monitor_bank{fleet}_us_per_actuator"]

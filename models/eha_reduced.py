@@ -3,17 +3,18 @@
 No chamber states: the load pressure P12 = law(x_S, A v_J, P_SR) is algebraic (a valve law of
 ``models.valve_laws``). States, in this order (the filter state, SI units)::
 
-    x_s [m], v_s [m/s], x_j [m], v_j [m/s], f_r [N], p_sr [Pa], c_lk [m^3/s/Pa]
+    x_s [m], v_s [m/s], x_j [m], v_j [m/s], f_r [N], p_sr [Pa], c_lk [m^3/s/Pa], i_b [A]
 
-The first four are the plant states; f_r (external load), p_sr (supply) and c_lk (internal
-leakage) are slowly varying parameters (random walks in the filter). The measured servovalve
+The first four are the plant states; f_r (external load), p_sr (supply), c_lk (internal
+leakage) and i_b (servovalve null bias, x_ref = K_sv (i + i_b)) are slowly varying parameters
+(random walks in the filter). The measured servovalve
 current i is an input; the spool is the second-order lag of physics.md section 3 driven by
 K_sv i, discretised exactly (zero-order hold). The jack velocity is stiff through the law
 (pole near -A^2 G_PQ / m, about -7400 1/s), so it is advanced linearly-implicitly
 (Rosenbrock-Euler with a finite-difference Jacobian), which is stable at any step.
 
 Everything is vectorised over leading batch axes (sigma points x actuators): a state array
-has shape ``(..., 7)`` and every parameter broadcasts against ``(...)``.
+has shape ``(..., 8)`` and every parameter broadcasts against ``(...)``.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ __all__ = [
     "measure_nb",
 ]
 
-STATE_NAMES: tuple[str, ...] = ("x_s", "v_s", "x_j", "v_j", "f_r", "p_sr", "c_lk")
+STATE_NAMES: tuple[str, ...] = ("x_s", "v_s", "x_j", "v_j", "f_r", "p_sr", "c_lk", "i_b")
 N_STATES = len(STATE_NAMES)
 IX = {n: k for k, n in enumerate(STATE_NAMES)}
 MEAS_NAMES: tuple[str, ...] = ("x_s", "x_j", "p1", "p2", "p_sr")
@@ -146,24 +147,24 @@ def jack_accel(x_s, v_j, f_r, p_sr, c_lk, rp: ReducedParams) -> NDArray:
 
 
 def step(x: NDArray, i: NDArray, dt: NDArray, rp: ReducedParams, n_sub: int) -> NDArray:
-    """Advance states ``x`` (..., 7) by ``dt`` (broadcast to x[..., 0]) with current ``i`` held.
+    """Advance states ``x`` (..., 8) by ``dt`` (broadcast to x[..., 0]) with current ``i`` held.
 
     ``n_sub`` substeps of h = dt / n_sub: exact spool step, then a linearly-implicit
     (Rosenbrock-Euler) velocity update v+ = v + h a / (1 - h da/dv), then x_J += h v+.
     Parameters (f_r, p_sr, c_lk) are held constant over the step (random walks).
     """
     x_s, v_s, x_j, v_j = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
-    f_r, p_sr, c_lk = x[..., 4], x[..., 5], x[..., 6]
+    f_r, p_sr, c_lk, i_b = x[..., 4], x[..., 5], x[..., 6], x[..., 7]
     h = np.asarray(dt, float) / n_sub
     dv = 1e-5
     for _ in range(n_sub):
-        x_s, v_s = spool_step(x_s, v_s, i, h, rp)
+        x_s, v_s = spool_step(x_s, v_s, i + i_b, h, rp)
         a0 = jack_accel(x_s, v_j, f_r, p_sr, c_lk, rp)
         a1 = jack_accel(x_s, v_j + dv, f_r, p_sr, c_lk, rp)
         jac = np.minimum((a1 - a0) / dv, 0.0)  # only the damping part is made implicit
         v_j = v_j + h * a0 / (1.0 - h * jac)
         x_j = x_j + h * v_j
-    return np.stack([x_s, v_s, x_j, v_j, f_r, p_sr, c_lk], axis=-1)
+    return np.stack([x_s, v_s, x_j, v_j, f_r, p_sr, c_lk, i_b], axis=-1)
 
 
 def measure(x: NDArray, rp: ReducedParams) -> NDArray:
@@ -263,7 +264,7 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
     c_lk = max(x[6], 0.0)
     g_pq = _g_pq_nb(p_sr, prm)
     x_sm = prm[K_X_SM]
-    x_ref = min(max(prm[K_K_SV] * i, -x_sm), x_sm)
+    x_ref = min(max(prm[K_K_SV] * (i + x[7]), -x_sm), x_sm)
     dv = 1e-5
     for _ in range(n_sub):
         dx = x_s - x_ref
@@ -276,12 +277,12 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
         v_j = v_j + h * a0 / (1.0 - h * jac)
         x_j = x_j + h * v_j
     out[0], out[1], out[2], out[3] = x_s, v_s, x_j, v_j
-    out[4], out[5], out[6] = x[4], x[5], x[6]
+    out[4], out[5], out[6], out[7] = x[4], x[5], x[6], x[7]
 
 
 @njit(cache=True)
 def step_nb(x, i, dt, n_sub, prm, out):
-    """Scalar ``step`` (same algebra): x (7,) -> out (7,); parameters clipped for evaluation
+    """Scalar ``step`` (same algebra): x (8,) -> out (8,); parameters clipped for evaluation
     (C_Lk >= 0, P_SR >= P_vap) but copied through unchanged."""
     coef = np.empty(4)
     h = dt / n_sub
@@ -291,7 +292,7 @@ def step_nb(x, i, dt, n_sub, prm, out):
 
 @njit(cache=True)
 def measure_nb(x, prm, out):
-    """Scalar ``measure``: x (7,) -> out (5,) = x_S, x_J, P1, P2, P_SR."""
+    """Scalar ``measure``: x (8,) -> out (5,) = x_S, x_J, P1, P2, P_SR."""
     p_sr = x[5]
     p_ev = max(p_sr, prm[K_P_VAP])
     p12 = law_p12(

@@ -81,6 +81,7 @@ class ProcessNoise(_Cfg):
     f_r: float = Field(2e3, gt=0, description="external load [N/sqrt(s)]")
     p_sr: float = Field(2e6, gt=0, description="supply [Pa/sqrt(s)]")
     c_lk: float = Field(1e-13, gt=0, description="leakage [m^3/s/Pa/sqrt(s)]")
+    i_b: float = Field(2e-6, gt=0, description="servovalve null bias [A/sqrt(s)]")
 
 
 class AlarmConfig(_Cfg):
@@ -115,6 +116,7 @@ class MonitorConfig(_Cfg):
     init_sigma_f_r: float = Field(5e3, gt=0, description="initial load 1-sigma [N]")
     init_sigma_p_sr: float = Field(2e6, gt=0, description="initial supply 1-sigma [Pa]")
     init_sigma_c_lk: float = Field(2e-13, gt=0, description="initial leakage 1-sigma")
+    init_sigma_i_b: float = Field(2e-4, gt=0, description="initial null bias 1-sigma [A]")
     max_gap_s: float = Field(0.05, gt=0, description="longer sample gaps re-initialise [s]")
     nis_tau_s: float = Field(0.2, gt=0, description="time constant of the NIS average [s]")
     nis_reinit: float = Field(30.0, gt=1, description="re-init when mean NIS/dof exceeds this")
@@ -123,7 +125,7 @@ class MonitorConfig(_Cfg):
     reduced_param_q: float = Field(
         0.01,
         ge=0,
-        description="reduced channel set: scale of the C_Lk and P_SR random walks (they are "
+        description="reduced channel set: scale of the P_SR, C_Lk, i_b random walks (they are "
         "not observable from x_J alone, see docs/estimation.md)",
     )
 
@@ -227,9 +229,9 @@ class Baseline(_Cfg):
 # Effective parameters identified by ``servowatch calibrate --scenario healthy_noise`` on the
 # HF bench (see docs/estimation.md); updated when the calibration is re-run.
 _CAL_HEALTHY_NOISE = {
-    "g_pq": 699201553178.1322,
-    "x_ss": 5.296755779139598e-05,
-    "p_r": 482296.72527612746,
+    "g_pq": 699248516557.714,
+    "x_ss": 5.296400035013844e-05,
+    "p_r": 482297.1298008915,
 }
 # near null every C-law reduces to the same linear form, so one calibration serves them all
 _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CAL_HEALTHY_NOISE)
@@ -320,12 +322,12 @@ class MonitorBank:
         self.rp = self.baseline.reduced_params()
         b, c = self.baseline, self.config
         self.scale = np.array(
-            [b.x_ss, b.x_ss * b.omega_n, 1e-3, 1e-2, 1e3, 1e6, 1e-13], float
+            [b.x_ss, b.x_ss * b.omega_n, 1e-3, 1e-2, 1e3, 1e6, 1e-13, 1e-4], float
         )  # filter units
         pn = c.process
-        q = np.array([pn.x_s, pn.v_s, pn.x_j, pn.v_j, pn.f_r, pn.p_sr, pn.c_lk])
+        q = np.array([pn.x_s, pn.v_s, pn.x_j, pn.v_j, pn.f_r, pn.p_sr, pn.c_lk, pn.i_b])
         if c.channels == "reduced":
-            q[5:7] *= c.reduced_param_q
+            q[5:8] *= c.reduced_param_q
         self._q = (q / self.scale) ** 2
         nz = c.noise
         r = np.array([nz.x_s_m, nz.x_j_m, nz.p_pa, nz.p_pa, nz.p_sr_pa])
@@ -341,7 +343,16 @@ class MonitorBank:
             if self._use[c]
         ]
         self._p0 = np.array(
-            [2e-6, 1e-3, 1e-4, 5e-3, c.init_sigma_f_r, c.init_sigma_p_sr, c.init_sigma_c_lk]
+            [
+                2e-6,
+                1e-3,
+                1e-4,
+                5e-3,
+                c.init_sigma_f_r,
+                c.init_sigma_p_sr,
+                c.init_sigma_c_lk,
+                c.init_sigma_i_b,
+            ]
         )
         self.ukf = BatchUKF(_NX, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
         self._prm = er.param_vector(self.rp)
@@ -524,7 +535,7 @@ class MonitorBank:
         f_r = 0.0
         if mask[2] and mask[3]:
             f_r = (z[2] - z[3]) * sc[2] * b.area
-        xs = np.array([x_s, 0.0, x_j, 0.0, f_r, p_sr, b.c_lk])
+        xs = np.array([x_s, 0.0, x_j, 0.0, f_r, p_sr, b.c_lk, 0.0])
         self.x[k] = xs / self.scale
         self.P[k] = np.diag((self._p0 / self.scale) ** 2)
         self.ol[k] = xs

@@ -318,6 +318,14 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
     for r in range(n):
         for s_ in range(n):
             Pb[r, s_] = 0.5 * (A[r, s_] + A[s_, r])
+    # flush subnormal results to zero: their arithmetic depends on the CPU's FTZ/DAZ mode,
+    # which other libraries in the process may change; keeps Monitor and MonitorBank bit-equal
+    for r in range(n):
+        if abs(xb[r]) < 1e-290:
+            xb[r] = 0.0
+        for s_ in range(n):
+            if abs(Pb[r, s_]) < 1e-290:
+                Pb[r, s_] = 0.0
     return nis, st
 
 

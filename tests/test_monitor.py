@@ -208,3 +208,17 @@ def test_alarms_need_an_observable_indicator():
     outs, _ = run_monitor(meas, MonitorConfig(channels="reduced"))
     assert not [e for o in outs for e in o.events if e.kind == "supply"]
     assert outs[-1].est["p_sr_sigma"] > 0.05 * 20e6
+
+
+def test_null_bias_is_estimated_from_spool_and_current():
+    """x_ref = K_sv (i + i_b): the HF valve has no null bias (estimate ~0); a +0.1 mA offset
+    of the current sensor reads as a null bias of -0.1 mA (full set: x_S and i measured)."""
+    sim, meas = hf_run("healthy_noise", 2.0)
+    outs, _ = run_monitor(meas)
+    ib = window(outs, 1.0, 2.0, "est", "i_b")
+    assert abs(ib.mean()) < 5e-6
+    shifted = dict(meas, i=meas["i"] + 1e-4)
+    outs, _ = run_monitor(shifted)
+    ib = window(outs, 1.0, 2.0, "est", "i_b")
+    assert ib.mean() == pytest.approx(-1e-4, abs=5e-6)
+    assert not [e for o in outs for e in o.events]  # and no false leak or supply alarm
