@@ -288,8 +288,10 @@ def run(args: argparse.Namespace) -> int:
           f"{es['p_sr_sigma'] / 1e6:.3f} MPa  ({summary['p_sr_error_pct']:+.2f} %)")  # fmt: skip
     for a in summary["alarms"]:
         print(f"  alarm {a['kind']} {a['state']} at {a['t']:.3f} s")
-    print(f"  false alarms {summary['false_alarms']}, detection delay {summary['detection_delay_s']}"
-          f" s, NIS in 95 % band {summary['nis_in_band_pct']:.1f} %")  # fmt: skip
+    d = summary["detection_delay_s"]
+    delay = "-" if d is None else f"{d:.3f} s"
+    print(f"  false alarms {summary['false_alarms']}, detection delay {delay}, "
+          f"NIS in 95 % band {summary['nis_in_band_pct']:.1f} %")  # fmt: skip
     if args.png:
         print(f"  plot written to {args.png}")
     if args.out:
