@@ -27,8 +27,11 @@ def compare(scenario, progress=None) -> tuple[dict, dict]:
     """Run HF and each simplified valve; return (summary dict, results by model)."""
     from models.eha import simulate
     from models.metrics import nrmse_pct
+    from service.commands.simulate import warm_up
 
     names = ("HF", *SIMPLIFIED)
+    for name in names:
+        warm_up(scenario, name)
     results = {}
     for k, name in enumerate(names):
         sub = None

@@ -54,6 +54,14 @@ def write_mcap(res, path: str | Path, scenario_name: str) -> Path:
     return Path(path)
 
 
+def warm_up(scenario, valve: str) -> None:
+    """Run a few steps first so that ``wall_s`` measures the simulation, not the JIT load."""
+    from models.eha import simulate
+
+    short = scenario.model_copy(update={"duration_s": 10 * scenario.step_s})
+    simulate(short, valve)
+
+
 def summary(res, scenario_name: str) -> dict:
     """The JSON summary of one run (issue 2 item 6)."""
     duration = float(res.t[-1] - res.t[0])
@@ -76,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
         return fail(str(e))
     from models.eha import simulate
 
+    warm_up(scenario, args.valve)
     prog = Progress(f"simulate {args.valve}")
     t0 = time.perf_counter()
     res = simulate(scenario, args.valve, progress=prog)
