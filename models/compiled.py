@@ -388,7 +388,8 @@ def _law_fast(model, x_s, v_j, p_sr, x_ss, f0, f1, f2):
     if model == 3:
         return min(max(f0 * x_s - f1 * v_j, -p_sr), p_sr) * f2
     if model == 4:
-        r = 1.0 / (1.0 + f2 / max(abs(x_s), x_ss))  # x_S only: off the v_J chain
+        m = max(abs(x_s), x_ss)
+        r = m / (m + f2)  # 1 / (1 + f2 / m) in one division; x_S only: off the v_J chain
         return min(max(f0 * x_s - f1 * v_j, -p_sr), p_sr) * r
     if model == 5:
         x_st = x_s - f0 * v_j
