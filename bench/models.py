@@ -12,8 +12,9 @@ Prints, side by side in one run:
   * whether the targets are met: simplified >= 1000x real time, HF >= 20x within 1 % NRMSE;
   * with ``--ref-kernel FILE`` (a copy of an earlier models/compiled.py kept outside the
     repo), the integration loop of ``simulate`` with that kernel and with the current one,
-    interleaved run by run on paper_bench: best loop wall and CPU time, speed-up, and the
-    largest state difference between the two (relative to each state's range).
+    interleaved run by run on paper_bench and on a 3 s hold (the jack stuck most of the
+    time): best loop wall and CPU time, speed-up, and the largest state difference between
+    the two (relative to each state's range).
 
 Usage: .venv/bin/python bench/models.py [--points N] [--hf-points N] [--repeat R] [--json]
                                         [--ref-kernel FILE] [--ab-only]
@@ -39,6 +40,7 @@ from models.hf_valve import hf_static_p12  # noqa: E402
 from models.metrics import nrmse_pct  # noqa: E402
 from models.params import simplified_params  # noqa: E402
 from models.reference import reference_solution  # noqa: E402
+from models.scenario import Profile, Scenario  # noqa: E402
 from models.valve_laws import LAW_NAMES, p12  # noqa: E402
 from service.scenarios import load_scenario  # noqa: E402
 
@@ -134,10 +136,17 @@ def _timed_simulate(sc, valve: str, kernel) -> tuple[float, float, np.ndarray]:
     return r.wall_s, cpu, np.stack([r.i, r.x_s, r.v_s, r.x_j, r.v_j, r.p1, r.p2], axis=1)
 
 
-def bench_kernel_ab(ref_path: str, repeat: int) -> dict[str, dict[str, float]]:
+HOLD = Scenario(
+    name="hold_3s",
+    description="step to 20 mm, then held: the jack sticks (Karnopp) from about 0.4 s",
+    duration_s=3.0,
+    command=Profile(initial=0.02),
+)
+
+
+def bench_kernel_ab(ref_path: str, repeat: int, sc: Scenario) -> dict[str, dict[str, float]]:
     """Loop RTF of the reference kernel file and of the current models.compiled, side by
-    side (interleaved, best of ``repeat``) on paper_bench at its step."""
-    sc = load_scenario("paper_bench")
+    side (interleaved, best of ``repeat``) on scenario ``sc`` at its step."""
     dur = sc.n_steps() * sc.step_s
     kernels = {"ref": _load_kernel(ref_path), "new": eha.kern}
     out: dict[str, dict[str, float]] = {}
@@ -164,10 +173,12 @@ def bench_kernel_ab(ref_path: str, repeat: int) -> dict[str, dict[str, float]]:
     return out
 
 
-def print_kernel_ab(ab: dict[str, dict[str, float]], ref_path: str) -> None:
+def print_kernel_ab(ab: dict[str, dict[str, float]], ref_path: str, sc: Scenario) -> None:
     print(f"\nIntegration loop, reference kernel {ref_path} vs current models/compiled.py")
-    print("  paper_bench 1.0 s at 1e-4 s, interleaved, best of runs; loop = SimResult.wall_s,")
-    print("  cpu = process time of the whole simulate(); diff = max |new - ref| / state range")
+    print(f"  {sc.name}: {sc.description}")
+    print(f"  {sc.duration_s:g} s at step {sc.step_s:g} s, interleaved, best of runs; loop =")
+    print("  SimResult.wall_s, cpu = process time of the whole simulate(); diff = max |new - ref|")
+    print("  / state range")
     print(f"  {'valve':<6} {'ref loop s':>10} {'new loop s':>10} {'ref RTF':>8} {'new RTF':>8} "
           f"{'speed-up':>8} {'ref cpu s':>9} {'new cpu s':>9} {'diff':>8}")  # fmt: skip
     for v, d in ab.items():
@@ -220,14 +231,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ab-only", action="store_true", help="with --ref-kernel: only that table")
     a = ap.parse_args(argv)
 
-    ab = bench_kernel_ab(a.ref_kernel, a.repeat) if a.ref_kernel else None
+    ab_scenarios = {"paper_bench": load_scenario("paper_bench"), "hold_3s": HOLD}
+    ab = (
+        {k: bench_kernel_ab(a.ref_kernel, a.repeat, sc) for k, sc in ab_scenarios.items()}
+        if a.ref_kernel
+        else None
+    )
     if a.ab_only:
         if ab is None:
             ap.error("--ab-only needs --ref-kernel")
         if a.json:
             print(json.dumps({"kernel_ab": ab, "load_average": os.getloadavg()}, indent=2))
         else:
-            print_kernel_ab(ab, a.ref_kernel)
+            for k, sc in ab_scenarios.items():
+                print_kernel_ab(ab[k], a.ref_kernel, sc)
         return 0
 
     laws = law_throughput(a.points, a.hf_points, a.repeat)
@@ -285,7 +302,8 @@ def main(argv: list[str] | None = None) -> int:
         "x_S {nrmse_x_s_pct:.4f}   (reference solve {reference_wall_s:.1f} s)".format(**acc)
     )
     if ab is not None:
-        print_kernel_ab(ab, a.ref_kernel)
+        for k, sc in ab_scenarios.items():
+            print_kernel_ab(ab[k], a.ref_kernel, sc)
     la = os.getloadavg()
     print(f"\nTargets (load average {la[0]:.1f} on {os.cpu_count()} CPUs while measuring):")
     print(f"  simplified >= {TARGET_SIMPLIFIED_RTF:.0f}x real time, RK4 (min {simp_min:.0f}x): "
