@@ -51,8 +51,8 @@ def _generator(args: argparse.Namespace) -> int:
 
     n_per = int(round(args.duration * args.rate))
     spm = args.spm
-    # one actuator's worth of HF samples, reused by every generator actuator (own seq and t)
-    base_n = min(n_per, int(2 * args.rate))
+    # one actuator's HF run, reused by every generator actuator (own seq and t)
+    base_n = n_per  # no wrap: a jump back in the trajectory would make the monitors diverge
     va = VirtualActuator(load_scenario("demo"), rate_hz=args.rate)
     base = va.produce(base_n)
     t_start = time.time() + 1.5  # sample clock: Unix time, so the daemon can measure age
