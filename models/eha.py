@@ -15,8 +15,10 @@ of :func:`n_substeps` exceeds the explicit part's stability limit the step is sp
 substeps.
 
 Karnopp friction (physics.md section 3): stuck while |v_J| < dv_k and |A P12 - F_R -
-F_endstop| <= F_s (v_J then relaxes to 0 with time constant ``compiled.TAU_STICK``);
-breakaway with F_s sign(F) in the band; Coulomb F_d sign(v_J) outside it.
+F_endstop| <= F_s (v_J then relaxes to 0 with time constant ``compiled.TAU_STICK``, and
+the fixed-step loops set it to 0 once below ``compiled.V_J_ZERO`` = 1e-200 m/s instead of
+leaving it parked at a slow subnormal); breakaway with F_s sign(F) in the band; Coulomb
+F_d sign(v_J) outside it.
 
 For the simplified valves the reported chamber pressures are the symmetric split
 P1 = P_R + (P_SR + P12)/2, P2 = P_R + (P_SR - P12)/2 (not states of those models).
