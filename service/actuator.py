@@ -15,7 +15,6 @@ start, so a restarted actuator keeps a monotonic time axis while its sequence re
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import threading
@@ -475,8 +474,3 @@ class VirtualActuator:
             qbl.undeclare()
             pub.undeclare()
         return counters
-
-
-def describe(counters: dict[str, int]) -> str:
-    """One-line JSON of the counters (for structured logs)."""
-    return json.dumps(counters, sort_keys=True)

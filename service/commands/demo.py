@@ -16,7 +16,6 @@ import os
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -447,6 +446,3 @@ def final_events(path: Path) -> list[tuple[float, str, str]]:
         if topic.endswith("/events"):
             out.append((t, str(msg.get("kind")), str(msg.get("state"))))
     return out
-
-
-_ = threading  # the daemon's worker is a thread; nothing else here needs the module
