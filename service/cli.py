@@ -41,14 +41,15 @@ def _load(name: str):
         raise
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with every available subcommand."""
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The top-level parser with every available subcommand (or just ``only``: a command
+    module is imported only when needed, which keeps start-up fast)."""
     parser = argparse.ArgumentParser(
         prog="servowatch",
         description="Prognostics and health monitoring for electro-hydraulic actuators.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
+    for name in COMMANDS if only is None else (only,):
         mod = _load(name)
         if mod is None:
             continue
@@ -83,8 +84,9 @@ def _join_negative_values(argv: list[str]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``servowatch`` console script."""
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
+    only = argv[0] if argv and argv[0] in COMMANDS else None
+    parser = build_parser(only)
     args = parser.parse_args(_join_negative_values(argv))
     try:
         return int(args._run(args) or 0)

@@ -1,0 +1,36 @@
+"""The command dispatcher: every command exists, negative numbers as option values."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from service.cli import COMMANDS, _join_negative_values, build_parser
+
+
+def test_every_command_module_is_present():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert set(sub.choices) == set(COMMANDS)
+
+
+def test_single_command_parser_matches_full_parser():
+    args = build_parser("characteristic").parse_args(["characteristic", "--model", "C5"])
+    assert args.model == "C5" and callable(args._run)
+
+
+def test_negative_values_joined_to_their_option():
+    assert _join_negative_values(["--x-s", "-1e-4,0", "--json"]) == ["--x-s=-1e-4,0", "--json"]
+    assert _join_negative_values(["--q-j", ".5"]) == ["--q-j", ".5"]
+    assert _join_negative_values(["--p-sr", "-.5"]) == ["--p-sr=-.5"]
+
+
+@pytest.mark.parametrize("argv", [[], ["bogus"]])
+def test_usage_errors_exit_2(argv):
+    r = subprocess.run(
+        [sys.executable, "-m", "service.cli", *argv], capture_output=True, text=True, timeout=60
+    )
+    assert r.returncode == 2
+    assert "usage" in r.stderr and r.stdout == ""
