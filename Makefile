@@ -3,6 +3,11 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
+# numba caches its compiled kernels next to the sources; a kernel that inlines code from
+# another module is not recompiled when only that module changes, so clear and rebuild
+# the caches whenever a kernel source changes.
+KERNEL_SRC := $(wildcard models/*.py) service/ukf.py service/monitor.py
+KERNELS := $(VENV)/.kernels-stamp
 
 .PHONY: demo test test-fast lint format bench clean
 
@@ -12,13 +17,18 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+$(KERNELS): $(STAMP) $(KERNEL_SRC)
+	find models service \( -name '*.nbi' -o -name '*.nbc' \) -delete
+	$(PY) -m service.warmup
+	touch $(KERNELS)
+
+demo: $(KERNELS)
 	$(VENV)/bin/servowatch demo
 
-test: $(STAMP)
+test: $(KERNELS)
 	$(PY) -m pytest -q
 
-test-fast: $(STAMP)
+test-fast: $(KERNELS)
 	$(PY) -m pytest -q -m "not slow"
 
 lint: $(STAMP)
@@ -29,7 +39,7 @@ format: $(STAMP)
 	$(VENV)/bin/ruff format .
 	$(VENV)/bin/ruff check --fix .
 
-bench: $(STAMP)
+bench: $(KERNELS)
 	$(PY) bench/models.py
 	$(PY) bench/estimation.py
 	$(PY) bench/service.py
