@@ -622,9 +622,11 @@ class MonitorBank:
 
     def _outputs(self, ks, t, z, mask, y, nis, evs, slots, out) -> None:
         n = len(ks)
-        est = np.empty((n, 2 * _NX + 2))
-        res = np.empty((n, 2 * 5 + 2))
-        health = np.empty((n, len(_HEALTH_KEYS)))
+        # zeros, not empty: every column is written by _output_rows, but a row must never
+        # expose uninitialised memory should a column ever be skipped
+        est = np.zeros((n, len(_EST_KEYS)))
+        res = np.zeros((n, len(_RES_KEYS)))
+        health = np.zeros((n, len(_HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
         _output_rows(
             self.x, self.P, self.ol, ks, self.scale, self._zscale, self._prm, z, mask, y, nis,
