@@ -293,6 +293,15 @@ _COUNTERS = (
 )
 
 
+_PLAIN = {float, int, type(None), np.float64}
+
+
+def _empty_rows() -> BankRows:
+    z = np.zeros((0,))
+    return BankRows(np.zeros(0, int), z, z.reshape(0, len(_EST_KEYS)),
+                    z.reshape(0, len(_RES_KEYS)), z.reshape(0, len(_HEALTH_KEYS)), [])  # fmt: skip
+
+
 def _f(v) -> float | None:
     """A finite float or None."""
     if v is None:
@@ -431,15 +440,45 @@ class MonitorBank:
         return self.counters[self.ids[key]]
 
     def update_many(self, samples: Sequence[tuple[str, Mapping]]) -> list[MonitorOutput | None]:
-        """Process samples (actuator id, sample) in order. The n-th sample of each actuator
-        goes into round n, so the result equals feeding them one by one."""
+        """Process samples (actuator id, sample) in order; the result equals feeding them one
+        by one (None for a skipped sample)."""
         out: list[MonitorOutput | None] = [None] * len(samples)
-        self._run_rounds(samples, out)
+        rows = self.update_rows(samples)
+        est_l, res_l, h_l, t_l = (
+            rows.est.tolist(),
+            rows.res.tolist(),
+            rows.health.tolist(),
+            rows.t.tolist(),
+        )
+        for r, slot in enumerate(rows.index.tolist()):
+            out[slot] = MonitorOutput(
+                t=t_l[r],
+                est=dict(zip(_EST_KEYS, est_l[r], strict=False)),
+                res=dict(zip(_RES_KEYS, res_l[r], strict=False)),
+                health=dict(zip(_HEALTH_KEYS, h_l[r], strict=False)),
+                events=rows.events[r],
+            )
         return out
 
     def update_rows(self, samples: Sequence[tuple[str, Mapping]]) -> BankRows:
         """As ``update_many`` (same numbers) but the outputs stay numpy rows (``BankRows``):
-        no per-sample dicts, for a fleet that logs or publishes arrays."""
+        no per-sample dicts, for a fleet that logs or publishes arrays. The whole block is
+        parsed with numpy and run through one compiled loop (``_block_run``), which returns
+        to Python only for a (re-)initialisation."""
+        return self._run_block(samples)
+
+    # -- reference path: one kernel call per round of at most one sample per actuator ---
+    def update_many_rounds(
+        self, samples: Sequence[tuple[str, Mapping]]
+    ) -> list[MonitorOutput | None]:
+        """``update_many`` by rounds (the n-th sample of each actuator goes into round n);
+        the reference the block path is tested against (``tests/test_monitor_block.py``)."""
+        out: list[MonitorOutput | None] = [None] * len(samples)
+        self._run_rounds(samples, out)
+        return out
+
+    def update_rows_rounds(self, samples: Sequence[tuple[str, Mapping]]) -> BankRows:
+        """``update_rows`` by rounds (reference path, see ``update_many_rounds``)."""
         self._rows = []
         try:
             self._run_rounds(samples, None)
@@ -447,9 +486,7 @@ class MonitorBank:
         finally:
             self._rows = None
         if not parts:
-            z = np.zeros((0,))
-            return BankRows(np.zeros(0, int), z, z.reshape(0, len(_EST_KEYS)),
-                            z.reshape(0, len(_RES_KEYS)), z.reshape(0, len(_HEALTH_KEYS)), [])  # fmt: skip
+            return _empty_rows()
         idx = np.concatenate([np.asarray(p[0], int) for p in parts])
         order = np.argsort(idx, kind="stable")
         evs = [e for p in parts for e in p[5]]
@@ -460,6 +497,144 @@ class MonitorBank:
             res=np.concatenate([p[3] for p in parts])[order],
             health=np.concatenate([p[4] for p in parts])[order],
             events=[evs[j] for j in order],
+        )
+
+    # -- block path ----------------------------------------------------------------------
+    def _parse_block(self, samples: Sequence[tuple[str, Mapping]]):
+        """Vectorised ``_parse`` of every sample: (ks, t, z (scaled), mask, cand, i_m, x_c)
+        with NaN for an absent or bad i / x_cmd; counts bad_channel and skipped_nan (the
+        time checks are sequential and done in ``_block_run``)."""
+        n = len(samples)
+        ids = self.ids
+        kl = []
+        vl = []
+        for key, s in samples:
+            k = ids.get(key)
+            if k is None:
+                k = self._index(key)
+            kl.append(k)
+            g = s.get
+            vl.append((g("t"), g("x_s"), g("x_j"), g("p1"), g("p2"), g("p_sr"), g("i"), g("x_cmd")))
+        ks = np.array(kl, np.int64)
+        fast = False
+        if set(map(type, [v for row in vl for v in row])) <= _PLAIN:
+            try:
+                obj = np.empty((n, 8), object)
+                obj[:] = vl
+                present = obj != None  # noqa: E711 (element-wise)
+                vals = obj.astype(float)
+                fast = True
+            except (TypeError, ValueError, OverflowError):
+                fast = False
+        if not fast:  # anything else goes through _f, value by value, as _parse does
+            present = np.zeros((n, 8), bool)
+            vals = np.full((n, 8), math.nan)
+            for j, row in enumerate(vl):
+                for c, v in enumerate(row):
+                    if v is not None:
+                        present[j, c] = True
+                        fv = _f(v)
+                        if fv is not None:
+                            vals[j, c] = fv
+        fin = np.isfinite(vals)
+        ok = present & fin
+        bad = present & ~fin
+        t_ok = ok[:, 0]
+        mask = ok[:, 1:6] & self._use
+        z = np.where(mask, vals[:, 1:6] / self._zscale, 0.0)
+        i_ok, x_ok = ok[:, 6], ok[:, 7]
+        i_m = np.where(i_ok, vals[:, 6], math.nan)
+        x_c = np.where(x_ok, vals[:, 7], math.nan)
+        n_bad = np.where(t_ok, (bad[:, 1:6] & self._use).sum(1) + bad[:, 6] + bad[:, 7], 0)
+        cand = t_ok & (i_ok | x_ok | mask.any(1))
+        skip = ~cand
+        t = np.where(t_ok, vals[:, 0], 0.0)
+        if n_bad.any() or skip.any():
+            nb = np.bincount(ks, weights=n_bad, minlength=len(self.x))
+            ns = np.bincount(ks, weights=skip, minlength=len(self.x))
+            for k in np.flatnonzero(nb + ns).tolist():
+                c = self.counters[k]
+                c["bad_channel"] += int(nb[k])
+                c["skipped_nan"] += int(ns[k])
+        return ks, t, z, mask, cand, i_m, x_c
+
+    def _run_block(self, samples: Sequence[tuple[str, Mapping]]) -> BankRows:
+        n = len(samples)
+        if n == 0:
+            return _empty_rows()
+        ks, t, z, mask, cand, i_m, x_c = self._parse_block(samples)
+        y = np.zeros((n, 5))
+        nis = np.zeros(n)
+        nis_avg = np.zeros(n)
+        acc = np.zeros(n, np.bool_)
+        est = np.zeros((n, len(_EST_KEYS)))
+        res = np.zeros((n, len(_RES_KEYS)))
+        health = np.zeros((n, len(_HEALTH_KEYS)))
+        fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
+        cnt = np.zeros((len(self.x), 3), np.int64)  # skipped_time, missing_channel, accepted
+        extra: dict[int, list[AlarmEvent]] = {}
+        j, emit = 0, False
+        while True:
+            j, code = _block_run(
+                j, emit, ks, t, z, mask, cand, i_m, x_c, self.x, self.P, self.ol, self.t_last,
+                self.i_last, self.nis_avg, self.t_init, self.alarm, self.pending, self._q,
+                self.R, self.scale, self._zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c,
+                self._prm, self._cst, self.config.max_gap_s, self._expect, self._ws, y, nis,
+                nis_avg, acc, est, res, health, fire, cnt,
+            )  # fmt: skip
+            if code == 0:
+                break
+            k = int(ks[j])
+            i_j = None if math.isnan(i_m[j]) else float(i_m[j])
+            x_j = None if math.isnan(x_c[j]) else float(x_c[j])
+            tj = float(t[j])
+            if code == 3:  # first sample or gap: (re-)initialise from this sample
+                if math.isfinite(self.t_last[k]):
+                    self.counters[k]["gap"] += 1
+                self._init_state(k, z[j], mask[j], i_j, x_j)
+                self.t_last[k] = tj
+                self.t_init[k] = tj
+                self.i_last[k] = i_j if i_j is not None else 0.0
+                self.counters[k]["accepted"] += 1
+            else:  # 1: broken, 2: diverged (the step was done and counted)
+                keep = self.x[k].copy()
+                self._init_state(k, z[j], mask[j], i_j, x_j)
+                if code == 2:  # keep the parameter estimates, restart the covariance
+                    self.x[k, 4:] = keep[4:]
+                y[j] = 0.0
+                nis[j] = 0.0
+                self.counters[k]["reinit"] += 1
+                self.t_init[k] = tj
+                value = float(nis_avg[j]) if math.isfinite(nis_avg[j]) else 0.0
+                extra[j] = [AlarmEvent(tj, "reinit", "raised", value)]
+                log.warning(
+                    "monitor %s re-initialised at t=%.6f (%s, NIS/dof average %.3g)",
+                    self._key_of(k), tj, "non-finite or not positive definite"
+                    if code == 1 else "diverged", value,
+                )  # fmt: skip
+            emit = True
+        for k in np.flatnonzero(cnt.any(1)).tolist():
+            c = self.counters[k]
+            c["skipped_time"] += int(cnt[k, 0])
+            c["missing_channel"] += int(cnt[k, 1])
+            c["accepted"] += int(cnt[k, 2])
+        sel = np.flatnonzero(acc)
+        evs: list[list[AlarmEvent]] = [[] for _ in range(len(sel))]
+        fired = fire.any(1)
+        if extra or fired.any():
+            row_of = np.full(n, -1, np.int64)
+            row_of[sel] = np.arange(len(sel))
+            for j in sorted(set(extra) | set(np.flatnonzero(fired).tolist())):
+                ev = evs[row_of[j]]
+                ev.extend(extra.get(j, ()))
+                for a in range(len(ALARM_KINDS)):
+                    if fire[j, a]:
+                        state = "raised" if fire[j, a] == 1 else "cleared"
+                        ev.append(AlarmEvent(float(t[j]), ALARM_KINDS[a], state,
+                                             float(health[j, a])))  # fmt: skip
+                self.events_log[int(ks[j])].extend(ev)
+        return BankRows(
+            index=sel, t=t[sel], est=est[sel], res=res[sel], health=health[sel], events=evs
         )
 
     def _run_rounds(self, samples, out) -> None:
@@ -811,6 +986,145 @@ def _output_rows(
         health[j, 2] = 1.0 if ALARM[k, 0] else 0.0
         health[j, 3] = 1.0 if ALARM[k, 1] else 0.0
         health[j, 4] = NIS_AVG[k]
+
+
+@njit(cache=True)
+def _block_run(
+    j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT,
+    ALARM, PENDING, q, R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis,
+    nis_avg, flag, est, res, health, fire, cnt,
+):  # fmt: skip
+    """The samples j0.. of a block in order, each through the time checks, the UKF step of
+    ``_bank_step`` and the output row of ``_output_rows`` (same arithmetic, so the same
+    bits), the row written right after the sample's own step. Returns (j, code): code 0 when
+    done; 3 when sample j needs a (re-)initialisation (first sample or gap; not stepped),
+    1/2 when its step broke/diverged (flag of ``_bank_step``). The caller re-initialises
+    and resumes with (j, emit0=True), which writes row j without stepping it.
+    ``flag`` (here: accepted, bool per sample); cnt[k]: skipped_time, missing_channel,
+    accepted (stepped samples only)."""
+    n = X.shape[1]
+    m = z.shape[1]
+    k_p, i_max = prm[er.K_K_P], prm[er.K_I_MAX]
+    coef = np.empty(4)
+    tmp = np.empty(n)
+    xs = np.empty(n)
+    zo = np.empty(m)
+    c_lk0, p_rated = cst[_C_C_LK0], cst[_C_P_RATED]
+    for j in range(j0, ks.shape[0]):
+        k = ks[j]
+        if not (emit0 and j == j0):
+            if not cand[j]:
+                continue
+            if t[j] <= T_LAST[k]:
+                cnt[k, 0] += 1
+                continue
+            for r in range(m):
+                if expect[r] and not mask[j, r]:
+                    cnt[k, 1] += 1
+            if not math.isfinite(T_LAST[k]) or t[j] - T_LAST[k] > max_gap:
+                return j, 3
+            cnt[k, 2] += 1
+            # ---- the step (as _bank_step) ----
+            dt = t[j] - T_LAST[k]
+            n_sub = max(1, int(math.ceil(dt / cst[_C_H_MAX] - 1e-9)))
+            if not math.isnan(i_m[j]):
+                i_f = i_m[j]
+            elif not math.isnan(x_c[j]):
+                i_f = min(max(k_p * (x_c[j] - X[k, 2] * scale[2]), -i_max), i_max)
+            else:
+                i_f = I_LAST[k]
+            i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, 2]), -i_max), i_max)
+            I_LAST[k] = i_f
+            nis_j, st = ukf_one(
+                X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c,
+                prm, y[j], ws,
+            )  # fmt: skip
+            nis[j] = nis_j
+            OL[k, 4] = X[k, 4] * scale[4]
+            h = dt / n_sub
+            spool_coef_nb(h, prm, coef)
+            step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
+            for r in range(n):
+                OL[k, r] = tmp[r]
+            X[k, 6] = min(max(X[k, 6], 0.0), cst[_C_C_LK_MAX])
+            X[k, 5] = min(max(X[k, 5], cst[_C_P_VAP]), cst[_C_P_SR_MAX])
+            dof = 0.0
+            for r in range(m):
+                if mask[j, r]:
+                    dof += 1.0
+            a = 1.0 - math.exp(-dt / cst[_C_NIS_TAU])
+            avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
+            nis_avg[j] = avg
+            ok = st != 2 and math.isfinite(avg)
+            for r in range(n):
+                if not math.isfinite(X[k, r]):
+                    ok = False
+                for s_ in range(n):
+                    if not math.isfinite(PP[k, r, s_]):
+                        ok = False
+            T_LAST[k] = t[j]
+            if ok:
+                NIS_AVG[k] = avg
+                if avg > cst[_C_NIS_REINIT]:
+                    return j, 2
+            else:
+                NIS_AVG[k] = 0.0
+                return j, 1
+        flag[j] = True
+        # ---- the output row (as _output_rows) ----
+        for r in range(n):
+            xs[r] = X[k, r] * scale[r]
+            est[j, 2 * r] = xs[r]
+            est[j, 2 * r + 1] = math.sqrt(max(PP[k, r, r], 0.0)) * scale[r]
+        measure_nb(xs, prm, zo)
+        est[j, 2 * n] = zo[2] - zo[3]  # P12
+        est[j, 2 * n + 1] = xs[6] - c_lk0
+        measure_nb(OL[k], prm, zo)
+        dof = 0.0
+        for r in range(m):
+            res[j, r] = y[j, r] * zscale[r]
+            if mask[j, r]:
+                dof += 1.0
+                res[j, 7 + r] = z[j, r] * zscale[r] - zo[r]
+            else:
+                res[j, 7 + r] = 0.0
+        res[j, 5] = nis[j]
+        res[j, 6] = dof
+        lr = xs[6] / c_lk0 if c_lk0 > 0 else 0.0
+        sr = xs[5] / p_rated
+        sd_l = est[j, 13] / c_lk0 if c_lk0 > 0 else 0.0
+        sd_s = est[j, 11] / p_rated
+        armed = t[j] - T_INIT[k] >= cst[_C_ARM]
+        for a_ in range(2):
+            on = ALARM[k, a_]
+            if a_ == 0:
+                want = (
+                    lr <= cst[_C_LEAK_CLEAR]
+                    if on
+                    else (lr >= cst[_C_LEAK_RAISE] and sd_l < cst[_C_LEAK_SIG])
+                )
+            else:
+                want = (
+                    sr >= cst[_C_SUP_CLEAR]
+                    if on
+                    else (sr <= cst[_C_SUP_RAISE] and sd_s < cst[_C_SUP_SIG])
+                )
+            fire[j, a_] = 0
+            if want and armed:
+                if math.isnan(PENDING[k, a_]):
+                    PENDING[k, a_] = t[j]
+                if t[j] - PENDING[k, a_] >= cst[_C_HOLD] - 1e-12:
+                    ALARM[k, a_] = not on
+                    PENDING[k, a_] = math.nan
+                    fire[j, a_] = 2 if on else 1
+            else:
+                PENDING[k, a_] = math.nan
+        health[j, 0] = lr
+        health[j, 1] = sr
+        health[j, 2] = 1.0 if ALARM[k, 0] else 0.0
+        health[j, 3] = 1.0 if ALARM[k, 1] else 0.0
+        health[j, 4] = NIS_AVG[k]
+    return ks.shape[0], 0
 
 
 class Monitor:
