@@ -270,14 +270,31 @@ class BankRows:
     res: NDArray  # (R, len(RES_KEYS))
     health: NDArray  # (R, len(HEALTH_KEYS))
     events: list[list[AlarmEvent]]
+    _lists: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _n_out: int = field(default=0, init=False, repr=False, compare=False)
 
     def output(self, r: int) -> MonitorOutput:
         """Row ``r`` as a ``MonitorOutput``."""
+        c = self._lists
+        if c is None:
+            self._n_out += 1
+            if 8 * self._n_out < len(self.t):
+                return MonitorOutput(
+                    t=float(self.t[r]),
+                    est=dict(zip(EST_KEYS, self.est[r].tolist(), strict=True)),
+                    res=dict(zip(RES_KEYS, self.res[r].tolist(), strict=True)),
+                    health=dict(zip(HEALTH_KEYS, self.health[r].tolist(), strict=True)),
+                    events=self.events[r],
+                )
+            # many rows wanted: convert the arrays once (same floats, fewer calls)
+            c = self._lists = (
+                self.t.tolist(), self.est.tolist(), self.res.tolist(), self.health.tolist()
+            )  # fmt: skip
         return MonitorOutput(
-            t=float(self.t[r]),
-            est=dict(zip(EST_KEYS, self.est[r].tolist(), strict=True)),
-            res=dict(zip(RES_KEYS, self.res[r].tolist(), strict=True)),
-            health=dict(zip(HEALTH_KEYS, self.health[r].tolist(), strict=True)),
+            t=c[0][r],
+            est=dict(zip(EST_KEYS, c[1][r], strict=True)),
+            res=dict(zip(RES_KEYS, c[2][r], strict=True)),
+            health=dict(zip(HEALTH_KEYS, c[3][r], strict=True)),
             events=self.events[r],
         )
 

@@ -23,14 +23,14 @@ from typing import Any
 
 from service import messages as m
 from service.mcaplog import LogReadStats, McapLogger, TruncatedLogWarning, read_log, rotated_files
-from service.monitor import Baseline, MonitorBank, MonitorConfig
+from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, Baseline, MonitorBank, MonitorConfig
 
 __all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
 
 log = logging.getLogger("servowatch.replay")
 
 INPUT_KEYS: tuple[str, ...] = ("t", *m.CHANNELS)
-_BATCH = 256
+_BATCH = 2048  # samples per update_rows call (the block path amortises over them)
 
 
 @dataclass
@@ -202,54 +202,76 @@ def replay(
     n_out: dict[str, int] = {}
     last_t: dict[str, float] = {}
     names: dict[str, tuple[str, str]] = {}
+    prefix: dict[str, str] = {}
+    topics: dict[str, str | None] = {}
     batch: list[tuple[str, dict[str, Any]]] = []
     stats = LogReadStats()
     wall0 = time.perf_counter()
     t_first: float | None = None
 
     def flush_batch() -> None:
+        # update_rows: numpy rows; dicts are built only for what is logged, published or kept
         if not batch:
             return
-        outs = bank.update_many(batch)
-        for (name, _s), o in zip(batch, outs, strict=True):
-            if o is None:
-                continue
-            summary.outputs += 1
-            ac, act = names[name]
-            fin = summary.final.setdefault(name, {})
-            fin["t"] = o.t
-            fin["est"] = o.est
-            fin["health"] = o.health
+        rows = bank.update_rows(batch)
+        idx = rows.index.tolist()
+        if not idx:
+            batch.clear()
+            return
+        est_l, res_l, h_l = rows.est.tolist(), rows.res.tolist(), rows.health.tolist()
+        t_l = rows.t.tolist()
+        summary.outputs += len(idx)
+        recs: list[tuple[str, float, Any]] = []
+        last: dict[str, int] = {}
+        for r, j in enumerate(idx):
+            name = batch[j][0]
+            last[name] = r
             k = n_out[name] = n_out.get(name, 0) + 1
-            if writer is not None and (k % log_every == 0 or o.events):
+            evs = rows.events[r]
+            t_r = t_l[r]
+            if writer is not None and (k % log_every == 0 or evs):
                 # McapLogger makes NaN, numpy and nested values JSON-safe
-                b = f"/fleet/{ac}/{act}/"
-                writer.log(b + "est", o.t, o.est)
-                writer.log(b + "residual", o.t, o.res)
-                writer.log(b + "health", o.t, o.health)
-            for ev in o.events:
+                b = prefix[name]
+                recs.append((b + "est", t_r, dict(zip(EST_KEYS, est_l[r], strict=True))))
+                recs.append((b + "residual", t_r, dict(zip(RES_KEYS, res_l[r], strict=True))))
+                recs.append((b + "health", t_r, dict(zip(HEALTH_KEYS, h_l[r], strict=True))))
+            for ev in evs:
                 d = _event_dict(ev)
                 summary.alarms.append({"actuator": name, **d})
                 if writer is not None:
-                    writer.log(f"/fleet/{ac}/{act}/events", float(d.get("t") or o.t), _flat(d))
+                    recs.append((prefix[name] + "events", float(d.get("t") or t_r), _flat(d)))
             if publish is not None and k % publish_every == 0:
-                _publish(publish, pubs, ac, act, o)
+                ac, act = names[name]
+                _publish(publish, pubs, ac, act, rows.output(r))
                 summary.published += 1
+        if recs:
+            writer.log_many(recs)  # type: ignore[union-attr]
+        for name, r in last.items():
+            fin = summary.final.setdefault(name, {})
+            fin["t"] = t_l[r]
+            fin["est"] = dict(zip(EST_KEYS, est_l[r], strict=True))
+            fin["health"] = dict(zip(HEALTH_KEYS, h_l[r], strict=True))
         batch.clear()
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TruncatedLogWarning)
         try:
             for topic, t_log, msg in _read_files(files, stats):
-                at = _parse_topic(topic)
-                if at is None:
+                name = topics.get(topic, "")
+                if name == "":
+                    at = _parse_topic(topic)
+                    name = topics[topic] = None if at is None else f"{at[0]}/{at[1]}"
+                    if name is not None and name not in names:
+                        names[name] = at  # type: ignore[assignment]
+                        prefix[name] = f"/fleet/{at[0]}/{at[1]}/"  # type: ignore[index]
+                        summary.actuators.append(name)
+                if name is None:
                     continue
-                name = f"{at[0]}/{at[1]}"
-                if name not in names:
-                    names[name] = at
-                    summary.actuators.append(name)
                 t = msg.get("t", t_log)
-                if not isinstance(t, int | float) or isinstance(t, bool) or not math.isfinite(t):
+                if type(t) is not float and (not isinstance(t, int | float) or isinstance(t, bool)):
+                    summary.skipped += 1
+                    continue
+                if not math.isfinite(t):
                     summary.skipped += 1
                     continue
                 if name in last_t and t <= last_t[name]:
