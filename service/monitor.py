@@ -481,7 +481,10 @@ class MonitorBank:
         """As ``update_many`` (same numbers) but the outputs stay numpy rows (``BankRows``):
         no per-sample dicts, for a fleet that logs or publishes arrays. The whole block is
         parsed with numpy and run through one compiled loop (``_block_run``), which returns
-        to Python only for a (re-)initialisation."""
+        to Python only for a (re-)initialisation. A batch of one or two samples takes the
+        per-round path (same numbers, less fixed cost per call)."""
+        if len(samples) <= 2:
+            return self.update_rows_rounds(samples)
         return self._run_block(samples)
 
     # -- reference path: one kernel call per round of at most one sample per actuator ---
