@@ -1008,7 +1008,7 @@ def _output_rows(
         health[j, 4] = NIS_AVG[k]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
 def _block_run(
     j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT,
     ALARM, PENDING, q, R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis,
