@@ -459,6 +459,8 @@ class MonitorBank:
     def update_many(self, samples: Sequence[tuple[str, Mapping]]) -> list[MonitorOutput | None]:
         """Process samples (actuator id, sample) in order; the result equals feeding them one
         by one (None for a skipped sample)."""
+        if len(samples) <= 2:  # as update_rows: the per-round path, dicts built directly
+            return self.update_many_rounds(samples)
         out: list[MonitorOutput | None] = [None] * len(samples)
         rows = self.update_rows(samples)
         est_l, res_l, h_l, t_l = (
