@@ -163,26 +163,9 @@ class Baseline(_Cfg):
     @classmethod
     def nominal(cls, law: str = "C5", params: EHAParams | None = None) -> Baseline:
         """Uncalibrated values derived from the HF parameter set (physics.md section 3)."""
-        p = params or EHAParams()
-        return cls(
-            law=law,
-            g_pq=p.g_pq,
-            x_ss=p.x_ss,
-            c_lk=p.c_lk,
-            p_r=p.p_r,
-            p_sr_rated=p.p_sr,
-            area=p.area,
-            mass=p.mass,
-            c_v=p.c_v,
-            f_d=p.f_d,
-            k_sv=p.k_sv,
-            x_sm=p.x_sm,
-            omega_n=p.omega_n,
-            zeta=p.zeta,
-            k_p=p.k_p,
-            i_max=p.i_max,
-            source="nominal",
-        )
+        rp = er.reduced_params(params, law)._asdict()
+        fields = {k: v for k, v in rp.items() if k in cls.model_fields}
+        return cls(**fields, c_lk=(params or EHAParams()).c_lk, source="nominal")
 
     @classmethod
     def default(cls, law: str = "C5") -> Baseline:
@@ -197,23 +180,11 @@ class Baseline(_Cfg):
     def reduced_params(self) -> er.ReducedParams:
         """Parameters of ``models.eha_reduced`` for this baseline."""
         return er.ReducedParams(
-            law=self.law,
-            g_pq=self.g_pq,
-            x_ss=self.x_ss,
-            p_r=self.p_r,
-            p_sr_rated=self.p_sr_rated,
-            g_pq_exp=self.g_pq_exp,
-            area=self.area,
-            mass=self.mass,
-            c_v=self.c_v,
-            f_d=self.f_d,
-            v_f=self.v_f,
-            k_sv=self.k_sv,
-            x_sm=self.x_sm,
-            omega_n=self.omega_n,
-            zeta=self.zeta,
-            k_p=self.k_p,
-            i_max=self.i_max,
+            **{
+                k: getattr(self, k)
+                for k in er.ReducedParams._fields
+                if k in type(self).model_fields
+            }
         )
 
     def save(self, path: str | Path) -> None:
@@ -879,65 +850,141 @@ _RES_KEYS = tuple(
 
 
 @njit(cache=True)
+def _step_one(
+    j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale, zscale, Wm,
+    Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
+):  # fmt: skip
+    """Sample j of actuator k (in place on the bank arrays): inputs (measured current, else
+    the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average. Returns 0 ok,
+    1 broken (non-finite / not positive definite), 2 diverged (NIS average)."""
+    n = X.shape[1]
+    k_p, i_max = prm[er.K_K_P], prm[er.K_I_MAX]
+    dt = t[j] - T_LAST[k]
+    n_sub = max(1, int(math.ceil(dt / cst[_C_H_MAX] - 1e-9)))
+    if not math.isnan(i_m[j]):
+        i_f = i_m[j]
+    elif not math.isnan(x_c[j]):
+        i_f = min(max(k_p * (x_c[j] - X[k, 2] * scale[2]), -i_max), i_max)
+    else:
+        i_f = I_LAST[k]
+    i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, 2]), -i_max), i_max)
+    I_LAST[k] = i_f
+    nis_j, st = ukf_one(
+        X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
+        y[j], ws,
+    )  # fmt: skip
+    nis[j] = nis_j
+    # the parallel (open-loop) model, driven by the command, with the estimated load
+    OL[k, 4] = X[k, 4] * scale[4]
+    h = dt / n_sub
+    spool_coef_nb(h, prm, coef)
+    step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
+    for r in range(n):
+        OL[k, r] = tmp[r]
+    # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
+    X[k, 6] = min(max(X[k, 6], 0.0), cst[_C_C_LK_MAX])
+    X[k, 5] = min(max(X[k, 5], cst[_C_P_VAP]), cst[_C_P_SR_MAX])
+    dof = 0.0
+    for r in range(mask.shape[1]):
+        if mask[j, r]:
+            dof += 1.0
+    a = 1.0 - math.exp(-dt / cst[_C_NIS_TAU])
+    avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
+    nis_avg[j] = avg
+    ok = st != 2 and math.isfinite(avg)
+    for r in range(n):
+        if not math.isfinite(X[k, r]):
+            ok = False
+        for s_ in range(n):
+            if not math.isfinite(PP[k, r, s_]):
+                ok = False
+    T_LAST[k] = t[j]
+    if ok:
+        NIS_AVG[k] = avg
+        return 2 if avg > cst[_C_NIS_REINIT] else 0
+    NIS_AVG[k] = 0.0
+    return 1
+
+
+@njit(cache=True)
+def _row_one(
+    j, k, X, PP, OL, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING,
+    cst, est, res, health, fire, xs, zo,
+):  # fmt: skip
+    """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
+    innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak
+    and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence
+    and the sigma gate (fire: 1 raised, 2 cleared this sample)."""
+    n = X.shape[1]
+    m = z.shape[1]
+    c_lk0, p_rated = cst[_C_C_LK0], cst[_C_P_RATED]
+    for r in range(n):
+        xs[r] = X[k, r] * scale[r]
+        est[j, 2 * r] = xs[r]
+        est[j, 2 * r + 1] = math.sqrt(max(PP[k, r, r], 0.0)) * scale[r]
+    measure_nb(xs, prm, zo)
+    est[j, 2 * n] = zo[2] - zo[3]  # P12
+    est[j, 2 * n + 1] = xs[6] - c_lk0
+    measure_nb(OL[k], prm, zo)
+    dof = 0.0
+    for r in range(m):
+        res[j, r] = y[j, r] * zscale[r]
+        if mask[j, r]:
+            dof += 1.0
+            res[j, 7 + r] = z[j, r] * zscale[r] - zo[r]
+        else:
+            res[j, 7 + r] = 0.0
+    res[j, 5] = nis[j]
+    res[j, 6] = dof
+    lr = xs[6] / c_lk0 if c_lk0 > 0 else 0.0
+    sr = xs[5] / p_rated
+    sd_l = est[j, 13] / c_lk0 if c_lk0 > 0 else 0.0
+    sd_s = est[j, 11] / p_rated
+    armed = t[j] - T_INIT[k] >= cst[_C_ARM]
+    for a in range(2):
+        on = ALARM[k, a]
+        if a == 0:
+            want = (
+                lr <= cst[_C_LEAK_CLEAR]
+                if on
+                else (lr >= cst[_C_LEAK_RAISE] and sd_l < cst[_C_LEAK_SIG])
+            )
+        else:
+            want = (
+                sr >= cst[_C_SUP_CLEAR]
+                if on
+                else (sr <= cst[_C_SUP_RAISE] and sd_s < cst[_C_SUP_SIG])
+            )
+        fire[j, a] = 0
+        if want and armed:
+            if math.isnan(PENDING[k, a]):
+                PENDING[k, a] = t[j]
+            if t[j] - PENDING[k, a] >= cst[_C_HOLD] - 1e-12:
+                ALARM[k, a] = not on
+                PENDING[k, a] = math.nan
+                fire[j, a] = 2 if on else 1
+        else:
+            PENDING[k, a] = math.nan
+    health[j, 0] = lr
+    health[j, 1] = sr
+    health[j, 2] = 1.0 if ALARM[k, 0] else 0.0
+    health[j, 3] = 1.0 if ALARM[k, 1] else 0.0
+    health[j, 4] = NIS_AVG[k]
+
+
+@njit(cache=True)
 def _bank_step(
     ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale, zscale, Wm, Wc,
     c, prm, cst, ws, y, nis, nis_avg, flag,
 ):  # fmt: skip
-    """One sample for each actuator ks[j] (in place on the bank arrays): inputs (measured
-    current, else the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average.
-    flag: 0 ok, 1 broken (non-finite / not positive definite), 2 diverged (NIS average)."""
-    n = X.shape[1]
-    k_p, i_max = prm[er.K_K_P], prm[er.K_I_MAX]
+    """One sample for each actuator ks[j] through ``_step_one``; flag[j] its return code."""
     coef = np.empty(4)
-    tmp = np.empty(n)
+    tmp = np.empty(X.shape[1])
     for j in range(ks.shape[0]):
-        k = ks[j]
-        dt = t[j] - T_LAST[k]
-        n_sub = max(1, int(math.ceil(dt / cst[_C_H_MAX] - 1e-9)))
-        if not math.isnan(i_m[j]):
-            i_f = i_m[j]
-        elif not math.isnan(x_c[j]):
-            i_f = min(max(k_p * (x_c[j] - X[k, 2] * scale[2]), -i_max), i_max)
-        else:
-            i_f = I_LAST[k]
-        i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, 2]), -i_max), i_max)
-        I_LAST[k] = i_f
-        nis_j, st = ukf_one(
-            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
-            y[j], ws,
+        flag[j] = _step_one(
+            j, ks[j], t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale,
+            zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
         )  # fmt: skip
-        nis[j] = nis_j
-        # the parallel (open-loop) model, driven by the command, with the estimated load
-        OL[k, 4] = X[k, 4] * scale[4]
-        h = dt / n_sub
-        spool_coef_nb(h, prm, coef)
-        step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
-        for r in range(n):
-            OL[k, r] = tmp[r]
-        # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
-        X[k, 6] = min(max(X[k, 6], 0.0), cst[_C_C_LK_MAX])
-        X[k, 5] = min(max(X[k, 5], cst[_C_P_VAP]), cst[_C_P_SR_MAX])
-        dof = 0.0
-        for r in range(mask.shape[1]):
-            if mask[j, r]:
-                dof += 1.0
-        a = 1.0 - math.exp(-dt / cst[_C_NIS_TAU])
-        avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
-        nis_avg[j] = avg
-        ok = st != 2 and math.isfinite(avg)
-        for r in range(n):
-            if not math.isfinite(X[k, r]):
-                ok = False
-            for s_ in range(n):
-                if not math.isfinite(PP[k, r, s_]):
-                    ok = False
-        T_LAST[k] = t[j]
-        if ok:
-            NIS_AVG[k] = avg
-            flag[j] = 2 if avg > cst[_C_NIS_REINIT] else 0
-        else:
-            NIS_AVG[k] = 0.0
-            flag[j] = 1
 
 
 @njit(cache=True)
@@ -945,69 +992,14 @@ def _output_rows(
     X, PP, OL, ks, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING, cst,
     est, res, health, fire,
 ):  # fmt: skip
-    """Flat output rows (est: (state, sigma) pairs, P12, C_Lk increase; res: innovations, NIS,
-    dof, open-loop residuals = measured minus parallel model; health: leak and supply ratios,
-    alarm states, NIS average) and the alarms with hysteresis, persistence and the sigma gate
-    (fire: 1 raised, 2 cleared this sample)."""
-    n = X.shape[1]
-    m = z.shape[1]
-    xs = np.empty(n)
-    zo = np.empty(m)
-    c_lk0, p_rated = cst[_C_C_LK0], cst[_C_P_RATED]
+    """The output row of each actuator ks[j] through ``_row_one``."""
+    xs = np.empty(X.shape[1])
+    zo = np.empty(z.shape[1])
     for j in range(ks.shape[0]):
-        k = ks[j]
-        for r in range(n):
-            xs[r] = X[k, r] * scale[r]
-            est[j, 2 * r] = xs[r]
-            est[j, 2 * r + 1] = math.sqrt(max(PP[k, r, r], 0.0)) * scale[r]
-        measure_nb(xs, prm, zo)
-        est[j, 2 * n] = zo[2] - zo[3]  # P12
-        est[j, 2 * n + 1] = xs[6] - c_lk0
-        measure_nb(OL[k], prm, zo)
-        dof = 0.0
-        for r in range(m):
-            res[j, r] = y[j, r] * zscale[r]
-            if mask[j, r]:
-                dof += 1.0
-                res[j, 7 + r] = z[j, r] * zscale[r] - zo[r]
-            else:
-                res[j, 7 + r] = 0.0
-        res[j, 5] = nis[j]
-        res[j, 6] = dof
-        lr = xs[6] / c_lk0 if c_lk0 > 0 else 0.0
-        sr = xs[5] / p_rated
-        sd_l = est[j, 13] / c_lk0 if c_lk0 > 0 else 0.0
-        sd_s = est[j, 11] / p_rated
-        armed = t[j] - T_INIT[k] >= cst[_C_ARM]
-        for a in range(2):
-            on = ALARM[k, a]
-            if a == 0:
-                want = (
-                    lr <= cst[_C_LEAK_CLEAR]
-                    if on
-                    else (lr >= cst[_C_LEAK_RAISE] and sd_l < cst[_C_LEAK_SIG])
-                )
-            else:
-                want = (
-                    sr >= cst[_C_SUP_CLEAR]
-                    if on
-                    else (sr <= cst[_C_SUP_RAISE] and sd_s < cst[_C_SUP_SIG])
-                )
-            fire[j, a] = 0
-            if want and armed:
-                if math.isnan(PENDING[k, a]):
-                    PENDING[k, a] = t[j]
-                if t[j] - PENDING[k, a] >= cst[_C_HOLD] - 1e-12:
-                    ALARM[k, a] = not on
-                    PENDING[k, a] = math.nan
-                    fire[j, a] = 2 if on else 1
-            else:
-                PENDING[k, a] = math.nan
-        health[j, 0] = lr
-        health[j, 1] = sr
-        health[j, 2] = 1.0 if ALARM[k, 0] else 0.0
-        health[j, 3] = 1.0 if ALARM[k, 1] else 0.0
-        health[j, 4] = NIS_AVG[k]
+        _row_one(
+            j, ks[j], X, PP, OL, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG,
+            ALARM, PENDING, cst, est, res, health, fire, xs, zo,
+        )  # fmt: skip
 
 
 @njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
@@ -1016,22 +1008,18 @@ def _block_run(
     ALARM, PENDING, q, R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis,
     nis_avg, flag, est, res, health, fire, cnt,
 ):  # fmt: skip
-    """The samples j0.. of a block in order, each through the time checks, the UKF step of
-    ``_bank_step`` and the output row of ``_output_rows`` (same arithmetic, so the same
-    bits), the row written right after the sample's own step. Returns (j, code): code 0 when
-    done; 3 when sample j needs a (re-)initialisation (first sample or gap; not stepped),
-    1/2 when its step broke/diverged (flag of ``_bank_step``). The caller re-initialises
-    and resumes with (j, emit0=True), which writes row j without stepping it.
-    ``flag`` (here: accepted, bool per sample); cnt[k]: skipped_time, missing_channel,
-    accepted (stepped samples only)."""
-    n = X.shape[1]
+    """The samples j0.. of a block in order, each through the time checks, ``_step_one`` and
+    ``_row_one`` (the same code as the per-round path, so the same bits), the row written
+    right after the sample's own step. Returns (j, code): code 0 when done; 3 when sample j
+    needs a (re-)initialisation (first sample or gap; not stepped), 1/2 when its step
+    broke/diverged. The caller re-initialises and resumes with (j, emit0=True), which writes
+    row j without stepping it. ``flag`` (here: accepted, bool per sample); cnt[k]:
+    skipped_time, missing_channel, accepted (stepped samples only)."""
     m = z.shape[1]
-    k_p, i_max = prm[er.K_K_P], prm[er.K_I_MAX]
     coef = np.empty(4)
-    tmp = np.empty(n)
-    xs = np.empty(n)
+    tmp = np.empty(X.shape[1])
+    xs = np.empty(X.shape[1])
     zo = np.empty(m)
-    c_lk0, p_rated = cst[_C_C_LK0], cst[_C_P_RATED]
     for j in range(j0, ks.shape[0]):
         k = ks[j]
         if not (emit0 and j == j0):
@@ -1046,106 +1034,17 @@ def _block_run(
             if not math.isfinite(T_LAST[k]) or t[j] - T_LAST[k] > max_gap:
                 return j, 3
             cnt[k, 2] += 1
-            # ---- the step (as _bank_step) ----
-            dt = t[j] - T_LAST[k]
-            n_sub = max(1, int(math.ceil(dt / cst[_C_H_MAX] - 1e-9)))
-            if not math.isnan(i_m[j]):
-                i_f = i_m[j]
-            elif not math.isnan(x_c[j]):
-                i_f = min(max(k_p * (x_c[j] - X[k, 2] * scale[2]), -i_max), i_max)
-            else:
-                i_f = I_LAST[k]
-            i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, 2]), -i_max), i_max)
-            I_LAST[k] = i_f
-            nis_j, st = ukf_one(
-                X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c,
-                prm, y[j], ws,
+            code = _step_one(
+                j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale,
+                zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
             )  # fmt: skip
-            nis[j] = nis_j
-            OL[k, 4] = X[k, 4] * scale[4]
-            h = dt / n_sub
-            spool_coef_nb(h, prm, coef)
-            step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
-            for r in range(n):
-                OL[k, r] = tmp[r]
-            X[k, 6] = min(max(X[k, 6], 0.0), cst[_C_C_LK_MAX])
-            X[k, 5] = min(max(X[k, 5], cst[_C_P_VAP]), cst[_C_P_SR_MAX])
-            dof = 0.0
-            for r in range(m):
-                if mask[j, r]:
-                    dof += 1.0
-            a = 1.0 - math.exp(-dt / cst[_C_NIS_TAU])
-            avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
-            nis_avg[j] = avg
-            ok = st != 2 and math.isfinite(avg)
-            for r in range(n):
-                if not math.isfinite(X[k, r]):
-                    ok = False
-                for s_ in range(n):
-                    if not math.isfinite(PP[k, r, s_]):
-                        ok = False
-            T_LAST[k] = t[j]
-            if ok:
-                NIS_AVG[k] = avg
-                if avg > cst[_C_NIS_REINIT]:
-                    return j, 2
-            else:
-                NIS_AVG[k] = 0.0
-                return j, 1
+            if code != 0:
+                return j, code
         flag[j] = True
-        # ---- the output row (as _output_rows) ----
-        for r in range(n):
-            xs[r] = X[k, r] * scale[r]
-            est[j, 2 * r] = xs[r]
-            est[j, 2 * r + 1] = math.sqrt(max(PP[k, r, r], 0.0)) * scale[r]
-        measure_nb(xs, prm, zo)
-        est[j, 2 * n] = zo[2] - zo[3]  # P12
-        est[j, 2 * n + 1] = xs[6] - c_lk0
-        measure_nb(OL[k], prm, zo)
-        dof = 0.0
-        for r in range(m):
-            res[j, r] = y[j, r] * zscale[r]
-            if mask[j, r]:
-                dof += 1.0
-                res[j, 7 + r] = z[j, r] * zscale[r] - zo[r]
-            else:
-                res[j, 7 + r] = 0.0
-        res[j, 5] = nis[j]
-        res[j, 6] = dof
-        lr = xs[6] / c_lk0 if c_lk0 > 0 else 0.0
-        sr = xs[5] / p_rated
-        sd_l = est[j, 13] / c_lk0 if c_lk0 > 0 else 0.0
-        sd_s = est[j, 11] / p_rated
-        armed = t[j] - T_INIT[k] >= cst[_C_ARM]
-        for a_ in range(2):
-            on = ALARM[k, a_]
-            if a_ == 0:
-                want = (
-                    lr <= cst[_C_LEAK_CLEAR]
-                    if on
-                    else (lr >= cst[_C_LEAK_RAISE] and sd_l < cst[_C_LEAK_SIG])
-                )
-            else:
-                want = (
-                    sr >= cst[_C_SUP_CLEAR]
-                    if on
-                    else (sr <= cst[_C_SUP_RAISE] and sd_s < cst[_C_SUP_SIG])
-                )
-            fire[j, a_] = 0
-            if want and armed:
-                if math.isnan(PENDING[k, a_]):
-                    PENDING[k, a_] = t[j]
-                if t[j] - PENDING[k, a_] >= cst[_C_HOLD] - 1e-12:
-                    ALARM[k, a_] = not on
-                    PENDING[k, a_] = math.nan
-                    fire[j, a_] = 2 if on else 1
-            else:
-                PENDING[k, a_] = math.nan
-        health[j, 0] = lr
-        health[j, 1] = sr
-        health[j, 2] = 1.0 if ALARM[k, 0] else 0.0
-        health[j, 3] = 1.0 if ALARM[k, 1] else 0.0
-        health[j, 4] = NIS_AVG[k]
+        _row_one(
+            j, k, X, PP, OL, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM,
+            PENDING, cst, est, res, health, fire, xs, zo,
+        )  # fmt: skip
     return ks.shape[0], 0
 
 
