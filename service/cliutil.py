@@ -8,7 +8,7 @@ import math
 import sys
 from typing import Any
 
-import numpy as np
+from service.jsonutil import jsonable as to_jsonable
 
 __all__ = ["float_list", "finite_float", "emit_json", "fail", "to_jsonable"]
 
@@ -30,21 +30,6 @@ def float_list(text: str) -> list[float]:
     if not parts:
         raise argparse.ArgumentTypeError("expected a comma-separated list of numbers")
     return [finite_float(p) for p in parts]
-
-
-def to_jsonable(obj: Any) -> Any:
-    """numpy arrays and scalars to plain lists and floats (NaN/inf to None)."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 
 
 def emit_json(obj: Any) -> None:

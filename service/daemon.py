@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from service import messages as m
+from service.jsonutil import event_dict, flat, jsonable
 
 __all__ = [
     "ActuatorState",
@@ -258,48 +259,6 @@ class ActuatorState:
             "alarms": list(self.alarms.values()),
             "events": list(self.events),
         }
-
-
-def _jsonable(d: Any) -> Any:
-    """Plain JSON types: floats (NaN/inf -> None), numpy scalars -> Python, nested dicts."""
-    if isinstance(d, dict):
-        return {str(k): _jsonable(v) for k, v in d.items()}
-    if isinstance(d, list | tuple):
-        return [_jsonable(v) for v in d]
-    if isinstance(d, bool | int | str) or d is None:
-        return d
-    try:
-        f = float(d)
-    except (TypeError, ValueError):
-        return str(d)
-    return f if math.isfinite(f) else None
-
-
-def _flat(d: dict) -> dict:
-    """A flat mapping for the MCAP log (scalars kept; lists/dicts as JSON text)."""
-    for v in d.values():  # fast path: the monitor's outputs are plain finite floats
-        if type(v) is not float or v - v != 0.0:
-            break
-    else:
-        return d
-    out = {}
-    for k, v in d.items():
-        v = _jsonable(v)
-        out[str(k)] = json.dumps(v) if isinstance(v, dict | list) else v
-    return out
-
-
-def _event_dict(ev: Any) -> dict[str, Any]:
-    """An AlarmEvent (dataclass, pydantic model or mapping) as a plain dict."""
-    if isinstance(ev, dict):
-        d = dict(ev)
-    elif hasattr(ev, "model_dump"):
-        d = ev.model_dump()
-    elif hasattr(ev, "__dataclass_fields__"):
-        d = {k: getattr(ev, k) for k in ev.__dataclass_fields__}
-    else:
-        d = {k: getattr(ev, k, None) for k in ("t", "kind", "state", "value")}
-    return _jsonable(d)
 
 
 _OFF_STATES = {"off", "clear", "cleared", "ok", "normal", "none", "false", "0", "inactive"}
@@ -848,13 +807,13 @@ class Daemon:
         base = f"/fleet/{st.aircraft}/{st.actuator}/"
         n = st.outputs
         if events or n % self.log_every == 0:
-            lg.log(base + "est", t, _flat(est))
-            lg.log(base + "residual", t, _flat(res))
+            lg.log(base + "est", t, flat(est))
+            lg.log(base + "residual", t, flat(res))
         if events or n % self.publish_every == 0:
-            lg.log(base + "health", t, _flat(health))
+            lg.log(base + "health", t, flat(health))
         for ev in events:
-            d = _event_dict(ev)
-            lg.log(base + "events", float(d.get("t") or t), _flat(d))
+            d = event_dict(ev)
+            lg.log(base + "events", float(d.get("t") or t), flat(d))
             kind = str(d.get("kind"))
             if _is_active(d.get("state")):
                 st.alarms[kind] = d
@@ -882,7 +841,7 @@ class Daemon:
                 try:  # the monitor's outputs are finite floats: plain json.dumps
                     payload = m.encode_json({"t": t, **d})
                 except ValueError:
-                    payload = m.encode_json({"t": t, **_jsonable(d)})
+                    payload = m.encode_json({"t": t, **jsonable(d)})
                 pub.put(payload)
             except Exception as e:
                 self.errors += 1
@@ -896,7 +855,7 @@ class Daemon:
         t = float(t) if t is not None else time.time()
         d = {"t": t, "kind": kind, "value": value, "wall": time.time()}
         st.events.append(d)
-        self.logger.log(f"/fleet/{st.aircraft}/{st.actuator}/service", t, _flat(d))
+        self.logger.log(f"/fleet/{st.aircraft}/{st.actuator}/service", t, flat(d))
         log.info("%s %s", st.name, kind)
 
     def check_silence(self, now: float | None = None) -> list[str]:
@@ -957,7 +916,7 @@ class Daemon:
         p50, p99 = percentiles(lat)
         a50, a99 = percentiles(age)
         up = time.time() - self.started
-        return _jsonable(
+        return jsonable(
             {
                 "station": self.station,
                 "shard": self.shard,

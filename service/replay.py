@@ -11,17 +11,17 @@ baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` 
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from service import messages as m
+from service.jsonutil import event_dict, flat, jsonable
 from service.mcaplog import LogReadStats, McapLogger, TruncatedLogWarning, read_log, rotated_files
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, Baseline, MonitorBank, MonitorConfig
 
@@ -58,39 +58,7 @@ class ReplaySummary:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types (non-finite floats as None)."""
-        return _jsonable(asdict(self))
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, list | tuple):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, bool | int | str) or v is None:
-        return v
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        return str(v)
-    return f if math.isfinite(f) else None
-
-
-def _flat(d: Mapping[str, Any]) -> dict[str, Any]:
-    out = {}
-    for k, v in d.items():
-        v = _jsonable(v)
-        out[str(k)] = json.dumps(v) if isinstance(v, dict | list) else v
-    return out
-
-
-def _event_dict(ev: Any) -> dict[str, Any]:
-    if isinstance(ev, Mapping):
-        return _jsonable(dict(ev))
-    if hasattr(ev, "__dataclass_fields__"):
-        return _jsonable({k: getattr(ev, k) for k in ev.__dataclass_fields__})
-    return _jsonable({k: getattr(ev, k, None) for k in ("t", "kind", "state", "value")})
+        return jsonable(asdict(self))
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:
@@ -236,10 +204,10 @@ def replay(
                 recs.append((b + "residual", t_r, dict(zip(RES_KEYS, res_l[r], strict=True))))
                 recs.append((b + "health", t_r, dict(zip(HEALTH_KEYS, h_l[r], strict=True))))
             for ev in evs:
-                d = _event_dict(ev)
+                d = event_dict(ev)
                 summary.alarms.append({"actuator": name, **d})
                 if writer is not None:
-                    recs.append((prefix[name] + "events", float(d.get("t") or t_r), _flat(d)))
+                    recs.append((prefix[name] + "events", float(d.get("t") or t_r), flat(d)))
             if publish is not None and k % publish_every == 0:
                 ac, act = names[name]
                 _publish(publish, pubs, ac, act, rows.output(r))
@@ -329,4 +297,4 @@ def _publish(session: Any, pubs: dict, ac: str, act: str, o: Any) -> None:
             p = pubs[(ac, act, leaf)] = session.declare_publisher(
                 tmpl.format(aircraft=ac, actuator=act)
             )
-        p.put(m.encode_json({"t": o.t, **_jsonable(d)}))
+        p.put(m.encode_json({"t": o.t, **jsonable(d)}))
