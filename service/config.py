@@ -89,6 +89,21 @@ class ZenohSettings(BaseModel):
         """The :class:`zenoh.Config` for these settings (``service.zenoh_util.make_config``)."""
         return make_config(self.mode, self.listen, self.connect, allow_remote=self.allow_remote)
 
+    def open_session(self):
+        """``zenoh.open`` on these settings; SessionError (naming mode and endpoints) if it fails."""
+        import zenoh
+
+        try:
+            return zenoh.open(self.to_zenoh())
+        except zenoh.ZError as e:
+            raise SessionError(
+                f"cannot open a Zenoh session ({self.mode}, connect {self.connect}): {e}"
+            ) from e
+
+
+class SessionError(ConnectionError):
+    """A Zenoh session that could not be opened."""
+
 
 class ServiceConfig(BaseModel):
     """Settings of ``servowatch run`` (and defaults for demo and replay)."""

@@ -34,3 +34,14 @@ def test_usage_errors_exit_2(argv):
     )
     assert r.returncode == 2
     assert "usage" in r.stderr and r.stdout == ""
+
+
+@pytest.mark.parametrize("cmd", [["status", "--timeout", "1"], ["inject", "--fault", "clear"]])
+def test_unreachable_router_exits_3_naming_the_endpoint(cmd, capsys):
+    from service.cli import main
+    from service.zenoh_util import free_port
+
+    ep = f"tcp/127.0.0.1:{free_port()}"  # nothing listens there
+    assert main([*cmd, "--connect", ep, "--mode", "client"]) == 3
+    err = capsys.readouterr().err
+    assert "cannot open a Zenoh session" in err and ep in err

@@ -43,11 +43,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import zenoh
 
     from service import messages as msgs
     from service.actuator import VirtualActuator
-    from service.config import ConfigError
+    from service.config import ConfigError, SessionError
     from service.daemon import service_config_from_args
     from service.scenarios import ScenarioError, load_scenario
 
@@ -73,11 +72,9 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
     try:
-        session = zenoh.open(cfg.zenoh.to_zenoh())
-    except zenoh.ZError as e:
-        return fail(
-            f"cannot open a Zenoh session ({cfg.zenoh.mode}, connect {cfg.zenoh.connect}): {e}", 3
-        )
+        session = cfg.zenoh.open_session()
+    except SessionError as e:
+        return fail(str(e), 3)
     with session:
         logging.getLogger("servowatch.actuator").info(
             "actuator %s/%s publishing %s at %g Hz",

@@ -49,11 +49,10 @@ def send_fault(session, aircraft: str, actuator: str, command, timeout: float = 
 
 
 def run(args: argparse.Namespace) -> int:
-    import zenoh
     from pydantic import ValidationError
 
     from service import messages as msgs
-    from service.config import ConfigError
+    from service.config import ConfigError, SessionError
     from service.daemon import service_config_from_args
 
     try:
@@ -72,11 +71,9 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, msgs.MessageError, ValueError) as e:
         return fail(str(e))
     try:
-        session = zenoh.open(cfg.zenoh.to_zenoh())
-    except zenoh.ZError as e:
-        return fail(
-            f"cannot open a Zenoh session ({cfg.zenoh.mode}, connect {cfg.zenoh.connect}): {e}", 3
-        )
+        session = cfg.zenoh.open_session()
+    except SessionError as e:
+        return fail(str(e), 3)
     with session:
         ack = send_fault(session, args.aircraft, args.actuator, cmd, args.timeout)
     if ack is None:

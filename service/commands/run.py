@@ -63,9 +63,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import zenoh
 
-    from service.config import ConfigError
+    from service.config import ConfigError, SessionError
     from service.daemon import Daemon, service_config_from_args
 
     try:
@@ -84,10 +83,9 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
     try:
-        session = zenoh.open(cfg.zenoh.to_zenoh())
-    except zenoh.ZError as e:
-        msg = f"cannot open a Zenoh session ({cfg.zenoh.mode}, connect {cfg.zenoh.connect}): {e}"
-        return fail(msg, 3)
+        session = cfg.zenoh.open_session()
+    except SessionError as e:
+        return fail(str(e), 3)
     try:
         daemon = Daemon(cfg, log_path=args.log)
     except Exception as e:  # bad baseline, unwritable log directory, ...

@@ -68,9 +68,8 @@ def format_status(daemons: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import zenoh
 
-    from service.config import ConfigError
+    from service.config import ConfigError, SessionError
     from service.daemon import service_config_from_args
 
     try:
@@ -78,11 +77,9 @@ def run(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as e:
         return fail(str(e))
     try:
-        session = zenoh.open(cfg.zenoh.to_zenoh())
-    except zenoh.ZError as e:
-        return fail(
-            f"cannot open a Zenoh session ({cfg.zenoh.mode}, connect {cfg.zenoh.connect}): {e}", 3
-        )
+        session = cfg.zenoh.open_session()
+    except SessionError as e:
+        return fail(str(e), 3)
     with session:
         daemons = query_status(session, args.timeout)
     if args.json:
