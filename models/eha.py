@@ -209,6 +209,29 @@ def _segments(scenario: Scenario, params: EHAParams, h: float, n_steps: int):
             yield a, m, _inputs_matrix(scenario, params, (a + np.arange(m) + 0.5) * h)
 
 
+def sim_result(
+    scenario: Scenario,
+    valve: str,
+    params: EHAParams,
+    t_out: NDArray,
+    states: NDArray,
+    wall_s: float,
+) -> SimResult:
+    """A :class:`SimResult` from the states sampled at ``t_out`` (inputs re-sampled there)."""
+    u_out = scenario.inputs(t_out, params)
+    sig = state_outputs(valve, params, states, u_out["x_cmd"], u_out["p_sr"], u_out["c_lk"])
+    return SimResult(
+        valve=valve,
+        t=t_out,
+        x_cmd=u_out["x_cmd"],
+        f_r=u_out["f_r"],
+        p_sr=u_out["p_sr"],
+        c_lk=u_out["c_lk"],
+        wall_s=wall_s,
+        **sig,
+    )
+
+
 def simulate(
     scenario: Scenario,
     valve: str = "HF",
@@ -250,18 +273,7 @@ def simulate(
     wall = time.perf_counter() - wall0
     if progress is not None:
         progress(1.0)
-    u_out = scenario.inputs(t_out, params)
-    sig = state_outputs(valve, params, states, u_out["x_cmd"], u_out["p_sr"], u_out["c_lk"])
-    return SimResult(
-        valve=valve,
-        t=t_out,
-        x_cmd=u_out["x_cmd"],
-        f_r=u_out["f_r"],
-        p_sr=u_out["p_sr"],
-        c_lk=u_out["c_lk"],
-        wall_s=wall,
-        **sig,
-    )
+    return sim_result(scenario, valve, params, t_out, states, wall)
 
 
 class EHAStepper:

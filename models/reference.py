@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from models import compiled as kern
-from models.eha import SimResult, initial_state, state_outputs
+from models.eha import SimResult, initial_state, sim_result
 from models.params import EHAParams
 from models.scenario import Scenario
 
@@ -113,15 +113,4 @@ def reference_solution(
         states[sel] = sol.y[:, :n_sel].T
         y = sol.y[:, -1].copy()
     wall = time.perf_counter() - wall0
-    u_out = scenario.inputs(t_out, params)
-    sig = state_outputs(valve, params, states, u_out["x_cmd"], u_out["p_sr"], u_out["c_lk"])
-    return SimResult(
-        valve=valve,
-        t=t_out,
-        x_cmd=u_out["x_cmd"],
-        f_r=u_out["f_r"],
-        p_sr=u_out["p_sr"],
-        c_lk=u_out["c_lk"],
-        wall_s=wall,
-        **sig,
-    )
+    return sim_result(scenario, valve, params, t_out, states, wall)
