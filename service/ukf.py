@@ -191,6 +191,31 @@ def _chol_solve(L, b, out):
 
 
 @njit(cache=True)
+def _sigma_points(x, P, c, A, L, sig):
+    """Van der Merwe sigma points of (x, P) into sig (2n+1, n): x, x + columns of the
+    Cholesky factor of c P, x - ...; jitter c 1e-9 on the diagonal if the factor fails.
+    Returns 0 ok, 1 jittered, 2 failed (A, L: workspace)."""
+    n = x.shape[0]
+    st = 0
+    for r in range(n):
+        for s_ in range(n):
+            A[r, s_] = c * P[r, s_]
+    if not _chol(A, L):
+        for r in range(n):
+            A[r, r] += c * 1e-9
+        if not _chol(A, L):
+            return 2
+        st = 1
+    for r in range(n):
+        sig[0, r] = x[r]
+    for k in range(n):
+        for r in range(n):
+            sig[1 + k, r] = x[r] + L[r, k]
+            sig[1 + n + k, r] = x[r] - L[r, k]
+    return st
+
+
+@njit(cache=True)
 def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
     """One filter step in place (state xb (n,), covariance Pb (n, n), measurement zb (m,)
     with mask mb); ``ws`` is the workspace of ``workspace(n, m)``. Returns (NIS, status)."""
@@ -198,23 +223,9 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
     n = xb.shape[0]
     m = zb.shape[0]
     K = 2 * n + 1
-    st = 0
-    for r in range(n):
-        for s_ in range(n):
-            A[r, s_] = c * Pb[r, s_]
-    if not _chol(A, L):
-        for r in range(n):
-            A[r, r] += c * 1e-9
-        if not _chol(A, L):
-            return 0.0, 2
-        st = 1
-    # sigma points: x, x + rows of U = L^T (columns of L), x - ...
-    for r in range(n):
-        sig[0, r] = xb[r]
-    for k in range(n):
-        for r in range(n):
-            sig[1 + k, r] = xb[r] + L[r, k]
-            sig[1 + n + k, r] = xb[r] - L[r, k]
+    st = _sigma_points(xb, Pb, c, A, L, sig)
+    if st == 2:
+        return 0.0, 2
     # propagate through the model (SI units)
     h = dt / n_sub
     spool_coef_nb(h, prm, coef)
@@ -238,21 +249,11 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
             Pb[r, s_] = acc
         Pb[r, r] += q[r] * dt
     # redraw the sigma points from the prior (as filterpy's predict does)
-    for r in range(n):
-        for s_ in range(n):
-            A[r, s_] = c * Pb[r, s_]
-    if not _chol(A, L):
-        for r in range(n):
-            A[r, r] += c * 1e-9
-        if not _chol(A, L):
-            return 0.0, 2
+    st2 = _sigma_points(xm, Pb, c, A, L, sig_f)
+    if st2 == 2:
+        return 0.0, 2
+    if st2 == 1:
         st = 1
-    for r in range(n):
-        sig_f[0, r] = xm[r]
-    for k in range(n):
-        for r in range(n):
-            sig_f[1 + k, r] = xm[r] + L[r, k]
-            sig_f[1 + n + k, r] = xm[r] - L[r, k]
     for k in range(K):
         for r in range(n):
             xs[r] = sig_f[k, r] * scale[r]
