@@ -460,6 +460,33 @@ class MonitorBank:
             return self.update_rows_rounds(samples)
         return self._run_block(samples)
 
+    def index_of(self, key: str) -> int:
+        """Row of actuator ``key`` in the bank (created on first use); for ``update_arrays``."""
+        return self._index(key)
+
+    def update_arrays(self, ks: NDArray, t: NDArray, channels: NDArray) -> BankRows:
+        """``update_rows`` for samples already in arrays (no dicts): actuator rows ``ks`` (n,)
+        from ``index_of``, sample times ``t`` (n,) [s] and ``channels`` (n, 7) in the wire
+        order of ``service.messages.CHANNELS`` (x_cmd, i, x_s, x_j, p1, p2, p_sr; SI), NaN
+        where a channel is absent. Same numbers as ``update_rows`` on the equivalent dicts
+        (with None for the NaNs); ``BankRows.index`` refers to positions in these arrays."""
+        ks = np.ascontiguousarray(ks, np.int64)
+        n = len(ks)
+        if n == 0:
+            return _empty_rows()
+        if ks.min() < 0 or ks.max() >= len(self.ids):
+            raise ValueError("update_arrays: ks must be rows returned by index_of")
+        ch = np.asarray(channels, float)
+        if ch.shape != (n, 7) or np.shape(t) != (n,):
+            raise ValueError(f"update_arrays: expected t ({n},) and channels ({n}, 7)")
+        vals = np.empty((n, 8))
+        vals[:, 0] = t
+        vals[:, 1:6] = ch[:, 2:7]  # x_s, x_j, p1, p2, p_sr
+        vals[:, 6] = ch[:, 1]  # i
+        vals[:, 7] = ch[:, 0]  # x_cmd
+        present = ~np.isnan(vals)
+        return self._run_inputs(*self._inputs(ks, vals, present))
+
     # -- reference path: one kernel call per round of at most one sample per actuator ---
     def update_many_rounds(
         self, samples: Sequence[tuple[str, Mapping]]
@@ -529,6 +556,12 @@ class MonitorBank:
                         fv = _f(v)
                         if fv is not None:
                             vals[j, c] = fv
+        return self._inputs(ks, vals, present)
+
+    def _inputs(self, ks: NDArray, vals: NDArray, present: NDArray):
+        """Filter inputs of a block from ``vals`` (n, 8) in the order t, x_s, x_j, p1, p2,
+        p_sr, i, x_cmd and ``present`` (n, 8): a present non-finite value counts as
+        bad_channel, a sample with no usable value as skipped_nan."""
         fin = np.isfinite(vals)
         ok = present & fin
         bad = present & ~fin
@@ -552,10 +585,12 @@ class MonitorBank:
         return ks, t, z, mask, cand, i_m, x_c
 
     def _run_block(self, samples: Sequence[tuple[str, Mapping]]) -> BankRows:
-        n = len(samples)
-        if n == 0:
+        if len(samples) == 0:
             return _empty_rows()
-        ks, t, z, mask, cand, i_m, x_c = self._parse_block(samples)
+        return self._run_inputs(*self._parse_block(samples))
+
+    def _run_inputs(self, ks, t, z, mask, cand, i_m, x_c) -> BankRows:
+        n = len(ks)
         y = np.zeros((n, 5))
         nis = np.zeros(n)
         nis_avg = np.zeros(n)

@@ -163,3 +163,44 @@ def test_empty_block():
     assert r.est.shape == (0, 18) and r.events == []
     assert bank.update_many([("A", {"t": 0.0})]) == [None]
     assert bank.counters_of("A")["skipped_nan"] == 1
+
+
+def _as_arrays(bank: MonitorBank, part):
+    """(ks, t, channels) of ``update_arrays`` for dict samples (None, NaN, text -> NaN)."""
+    from service.messages import CHANNELS
+
+    def num(v):
+        return v if isinstance(v, int | float) and not isinstance(v, bool) else math.nan
+
+    ks = np.array([bank.index_of(k) for k, _ in part], np.int64)
+    t = np.array([num(s.get("t")) for _, s in part], float)
+    ch = np.array([[num(s.get(c)) for c in CHANNELS] for _, s in part], float).reshape(-1, 7)
+    return ks, t, ch
+
+
+def test_update_arrays_equals_update_rows(stream):
+    """The array entry point (the daemon's and the replay's) gives the dict path's bits when
+    NaN stands for an absent value (None); inf stays a bad value in both."""
+
+    def absent(v):
+        bad = v is None or isinstance(v, str) or (isinstance(v, float) and math.isnan(v))
+        return None if bad else v
+
+    dicts = [(k, {c: absent(v) for c, v in s.items()}) for k, s in stream]
+    rng = np.random.default_rng(3)
+    ref, new = MonitorBank(_cfg()), MonitorBank(_cfg())
+    for a, b in _batches(len(dicts), rng):
+        part = dicts[a:b]
+        r0 = ref.update_rows(part) if b - a > 2 else ref._run_block(part)
+        r1 = new.update_arrays(*_as_arrays(new, part))
+        assert r0.index.tolist() == r1.index.tolist()
+        assert _bits(r0.t) == _bits(r1.t) and _bits(r0.est) == _bits(r1.est)
+        assert _bits(r0.res) == _bits(r1.res) and _bits(r0.health) == _bits(r1.health)
+        assert r0.events == r1.events
+    for key in ("A", "B", "C"):
+        assert ref.counters_of(key) == new.counters_of(key)
+    assert _state(ref) == _state(new)
+    with pytest.raises(ValueError, match="index_of"):
+        new.update_arrays(np.array([7]), np.array([1.0]), np.zeros((1, 7)))
+    with pytest.raises(ValueError, match="channels"):
+        new.update_arrays(np.array([0]), np.array([1.0]), np.zeros((1, 6)))
