@@ -18,6 +18,7 @@ def warm_up() -> float:
     from models.eha import VALVE_MODELS, EHAStepper, simulate
     from models.params import EHAParams
     from models.scenario import Scenario
+    from service.messages import decode_meas_arrays, encode_meas
     from service.monitor import Monitor, MonitorBank
 
     sc = Scenario(name="warmup", duration_s=2e-3, step_s=1e-4)
@@ -36,6 +37,8 @@ def warm_up() -> float:
     bank.update_rows([("a", s) for s in samples[:1]])
     for s in samples[1:]:
         bank.update_rows([("a", s)])
+    arr = decode_meas_arrays(encode_meas([{**s, "seq": k} for k, s in enumerate(samples)]))
+    bank.update_arrays([bank.index_of("b")] * len(arr.t), arr.t, arr.values)
     return time.perf_counter() - t0
 
 

@@ -7,6 +7,7 @@ import math
 import random
 import struct
 
+import numpy as np
 import pytest
 from pydantic import ValidationError
 
@@ -260,3 +261,48 @@ def test_encode_refuses_what_it_cannot_pack():
         encode_meas([{"seq": k, "t": float(k)} for k in range(4097)], "bin")
     with pytest.raises(ValueError):
         encode_meas(_samples(1), "xml")  # type: ignore[arg-type]
+
+
+def _arrays_equal_dicts(payload: bytes) -> None:
+    """decode_meas_arrays and decode_meas_dicts agree: same error field, or same values."""
+    from service.messages import CHANNELS, decode_meas_arrays, decode_meas_dicts
+
+    try:
+        rows = decode_meas_dicts(payload)
+    except MessageError as e:
+        with pytest.raises(MessageError) as ei:
+            decode_meas_arrays(payload)
+        assert ei.value.field == e.field
+        return
+    a = decode_meas_arrays(payload)
+    assert a.seq.tolist() == [r["seq"] for r in rows]
+    assert a.t.tolist() == [r["t"] for r in rows]
+    want = [[math.nan if r[c] is None else r[c] for c in CHANNELS] for r in rows]
+    np.testing.assert_array_equal(a.values, np.array(want, float).reshape(-1, len(CHANNELS)))
+
+
+@pytest.mark.parametrize("fmt", ["bin", "json"])
+def test_arrays_decoder_round_trip(fmt):
+    s = [x.model_dump() for x in _samples(5)]
+    s[2]["p1"] = None
+    s[3]["x_cmd"] = None
+    _arrays_equal_dicts(encode_meas(s, fmt))
+
+
+def test_arrays_decoder_same_errors_and_fuzz():
+    bad = [
+        _bad_bin("p1", math.nan), _bad_bin("x_j", math.inf), _bad_bin("t", -math.inf),
+        _bad_bin("seq", -5, k=0), _bad_bin("seq", 0), _bad_bin("t", 5.0),
+        encode_meas(_samples(3), "bin")[:-1], b"SW\x02M" + b"\0" * 4, b"", b"{not json",
+    ]  # fmt: skip
+    b = bytearray(encode_meas(_samples(2), "bin"))
+    b[8 + 73 + 16] = 0xFF
+    for p in [*bad, bytes(b)]:
+        _arrays_equal_dicts(p)
+    rng = random.Random(2)
+    good = encode_meas(_samples(4), "bin")
+    for _ in range(2000):
+        src = bytearray(good)
+        for _ in range(rng.randint(1, 4)):
+            src[rng.randrange(len(src))] = rng.randrange(256)
+        _arrays_equal_dicts(bytes(src))
