@@ -8,15 +8,20 @@ flat fields and a jsonschema per topic (Foxglove's Plot panel shows the fields d
 loses at most about ``flush_s`` of data; files rotate by size or age; ``close`` finishes the
 file (summary, footer). ``log`` is thread-safe.
 
+Block writing (:meth:`McapLogger.log_block`): many samples of one topic from a float array, the
+same bytes as one :meth:`McapLogger.log` per row, formatted and packed by the compiled kernels of
+:mod:`service.logcodec`.
+
 Reading (:func:`read_log`): a streaming pass over the records that yields every message of every
 complete chunk, in file order, and stops with one :class:`TruncatedLogWarning` at the first
 incomplete or corrupt record (a file whose writer was killed has no footer and may end inside a
-chunk).
+chunk). :func:`read_blocks` reads the same messages as (N, F) float arrays per channel and chunk.
 """
 
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import logging
 import math
@@ -28,8 +33,10 @@ import zlib
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, NamedTuple
 
+import numpy as np
+from mcap.exceptions import EndOfFile
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Footer, MessageIndex, Schema
 from mcap.stream_reader import StreamReader
@@ -46,6 +53,8 @@ except ImportError:  # pragma: no cover
 
 __all__ = [
     "McapLogger",
+    "LogBlock",
+    "read_blocks",
     "read_log",
     "read_log_files",
     "rotated_files",
@@ -122,6 +131,22 @@ def json_schema_for(topic: str, msg: Mapping[str, Any]) -> dict[str, Any]:
 
 
 _MSG_RECORD = struct.Struct("<BQHIQQ")  # opcode, length, channel_id, sequence, log/publish time
+_MSG_HEAD_DTYPE = np.dtype(
+    [("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"), ("lt", "<u8"), ("pt", "<u8")]
+)  # packed: 31 bytes, the header of one Message record
+
+
+class _PackedMessageIndex(MessageIndex):
+    """``MessageIndex`` whose ``write`` packs all (log_time, offset) pairs in one call."""
+
+    def write(self, stream: Any) -> None:
+        recs = self.records
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(len(recs) * 16)
+        if recs:
+            stream.write(struct.pack(f"<{2 * len(recs)}Q", *itertools.chain.from_iterable(recs)))
+        stream.finish_record()
 
 
 class _FastWriter(Writer):
@@ -170,7 +195,7 @@ class _FastWriter(Writer):
             cb.message_end_time = log_time
         idx = cb.message_indices.get(channel_id)
         if idx is None:
-            idx = cb.message_indices[channel_id] = MessageIndex(channel_id=channel_id, records=[])
+            idx = cb.message_indices[channel_id] = _PackedMessageIndex(channel_id, [])
         buf = cb.record_writer._buffer
         idx.records.append((log_time, buf.tell()))
         cb.num_messages += 1
@@ -182,6 +207,97 @@ class _FastWriter(Writer):
         buf.write(data)
         if buf.tell() > self._csize:
             self._finalize()
+
+    def add_messages(
+        self,
+        channel_id: int,
+        log_times: Iterable[int],
+        datas: list[bytes],
+        sequences: Iterable[int],
+    ) -> None:
+        """:meth:`add_message` for each message (``publish_time`` = ``log_time``), the record
+        headers packed at once; the same bytes as one call per message."""
+        lts = np.fromiter(log_times, np.uint64, len(datas))
+        seqs = np.fromiter(sequences, np.uint32, len(datas))
+        if not self._fast:
+            for lt, data, seq in zip(lts.tolist(), datas, seqs.tolist(), strict=True):
+                super().add_message(channel_id, lt, data, lt, seq)
+            return
+        n = len(datas)
+        if n == 0:
+            return
+        lens = np.fromiter(map(len, datas), np.int64, n)
+        head = np.empty(n, _MSG_HEAD_DTYPE)
+        head["op"] = Opcode.MESSAGE
+        head["len"] = lens + 22
+        head["cid"] = channel_id
+        head["seq"] = seqs
+        head["lt"] = lts
+        head["pt"] = lts
+        hb = head.tobytes()
+        parts: list[bytes] = [b""] * (2 * n)
+        parts[0::2] = [hb[i : i + 31] for i in range(0, 31 * n, 31)]
+        parts[1::2] = datas
+        self._add_records(channel_id, lts, b"".join(parts), np.cumsum(lens + 31))
+
+    def _add_records(
+        self, channel_id: int, log_times: np.ndarray, recs: Any, ends: np.ndarray
+    ) -> None:
+        """Append packed Message records ``recs`` (record k ends at ``ends[k]``) of one
+        channel: statistics, chunk times and message index as :meth:`add_message` keeps them,
+        and the chunk ends after the same record as with one :meth:`add_message` per record."""
+        n = len(ends)
+        if n == 0:
+            return
+        st = self._st
+        lo, hi = int(log_times.min()), int(log_times.max())
+        if st.message_count == 0 or lo < st.message_start_time:
+            st.message_start_time = lo
+        if hi > st.message_end_time:
+            st.message_end_time = hi
+        st.channel_message_counts[channel_id] += n
+        st.message_count += n
+        starts = np.empty(n, np.int64)
+        starts[0] = 0
+        starts[1:] = ends[:-1]
+        mv = memoryview(recs)
+        k = 0
+        while k < n:
+            cb = self._cb
+            buf = cb.record_writer._buffer
+            base = buf.tell()
+            # add_message ends the chunk after the first record that takes it past chunk_size
+            j = k + int(np.searchsorted(ends[k:], self._csize - base + starts[k], "right")) + 1
+            j = min(j, n)
+            part = log_times[k:j]
+            lo, hi = int(part.min()), int(part.max())
+            if cb.num_messages == 0 or lo < cb.message_start_time:
+                cb.message_start_time = lo
+            if hi > cb.message_end_time:
+                cb.message_end_time = hi
+            idx = cb.message_indices.get(channel_id)
+            if idx is None:
+                idx = cb.message_indices[channel_id] = _PackedMessageIndex(channel_id, [])
+            offs = (starts[k:j] + (base - starts[k])).tolist()
+            idx.records.extend(zip(part.tolist(), offs, strict=True))
+            cb.num_messages += j - k
+            buf.write(mv[starts[k] : ends[j - 1]])
+            if buf.tell() > self._csize:
+                self._finalize()
+            k = j
+
+
+def _row_dicts(names: tuple[str, ...], isint: np.ndarray, vals: np.ndarray) -> list[dict]:
+    """The message dicts :meth:`McapLogger.log_block` writes for the rows of ``vals``."""
+    kinds = isint.tolist()
+    isfinite = math.isfinite
+    return [
+        {
+            k: (None if not isfinite(v) else int(v) if ii else v)
+            for k, ii, v in zip(names, kinds, row, strict=True)
+        }
+        for row in vals.tolist()
+    ]
 
 
 class McapLogger:
@@ -332,6 +448,72 @@ class McapLogger:
                     self._flush_locked()
                 self._maybe_rotate()
 
+    def log_block(
+        self,
+        topic: str,
+        t: np.ndarray,
+        names: Iterable[str],
+        values: np.ndarray,
+        *,
+        int_fields: Iterable[str] = (),
+    ) -> None:
+        """Append one message per row of ``values`` (N, F) on ``topic`` at times ``t`` (N,) [s].
+
+        Row k is written exactly as ``log(topic, t[k], {names[f]: values[k, f]})`` writes it
+        (floats as ``float.__repr__``, fields named in ``int_fields`` as integers, truncated;
+        non-finite values as ``null``); the schema comes from the first row if the topic is
+        new. Same flush and rotation as :meth:`log` (checked once per block).
+        """
+        names_t = tuple(str(n) for n in names)
+        tt = np.asarray(t, dtype=np.float64).reshape(-1)
+        vals = np.ascontiguousarray(values, dtype=np.float64)
+        if vals.ndim != 2 or vals.shape != (tt.size, len(names_t)):
+            raise ValueError(
+                f"values must be (len(t), len(names)) = ({tt.size}, {len(names_t)}), "
+                f"got {vals.shape}"
+            )
+        if len(set(names_t)) != len(names_t):
+            raise ValueError(f"duplicate field names in {names_t}")
+        n = tt.size
+        if n == 0:
+            return
+        tns = tt * 1e9
+        if not (np.isfinite(tns).all() and tns.max() < 2.0**63):
+            raise ValueError("log_block: t must be finite and < 2**63 ns")
+        lts = np.maximum(np.rint(tns), 0.0).astype(np.int64)  # = max(0, int(round(t * 1e9)))
+        from service.logcodec import encode_records, row_format  # numba: imported on use
+
+        fmt = row_format(names_t, frozenset(int_fields))
+        packed = True
+        if fmt.isint.any():
+            iv = vals[:, fmt.isint]
+            packed = not bool((np.abs(iv[np.isfinite(iv)]) >= 2.0**63).any())
+        with self._lock:
+            if self._closed:
+                raise ValueError("log_block() on a closed McapLogger")
+            cid = self._channels.get(topic)
+            if cid is None:
+                cid = self._channel(topic, _row_dicts(names_t, fmt.isint, vals[:1])[0])
+            seq0 = self._seq[cid]
+            self._seq[cid] = (seq0 + n) & 0xFFFFFFFF
+            w = self._writer
+            if packed and isinstance(w, _FastWriter) and w._fast:
+                recs, ends = encode_records(fmt, vals, cid, seq0, lts)
+                w._add_records(cid, lts, recs, ends)
+            else:
+                datas = [_ENCODE(d).encode() for d in _row_dicts(names_t, fmt.isint, vals)]
+                seqs = [(seq0 + k) & 0xFFFFFFFF for k in range(n)]
+                if isinstance(w, _FastWriter):
+                    w.add_messages(cid, lts.tolist(), datas, seqs)
+                else:  # pragma: no cover
+                    for lt, data, seq in zip(lts.tolist(), datas, seqs, strict=True):
+                        w.add_message(cid, lt, data, lt, seq)  # type: ignore[union-attr]
+            self.message_count += n
+            self._dirty = True
+            if time.monotonic() - self._last_flush >= self.flush_s:
+                self._flush_locked()
+            self._maybe_rotate()
+
     def log_many(self, records: Iterable[tuple[str, float, Mapping[str, Any]]]) -> None:
         """:meth:`log` for each ``(topic, t, msg)``, taking the lock once (fewer switches)."""
         with self._lock:
@@ -448,12 +630,27 @@ def _iter_chunk(data: bytes) -> Iterator[tuple[int, Any]]:
         pos = body + length
 
 
-def _iter_raw(
-    path: Path, stats: LogReadStats
-) -> Iterator[tuple[str, int, bytes]]:  # (topic, log_time_ns, data)
-    channels: dict[int, str] = {}
+class _StreamReader(StreamReader):
+    """``StreamReader`` that skips MessageIndex records instead of parsing them (the readers
+    here do not use them; parsing costs about 2 us per message)."""
+
+    def _read_record(self, opcode: int, length: int) -> Any:
+        if opcode == Opcode.MESSAGE_INDEX:
+            stream = self._stream
+            if len(stream.read(length)) < length:
+                raise EndOfFile()
+            return None
+        return super()._read_record(opcode, length)
+
+
+def _iter_stream(
+    path: Path, stats: LogReadStats, channels: dict[int, str]
+) -> Iterator[bytes | tuple[int, int, bytes]]:
+    """Decompressed chunks (``bytes``) and un-chunked messages ``(channel_id, log_time, data)``
+    in file order. Channel records outside chunks go into ``channels``; ``stats`` gets the
+    footer and the truncation (the caller counts chunks)."""
     with open(path, "rb") as fh:
-        reader = StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
+        reader = _StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
         records = reader.records
         while True:
             try:
@@ -466,19 +663,12 @@ def _iter_raw(
                 return
             if isinstance(rec, Chunk):
                 try:
-                    parsed = list(_iter_chunk(_decompress(rec)))
+                    data = _decompress(rec)
                 except Exception as e:
                     stats.truncated = True
                     stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
                     return
-                stats.chunks += 1
-                for op, r in parsed:
-                    if op == Opcode.CHANNEL:
-                        channels[r.id] = r.topic
-                    elif op == Opcode.MESSAGE:
-                        topic = channels.get(r[0])
-                        if topic is not None:
-                            yield topic, r[2], r[3]
+                yield data
             elif isinstance(rec, Channel):
                 channels[rec.id] = rec.topic
             elif isinstance(rec, Footer):
@@ -488,9 +678,45 @@ def _iter_raw(
                     stats.reason = "trailing magic missing"
                 return
             elif getattr(rec, "channel_id", None) is not None and hasattr(rec, "data"):
-                topic = channels.get(rec.channel_id)  # un-chunked Message record
+                yield rec.channel_id, rec.log_time, rec.data  # un-chunked Message record
+
+
+def _iter_raw(
+    path: Path, stats: LogReadStats
+) -> Iterator[tuple[str, int, bytes]]:  # (topic, log_time_ns, data)
+    channels: dict[int, str] = {}
+    for item in _iter_stream(path, stats, channels):
+        if isinstance(item, tuple):
+            topic = channels.get(item[0])
+            if topic is not None:
+                yield topic, item[1], item[2]
+            continue
+        try:
+            parsed = list(_iter_chunk(item))
+        except Exception as e:
+            stats.truncated = True
+            stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
+            return
+        stats.chunks += 1
+        for op, r in parsed:
+            if op == Opcode.CHANNEL:
+                channels[r.id] = r.topic
+            elif op == Opcode.MESSAGE:
+                topic = channels.get(r[0])
                 if topic is not None:
-                    yield topic, rec.log_time, rec.data
+                    yield topic, r[2], r[3]
+
+
+def _truncation_text(p: Path, st: LogReadStats) -> str | None:
+    if not (st.truncated or not st.footer):
+        return None
+    if not st.truncated:
+        st.truncated = True
+        st.reason = "no footer"
+    return (
+        f"{p}: truncated MCAP log ({st.reason}); read {st.chunks} complete chunks, "
+        f"{st.messages} messages"
+    )
 
 
 def read_log(
@@ -527,16 +753,214 @@ def read_log(
             continue
         st.messages += 1
         yield topic, lt * 1e-9, msg
-    if st.truncated or not st.footer:
-        if not st.truncated:
-            st.truncated = True
-            st.reason = "no footer"
-        text = (
-            f"{p}: truncated MCAP log ({st.reason}); read {st.chunks} complete chunks, "
-            f"{st.messages} messages"
-        )
+    text = _truncation_text(p, st)
+    if text is not None:
         log.warning(text)
         warnings.warn(text, TruncatedLogWarning, stacklevel=2)
+
+
+class LogBlock(NamedTuple):
+    """Messages of one channel with the same fields: ``values[k, f]`` is field ``names[f]``
+    of the message logged at ``t[k]`` [s] (``log_time``). JSON null and strings -> NaN,
+    integers -> float, booleans -> 0/1."""
+
+    topic: str
+    t: np.ndarray
+    names: tuple[str, ...]
+    values: np.ndarray
+
+
+_NAN = float("nan")
+
+
+def _as_float(v: Any) -> float:
+    if isinstance(v, float):
+        return v
+    if isinstance(v, int):  # and bool
+        try:
+            return float(v)
+        except OverflowError:
+            return math.inf if v > 0 else -math.inf
+    return _NAN
+
+
+def _json_blocks(topic: str, items: Iterable[tuple[int, bytes]]) -> Iterator[LogBlock]:
+    """Blocks from ``(log_time, data)`` messages decoded by ``json.loads``: one per run of
+    messages with the same keys (messages that are not JSON objects are skipped)."""
+    loads = json.loads
+    keys: tuple[str, ...] | None = None
+    ts: list[float] = []
+    rows: list[list[float]] = []
+    for lt, data in items:
+        try:
+            obj = loads(data)
+        except ValueError:
+            continue
+        if not isinstance(obj, dict):
+            continue
+        k = tuple(obj)
+        if k != keys:
+            if ts:
+                yield _make_block(topic, keys, ts, rows)  # type: ignore[arg-type]
+            keys, ts, rows = k, [], []
+        ts.append(lt * 1e-9)
+        rows.append([_as_float(v) for v in obj.values()])
+    if ts:
+        yield _make_block(topic, keys, ts, rows)  # type: ignore[arg-type]
+
+
+def _make_block(
+    topic: str, keys: tuple[str, ...], ts: list[float], rows: list[list[float]]
+) -> LogBlock:
+    vals = np.array(rows, dtype=np.float64).reshape(len(rows), len(keys))
+    return LogBlock(topic, np.array(ts, dtype=np.float64), keys, vals)
+
+
+def _key_names(data: bytes, ks: np.ndarray, kl: np.ndarray) -> tuple[str, ...] | None:
+    try:
+        names = tuple(
+            data[s : s + n].decode("utf-8", "surrogatepass")
+            for s, n in zip(ks.tolist(), kl.tolist(), strict=True)
+        )
+    except UnicodeDecodeError:
+        return None
+    return names if len(set(names)) == len(names) else None
+
+
+def _chunk_groups(
+    data: bytes, channels: dict[int, str]
+) -> tuple[np.ndarray, list[tuple[str | None, np.ndarray, np.ndarray, np.ndarray]]]:
+    """The messages of a decompressed chunk grouped by channel, in the order of each
+    channel's first message: (chunk as uint8, [(topic, log_times, data offsets, data
+    lengths)]). Channel records in the chunk update ``channels``; a message takes the topic
+    its channel had at that point (as :func:`read_log`)."""
+    from mcap.data_stream import ReadDataStream
+
+    from service.logcodec import MSG_OPCODE, scan_records
+
+    buf = np.frombuffer(data, np.uint8)
+    ops, starts, lens, cids, lts = scan_records(buf)
+    ismsg = ops == MSG_OPCODE
+    chans = []
+    for r in np.flatnonzero(ops == Opcode.CHANNEL).tolist():
+        s0 = int(starts[r])
+        chans.append((r, Channel.read(ReadDataStream(io.BytesIO(data[s0 : s0 + lens[r]])))))
+    midx = np.flatnonzero(ismsg)
+    mc = cids[midx]
+    ver = np.zeros(midx.size, np.int64)  # how many Channel records of its id precede it
+    versions: dict[int, list[str | None]] = {}
+    for r, ch in chans:
+        versions.setdefault(ch.id, [channels.get(ch.id)]).append(ch.topic)
+        ver[(mc == ch.id) & (midx > r)] += 1
+        channels[ch.id] = ch.topic
+    if midx.size == 0:
+        return buf, []
+    key = mc * (int(ver.max()) + 1) + ver if chans else mc
+    uniq, first, inv = np.unique(key, return_index=True, return_inverse=True)
+    order = np.argsort(inv, kind="stable")
+    bounds = np.concatenate(([0], np.cumsum(np.bincount(inv, minlength=uniq.size))))
+    groups = []
+    for g in np.argsort(first).tolist():
+        sel = midx[order[bounds[g] : bounds[g + 1]]]
+        k0 = int(np.searchsorted(midx, sel[0]))
+        c, v = int(mc[k0]), int(ver[k0])
+        topic = versions[c][v] if c in versions else channels.get(c)
+        groups.append((topic, lts[sel], starts[sel] + 22, lens[sel] - 22))
+    return buf, groups
+
+
+def _group_blocks(
+    topic: str, data: bytes, buf: np.ndarray, lts: np.ndarray, offs: np.ndarray, lens: np.ndarray
+) -> Iterator[LogBlock]:
+    from service.logcodec import parse_objects
+
+    res = parse_objects(buf, offs, lens)
+    if res is not None:
+        names = _key_names(data, res[0], res[1])
+        if names is not None:
+            yield LogBlock(topic, lts.astype(np.float64) * 1e-9, names, res[2])
+            return
+    yield from _json_blocks(
+        topic,
+        (
+            (lt, data[o : o + n])
+            for lt, o, n in zip(lts.tolist(), offs.tolist(), lens.tolist(), strict=True)
+        ),
+    )
+
+
+def read_blocks(
+    path: str | Path,
+    topics: Iterable[str] | None = None,
+    *,
+    stats: LogReadStats | None = None,
+    match: Callable[[str], bool] | None = None,
+) -> Iterator[LogBlock]:
+    """The messages of :func:`read_log` as :class:`LogBlock` arrays.
+
+    One block per chunk and channel (split where the key list changes); within a channel the
+    messages keep file order; the blocks of one chunk come in the order of each channel's
+    first message in it. Un-chunked messages come as blocks of consecutive messages per
+    channel. Messages that are not JSON objects are skipped. ``topics``, ``match``, ``stats``
+    and the truncation warning as in :func:`read_log`. Flat objects of numbers, null, booleans
+    and plain strings are parsed by compiled code (numbers equal to ``float(text)``), anything
+    else by ``json.loads``.
+    """
+    p = Path(path)
+    st = stats if stats is not None else LogReadStats()
+    want = None if topics is None else set(topics)
+    decided: dict[str, bool] = {}
+
+    def keep(topic: str | None) -> bool:
+        if topic is None:
+            return False
+        k = decided.get(topic)
+        if k is None:
+            k = decided[topic] = (want is None or topic in want) and (
+                match is None or bool(match(topic))
+            )
+        return k
+
+    channels: dict[int, str] = {}
+    pending: list[tuple[int, str, int, bytes]] = []  # un-chunked messages
+    for item in _iter_stream(p, st, channels):
+        if isinstance(item, tuple):
+            topic = channels.get(item[0])
+            if keep(topic):
+                pending.append((item[0], topic, item[1], item[2]))  # type: ignore[arg-type]
+            continue
+        if pending:
+            for b in _pending_blocks(pending):
+                st.messages += b.t.size
+                yield b
+            pending = []
+        try:
+            buf, groups = _chunk_groups(item, channels)
+        except Exception as e:
+            st.truncated = True
+            st.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
+            break
+        st.chunks += 1
+        for topic, lts, offs, lens in groups:
+            if keep(topic):
+                for b in _group_blocks(topic, item, buf, lts, offs, lens):  # type: ignore[arg-type]
+                    st.messages += b.t.size
+                    yield b
+    for b in _pending_blocks(pending):
+        st.messages += b.t.size
+        yield b
+    text = _truncation_text(p, st)
+    if text is not None:
+        log.warning(text)
+        warnings.warn(text, TruncatedLogWarning, stacklevel=2)
+
+
+def _pending_blocks(pending: list[tuple[int, str, int, bytes]]) -> Iterator[LogBlock]:
+    by: dict[tuple[int, str], list[tuple[int, bytes]]] = {}
+    for cid, topic, lt, data in pending:
+        by.setdefault((cid, topic), []).append((lt, data))
+    for (_cid, topic), items in by.items():
+        yield from _json_blocks(topic, items)
 
 
 def rotated_files(path: str | Path) -> list[Path]:

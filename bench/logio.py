@@ -1,0 +1,158 @@
+"""MCAP log I/O speed: per-message ``McapLogger.log`` vs ``log_block``, ``read_log`` vs
+``read_blocks`` (numba kernels of service.logcodec; timed warm, after one call compiled them
+or loaded their cache).
+
+Writes a 1 kHz meas log (9 fields: seq, t, x_cmd, i, x_s, x_j, p1, p2, p_sr; about 5 % nulls)
+and an 18-field est log, each with ``log`` (dict per sample) and with ``log_block`` (one
+array), checks the files are byte-identical, then reads the meas log both ways and checks
+the values are bit-identical. Prints microseconds per message (best of ``--repeat``).
+
+    .venv/bin/python bench/logio.py [--samples 4000] [--repeat 5] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from service.mcaplog import McapLogger, read_blocks, read_log  # noqa: E402
+
+MEAS = "/fleet/AC001/elevator_L/meas"
+EST = "/fleet/AC001/elevator_L/est"
+MEAS_NAMES = ("seq", "t", "x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr")
+EST_NAMES = (
+    ("seq", "t")
+    + tuple(f"x{k}" for k in range(7))
+    + ("nis", "beta", "leak", "fric", "r_p12", "r_x", "sd_p1", "sd_p2", "sd_x")
+)
+
+
+def signals(n: int, names: tuple[str, ...], seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sample times (1 kHz from t=1000 s) and a (n, F) array of smooth noisy signals with
+    the magnitudes of the service's fields (full 17-digit doubles); ~5 % nulls (NaN)."""
+    rng = np.random.default_rng(seed)
+    t = 1000.0 + np.arange(n) * 1e-3
+    scale = 10.0 ** rng.integers(-5, 8, size=len(names))
+    phase = rng.uniform(0, 2 * np.pi, size=len(names))
+    v = scale * (np.sin(2 * np.pi * 3.0 * t[:, None] + phase) + 0.01 * rng.normal(size=(n, 1)))
+    v[:, 0] = np.arange(n)
+    v[:, 1] = t
+    nulls = rng.random((n, len(names))) < 0.05
+    nulls[:, :2] = False
+    v[nulls] = np.nan
+    return t, v
+
+
+def _dicts(names: tuple[str, ...], v: np.ndarray) -> list[dict]:
+    return [
+        {
+            k: (None if not math.isfinite(x) else int(x) if k == "seq" else x)
+            for k, x in zip(names, row, strict=True)
+        }
+        for row in v.tolist()
+    ]
+
+
+def best(fn: Callable[[], object], repeat: int) -> float:
+    ts = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return min(ts)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=4000)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    n = args.samples
+    res: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as d:
+        dd = Path(d)
+        kw = {"background_flush": False, "flush_s": 1e9}
+        for label, topic, names in (("meas9", MEAS, MEAS_NAMES), ("est18", EST, EST_NAMES)):
+            t, v = signals(n, names, seed=len(names))
+            tl = t.tolist()
+            rows = _dicts(names, v)  # built outside the timing: log's input is a dict
+
+            def write_log(p: Path = dd / f"{label}-log.mcap", topic=topic, tl=tl, rows=rows):
+                with McapLogger(p, **kw) as lg:
+                    for tk, row in zip(tl, rows, strict=True):
+                        lg.log(topic, tk, row)
+
+            def write_block(
+                p: Path = dd / f"{label}-block.mcap", topic=topic, t=t, v=v, names=names
+            ):
+                with McapLogger(p, **kw) as lg:
+                    lg.log_block(topic, t, names, v, int_fields=("seq",))
+
+            write_block()  # compile / load the numba cache
+            res[f"{label}_log_us_per_msg"] = best(write_log, args.repeat) / n * 1e6
+            res[f"{label}_log_block_us_per_msg"] = best(write_block, args.repeat) / n * 1e6
+            res[f"{label}_write_speedup"] = (
+                res[f"{label}_log_us_per_msg"] / res[f"{label}_log_block_us_per_msg"]
+            )
+            same = (dd / f"{label}-log.mcap").read_bytes() == (
+                dd / f"{label}-block.mcap"
+            ).read_bytes()
+            res[f"{label}_files_identical"] = float(same)
+
+        p = dd / "meas9-log.mcap"
+        list(read_blocks(p))  # compile / load the numba cache
+        res["read_log_us_per_sample"] = (
+            best(lambda: sum(1 for _ in read_log(p)), args.repeat) / n * 1e6
+        )
+        res["read_blocks_us_per_sample"] = best(lambda: list(read_blocks(p)), args.repeat) / n * 1e6
+        res["read_speedup"] = res["read_log_us_per_sample"] / res["read_blocks_us_per_sample"]
+        ref = np.array(
+            [
+                [math.nan if m[k] is None else float(m[k]) for k in MEAS_NAMES]
+                for _, _, m in read_log(p)
+            ]
+        )
+        blocks = list(read_blocks(p))
+        got = np.concatenate([b.values for b in blocks])
+        same = (
+            blocks[0].names == MEAS_NAMES
+            and np.array_equal(
+                np.where(np.isnan(got), 0, got).view(np.uint64),
+                np.where(np.isnan(ref), 0, ref).view(np.uint64),
+            )
+            and np.array_equal(np.isnan(got), np.isnan(ref))
+        )
+        res["read_values_bit_identical"] = float(same)
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    print(
+        f"samples: {n}, best of {args.repeat}, numba kernels warm (compiled/cached before timing)"
+    )
+    for label, f in (("meas9", 9), ("est18", 18)):
+        print(
+            f"write {label:5s} ({f} fields): log {res[f'{label}_log_us_per_msg']:6.2f} us/msg   "
+            f"log_block {res[f'{label}_log_block_us_per_msg']:5.2f} us/msg   "
+            f"x{res[f'{label}_write_speedup']:.1f}   identical files: {bool(res[f'{label}_files_identical'])}"
+        )
+    print(
+        f"read  meas9: read_log {res['read_log_us_per_sample']:6.2f} us/sample   "
+        f"read_blocks {res['read_blocks_us_per_sample']:5.2f} us/sample   "
+        f"x{res['read_speedup']:.1f}   bit-identical: {bool(res['read_values_bit_identical'])}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
