@@ -28,9 +28,11 @@ from numba.core import cpu
 _LEAF = {"cache": True, "error_model": "numpy"}
 if hasattr(cpu.CPUTargetOptions, "_nrt"):
     _LEAF["_nrt"] = False
+_INLINE = {**_LEAF, "inline": "always"}  # small helpers: inlined into their callers
 
 __all__ = [
     "MSG_OPCODE",
+    "warm_up",
     "RowFormat",
     "row_format",
     "encode_records",
@@ -104,7 +106,7 @@ _DIGITS2 = np.frombuffer("".join(f"{i:02d}" for i in range(100)).encode(), np.ui
 # ----------------------------------------------------------------------------- arithmetic
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _umul128(a, b):
     a0 = a & _LO32
     a1 = a >> _U32
@@ -120,7 +122,7 @@ def _umul128(a, b):
     return hi, lo
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _shr128(lo, hi, s):
     return (lo >> np.uint64(s)) | (hi << np.uint64(64 - s))
 
@@ -164,7 +166,7 @@ def _pow5_factor(v):
     return c
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _dec_len(v):
     """Number of decimal digits of v (>= 1)."""
     n = 20
@@ -281,7 +283,7 @@ def _d2d(bits):
 # ----------------------------------------------------------------------------- formatting
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _put_digits(buf, p, v, n, dot):
     """Write the n digits of v at p, with '.' after ``dot`` digits if 0 < dot < n."""
     i = p + n
@@ -403,13 +405,13 @@ def format_float(x: np.ndarray) -> list[str]:
     return [text[s:e] for s, e in zip(starts.tolist(), ends.tolist(), strict=True)]
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _put_u64(buf, p, v, n):
     for i in range(n):
         buf[p + i] = np.uint8((v >> np.uint64(8 * i)) & np.uint64(0xFF))
 
 
-@njit(cache=True)
+@njit(**_LEAF)
 def _encode(values, isint, keys, key_off, channel_id, seq0, log_times, buf, ends):
     n, nf = values.shape
     vbits = values.view(np.uint64)
@@ -492,7 +494,7 @@ def encode_records(
 # ----------------------------------------------------------------------------- parsing
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _clz(w):
     n = 0
     for s in (32, 16, 8, 4, 2, 1):
@@ -548,7 +550,7 @@ def _to_double(w, q):
     return np.uint64(mant | (np.uint64(power2) << np.uint64(52))).view(np.float64)
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _load8(buf, p):
     v = _U0
     for i in range(8):
@@ -556,7 +558,7 @@ def _load8(buf, p):
     return v
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _is8digits(v):
     f0 = np.uint64(0xF0F0F0F0F0F0F0F0)
     return ((v & f0) | (((v + np.uint64(0x0606060606060606)) & f0) >> np.uint64(4))) == np.uint64(
@@ -564,7 +566,7 @@ def _is8digits(v):
     )
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _parse8(v):
     """Value of 8 ASCII digits packed little-endian in v (SWAR)."""
     mask = np.uint64(0x000000FF000000FF)
@@ -576,7 +578,7 @@ def _parse8(v):
     ) >> _U32
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _digits(buf, p, e, w):
     """Consume the digits at p: returns (end, w * 10**count + their value), mod 2**64."""
     e8 = np.uint64(100000000)
@@ -596,8 +598,8 @@ def _digits(buf, p, e, w):
     return p, w
 
 
-@njit(**_LEAF)
-def _number(buf, p, e):
+@njit(**_INLINE)
+def _number_inl(buf, p, e):
     """JSON number at p (strict grammar). Returns (end, value, ok); ok False if the text
     is not a JSON number or has more than 19 significant digits."""
     neg = False
@@ -658,7 +660,13 @@ def _number(buf, p, e):
     return p, (-v if neg else v), True
 
 
-@njit(cache=True)
+@njit(**_LEAF)
+def _number(buf, p, e):
+    """:func:`_number_inl` as a call (for the callers that are not hot)."""
+    return _number_inl(buf, p, e)
+
+
+@njit(**_LEAF)
 def _parse_numbers(buf, starts, ends, out):
     """Parse each buf[starts[k]:ends[k]] into out[k]; returns the count parsed (for tests)."""
     for k in range(starts.size):
@@ -684,7 +692,7 @@ def parse_number(texts: list[str]) -> np.ndarray:
     return out
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _ws(buf, p, e):
     while p < e:
         c = buf[p]
@@ -694,11 +702,48 @@ def _ws(buf, p, e):
     return p
 
 
+@njit(**_INLINE)
+def _value(buf, p, e):
+    """JSON scalar at p: (end, value, ok). Strings (plain ASCII, no escapes) and null -> NaN,
+    true/false -> 1/0; ok False for anything else (nested values, escapes, NaN literals)."""
+    c = buf[p]
+    if c == 34:
+        p += 1
+        while p < e and buf[p] != 34:
+            c = buf[p]
+            if c == 92 or c < 32 or c >= 128:
+                return p, 0.0, False
+            p += 1
+        if p >= e:
+            return p, 0.0, False
+        return p + 1, np.nan, True
+    if c == 110:
+        if p + 4 > e or buf[p + 1] != 117 or buf[p + 2] != 108 or buf[p + 3] != 108:
+            return p, 0.0, False
+        return p + 4, np.nan, True
+    if c == 116:
+        if p + 4 > e or buf[p + 1] != 114 or buf[p + 2] != 117 or buf[p + 3] != 101:
+            return p, 0.0, False
+        return p + 4, 1.0, True
+    if c == 102:
+        if (
+            p + 5 > e
+            or buf[p + 1] != 97
+            or buf[p + 2] != 108
+            or buf[p + 3] != 115
+            or buf[p + 4] != 101
+        ):
+            return p, 0.0, False
+        return p + 5, 0.0, True
+    return _number(buf, p, e)
+
+
 @njit(**_LEAF)
-def _object(buf, p, e, ks, kl, nk, record, vals, row):
-    """Parse one flat JSON object in buf[p:e]. record: store the key spans in ks/kl and
-    return the key count; else compare the keys with ks/kl[:nk] and store the values in
-    vals[row]. Returns -1 if the object is not understood (or the keys differ)."""
+def _object(buf, p, e, ks, kl, vs, ve, nk, record, vals, row):
+    """Parse one flat JSON object in buf[p:e]. record: store the key spans in ks/kl and the
+    value spans in vs/ve and return the key count; else compare the keys with ks/kl[:nk]
+    and store the values in vals[row]. Returns -1 if the object is not understood (or the
+    keys differ)."""
     p = _ws(buf, p, e)
     if p >= e or buf[p] != 123:
         return -1
@@ -739,45 +784,14 @@ def _object(buf, p, e, ks, kl, nk, record, vals, row):
         p = _ws(buf, p + 1, e)
         if p >= e:
             return -1
-        # value
-        c = buf[p]
-        if c == 34:
-            p += 1
-            while p < e and buf[p] != 34:
-                c = buf[p]
-                if c == 92 or c < 32 or c >= 128:
-                    return -1
-                p += 1
-            if p >= e:
-                return -1
-            p += 1
-            v = np.nan
-        elif c == 110:
-            if p + 4 > e or buf[p + 1] != 117 or buf[p + 2] != 108 or buf[p + 3] != 108:
-                return -1
-            p += 4
-            v = np.nan
-        elif c == 116:
-            if p + 4 > e or buf[p + 1] != 114 or buf[p + 2] != 117 or buf[p + 3] != 101:
-                return -1
-            p += 4
-            v = 1.0
-        elif c == 102:
-            if (
-                p + 5 > e
-                or buf[p + 1] != 97
-                or buf[p + 2] != 108
-                or buf[p + 3] != 115
-                or buf[p + 4] != 101
-            ):
-                return -1
-            p += 5
-            v = 0.0
+        v0 = p
+        p, v, ok = _value(buf, p, e)
+        if not ok:
+            return -1
+        if record:
+            vs[f] = v0
+            ve[f] = p
         else:
-            p, v, ok = _number(buf, p, e)
-            if not ok:
-                return -1
-        if not record:
             vals[row, f] = v
         f += 1
         p = _ws(buf, p, e)
@@ -796,19 +810,67 @@ def _object(buf, p, e, ks, kl, nk, record, vals, row):
         return f
 
 
+@njit(**_LEAF)
+def _object_like(buf, p, e, seg_s, seg_n, nk, vals, row):
+    """An object whose bytes around the values equal the first object's (segment f, before
+    value f, is buf[seg_s[f]:seg_s[f] + seg_n[f]]; segment nk follows the last value): its
+    values into vals[row]. False if the bytes differ or a value is not understood."""
+    for f in range(nk + 1):
+        n = seg_n[f]
+        if p + n > e:
+            return False
+        r = seg_s[f]
+        for i in range(n):
+            if buf[p + i] != buf[r + i]:
+                return False
+        p += n
+        if f == nk:
+            break
+        if p >= e:
+            return False
+        c = buf[p]
+        if c == 45 or 48 <= c <= 57:
+            p, v, ok = _number_inl(buf, p, e)
+        else:
+            p, v, ok = _value(buf, p, e)
+        if not ok:
+            return False
+        vals[row, f] = v
+    return p == e
+
+
 @njit(cache=True)
 def _objects(buf, offs, lens):
     n = offs.size
     cap = lens[0] // 4 + 1
     ks = np.empty(cap, np.int64)
     kl = np.empty(cap, np.int64)
+    vs = np.empty(cap, np.int64)
+    ve = np.empty(cap, np.int64)
     dummy = np.empty((0, 0), np.float64)
-    nk = _object(buf, offs[0], offs[0] + lens[0], ks, kl, 0, True, dummy, 0)
+    s0 = offs[0]
+    e0 = s0 + lens[0]
+    zero = np.int64(0)  # not literals: one compiled _object for both calls
+    nk = _object(buf, s0, e0, ks, kl, vs, ve, zero, np.bool_(True), dummy, zero)
     if nk < 0:
         return False, ks[:0], kl[:0], dummy
+    seg_s = np.empty(nk + 1, np.int64)
+    seg_n = np.empty(nk + 1, np.int64)
+    prev = s0
+    for f in range(nk):
+        seg_s[f] = prev
+        seg_n[f] = vs[f] - prev
+        prev = ve[f]
+    seg_s[nk] = prev
+    seg_n[nk] = e0 - prev
     vals = np.empty((n, nk), np.float64)
     for k in range(n):
-        if _object(buf, offs[k], offs[k] + lens[k], ks, kl, nk, False, vals, k) < 0:
+        p = offs[k]
+        e = p + lens[k]
+        if (
+            not _object_like(buf, p, e, seg_s, seg_n, nk, vals, k)
+            and _object(buf, p, e, ks, kl, vs, ve, nk, np.bool_(False), vals, k) < 0
+        ):
             return False, ks[:0], kl[:0], dummy
     return True, ks[:nk], kl[:nk], vals
 
@@ -826,7 +888,7 @@ def parse_objects(
     return (ks, kl, vals) if ok else None
 
 
-@njit(**_LEAF)
+@njit(**_INLINE)
 def _get_u64(buf, p, n):
     v = _U0
     for i in range(n):
@@ -834,7 +896,7 @@ def _get_u64(buf, p, n):
     return v
 
 
-@njit(cache=True)
+@njit(**_LEAF)
 def _scan(buf):
     end = buf.size
     pos = 0
@@ -852,7 +914,7 @@ def _scan(buf):
     return 0, n
 
 
-@njit(cache=True)
+@njit(**_LEAF)
 def _fill(buf, ops, starts, lens, cids, lts):
     pos = 0
     for k in range(ops.size):
@@ -889,3 +951,11 @@ def scan_records(
     lts = np.empty(n, np.uint64)
     _fill(buf, ops, starts, lens, cids, lts)
     return ops, starts, lens, cids, lts
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) the kernels of the write and read paths."""
+    fmt = row_format(("seq", "x"), frozenset({"seq"}))
+    recs, ends = encode_records(fmt, np.array([[1.0, 0.5]]), 1, 0, np.zeros(1, np.int64))
+    ops, starts, lens, _cids, _lts = scan_records(recs)
+    parse_objects(recs, starts + 22, lens - 22)

@@ -137,15 +137,34 @@ _MSG_HEAD_DTYPE = np.dtype(
 
 
 class _PackedMessageIndex(MessageIndex):
-    """``MessageIndex`` whose ``write`` packs all (log_time, offset) pairs in one call."""
+    """``MessageIndex`` that packs its entries in one call when written, and takes entries
+    already packed (``add_packed``, from blocks) besides the ``records`` tuples."""
+
+    def __init__(self, channel_id: int, records: list[tuple[int, int]]):
+        super().__init__(channel_id, records)
+        self.packed: list[tuple[int, bytes]] = []  # (insert before records[i], "<u8" pairs)
+
+    def add_packed(self, log_times: np.ndarray, offsets: np.ndarray) -> None:
+        pairs = np.empty((log_times.size, 2), "<u8")
+        pairs[:, 0] = log_times
+        pairs[:, 1] = offsets
+        self.packed.append((len(self.records), pairs.tobytes()))
 
     def write(self, stream: Any) -> None:
         recs = self.records
+        n = len(recs) + sum(len(b) for _, b in self.packed) // 16
         stream.start_record(Opcode.MESSAGE_INDEX)
         stream.write2(self.channel_id)
-        stream.write4(len(recs) * 16)
-        if recs:
-            stream.write(struct.pack(f"<{2 * len(recs)}Q", *itertools.chain.from_iterable(recs)))
+        stream.write4(n * 16)
+        prev = 0
+        for at, b in [*self.packed, (len(recs), b"")]:
+            if at > prev:
+                part = recs[prev:at]
+                stream.write(
+                    struct.pack(f"<{2 * len(part)}Q", *itertools.chain.from_iterable(part))
+                )
+            stream.write(b)
+            prev = at
         stream.finish_record()
 
 
@@ -278,8 +297,7 @@ class _FastWriter(Writer):
             idx = cb.message_indices.get(channel_id)
             if idx is None:
                 idx = cb.message_indices[channel_id] = _PackedMessageIndex(channel_id, [])
-            offs = (starts[k:j] + (base - starts[k])).tolist()
-            idx.records.extend(zip(part.tolist(), offs, strict=True))
+            idx.add_packed(part, starts[k:j] + (base - starts[k]))
             cb.num_messages += j - k
             buf.write(mv[starts[k] : ends[j - 1]])
             if buf.tell() > self._csize:

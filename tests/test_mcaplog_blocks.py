@@ -116,6 +116,39 @@ def test_log_block_writes_the_bytes_of_log(tmp_path):
     assert summary.statistics.chunk_count > 5
 
 
+def test_log_and_log_block_mixed_in_one_chunk_same_bytes(tmp_path):
+    rng = np.random.default_rng(11)
+    n = 400
+    t = 5.0 + np.arange(n) * 1e-3
+    vals = _hard_values(rng, n, 9)
+    vals[:, 0] = np.arange(n)
+    steps = (1, 30, 1, 1, 77, 2, 150, 1, 137)
+    a, b = tmp_path / "log.mcap", tmp_path / "mixed.mcap"
+    with McapLogger(a, chunk_size=1 << 13, **QUIET) as lg:
+        k = 0
+        for step in steps:
+            for j in range(k, k + step):
+                lg.log(MEAS, float(t[j]), _row_dict(MEAS_NAMES, vals[j]))
+            for j in range(k, k + step):
+                lg.log(RES, float(t[j]), {"r": float(j)})
+            k += step
+    with McapLogger(b, chunk_size=1 << 13, **QUIET) as lg:
+        k = 0
+        for i, step in enumerate(steps):
+            rows = slice(k, k + step)
+            if i % 2:
+                lg.log_block(MEAS, t[rows], MEAS_NAMES, vals[rows], int_fields=["seq"])
+                for j in range(k, k + step):
+                    lg.log(RES, float(t[j]), {"r": float(j)})
+            else:
+                for j in range(k, k + step):
+                    lg.log(MEAS, float(t[j]), _row_dict(MEAS_NAMES, vals[j]))
+                lg.log_block(RES, t[rows], ("r",), np.arange(k, k + step, dtype=float)[:, None])
+            k += step
+        assert k == n
+    assert a.read_bytes() == b.read_bytes()
+
+
 def test_log_block_null_first_row_schema_and_huge_ints_like_log(tmp_path):
     names = ("seq", "a", "b")
     vals = np.array([[np.nan, 1.5, np.inf], [2**70, -0.0, 3.0], [-(2.0**63), 1e-300, np.nan]])
@@ -278,15 +311,40 @@ def test_format_float_is_repr():
 def _check_parse(texts: list[str]) -> int:
     """Texts the compiled parser takes must give exactly float(text); returns how many."""
     got = logcodec.parse_number(texts)
-    taken = 0
-    for s, v in zip(texts, got.tolist(), strict=True):
-        ref = float(s) if any(c in s for c in ".eE") else float(int(s))  # json: "-0" is int 0
-        if math.isnan(v) and not math.isnan(ref):
-            assert len(s.lstrip("-").replace(".", "").split("e")[0].split("E")[0]) > 19, s
-            continue
-        taken += 1
-        assert _bits(np.array([v]))[0] == _bits(np.array([ref]))[0], (s, v, ref)
-    return taken
+    # json reads "-0" as the int 0: texts without '.', 'e' are ints
+    ref = np.array(
+        [float(s) if ("." in s or "e" in s or "E" in s) else float(int(s)) for s in texts]
+    )
+    declined = np.isnan(got) & ~np.isnan(ref)
+    for k in np.flatnonzero(declined).tolist():
+        digits = texts[k].lstrip("-").replace(".", "").split("e")[0].split("E")[0]
+        assert len(digits) > 19, texts[k]  # declined only for more than 19 digits
+    taken = ~declined
+    bad = np.flatnonzero(taken & (_bits(got) != _bits(ref)))
+    assert bad.size == 0, [(texts[k], got[k], ref[k]) for k in bad[:5].tolist()]
+    return int(taken.sum())
+
+
+def test_warm_up_compiles_the_kernels():
+    logcodec.warm_up()
+    recs, ends = logcodec.encode_records(
+        logcodec.row_format(("n", "x"), frozenset({"n"})),
+        np.array([[-3.9, -0.0], [7.0, np.nan]]),
+        3,
+        2**32 - 1,
+        np.array([5, 6]),
+    )
+    ops, starts, lens, cids, lts = logcodec.scan_records(recs)
+    assert ops.tolist() == [5, 5] and cids.tolist() == [3, 3] and lts.tolist() == [5, 6]
+    assert ends.tolist() == (starts + lens).tolist()
+    texts = [recs[s + 22 : s + n].tobytes() for s, n in zip(starts, lens, strict=True)]
+    assert texts == [b'{"n":-3,"x":-0.0}', b'{"n":7,"x":null}']
+    assert [int.from_bytes(recs[s + 2 : s + 6].tobytes(), "little") for s in starts] == [
+        2**32 - 1,
+        0,
+    ]  # sequence numbers wrap like log()
+    with pytest.raises(ValueError):
+        logcodec.scan_records(recs[:-1])
 
 
 def test_parse_number_is_correctly_rounded():
@@ -357,7 +415,7 @@ def assert_blocks_equal_read_log(blocks: list[LogBlock], msgs: list[tuple[str, f
 def test_read_blocks_round_trip_bit_exact(tmp_path):
     rng = np.random.default_rng(7)
     n = 5000
-    t = 50.0 + np.arange(n) * 1e-3
+    t = 1.7e9 + np.arange(n) * 1e-3 + rng.uniform(0, 1e-6, n)  # epoch times: ns > 2**53
     vals = _hard_values(rng, n, 12)
     vals[:, 0] = rng.integers(-(2**62), 2**62, size=n).astype(np.float64)
     vals[:, 1] = t
