@@ -4,10 +4,11 @@ Data path (design.md, "Data flow" and "Backpressure"):
 
 * the Zenoh subscriber callback only appends ``(key, payload, t_recv)`` to a bounded queue
   (a full queue drops the new message and counts it against its actuator);
-* one worker thread drains the queue every tick, decodes and validates each message
-  (``service.messages.decode_meas_dicts``), checks sequence numbers and sample times per
-  actuator, logs every accepted sample, feeds the whole tick's samples to the monitors in one
-  ``MonitorBank.update_many`` call, logs the estimate and residual of every ``log_every``-th
+* one worker thread drains the queue every tick, decodes and validates each message into
+  arrays (``service.messages.decode_meas_arrays``), checks sequence numbers and sample times
+  per actuator, logs every accepted sample, feeds the whole tick's samples to the monitors in
+  one ``MonitorBank.update_arrays`` call (no per-sample dicts; outputs are logged as blocks of
+  rows, ``McapLogger.log_block``), logs the estimate and residual of every ``log_every``-th
   output (default 1: every one), health every ``publish_every``-th output, and every alarm
   event (with the est/res/health of that sample), and publishes est/res/health every
   ``publish_every``-th output per actuator;
@@ -27,7 +28,6 @@ live input.
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import math
 import os
@@ -40,8 +40,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from service import messages as m
 from service.jsonutil import event_dict, flat, jsonable
+from service.proclog import MEAS_LOG_FIELDS, ProcessLogger, meas_log_values
 
 __all__ = [
     "ActuatorState",
@@ -63,6 +66,16 @@ MAX_ACTUATORS = 1000
 #: monitor input keys (the MeasSample channels and t)
 INPUT_KEYS: tuple[str, ...] = ("t", *m.CHANNELS)
 INVALID_KEY = "(invalid key)"
+
+
+def _meas_dict(a: m.MeasArrays, j: int) -> dict[str, Any]:
+    """Sample j as ``decode_meas_dicts`` gives it (None: absent channel)."""
+    d: dict[str, Any] = {
+        c: (None if v != v else v) for c, v in zip(m.CHANNELS, a.values[j].tolist(), strict=True)
+    }
+    d["seq"] = int(a.seq[j])
+    d["t"] = float(a.t[j])
+    return d
 
 
 # --------------------------------------------------------------------------- helpers
@@ -283,152 +296,6 @@ def _output_parts(out: Any) -> tuple[float, dict, dict, dict, list]:
     return out.t, out.est, out.res, out.health, list(out.events or [])
 
 
-# --------------------------------------------------------------------------- log process
-
-
-def _log_process_entry() -> None:
-    """``python -c`` entry of the log process: argv[1] is JSON {fd, path, kwargs}."""
-    import sys
-    from multiprocessing.connection import Connection
-
-    a = json.loads(sys.argv[1])
-    _log_process_main(Connection(a["fd"]), a["path"], a["kwargs"])
-
-
-def _log_process_main(conn, path: str, kwargs: dict) -> None:
-    """Child process of :class:`ProcessLogger`: decode forwarded messages, write the MCAP."""
-    import signal as _signal
-
-    from service.mcaplog import McapLogger
-
-    # the parent decides when to stop (systemd and terminals signal the whole group): the
-    # child ends on the parent's close or when the pipe closes because the parent died
-    _signal.signal(_signal.SIGINT, _signal.SIG_IGN)
-    _signal.signal(_signal.SIGTERM, _signal.SIG_IGN)
-    try:
-        lg = McapLogger(path, **kwargs)
-    except Exception as e:
-        conn.send(("error", f"{type(e).__name__}: {e}"))
-        return
-    conn.send(("paths", [str(p) for p in lg.paths]))
-    n_paths = len(lg.paths)
-    try:
-        while True:
-            try:
-                batch = conn.recv()
-            except EOFError:  # the daemon died: finish the file with what we have
-                break
-            if batch is None:
-                break
-            for rec in batch:
-                if rec[0] == "m":  # (m, topic, payload, indices or None)
-                    _, topic, payload, idx = rec
-                    rows = m.decode_meas_dicts(payload, max(len(payload), m.MAX_BYTES))
-                    for row in rows if idx is None else (rows[i] for i in idx):
-                        lg.log(topic, row["t"], row)
-                else:  # (l, topic, t, msg)
-                    lg.log(rec[1], rec[2], rec[3])
-            if len(lg.paths) != n_paths:
-                n_paths = len(lg.paths)
-                conn.send(("paths", [str(p) for p in lg.paths]))
-    finally:
-        lg.close()
-        with contextlib.suppress(OSError, ValueError):
-            conn.send(("closed", [str(p) for p in lg.paths], lg.message_count))
-
-
-class ProcessLogger:
-    """An ``McapLogger`` in a child process, fed through a pipe once per worker tick.
-
-    JSON encoding and MCAP writing (about half of the per-sample cost) then run on another
-    core instead of sharing the daemon's GIL with decoding and the monitors. Measurement
-    messages are forwarded as the received payload plus the indices of the accepted samples;
-    the child decodes them again. Same ``log``/``close``/``paths`` interface; ``commit``
-    sends what was logged since the last call. If the daemon dies, the child sees the pipe
-    close and finishes the file (a ``kill -9`` of both loses at most ``flush_s``).
-    """
-
-    def __init__(self, path: str | Path, **kwargs: Any) -> None:
-        import subprocess
-        import sys
-        from multiprocessing.connection import Connection
-
-        # a plain child interpreter (not multiprocessing's spawn, which re-imports __main__)
-        # talking over a socket pair; the child needs only service.mcaplog
-        a, b = socket.socketpair()
-        arg = json.dumps({"fd": b.fileno(), "path": str(path), "kwargs": kwargs})
-        self._proc = subprocess.Popen(
-            [sys.executable, "-c", "import service.daemon as d; d._log_process_entry()", arg],
-            pass_fds=(b.fileno(),),
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-        )
-        b.close()
-        self._conn = Connection(a.detach())
-        self._buf: list[tuple] = []
-        self._lock = threading.Lock()
-        self._closed = False
-        self.paths: list[Path] = []
-        self.message_count = 0
-        kind, *rest = self._conn.recv()
-        if kind == "error":
-            self._proc.wait(5)
-            raise OSError(f"{path}: cannot open the MCAP log: {rest[0]}")
-        self.paths = [Path(p) for p in rest[0]]
-
-    def log(self, topic: str, t: float, msg: Any) -> None:
-        """Queue one message (sent at the next ``commit``)."""
-        self._buf.append(("l", topic, t, msg))
-
-    def log_payload(self, topic: str, payload: bytes, idx: list[int] | None) -> None:
-        """Queue the samples ``idx`` (None = all) of a received measurement message."""
-        self._buf.append(("m", topic, payload, idx))
-
-    def _poll(self) -> None:
-        while self._conn.poll():
-            kind, *rest = self._conn.recv()
-            if kind in ("paths", "closed"):
-                self.paths = [Path(p) for p in rest[0]]
-            if kind == "closed":
-                self.message_count = rest[1]
-
-    def commit(self) -> None:
-        """Send the queued messages to the log process."""
-        with self._lock:
-            if self._closed:
-                return
-            if self._buf:
-                buf, self._buf = self._buf, []
-                self._conn.send(buf)
-            self._poll()
-
-    def close(self, timeout: float = 60.0) -> None:
-        """Send the rest, finish the file, wait for the log process. Idempotent."""
-        self.commit()
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            try:
-                self._conn.send(None)
-                deadline = time.monotonic() + timeout
-                while time.monotonic() < deadline and self._proc.poll() is None:
-                    if self._conn.poll(0.1):
-                        kind, *rest = self._conn.recv()
-                        if kind in ("paths", "closed"):
-                            self.paths = [Path(p) for p in rest[0]]
-                        if kind == "closed":
-                            self.message_count = rest[1]
-                            break
-            except (EOFError, OSError):
-                pass
-            try:
-                self._proc.wait(timeout)
-            except Exception:
-                self._proc.kill()
-            self._conn.close()
-
-
 # --------------------------------------------------------------------------- monitors
 
 
@@ -504,6 +371,11 @@ class _Monitors:
         except Exception as e:  # warming up is an optimisation only
             log.warning("monitor warm-up failed: %s", e)
         return time.perf_counter() - t0
+
+    @property
+    def arrays(self) -> bool:
+        """True when the bank takes samples as arrays (``update_arrays``, no dicts)."""
+        return self.bank is not None and hasattr(self.bank, "update_arrays")
 
     @property
     def rows(self) -> bool:
@@ -689,11 +561,10 @@ class Daemon:
         msgs = []
         while q and len(msgs) < self.max_batch:
             msgs.append(q.popleft())
-        batch: list[tuple[str, dict]] = []
-        recv: list[float] = []
-        states: list[ActuatorState] = []
+        parts: list[tuple[ActuatorState, str, m.MeasArrays, int, float]] = []
         logger = self.logger
         log_payload = getattr(logger, "log_payload", None)
+        log_block = getattr(logger, "log_block", None)
         for key, payload, t_recv in msgs:
             st = self._state_for_key(key)
             if st is None:
@@ -711,89 +582,162 @@ class Daemon:
                 st.silent = False
                 self._service_event(st, "resumed", st.last_t)
             try:
-                rows = m.decode_meas_dicts(payload, self.max_bytes)
+                a = m.decode_meas_arrays(payload, self.max_bytes)
             except m.MessageError as e:
                 reason = _reason(e, payload)
                 st.count_bad(reason)
                 self.bad_log.warning(st.name, "bad message from %s: %s (%s)", st.name, e, reason)
                 continue
+            j0 = self._accept(st, a)
+            n = len(a.t)
+            if j0 >= n:
+                continue
             topic = m.mcap_topic(st.aircraft, st.actuator, "meas")
-            idx: list[int] = []
-            for j, row in enumerate(rows):
-                seq, t = row["seq"], row["t"]
-                if st.last_t is not None and t <= st.last_t:
-                    why = "duplicate" if seq == st.last_seq or t == st.last_t else "out_of_order"
-                    st.count_bad(why)
-                    self.bad_log.warning(
-                        st.name,
-                        "%s sample from %s: seq %d t %.6f after t %.6f",
-                        why,
-                        st.name,
-                        seq,
-                        t,
-                        st.last_t,
-                    )
-                    continue
-                if st.last_seq is not None:
-                    if seq > st.last_seq + 1:
-                        st.gaps += seq - st.last_seq - 1
-                    elif seq <= st.last_seq:
-                        st.restarts += 1
-                        self._service_event(st, "restart", t, value=seq)
-                st.last_seq, st.last_t = seq, t
-                st.samples += 1
-                if log_payload is None:
-                    logger.log(topic, t, row)
-                else:
-                    idx.append(j)
-                batch.append((key, row))  # t and the channels (and seq, which is ignored)
-                recv.append(t_recv)
-                states.append(st)
-            if log_payload is not None and idx:
-                log_payload(topic, payload, None if len(idx) == len(rows) else idx)
-        if batch:
-            rows = outs = None
+            if log_payload is not None:  # the log process decodes the payload again
+                log_payload(topic, payload, None if j0 == 0 else list(range(j0, n)))
+            elif log_block is not None:
+                log_block(
+                    topic, a.t[j0:], MEAS_LOG_FIELDS, meas_log_values(a, j0), int_fields=("seq",)
+                )
+            else:
+                for j in range(j0, n):
+                    logger.log(topic, float(a.t[j]), _meas_dict(a, j))
+            parts.append((st, key, a, j0, t_recv))
+        n_fed = sum(len(p[2].t) - p[3] for p in parts)
+        if parts:
             try:
-                if self.monitors.rows:
-                    rows = self.monitors.bank.update_rows(batch)
+                if self.monitors.arrays:
+                    self._update_arrays(parts)
                 else:
-                    outs = self.monitors.update_many(batch)
+                    self._update_dicts(parts)
             except Exception as e:  # a monitor failure must not kill the daemon
                 self.errors += 1
                 log.exception("monitor update failed: %s", e)
-            now_m = time.monotonic()
-            now_w = time.time()
-            if rows is not None:
-                self._handle_rows(rows, states, recv, now_m, now_w)
-            elif outs is not None:
-                for out, st, t_recv in zip(outs, states, recv, strict=True):
-                    if out is not None:
-                        self._handle_output(st, out, now_m - t_recv, now_w)
         commit = getattr(logger, "commit", None)
         if commit is not None:
             commit()
         self.ticks += 1
         self.busy_s += time.perf_counter() - t0
-        return len(batch)
+        return n_fed
 
-    def _handle_rows(self, rows: Any, states: list, recv: list, now_m: float, now_w: float) -> None:
-        """Outputs of ``MonitorBank.update_rows``: dicts are built only for the outputs that
-        are logged or published (or carry an event); the rest only count."""
-        lat, age = self.latency, self.age
-        ts = rows.t.tolist()
-        for r, j in enumerate(rows.index.tolist()):
-            st = states[j]
-            n = st.outputs + 1
-            if rows.events[r] or n % self.log_every == 0 or n % self.publish_every == 0:
-                self._handle_output(st, rows.output(r), now_m - recv[j], now_w)
-                st.lazy = None
-                continue
-            st.outputs = n
-            st.lazy = (rows, r)
-            t = ts[r]
-            lat.append(now_m - recv[j])
-            if t > 1e9:
-                age.append(now_w - t)
+    def _accept(self, st: ActuatorState, a: m.MeasArrays) -> int:
+        """Sequence and time checks of one decoded message against the actuator's last
+        accepted sample; returns the index of the first accepted sample (the samples of a
+        message are strictly increasing in seq and t, so only a prefix can be refused)."""
+        t, seq = a.t, a.seq
+        n = len(t)
+        j0 = 0
+        if st.last_t is not None:
+            j0 = int(np.searchsorted(t, st.last_t, side="right"))
+            for j in range(j0):
+                sj, tj = int(seq[j]), float(t[j])
+                why = "duplicate" if sj == st.last_seq or tj == st.last_t else "out_of_order"
+                st.count_bad(why)
+                self.bad_log.warning(
+                    st.name, "%s sample from %s: seq %d t %.6f after t %.6f",
+                    why, st.name, sj, tj, st.last_t,
+                )  # fmt: skip
+        if j0 >= n:
+            return n
+        s0 = int(seq[j0])
+        if st.last_seq is not None:
+            if s0 > st.last_seq + 1:
+                st.gaps += s0 - st.last_seq - 1
+            elif s0 <= st.last_seq:
+                st.restarts += 1
+                self._service_event(st, "restart", float(t[j0]), value=s0)
+        st.gaps += int(seq[n - 1]) - s0 - (n - 1 - j0)  # holes inside the message
+        st.last_seq, st.last_t = int(seq[n - 1]), float(t[n - 1])
+        st.samples += n - j0
+        return j0
+
+    def _update_dicts(self, parts: list) -> None:
+        """Monitors without an array entry point (``monitor_factory``): one dict per sample."""
+        batch: list[tuple[str, dict]] = []
+        owners: list[tuple[ActuatorState, float]] = []
+        for st, key, a, j0, t_recv in parts:
+            for j in range(j0, len(a.t)):
+                batch.append((key, _meas_dict(a, j)))
+                owners.append((st, t_recv))
+        outs = self.monitors.update_many(batch)
+        now_m, now_w = time.monotonic(), time.time()
+        for out, (st, t_recv) in zip(outs, owners, strict=True):
+            if out is not None:
+                self._handle_output(st, out, now_m - t_recv, now_w)
+
+    def _update_arrays(self, parts: list) -> None:
+        """The tick's samples in one ``MonitorBank.update_arrays`` call; outputs logged as
+        blocks per actuator (est and residual every ``log_every``-th output, health every
+        ``publish_every``-th, all three at an event), published every ``publish_every``-th."""
+        from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS
+
+        bank = self.monitors.bank
+        sizes = [len(a.t) - j0 for _, _, a, j0, _ in parts]
+        rows_of = [bank.index_of(key) for _, key, _, _, _ in parts]
+        ks = np.repeat(np.array(rows_of, np.int64), sizes)
+        t = np.concatenate([a.t[j0:] for _, _, a, j0, _ in parts])
+        ch = np.concatenate([a.values[j0:] for _, _, a, j0, _ in parts])
+        recv = np.repeat(np.array([p[4] for p in parts]), sizes)
+        rows = bank.update_arrays(ks, t, ch)
+        idx = rows.index
+        if len(idx) == 0:
+            return
+        now_m, now_w = time.monotonic(), time.time()
+        self.latency.extend((now_m - recv[idx]).tolist())
+        old = rows.t > 1e9  # Unix-time sample clock: end-to-end age is meaningful
+        if old.any():
+            self.age.extend((now_w - rows.t[old]).tolist())
+        has_ev = np.fromiter(map(bool, rows.events), bool, len(idx))
+        owner = ks[idx]
+        states = {row: st for row, (st, *_rest) in zip(rows_of, parts, strict=True)}
+        order = np.argsort(owner, kind="stable")
+        bounds = np.flatnonzero(np.diff(owner[order])) + 1
+        lg = self.logger
+        log_block = getattr(lg, "log_block", None)
+        for g in np.split(order, bounds):
+            st = states[int(owner[g[0]])]
+            n0 = st.outputs
+            num = n0 + 1 + np.arange(len(g))
+            ev = has_ev[g]
+            pub = num % self.publish_every == 0
+            base = f"/fleet/{st.aircraft}/{st.actuator}/"
+            sel_log = g[(num % self.log_every == 0) | ev]
+            sel_h = g[pub | ev]
+            if log_block is not None:
+                tl = rows.t
+                if len(sel_log):
+                    log_block(base + "est", tl[sel_log], EST_KEYS, rows.est[sel_log])
+                    log_block(base + "residual", tl[sel_log], RES_KEYS, rows.res[sel_log])
+                if len(sel_h):
+                    log_block(base + "health", tl[sel_h], HEALTH_KEYS, rows.health[sel_h])
+            else:
+                for r in sel_log.tolist():
+                    o = rows.output(r)
+                    lg.log(base + "est", o.t, flat(o.est))
+                    lg.log(base + "residual", o.t, flat(o.res))
+                for r in sel_h.tolist():
+                    o = rows.output(r)
+                    lg.log(base + "health", o.t, flat(o.health))
+            for r in g[ev].tolist():
+                self._handle_events(st, base, float(rows.t[r]), rows.events[r])
+            st.outputs = n0 + len(g)
+            st.lazy = (rows, int(g[-1]))
+            if self._session is not None:
+                for r in g[pub].tolist():
+                    o = rows.output(r)
+                    self._publish(st, o.t, o.est, o.res, o.health)
+
+    def _handle_events(self, st: ActuatorState, base: str, t: float, events: list) -> None:
+        for ev in events:
+            d = event_dict(ev)
+            self.logger.log(base + "events", float(d.get("t") or t), flat(d))
+            kind = str(d.get("kind"))
+            if _is_active(d.get("state")):
+                st.alarms[kind] = d
+            else:
+                st.alarms.pop(kind, None)
+            st.events.append(d)
+            log.info("alarm %s %s: %s", st.name, kind, d)
 
     def _handle_output(self, st: ActuatorState, out: Any, latency: float, now_w: float) -> None:
         t, est, res, health, events = _output_parts(out)
@@ -811,16 +755,7 @@ class Daemon:
             lg.log(base + "residual", t, flat(res))
         if events or n % self.publish_every == 0:
             lg.log(base + "health", t, flat(health))
-        for ev in events:
-            d = event_dict(ev)
-            lg.log(base + "events", float(d.get("t") or t), flat(d))
-            kind = str(d.get("kind"))
-            if _is_active(d.get("state")):
-                st.alarms[kind] = d
-            else:
-                st.alarms.pop(kind, None)
-            st.events.append(d)
-            log.info("alarm %s %s: %s", st.name, kind, d)
+        self._handle_events(st, base, t, events)
         if n % self.publish_every == 0 and self._session is not None:
             self._publish(st, t, est, res, health)
 

@@ -1,8 +1,9 @@
 """Offline replay: logged samples through the same monitor code, as fast as possible or paced.
 
-The logged ``/fleet/{aircraft}/{actuator}/meas`` messages are read in log order
-(``service.mcaplog.read_log``, which survives a truncated file) and fed to one
-``service.monitor.MonitorBank`` keyed by actuator, in batches of consecutive samples. The bank
+The logged ``/fleet/{aircraft}/{actuator}/meas`` messages are read as column blocks
+(``service.mcaplog.read_blocks``: per chunk and topic, no per-message dicts; it survives a
+truncated file) and fed to one ``service.monitor.MonitorBank`` keyed by actuator, in batches
+of consecutive samples (``MonitorBank.update_arrays``). The bank
 gives results that do not depend on the batch composition (``tests/test_monitor.py``), so a
 replay reproduces the live daemon's estimates when it uses the same monitor configuration and
 baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` copied, ``est``,
@@ -15,14 +16,24 @@ import logging
 import math
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from service import messages as m
 from service.jsonutil import event_dict, flat, jsonable
-from service.mcaplog import LogReadStats, McapLogger, TruncatedLogWarning, read_log, rotated_files
+from service.mcaplog import (
+    LogBlock,
+    LogReadStats,
+    McapLogger,
+    TruncatedLogWarning,
+    read_blocks,
+    rotated_files,
+)
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, Baseline, MonitorBank, MonitorConfig
 
 __all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
@@ -30,7 +41,8 @@ __all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
 log = logging.getLogger("servowatch.replay")
 
 INPUT_KEYS: tuple[str, ...] = ("t", *m.CHANNELS)
-_BATCH = 2048  # samples per update_rows call (the block path amortises over them)
+_BATCH = 2048  # samples per update_arrays call (the block path amortises over them)
+_PACED_SLICE = 10  # samples run together in a paced replay
 
 
 @dataclass
@@ -87,13 +99,31 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return {}
 
 
-def _read_files(files: list[Path], stats: LogReadStats):
+def _read_files(files: list[Path], stats: LogReadStats) -> Iterator[LogBlock]:
     for f in files:
         st = LogReadStats()
-        yield from read_log(f, stats=st, match=_is_meas)
+        yield from read_blocks(f, stats=st, match=_is_meas)
         stats.chunks += st.chunks
         stats.messages += st.messages
         stats.truncated = stats.truncated or st.truncated
+
+
+def _block_inputs(blk: LogBlock, t_last: float) -> tuple[NDArray, NDArray, NDArray]:
+    """Sample times (the ``t`` field, else the log time), channels (n, 7) in
+    ``messages.CHANNELS`` order (NaN: absent) and the samples to keep: finite t later than
+    ``t_last`` and than every earlier sample of the block (the daemon logs accepted samples
+    only; a replay checks again)."""
+    col = {k: c for c, k in enumerate(blk.names)}
+    n = len(blk.t)
+    t = blk.values[:, col["t"]] if "t" in col else blk.t
+    ch = np.full((n, len(m.CHANNELS)), np.nan)
+    for c, k in enumerate(m.CHANNELS):
+        if k in col:
+            ch[:, c] = blk.values[:, col[k]]
+    fin = np.isfinite(t)
+    prev = np.maximum.accumulate(np.where(fin, t, -np.inf))
+    prev = np.concatenate([[t_last], np.maximum(prev[:-1], t_last)]) if n else prev
+    return t, ch, fin & (t > prev)
 
 
 def _is_meas(topic: str) -> bool:
@@ -171,100 +201,111 @@ def replay(
     last_t: dict[str, float] = {}
     names: dict[str, tuple[str, str]] = {}
     prefix: dict[str, str] = {}
+    row_name: dict[int, str] = {}  # bank row -> actuator name
     topics: dict[str, str | None] = {}
-    batch: list[tuple[str, dict[str, Any]]] = []
+    pending: list[tuple[NDArray, NDArray, NDArray]] = []  # (ks, t, channels) not yet run
+    n_pending = 0
     stats = LogReadStats()
     wall0 = time.perf_counter()
     t_first: float | None = None
 
     def flush_batch() -> None:
-        # update_rows: numpy rows; dicts are built only for what is logged, published or kept
-        if not batch:
+        # one update_arrays call for what is pending; outputs stay numpy rows and are logged
+        # as blocks; dicts only for what is published or kept in the summary
+        nonlocal n_pending
+        if not pending:
             return
-        rows = bank.update_rows(batch)
-        idx = rows.index.tolist()
-        if not idx:
-            batch.clear()
+        if len(pending) == 1:
+            ks, t, ch = pending[0]
+        else:
+            ks, t, ch = (np.concatenate(c) for c in zip(*pending, strict=True))
+        pending.clear()
+        n_pending = 0
+        rows = bank.update_arrays(ks, t, ch)
+        idx = rows.index
+        if len(idx) == 0:
             return
-        est_l, res_l, h_l = rows.est.tolist(), rows.res.tolist(), rows.health.tolist()
-        t_l = rows.t.tolist()
         summary.outputs += len(idx)
-        recs: list[tuple[str, float, Any]] = []
-        last: dict[str, int] = {}
-        for r, j in enumerate(idx):
-            name = batch[j][0]
-            last[name] = r
-            k = n_out[name] = n_out.get(name, 0) + 1
-            evs = rows.events[r]
-            t_r = t_l[r]
-            if writer is not None and (k % log_every == 0 or evs):
-                # McapLogger makes NaN, numpy and nested values JSON-safe
-                b = prefix[name]
-                recs.append((b + "est", t_r, dict(zip(EST_KEYS, est_l[r], strict=True))))
-                recs.append((b + "residual", t_r, dict(zip(RES_KEYS, res_l[r], strict=True))))
-                recs.append((b + "health", t_r, dict(zip(HEALTH_KEYS, h_l[r], strict=True))))
-            for ev in evs:
-                d = event_dict(ev)
-                summary.alarms.append({"actuator": name, **d})
-                if writer is not None:
-                    recs.append((prefix[name] + "events", float(d.get("t") or t_r), flat(d)))
-            if publish is not None and k % publish_every == 0:
+        owner = ks[idx]
+        has_ev = np.fromiter(map(bool, rows.events), bool, len(idx))
+        order = np.argsort(owner, kind="stable")
+        for g in np.split(order, np.flatnonzero(np.diff(owner[order])) + 1):
+            name = row_name[int(owner[g[0]])]
+            n0 = n_out.get(name, 0)
+            num = n0 + 1 + np.arange(len(g))
+            n_out[name] = n0 + len(g)
+            ev = has_ev[g]
+            b = prefix[name]
+            if writer is not None:
+                sel = g[(num % log_every == 0) | ev]
+                if len(sel):
+                    ts = rows.t[sel]
+                    writer.log_block(b + "est", ts, EST_KEYS, rows.est[sel])
+                    writer.log_block(b + "residual", ts, RES_KEYS, rows.res[sel])
+                    writer.log_block(b + "health", ts, HEALTH_KEYS, rows.health[sel])
+            for r in g[ev].tolist():
+                t_r = float(rows.t[r])
+                for e in rows.events[r]:
+                    d = event_dict(e)
+                    summary.alarms.append({"actuator": name, **d})
+                    if writer is not None:
+                        writer.log(b + "events", float(d.get("t") or t_r), flat(d))
+            if publish is not None:
                 ac, act = names[name]
-                _publish(publish, pubs, ac, act, rows.output(r))
-                summary.published += 1
-        if recs:
-            writer.log_many(recs)  # type: ignore[union-attr]
-        for name, r in last.items():
-            fin = summary.final.setdefault(name, {})
-            fin["t"] = t_l[r]
-            fin["est"] = dict(zip(EST_KEYS, est_l[r], strict=True))
-            fin["health"] = dict(zip(HEALTH_KEYS, h_l[r], strict=True))
-        batch.clear()
+                for r in g[num % publish_every == 0].tolist():
+                    _publish(publish, pubs, ac, act, rows.output(r))
+                    summary.published += 1
+            o = rows.output(int(g[-1]))
+            summary.final[name] = {"t": o.t, "est": o.est, "health": o.health}
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TruncatedLogWarning)
         try:
-            for topic, t_log, msg in _read_files(files, stats):
-                name = topics.get(topic, "")
+            for blk in _read_files(files, stats):
+                name = topics.get(blk.topic, "")
                 if name == "":
-                    at = _parse_topic(topic)
-                    name = topics[topic] = None if at is None else f"{at[0]}/{at[1]}"
+                    at = _parse_topic(blk.topic)
+                    name = topics[blk.topic] = None if at is None else f"{at[0]}/{at[1]}"
                     if name is not None and name not in names:
                         names[name] = at  # type: ignore[assignment]
                         prefix[name] = f"/fleet/{at[0]}/{at[1]}/"  # type: ignore[index]
                         summary.actuators.append(name)
+                        row_name[bank.index_of(name)] = name
                 if name is None:
                     continue
-                t = msg.get("t", t_log)
-                if type(t) is not float and (not isinstance(t, int | float) or isinstance(t, bool)):
-                    summary.skipped += 1
+                t, ch, keep = _block_inputs(blk, last_t.get(name, -math.inf))
+                n_keep = int(keep.sum())
+                summary.skipped += len(keep) - n_keep
+                if n_keep == 0:
                     continue
-                if not math.isfinite(t):
-                    summary.skipped += 1
-                    continue
-                if name in last_t and t <= last_t[name]:
-                    summary.skipped += 1  # the daemon logs accepted samples only; be safe
-                    continue
-                last_t[name] = t
-                sample = {k: msg.get(k) for k in INPUT_KEYS}
-                sample["t"] = float(t)
-                summary.samples += 1
+                if n_keep < len(keep):
+                    t, ch = t[keep], ch[keep]
+                last_t[name] = float(t[-1])
+                summary.samples += n_keep
                 if t_first is None:
-                    t_first = float(t)
+                    t_first = float(t[0])
                     summary.t_start = t_first
-                summary.t_end = float(t)
-                if speed is not None:  # paced: process what is due, wait for this sample
-                    due = wall0 + (float(t) - t_first) / speed
-                    if due > time.perf_counter() + 0.002:
-                        flush_batch()
-                        time.sleep(max(0.0, due - time.perf_counter()))
+                summary.t_end = float(t[-1])
                 if writer is not None:
-                    writer.log(topic, float(t), msg)
-                batch.append((name, sample))
-                if len(batch) >= _BATCH:
+                    vals = blk.values if n_keep == len(keep) else blk.values[keep]
+                    ints = ("seq",) if "seq" in blk.names else ()
+                    writer.log_block(blk.topic, t, blk.names, vals, int_fields=ints)
+                ks = np.full(n_keep, bank.index_of(name), np.int64)
+                if speed is None:
+                    pending.append((ks, t, ch))
+                    n_pending += n_keep
+                    if n_pending >= _BATCH:
+                        flush_batch()
+                        if progress is not None:
+                            progress(summary)
+                    continue
+                # paced: run what is due in slices of about 10 ms of data, then wait
+                for a in range(0, n_keep, _PACED_SLICE):
+                    sl = slice(a, a + _PACED_SLICE)
+                    pending.append((ks[sl], t[sl], ch[sl]))
                     flush_batch()
-                    if progress is not None:
-                        progress(summary)
+                    due = wall0 + (float(t[sl][-1]) - t_first) / speed
+                    time.sleep(max(0.0, due - time.perf_counter()))
             flush_batch()
         finally:
             if writer is not None:

@@ -1,0 +1,187 @@
+"""An ``McapLogger`` in a child process: JSON encoding and MCAP writing on another core.
+
+The daemon (and a replay with ``--out``) hand it whole blocks once per tick: received
+measurement payloads (decoded again in the child) and numpy blocks of outputs. The child
+writes them with ``McapLogger.log_block``; if the parent dies, the child sees its pipe close
+and finishes the file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service import messages as m
+
+__all__ = ["ProcessLogger", "MEAS_LOG_FIELDS", "meas_log_values"]
+
+#: fields of a logged measurement, in the key order of ``messages.decode_meas_dicts``
+MEAS_LOG_FIELDS: tuple[str, ...] = (*m.CHANNELS, "seq", "t")
+
+
+def meas_log_values(a: m.MeasArrays, j0: int = 0) -> np.ndarray:
+    """(n, 9) values of the samples j0.. in ``MEAS_LOG_FIELDS`` order (NaN: absent)."""
+    return np.column_stack([a.values[j0:], a.seq[j0:], a.t[j0:]])
+
+
+def _log_process_entry() -> None:
+    """``python -c`` entry of the log process: argv[1] is JSON {fd, path, kwargs}."""
+    import sys
+    from multiprocessing.connection import Connection
+
+    a = json.loads(sys.argv[1])
+    _log_process_main(Connection(a["fd"]), a["path"], a["kwargs"])
+
+
+def _log_process_main(conn, path: str, kwargs: dict) -> None:
+    """Child process of :class:`ProcessLogger`: decode forwarded messages, write the MCAP."""
+    import signal as _signal
+
+    from service.mcaplog import McapLogger
+
+    # the parent decides when to stop (systemd and terminals signal the whole group): the
+    # child ends on the parent's close or when the pipe closes because the parent died
+    _signal.signal(_signal.SIGINT, _signal.SIG_IGN)
+    _signal.signal(_signal.SIGTERM, _signal.SIG_IGN)
+    try:
+        lg = McapLogger(path, **kwargs)
+    except Exception as e:
+        conn.send(("error", f"{type(e).__name__}: {e}"))
+        return
+    conn.send(("paths", [str(p) for p in lg.paths]))
+    n_paths = len(lg.paths)
+    try:
+        while True:
+            try:
+                batch = conn.recv()
+            except EOFError:  # the daemon died: finish the file with what we have
+                break
+            if batch is None:
+                break
+            for rec in batch:
+                kind = rec[0]
+                if kind == "m":  # (m, topic, payload, indices or None)
+                    _, topic, payload, idx = rec
+                    a = m.decode_meas_arrays(payload, max(len(payload), m.MAX_BYTES))
+                    vals = meas_log_values(a)
+                    t = a.t
+                    if idx is not None:
+                        vals, t = vals[idx], t[idx]
+                    lg.log_block(topic, t, MEAS_LOG_FIELDS, vals, int_fields=("seq",))
+                elif kind == "b":  # (b, topic, t, names, values, int_fields)
+                    lg.log_block(rec[1], rec[2], rec[3], rec[4], int_fields=rec[5])
+                else:  # (l, topic, t, msg)
+                    lg.log(rec[1], rec[2], rec[3])
+            if len(lg.paths) != n_paths:
+                n_paths = len(lg.paths)
+                conn.send(("paths", [str(p) for p in lg.paths]))
+    finally:
+        lg.close()
+        with contextlib.suppress(OSError, ValueError):
+            conn.send(("closed", [str(p) for p in lg.paths], lg.message_count))
+
+
+class ProcessLogger:
+    """An ``McapLogger`` in a child process, fed through a pipe once per worker tick.
+
+    JSON encoding and MCAP writing (about half of the per-sample cost) then run on another
+    core instead of sharing the daemon's GIL with decoding and the monitors. Measurement
+    messages are forwarded as the received payload plus the indices of the accepted samples;
+    the child decodes them again. Same ``log``/``close``/``paths`` interface; ``commit``
+    sends what was logged since the last call. If the daemon dies, the child sees the pipe
+    close and finishes the file (a ``kill -9`` of both loses at most ``flush_s``).
+    """
+
+    def __init__(self, path: str | Path, **kwargs: Any) -> None:
+        import subprocess
+        import sys
+        from multiprocessing.connection import Connection
+
+        # a plain child interpreter (not multiprocessing's spawn, which re-imports __main__)
+        # talking over a socket pair; the child needs only service.mcaplog
+        a, b = socket.socketpair()
+        arg = json.dumps({"fd": b.fileno(), "path": str(path), "kwargs": kwargs})
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", "import service.proclog as p; p._log_process_entry()", arg],
+            pass_fds=(b.fileno(),),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+        )
+        b.close()
+        self._conn = Connection(a.detach())
+        self._buf: list[tuple] = []
+        self._lock = threading.Lock()
+        self._closed = False
+        self.paths: list[Path] = []
+        self.message_count = 0
+        kind, *rest = self._conn.recv()
+        if kind == "error":
+            self._proc.wait(5)
+            raise OSError(f"{path}: cannot open the MCAP log: {rest[0]}")
+        self.paths = [Path(p) for p in rest[0]]
+
+    def log(self, topic: str, t: float, msg: Any) -> None:
+        """Queue one message (sent at the next ``commit``)."""
+        self._buf.append(("l", topic, t, msg))
+
+    def log_payload(self, topic: str, payload: bytes, idx: list[int] | None) -> None:
+        """Queue the samples ``idx`` (None = all) of a received measurement message."""
+        self._buf.append(("m", topic, payload, idx))
+
+    def log_block(
+        self, topic: str, t: Any, names: Sequence[str], values: Any, *, int_fields=()
+    ) -> None:
+        """Queue N messages of one topic as arrays (``McapLogger.log_block``)."""
+        self._buf.append(("b", topic, t, tuple(names), values, tuple(int_fields)))
+
+    def _poll(self) -> None:
+        while self._conn.poll():
+            kind, *rest = self._conn.recv()
+            if kind in ("paths", "closed"):
+                self.paths = [Path(p) for p in rest[0]]
+            if kind == "closed":
+                self.message_count = rest[1]
+
+    def commit(self) -> None:
+        """Send the queued messages to the log process."""
+        with self._lock:
+            if self._closed:
+                return
+            if self._buf:
+                buf, self._buf = self._buf, []
+                self._conn.send(buf)
+            self._poll()
+
+    def close(self, timeout: float = 60.0) -> None:
+        """Send the rest, finish the file, wait for the log process. Idempotent."""
+        self.commit()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._conn.send(None)
+                deadline = time.monotonic() + timeout
+                while time.monotonic() < deadline and self._proc.poll() is None:
+                    if self._conn.poll(0.1):
+                        kind, *rest = self._conn.recv()
+                        if kind in ("paths", "closed"):
+                            self.paths = [Path(p) for p in rest[0]]
+                        if kind == "closed":
+                            self.message_count = rest[1]
+                            break
+            except (EOFError, OSError):
+                pass
+            try:
+                self._proc.wait(timeout)
+            except Exception:
+                self._proc.kill()
+            self._conn.close()
