@@ -12,7 +12,10 @@ which are correctly rounded (the result equals ``float(text)``); anything else (
 significant digits, nested values, escapes, NaN/Infinity literals, differing keys) makes
 :func:`parse_objects` report failure so the caller can fall back to ``json.loads``.
 
-All kernels are ``@njit(cache=True)``: the first call compiles (or loads the cache).
+All kernels are ``@njit(cache=True)``: the first call compiles (or loads the cache; a cold
+compile takes some seconds, :func:`warm_up` does it ahead). The kernels that allocate nothing are
+compiled without numba's reference counting (its atomic incref/decref on every array argument
+otherwise costs more than the parsing).
 """
 
 from __future__ import annotations
@@ -23,8 +26,7 @@ import numpy as np
 from numba import njit
 from numba.core import cpu
 
-# leaf kernels that allocate nothing: compiled without reference counting (the NRT
-# incref/decref calls on the array arguments otherwise cost more than the parsing itself)
+# kernels that allocate nothing: compiled without NRT reference counting
 _LEAF = {"cache": True, "error_model": "numpy"}
 if hasattr(cpu.CPUTargetOptions, "_nrt"):
     _LEAF["_nrt"] = False
@@ -51,7 +53,6 @@ _LO32 = np.uint64(0xFFFFFFFF)
 _MANT = np.uint64((1 << 52) - 1)
 _HIDDEN = np.uint64(1 << 52)
 _SIGN = np.uint64(1 << 63)
-_INF_BITS = np.uint64(0x7FF0000000000000)
 
 
 # ----------------------------------------------------------------------------- tables

@@ -169,12 +169,15 @@ class _PackedMessageIndex(MessageIndex):
 
 
 class _FastWriter(Writer):
-    """``mcap.writer.Writer`` with a faster ``add_message`` for the chunked case.
+    """``mcap.writer.Writer`` with a faster ``add_message`` and a bulk ``add_messages`` for
+    the chunked case.
 
-    Same bytes as the base class (``tests/test_mcaplog.py`` compares the files), about twice
-    as fast: the message record is packed in one ``struct`` call instead of a ``Message``
-    object and five writes. It reaches the base class's private state, so it checks that
-    state exists and falls back to the base method otherwise (another mcap version).
+    Same bytes as the base class (``tests/test_mcaplog.py`` and
+    ``tests/test_mcaplog_blocks.py`` compare the files): a message record is packed in one
+    ``struct`` call instead of a ``Message`` object and five writes; ``add_messages`` and
+    ``_add_records`` (records packed by :mod:`service.logcodec`) append many records of one
+    channel at once. It reaches the base class's private state, so it checks that state
+    exists and falls back to the base method otherwise (another mcap version).
     """
 
     def __init__(self, *args: Any, **kwargs: Any):
