@@ -168,6 +168,35 @@ class _PackedMessageIndex(MessageIndex):
         stream.finish_record()
 
 
+class _ZstdShim:
+    """Stands in for the ``zstandard`` module inside ``mcap.writer``: its ``compress`` uses
+    the level the calling thread set (``_FastWriter`` with ``zstd_level``), else zstd's
+    default, so other writers are unaffected."""
+
+    def __init__(self, mod: Any):
+        self._mod = mod
+        self.local = threading.local()
+
+    def compress(self, data: bytes) -> bytes:
+        level = getattr(self.local, "level", None)
+        return self._mod.compress(data) if level is None else self._mod.compress(data, level)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._mod, name)
+
+
+def _zstd_shim() -> _ZstdShim | None:
+    import mcap.writer as mw
+
+    cur = getattr(mw, "zstandard", None)
+    if isinstance(cur, _ZstdShim):
+        return cur
+    if cur is None or not callable(getattr(cur, "compress", None)):
+        return None  # another mcap version: the library's own level is used
+    mw.zstandard = shim = _ZstdShim(cur)
+    return shim
+
+
 class _FastWriter(Writer):
     """``mcap.writer.Writer`` with a faster ``add_message`` and a bulk ``add_messages`` for
     the chunked case.
@@ -180,8 +209,10 @@ class _FastWriter(Writer):
     exists and falls back to the base method otherwise (another mcap version).
     """
 
-    def __init__(self, *args: Any, **kwargs: Any):
+    def __init__(self, *args: Any, zstd_level: int | None = None, **kwargs: Any):
         super().__init__(*args, **kwargs)
+        self._zstd_level = zstd_level
+        self._shim = _zstd_shim() if zstd_level is not None else None
         cb = getattr(self, "_Writer__chunk_builder", None)
         self._cb = cb
         self._st = getattr(self, "_Writer__statistics", None)
@@ -196,6 +227,16 @@ class _FastWriter(Writer):
             and isinstance(self._csize, int)
             and callable(self._finalize)
         )
+
+    def _Writer__finalize_chunk(self) -> None:  # the base class's private hook
+        shim = self._shim
+        if shim is None:
+            return Writer._Writer__finalize_chunk(self)  # type: ignore[attr-defined]
+        shim.local.level = self._zstd_level
+        try:
+            Writer._Writer__finalize_chunk(self)  # type: ignore[attr-defined]
+        finally:
+            shim.local.level = None
 
     def add_message(
         self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0
@@ -339,6 +380,7 @@ class McapLogger:
         flush_s: float = 1.0,
         chunk_size: int = 1 << 20,
         compression: str = "zstd",
+        zstd_level: int = 1,
         background_flush: bool = True,
         metadata: Mapping[str, str] | None = None,
     ):
@@ -358,6 +400,7 @@ class McapLogger:
             "lz4": CompressionType.LZ4 if lz4_frame is not None else CompressionType.NONE,
             "none": CompressionType.NONE,
         }[compression]
+        self.zstd_level = int(zstd_level)
         self._metadata = dict(metadata or {})
         self.paths: list[Path] = []
         self.message_count = 0
@@ -393,7 +436,10 @@ class McapLogger:
         p.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(p, "wb")  # noqa: SIM115 - closed in _finish_current
         self._writer = _FastWriter(
-            self._fh, chunk_size=self.chunk_size, compression=self._compression
+            self._fh,
+            chunk_size=self.chunk_size,
+            compression=self._compression,
+            zstd_level=self.zstd_level,
         )
         self._writer.start(profile="", library=_LIBRARY)
         if self._metadata:
