@@ -27,7 +27,7 @@ from numba import njit
 from numba.core import cpu
 
 # kernels that allocate nothing: compiled without NRT reference counting
-_LEAF = {"cache": True, "error_model": "numpy"}
+_LEAF = {"cache": True, "error_model": "numpy", "nogil": True}
 if hasattr(cpu.CPUTargetOptions, "_nrt"):
     _LEAF["_nrt"] = False
 _INLINE = {**_LEAF, "inline": "always"}  # small helpers: inlined into their callers
@@ -385,7 +385,7 @@ def _put_int(buf, p, v):
     return _put_digits(buf, p, u, _dec_len(u), 0)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _format_floats(bits, buf):
     """repr of each double of ``bits`` into ``buf``; returns the end offsets (for tests)."""
     ends = np.empty(bits.size, np.int64)
@@ -840,7 +840,7 @@ def _object_like(buf, p, e, seg_s, seg_n, nk, vals, row):
     return p == e
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _objects(buf, offs, lens):
     n = offs.size
     cap = lens[0] // 4 + 1

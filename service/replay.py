@@ -17,6 +17,7 @@ import math
 import time
 import warnings
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,7 +42,7 @@ __all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
 log = logging.getLogger("servowatch.replay")
 
 INPUT_KEYS: tuple[str, ...] = ("t", *m.CHANNELS)
-_BATCH = 2048  # samples per update_arrays call (the block path amortises over them)
+_BATCH = 512  # samples per update_arrays call (amortised; small enough to pipeline)
 _PACED_SLICE = 10  # samples run together in a paced replay
 
 
@@ -209,6 +210,16 @@ def replay(
     wall0 = time.perf_counter()
     t_first: float | None = None
 
+    # as fast as possible: the monitor runs in a worker thread (its compiled loop releases the
+    # GIL) while this thread reads the next blocks and logs the previous outputs
+    pool = ThreadPoolExecutor(1, thread_name_prefix="replay-monitor") if speed is None else None
+    running: list[tuple[Future, NDArray]] = []  # at most one update_arrays in flight
+
+    def drain() -> None:
+        if running:
+            fut, ks = running.pop()
+            handle(fut.result(), ks)
+
     def flush_batch() -> None:
         # one update_arrays call for what is pending; outputs stay numpy rows and are logged
         # as blocks; dicts only for what is published or kept in the summary
@@ -221,7 +232,16 @@ def replay(
             ks, t, ch = (np.concatenate(c) for c in zip(*pending, strict=True))
         pending.clear()
         n_pending = 0
-        rows = bank.update_arrays(ks, t, ch)
+        if pool is None:
+            handle(bank.update_arrays(ks, t, ch), ks)
+            return
+        prev = running.pop() if running else None
+        prev_rows = prev[0].result() if prev is not None else None  # the bank is sequential
+        running.append((pool.submit(bank.update_arrays, ks, t, ch), ks))
+        if prev is not None:
+            handle(prev_rows, prev[1])
+
+    def handle(rows: Any, ks: NDArray) -> None:
         idx = rows.index
         if len(idx) == 0:
             return
@@ -267,6 +287,7 @@ def replay(
                     at = _parse_topic(blk.topic)
                     name = topics[blk.topic] = None if at is None else f"{at[0]}/{at[1]}"
                     if name is not None and name not in names:
+                        drain()  # index_of may grow the bank's arrays: not while it runs
                         names[name] = at  # type: ignore[assignment]
                         prefix[name] = f"/fleet/{at[0]}/{at[1]}/"  # type: ignore[index]
                         summary.actuators.append(name)
@@ -307,7 +328,10 @@ def replay(
                     due = wall0 + (float(t[sl][-1]) - t_first) / speed
                     time.sleep(max(0.0, due - time.perf_counter()))
             flush_batch()
+            drain()
         finally:
+            if pool is not None:
+                pool.shutdown(wait=True)
             if writer is not None:
                 writer.close()
     summary.wall_s = time.perf_counter() - wall0
