@@ -193,3 +193,19 @@ def test_log_every_decimates_outputs_not_estimates(tmp_path, run_rows):
     assert s.final["AC001/elevator_L"]["est"] == direct[-1].est
     with pytest.raises(ValueError):
         replay(log, log_every=0)
+
+
+def test_actuators_appearing_late_grow_the_bank_safely(tmp_path, run_rows):
+    """Ten actuators that join one after another (the bank grows past its initial 8 rows
+    while the pipelined monitor runs): each ends with the estimates of its own samples."""
+    p = tmp_path / "late.mcap"
+    starts = {f"act{k}": 30 * k for k in range(10)}
+    with McapLogger(p, chunk_size=8_192, background_flush=False) as lg:
+        for j, d in enumerate(run_rows):
+            for act, j0 in starts.items():
+                if j >= j0:
+                    lg.log(mcap_topic("AC001", act, "meas"), d["t"], d)
+    s = replay(p)
+    assert s.samples == sum(N - j0 for j0 in starts.values())
+    for act, j0 in starts.items():
+        assert s.final[f"AC001/{act}"]["est"] == _direct(run_rows[j0:])[-1].est
