@@ -46,6 +46,7 @@ __all__ = [
     "param_vector",
     "step_nb",
     "step_core_nb",
+    "step_points_nb",
     "spool_coef_nb",
     "measure_nb",
 ]
@@ -225,23 +226,54 @@ def param_vector(rp: ReducedParams) -> NDArray:
     return a
 
 
-@njit(cache=True)
+# Speed (these run 2 x 17 times per UKF step): error_model="numpy" (no zero-division checks;
+# no divisor here can be 0), helpers inlined and fed scalars (an array passed to a call that
+# is not inlined is reference-counted with atomic operations, which cost more than the
+# physics), and the square-root supply law of G_PQ through math.sqrt (correctly rounded;
+# pow(r, 0.5) is within an ulp of it).
+_NB = {"cache": True, "error_model": "numpy"}
+
+
+@njit(**_NB, inline="always")
 def _g_pq_nb(p_sr, prm):
-    if prm[K_G_PQ_EXP] == 0.0:
-        return prm[K_G_PQ]
-    return prm[K_G_PQ] * (max(p_sr, prm[K_P_VAP]) / prm[K_P_SR_RATED]) ** prm[K_G_PQ_EXP]
+    g, e = prm[K_G_PQ], prm[K_G_PQ_EXP]
+    if e != 0.0:
+        r = max(p_sr, prm[K_P_VAP]) / prm[K_P_SR_RATED]
+        g = g * (math.sqrt(r) if e == 0.5 else r**e)
+    return g
 
 
-@njit(cache=True)
-def _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, prm):
-    p12 = law_p12(
-        int(prm[K_LAW]), x_s, prm[K_AREA] * v_j, p_sr, g_pq, prm[K_X_SS], c_lk, prm[K_P_VAP]
-    )
-    f = prm[K_AREA] * p12 - f_r - prm[K_C_V] * v_j - prm[K_F_D] * math.tanh(v_j / prm[K_V_F])
-    return f / prm[K_MASS]
+@njit(**_NB, inline="always")
+def _friction_nb(v_j, f_d, v_f):
+    """Coulomb friction F_d tanh(v_J / v_f)."""
+    return f_d * math.tanh(v_j / v_f)
 
 
-@njit(cache=True)
+@njit(**_NB, inline="always")
+def _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fric):
+    """dv_J/dt with the friction term ``fric`` = _friction_nb(v_j, ...)."""
+    p12 = law_p12(law, x_s, area * v_j, p_sr, g_pq, x_ss, c_lk, p_vap)
+    f = area * p12 - f_r - c_v * v_j - fric
+    return f / mass
+
+
+@njit(**_NB, inline="always")
+def _spool_nb(x_s, v_s, x_ref, x_sm, coef):
+    """One exact spool substep (transition ``coef``), then the stroke limit: (x_s, v_s)."""
+    dx = x_s - x_ref
+    xn = x_ref + coef[0] * dx + coef[1] * v_s
+    v_s = coef[2] * dx + coef[3] * v_s
+    return min(max(xn, -x_sm), x_sm), v_s
+
+
+@njit(**_NB, inline="always")
+def _jack_nb(v_j, a0, a1, h, dv):
+    """Linearly-implicit velocity substep from a0 = a(v_j), a1 = a(v_j + dv)."""
+    jac = min((a1 - a0) / dv, 0.0)  # only the damping part is made implicit
+    return v_j + h * a0 / (1.0 - h * jac)
+
+
+@njit(**_NB, inline="always")
 def spool_coef_nb(h, prm, coef):
     """Zero-order-hold transition of the spool over a substep h: coef = (a11, a12, a21, a22)."""
     w, z = prm[K_OMEGA_N], prm[K_ZETA]
@@ -255,7 +287,10 @@ def spool_coef_nb(h, prm, coef):
     coef[3] = e * (c - sig / wd * s)
 
 
-@njit(cache=True)
+_DV = 1e-5  # velocity increment of the finite-difference Jacobian [m/s]
+
+
+@njit(**_NB, inline="always")
 def step_core_nb(x, i, h, n_sub, prm, coef, out):
     """``step_nb`` with the spool transition ``coef`` of the substep h precomputed."""
     x_s, v_s, x_j, v_j = x[0], x[1], x[2], x[3]
@@ -265,22 +300,68 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
     g_pq = _g_pq_nb(p_sr, prm)
     x_sm = prm[K_X_SM]
     x_ref = min(max(prm[K_K_SV] * (i + x[7]), -x_sm), x_sm)
-    dv = 1e-5
+    dv = _DV
+    law, area, x_ss, p_vap = int(prm[K_LAW]), prm[K_AREA], prm[K_X_SS], prm[K_P_VAP]
+    c_v, f_d, v_f, mass = prm[K_C_V], prm[K_F_D], prm[K_V_F], prm[K_MASS]
     for _ in range(n_sub):
-        dx = x_s - x_ref
-        xn = x_ref + coef[0] * dx + coef[1] * v_s
-        v_s = coef[2] * dx + coef[3] * v_s
-        x_s = min(max(xn, -x_sm), x_sm)
-        a0 = _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, prm)
-        a1 = _accel_nb(x_s, v_j + dv, f_r, p_sr, c_lk, g_pq, prm)
-        jac = min((a1 - a0) / dv, 0.0)
-        v_j = v_j + h * a0 / (1.0 - h * jac)
+        x_s, v_s = _spool_nb(x_s, v_s, x_ref, x_sm, coef)
+        v1 = v_j + dv
+        fr0, fr1 = _friction_nb(v_j, f_d, v_f), _friction_nb(v1, f_d, v_f)
+        a0 = _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fr0)
+        a1 = _accel_nb(x_s, v1, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fr1)
+        v_j = _jack_nb(v_j, a0, a1, h, dv)
         x_j = x_j + h * v_j
     out[0], out[1], out[2], out[3] = x_s, v_s, x_j, v_j
     out[4], out[5], out[6], out[7] = x[4], x[5], x[6], x[7]
 
 
-@njit(cache=True)
+@njit(**_NB)
+def step_points_nb(X, i, h, n_sub, prm, coef, out, w):
+    """``step_core_nb`` for every row of X (K, 8) into out (K, 8), bitwise the same row by
+    row, for the K sigma points of a filter step. One point's step is a chain of divisions
+    and tanh calls (latency-bound); here each substep runs in stages over all the points
+    (spool, friction, accelerations), whose short independent iterations overlap. The
+    friction tanh is evaluated once per distinct velocity: the sigma points of columns
+    4..7 of the (lower) Cholesky factor keep the centre's v_J. w: scratch (K, 6)."""
+    K = X.shape[0]
+    x_sm, p_vap, k_sv = prm[K_X_SM], prm[K_P_VAP], prm[K_K_SV]
+    dv = _DV
+    law, area, x_ss = int(prm[K_LAW]), prm[K_AREA], prm[K_X_SS]
+    c_v, f_d, v_f, mass = prm[K_C_V], prm[K_F_D], prm[K_V_F], prm[K_MASS]
+    for k in range(K):
+        for r in range(8):
+            out[k, r] = X[k, r]
+        p_sr = max(X[k, 5], p_vap)
+        w[k, 0] = p_sr
+        w[k, 1] = max(X[k, 6], 0.0)
+        w[k, 2] = _g_pq_nb(p_sr, prm)
+        w[k, 3] = min(max(k_sv * (i + X[k, 7]), -x_sm), x_sm)
+    for _ in range(n_sub):
+        for k in range(K):
+            out[k, 0], out[k, 1] = _spool_nb(out[k, 0], out[k, 1], w[k, 3], x_sm, coef)
+        v0 = out[0, 3]
+        for k in range(K):
+            v_j = out[k, 3]
+            if k > 0 and v_j == v0 and math.copysign(1.0, v_j) == math.copysign(1.0, v0):
+                w[k, 4], w[k, 5] = w[0, 4], w[0, 5]
+            else:
+                w[k, 4] = _friction_nb(v_j, f_d, v_f)
+                w[k, 5] = _friction_nb(v_j + dv, f_d, v_f)
+        for k in range(K):
+            x_s, v_j, f_r = out[k, 0], out[k, 3], out[k, 4]
+            p_sr, c_lk, g_pq = w[k, 0], w[k, 1], w[k, 2]
+            a0 = _accel_nb(
+                x_s, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, w[k, 4]
+            )
+            a1 = _accel_nb(
+                x_s, v_j + dv, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, w[k, 5]
+            )
+            v_j = _jack_nb(v_j, a0, a1, h, dv)
+            out[k, 3] = v_j
+            out[k, 2] = out[k, 2] + h * v_j
+
+
+@njit(**_NB)
 def step_nb(x, i, dt, n_sub, prm, out):
     """Scalar ``step`` (same algebra): x (8,) -> out (8,); parameters clipped for evaluation
     (C_Lk >= 0, P_SR >= P_vap) but copied through unchanged."""
@@ -290,7 +371,7 @@ def step_nb(x, i, dt, n_sub, prm, out):
     step_core_nb(x, i, h, n_sub, prm, coef, out)
 
 
-@njit(cache=True)
+@njit(**_NB, inline="always")
 def measure_nb(x, prm, out):
     """Scalar ``measure``: x (8,) -> out (5,) = x_S, x_J, P1, P2, P_SR."""
     p_sr = x[5]

@@ -20,10 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints
-from numba import njit
+from llvmlite.ir import Constant
+from numba import njit, types
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array
 from numpy.typing import NDArray
 
-from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
+from models.eha_reduced import MEAS_NAMES, N_STATES, measure_nb, spool_coef_nb, step_points_nb
 
 __all__ = [
     "SigmaWeights",
@@ -148,197 +151,270 @@ class BatchUKF:
 
 
 # -- compiled kernel: one UKF step (predict + masked update) for each of B actuators --------
-# The model is models.eha_reduced (step_nb / measure_nb). tests/test_ukf.py holds this kernel
-# to BatchUKF with the numpy model, and BatchUKF to filterpy.
+# The model is models.eha_reduced (step_points_nb / measure_nb), so the sizes are the model's:
+# n = 8 states, m = 5 channels, K = 17 sigma points. tests/test_ukf.py holds this kernel to
+# BatchUKF with the numpy model, and BatchUKF to filterpy.
+#
+# Layout for speed:
+# * the sizes are compile-time constants (_N, _M): the short loops are unrolled instead of
+#   running the generic loop set-up hundreds of times per step;
+# * sums over the sigma points keep the order k = 0, 1, ... and the products (Wc[k] d_r) d_s
+#   of the plain formulas, on deviations D[k] = sig_f[k] - mean, Dw[k] = Wc[k] D[k] computed
+#   once; covariances are computed on one triangle and mirrored;
+# * the Cholesky factor is kept as U = L^T (its rows are the columns of L, i.e. the
+#   sigma-point offsets); the gain is solved for all n rows at once on the transposed
+#   cross-covariance C = Pxz^T (m, n);
+# * the 17 model steps run in stages over the points (models.eha_reduced.step_points_nb);
+# * no atomic reference counting (see _borrowed).
+# No fastmath: every operation is the plain IEEE one (a division stays a division, e.g. the
+# unscaling (x scale) / scale of the parameter states the model copies through; no FMA
+# contraction), so the step is bitwise the same in every caller; NaN fails the "s > 0" test
+# of the Cholesky factors (status 2).
+_N = N_STATES
+_M = len(MEAS_NAMES)
+_KERNEL = {"cache": True, "error_model": "numpy", "boundscheck": False}
 
 
-@njit(cache=True)
-def _chol(A, L):
-    """Lower Cholesky factor of A into L; False when A is not positive definite."""
-    n = A.shape[0]
-    for j in range(n):
-        s = A[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not (s > 0.0):
-            return False
-        d = math.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            t = A[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / d
-        for i in range(j):
-            L[i, j] = 0.0
-    return True
+@intrinsic
+def _borrowed(typingctx, a):
+    """The array ``a`` without its memory-info pointer: a view that numba does not
+    reference-count. Numba increfs/decrefs every array a function holds with atomic
+    operations, and its pruning pass leaves most of them in a function this size (a third of
+    the step); on such a view they are no-ops. Only for arrays that outlive the view (here
+    ukf_one's arguments, for the duration of the call); never return or store one."""
+    if not isinstance(a, types.Array):
+        return None
+
+    def codegen(context, builder, sig, args):
+        ary = make_array(a)(context, builder, value=args[0])
+        ary.meminfo = Constant(ary.meminfo.type, None)
+        ary.parent = Constant(ary.parent.type, None)
+        return ary._getvalue()
+
+    return a(a), codegen
 
 
-@njit(cache=True)
-def _chol_solve(L, b, out):
-    """Solve (L L^T) out = b."""
-    n = L.shape[0]
-    for i in range(n):
-        s = b[i]
-        for k in range(i):
-            s -= L[i, k] * out[k]
-        out[i] = s / L[i, i]
-    for i in range(n - 1, -1, -1):
-        s = out[i]
-        for k in range(i + 1, n):
-            s -= L[k, i] * out[k]
-        out[i] = s / L[i, i]
-
-
-@njit(cache=True)
-def _sigma_points(x, P, c, A, L, sig):
-    """Van der Merwe sigma points of (x, P) into sig (2n+1, n): x, x + columns of the
-    Cholesky factor of c P, x - ...; jitter c 1e-9 on the diagonal if the factor fails.
-    Returns 0 ok, 1 jittered, 2 failed (A, L: workspace)."""
-    n = x.shape[0]
-    st = 0
-    for r in range(n):
-        for s_ in range(n):
-            A[r, s_] = c * P[r, s_]
-    if not _chol(A, L):
-        for r in range(n):
-            A[r, r] += c * 1e-9
-        if not _chol(A, L):
-            return 2
-        st = 1
-    for r in range(n):
-        sig[0, r] = x[r]
+@njit(**_KERNEL, inline="always")
+def _chol_upper(P, c, jit, U, n):
+    """U upper triangular with U^T U = c P + jit I (P (n, n) read from its lower triangle),
+    strictly lower part zeroed; row k of U is column k of the lower factor L = U^T. False
+    when the matrix is not positive definite (or not finite)."""
+    ok = True
     for k in range(n):
+        s = c * P[k, k] + jit
+        for i in range(k):
+            s -= U[i, k] * U[i, k]
+        if not (s > 0.0):
+            ok = False
+            break
+        d = math.sqrt(s)
+        U[k, k] = d
+        for r in range(k + 1, n):
+            t = c * P[r, k]
+            for i in range(k):
+                t -= U[i, r] * U[i, k]
+            U[k, r] = t / d
+        for r in range(k):
+            U[k, r] = 0.0
+    return ok
+
+
+@njit(**_KERNEL, inline="always")
+def _sigma_points_n(x, P, c, L, sig, n):
+    """``_sigma_points`` for n states."""
+    st = 0
+    if not _chol_upper(P, c, 0.0, L, n):
+        st = 1 if _chol_upper(P, c, c * 1e-9, L, n) else 2
+    if st != 2:
         for r in range(n):
-            sig[1 + k, r] = x[r] + L[r, k]
-            sig[1 + n + k, r] = x[r] - L[r, k]
+            sig[0, r] = x[r]
+        for k in range(n):
+            for r in range(n):
+                sig[1 + k, r] = x[r] + L[k, r]
+            for r in range(n):
+                sig[1 + n + k, r] = x[r] - L[k, r]
     return st
 
 
-@njit(cache=True)
+@njit(**_KERNEL)
+def _sigma_points(x, P, c, A, L, sig):
+    """Van der Merwe sigma points of (x, P) into sig (2n+1, n): x, x + columns of the
+    Cholesky factor of c P, x - ...; jitter c 1e-9 on the diagonal if the factor fails.
+    Returns 0 ok, 1 jittered, 2 failed (L: workspace, gets the factor transposed; A unused)."""
+    return _sigma_points_n(x, P, c, L, sig, x.shape[0])
+
+
+@njit(**_KERNEL, inline="always")
+def _mean(X, W, mean, K, d):
+    """mean = sum_k W[k] X[k] (rows of X (K, d))."""
+    for r in range(d):
+        acc = 0.0
+        for k in range(K):
+            acc += W[k] * X[k, r]
+        mean[r] = acc
+
+
+@njit(**_KERNEL, inline="always")
+def _dev(X, mean, Wc, D, Dw, K, d):
+    """D[k] = X[k] - mean and Dw[k] = Wc[k] D[k] (rows of (K, d))."""
+    for k in range(K):
+        w = Wc[k]
+        for r in range(d):
+            v = X[k, r] - mean[r]
+            D[k, r] = v
+            Dw[k, r] = w * v
+
+
+@njit(**_KERNEL, inline="always")
+def _cov(Dw, D, P, K, d):
+    """P = sum_k Dw[k] D[k]^T, symmetric: the lower triangle P[r, s] = sum_k Dw[k, r] D[k, s]
+    (s <= r, the terms of the plain formula in its order), mirrored."""
+    for r in range(d):
+        for s_ in range(r + 1):
+            acc = 0.0
+            for k in range(K):
+                acc += Dw[k, r] * D[k, s_]
+            P[r, s_] = acc
+            P[s_, r] = acc
+
+
+@njit(**_KERNEL)
 def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
     """One filter step in place (state xb (n,), covariance Pb (n, n), measurement zb (m,)
     with mask mb); ``ws`` is the workspace of ``workspace(n, m)``. Returns (NIS, status)."""
-    A, L, sig, sig_f, zs, xs, xo, zo, xm, zm, S, LS, Pxz, Kg, col, sol, yv, coef = ws
-    n = xb.shape[0]
-    m = zb.shape[0]
+    if xb.shape[0] != _N or zb.shape[0] != _M:
+        raise ValueError("ukf_one: the model has 8 states and 5 measurement channels")
+    n, m = _N, _M
+    # every array through _borrowed: no atomic reference counting in the step
+    xb, Pb, zb, mb, yb = _borrowed(xb), _borrowed(Pb), _borrowed(zb), _borrowed(mb), _borrowed(yb)
+    q, R, scale, zscale = _borrowed(q), _borrowed(R), _borrowed(scale), _borrowed(zscale)
+    Wm, Wc, prm = _borrowed(Wm), _borrowed(Wc), _borrowed(prm)
+    L, sig, sig_f, zs = _borrowed(ws[0]), _borrowed(ws[1]), _borrowed(ws[2]), _borrowed(ws[3])
+    xs, zo, xm, zm = _borrowed(ws[4]), _borrowed(ws[5]), _borrowed(ws[6]), _borrowed(ws[7])
+    S, LS, C, G = _borrowed(ws[8]), _borrowed(ws[9]), _borrowed(ws[10]), _borrowed(ws[11])
+    D, Dw, Dz, Dzw = _borrowed(ws[12]), _borrowed(ws[13]), _borrowed(ws[14]), _borrowed(ws[15])
+    yv, coef, W6 = _borrowed(ws[16]), _borrowed(ws[17]), _borrowed(ws[18])
     K = 2 * n + 1
-    st = _sigma_points(xb, Pb, c, A, L, sig)
-    if st == 2:
-        return 0.0, 2
-    # propagate through the model (SI units)
-    h = dt / n_sub
-    spool_coef_nb(h, prm, coef)
-    for k in range(K):
-        for r in range(n):
-            xs[r] = sig[k, r] * scale[r]
-        step_core_nb(xs, i_in, h, n_sub, prm, coef, xo)
-        for r in range(n):
-            sig_f[k, r] = xo[r] / scale[r]
-    # unscented transform
-    for r in range(n):
-        acc = 0.0
-        for k in range(K):
-            acc += Wm[k] * sig_f[k, r]
-        xm[r] = acc
-    for r in range(n):
-        for s_ in range(n):
-            acc = 0.0
-            for k in range(K):
-                acc += Wc[k] * (sig_f[k, r] - xm[r]) * (sig_f[k, s_] - xm[s_])
-            Pb[r, s_] = acc
-        Pb[r, r] += q[r] * dt
-    # redraw the sigma points from the prior (as filterpy's predict does)
-    st2 = _sigma_points(xm, Pb, c, A, L, sig_f)
-    if st2 == 2:
-        return 0.0, 2
-    if st2 == 1:
-        st = 1
-    for k in range(K):
-        for r in range(n):
-            xs[r] = sig_f[k, r] * scale[r]
-        measure_nb(xs, prm, zo)
-        for r in range(m):
-            zs[k, r] = zo[r] / zscale[r]
-    for r in range(m):
-        acc = 0.0
-        for k in range(K):
-            acc += Wm[k] * zs[k, r]
-        zm[r] = acc
-    for r in range(m):
-        for s_ in range(m):
-            acc = 0.0
-            for k in range(K):
-                acc += Wc[k] * (zs[k, r] - zm[r]) * (zs[k, s_] - zm[s_])
-            S[r, s_] = acc + R[r, s_]
-    for r in range(n):
-        for s_ in range(m):
-            acc = 0.0
-            for k in range(K):
-                acc += Wc[k] * (sig_f[k, r] - xm[r]) * (zs[k, s_] - zm[s_])
-            Pxz[r, s_] = acc
-    # masked channels: no innovation, no cross-covariance, unit diagonal
-    for r in range(m):
-        if mb[r]:
-            yv[r] = zb[r] - zm[r]
-        else:
-            yv[r] = 0.0
-            for s_ in range(m):
-                S[r, s_] = 0.0
-                S[s_, r] = 0.0
-            S[r, r] = 1.0
-            for s_ in range(n):
-                Pxz[s_, r] = 0.0
-    if not _chol(S, LS):
-        return 0.0, 2
-    # K = Pxz S^-1 (row by row: S k_r = Pxz[r])
-    for r in range(n):
-        for s_ in range(m):
-            col[s_] = Pxz[r, s_]
-        _chol_solve(LS, col, sol)
-        for s_ in range(m):
-            Kg[r, s_] = sol[s_]
-    _chol_solve(LS, yv, sol)
     nis = 0.0
-    for r in range(m):
-        nis += yv[r] * sol[r]
-    for r in range(m):
-        yb[r] = yv[r]
-    for r in range(n):
-        acc = 0.0
+    st = _sigma_points_n(xb, Pb, c, L, sig, n)
+    if st != 2:
+        # propagate through the model (SI units)
+        h = dt / n_sub
+        spool_coef_nb(h, prm, coef)
+        for k in range(K):
+            for r in range(n):
+                D[k, r] = sig[k, r] * scale[r]
+        step_points_nb(D, i_in, h, n_sub, prm, coef, Dw, W6)  # D, Dw: scratch here
+        for k in range(K):
+            for r in range(n):
+                sig_f[k, r] = Dw[k, r] / scale[r]
+        # unscented transform: P = sum_k Wc[k] D[k] D[k]^T + Q
+        _mean(sig_f, Wm, xm, K, n)
+        _dev(sig_f, xm, Wc, D, Dw, K, n)
+        _cov(Dw, D, Pb, K, n)
+        for r in range(n):
+            Pb[r, r] += q[r] * dt
+        # redraw the sigma points from the prior (as filterpy's predict does)
+        st = max(st, _sigma_points_n(xm, Pb, c, L, sig_f, n))
+    if st != 2:
+        for k in range(K):
+            for r in range(n):
+                xs[r] = sig_f[k, r] * scale[r]
+            measure_nb(xs, prm, zo)
+            for r in range(m):
+                zs[k, r] = zo[r] / zscale[r]
+        _mean(zs, Wm, zm, K, m)
+        _dev(zs, zm, Wc, Dz, Dzw, K, m)
+        _cov(Dzw, Dz, S, K, m)
+        for r in range(m):
+            for s_ in range(r + 1):
+                v = S[r, s_] + R[r, s_]
+                S[r, s_] = v
+                S[s_, r] = v
+        # C = Pxz^T (m, n) about the prior mean; the centre point is xm itself (D[0] = 0,
+        # a zero term, left out)
+        _dev(sig_f, xm, Wc, D, Dw, K, n)
         for s_ in range(m):
-            acc += Kg[r, s_] * yv[s_]
-        xb[r] = xm[r] + acc
-    # P -= K S K^T = K Pxz^T, symmetrised
-    for r in range(n):
-        for s_ in range(n):
+            for r in range(n):
+                acc = 0.0
+                for k in range(1, K):
+                    acc += Dw[k, r] * Dz[k, s_]
+                C[s_, r] = acc
+        # masked channels: no innovation, no cross-covariance, unit diagonal
+        for r in range(m):
+            if mb[r]:
+                yv[r] = zb[r] - zm[r]
+            else:
+                yv[r] = 0.0
+                for s_ in range(m):
+                    S[r, s_] = 0.0
+                    S[s_, r] = 0.0
+                S[r, r] = 1.0
+                for s_ in range(n):
+                    C[r, s_] = 0.0
+        if not _chol_upper(S, 1.0, 0.0, LS, m):
+            st = 2
+    if st != 2:
+        # S [K^T | S^-1 y] = [C | y] by forward and back substitution with LS = U (U^T U = S),
+        # all n rows of the gain and the NIS solve at once; G[:, n] holds S^-1 y
+        for i in range(m):
+            for r in range(n):
+                G[i, r] = C[i, r]
+            G[i, n] = yv[i]
+            for k in range(i):
+                u = LS[k, i]
+                for r in range(n + 1):
+                    G[i, r] -= u * G[k, r]
+            d = LS[i, i]
+            for r in range(n + 1):
+                G[i, r] /= d
+        for i in range(m - 1, -1, -1):
+            for k in range(i + 1, m):
+                u = LS[i, k]
+                for r in range(n + 1):
+                    G[i, r] -= u * G[k, r]
+            d = LS[i, i]
+            for r in range(n + 1):
+                G[i, r] /= d
+        for r in range(m):
+            nis += yv[r] * G[r, n]
+            yb[r] = yv[r]
+        # x = xm + K y; P = P - K S K^T = P - K Pxz^T on the upper triangle, mirrored;
+        # subnormal results flushed to zero: their arithmetic depends on the CPU's FTZ/DAZ
+        # mode, which other libraries in the process may change (keeps Monitor and
+        # MonitorBank bit-equal)
+        for r in range(n):
             acc = 0.0
             for k in range(m):
-                acc += Kg[r, k] * Pxz[s_, k]
-            A[r, s_] = Pb[r, s_] - acc
-    for r in range(n):
-        for s_ in range(n):
-            Pb[r, s_] = 0.5 * (A[r, s_] + A[s_, r])
-    # flush subnormal results to zero: their arithmetic depends on the CPU's FTZ/DAZ mode,
-    # which other libraries in the process may change; keeps Monitor and MonitorBank bit-equal
-    for r in range(n):
-        if abs(xb[r]) < 1e-290:
-            xb[r] = 0.0
-        for s_ in range(n):
-            if abs(Pb[r, s_]) < 1e-290:
-                Pb[r, s_] = 0.0
+                acc += G[k, r] * yv[k]
+            v = xm[r] + acc
+            xb[r] = 0.0 if abs(v) < 1e-290 else v
+            for s_ in range(r, n):
+                acc = 0.0
+                for k in range(m):
+                    acc += G[k, r] * C[k, s_]
+                v = Pb[r, s_] - acc
+                if abs(v) < 1e-290:
+                    v = 0.0
+                Pb[r, s_] = v
+                Pb[s_, r] = v
     return nis, st
 
 
 @njit(cache=True)
 def workspace(n, m):
-    """Scratch arrays of ``ukf_one``."""
+    """Scratch arrays of ``ukf_one``: factor U = L^T (n, n); sigma points, propagated and
+    redrawn (K, n); their measurements (K, m); model in/out (n,), (m,); means (n,), (m,);
+    S and its factor (m, m); Pxz^T (m, n); gain^T | S^-1 y (m, n + 1); deviations and
+    weighted deviations (K, n), (K, m); innovation (m,); spool transition (4,); model
+    stage scratch (K, 6)."""
     K = 2 * n + 1
     return (
-        np.empty((n, n)), np.empty((n, n)), np.empty((K, n)), np.empty((K, n)),
-        np.empty((K, m)), np.empty(n), np.empty(n), np.empty(m), np.empty(n), np.empty(m),
-        np.empty((m, m)), np.empty((m, m)), np.empty((n, m)), np.empty((n, m)), np.empty(m),
-        np.empty(m), np.empty(m), np.empty(4),
+        np.empty((n, n)), np.empty((K, n)), np.empty((K, n)), np.empty((K, m)),
+        np.empty(n), np.empty(m), np.empty(n), np.empty(m),
+        np.empty((m, m)), np.empty((m, m)), np.empty((m, n)), np.empty((m, n + 1)),
+        np.empty((K, n)), np.empty((K, n)), np.empty((K, m)), np.empty((K, m)),
+        np.empty(m), np.empty(4), np.empty((K, 6)),
     )  # fmt: skip
 
 
