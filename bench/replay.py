@@ -1,7 +1,8 @@
 """Replay speed of one actuator at 1 kHz, stage by stage (target: >= 200x real time).
 
 Logs ``--seconds`` of the HF bench (leak_step scenario, 1 kHz samples, the daemon's meas
-topic and fields) with ``McapLogger.log_block``, as the daemon does, then times side by side
+topic and fields, one chunk per second as the daemon's 1 s flush makes) with
+``McapLogger.log_block``, as the daemon does, then times side by side
 in one run (best of ``--repeats``, numba kernels warm):
 
 * reading the log per message (``read_log``, a dict per sample) and as column blocks

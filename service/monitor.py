@@ -884,7 +884,7 @@ _RES_KEYS = tuple(
 ) = range(16)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _step_one(
     j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale, zscale, Wm,
     Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
@@ -941,7 +941,7 @@ def _step_one(
     return 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _row_one(
     j, k, X, PP, OL, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING,
     cst, est, res, health, fire, xs, zo,
