@@ -63,8 +63,6 @@ log = logging.getLogger("servowatch.daemon")
 
 #: actuators a daemon tracks at most; samples of further ones count as ``unknown_actuator``
 MAX_ACTUATORS = 1000
-#: monitor input keys (the MeasSample channels and t)
-INPUT_KEYS: tuple[str, ...] = ("t", *m.CHANNELS)
 INVALID_KEY = "(invalid key)"
 
 

@@ -222,7 +222,8 @@ def _check_size(payload: bytes, max_bytes: int) -> None:
         raise MessageError("empty message", "payload")
 
 
-def _bin_rows(payload: bytes) -> list[tuple[int, float, list[float | None]]]:
+def _bin_count(payload: bytes) -> int:
+    """Sample count n of a binary message whose header and length are valid (else raises)."""
     if len(payload) < _HEADER.size:
         raise MessageError("shorter than the 8-byte header", "header")
     _magic, version, kind, n = _HEADER.unpack_from(payload)
@@ -235,6 +236,11 @@ def _bin_rows(payload: bytes) -> list[tuple[int, float, list[float | None]]]:
     want = _HEADER.size + n * _REC.size
     if len(payload) != want:
         raise MessageError(f"{len(payload)} bytes, expected {want} for n={n}", "n")
+    return n
+
+
+def _bin_rows(payload: bytes) -> list[tuple[int, float, list[float | None]]]:
+    _bin_count(payload)
     out: list[tuple[int, float, list[float | None]]] = []
     isfinite = math.isfinite
     nch = len(CHANNELS)
@@ -401,18 +407,7 @@ def _unpack_checked(seq_in, t_in, mk_in, v_in, seq, t, values):  # pragma: no co
 def _bin_arrays(payload: bytes) -> MeasArrays:
     """``_bin_rows`` compiled: same checks; on a violation the scalar decoder raises the same
     error naming the first offending field."""
-    if len(payload) < _HEADER.size:
-        raise MessageError("shorter than the 8-byte header", "header")
-    _magic, version, kind, n = _HEADER.unpack_from(payload)
-    if version != _VERSION:
-        raise MessageError(f"unsupported version {version}", "version")
-    if kind != _KIND_MEAS:
-        raise MessageError(f"unsupported kind {kind}", "kind")
-    if n < 1 or n > MAX_SAMPLES:
-        raise MessageError(f"sample count {n} outside 1..{MAX_SAMPLES}", "n")
-    want = _HEADER.size + n * _REC.size
-    if len(payload) != want:
-        raise MessageError(f"{len(payload)} bytes, expected {want} for n={n}", "n")
+    n = _bin_count(payload)
     rec = np.frombuffer(payload, _REC_DTYPE, n, _HEADER.size)
     out = MeasArrays(np.empty(n, np.int64), np.empty(n), np.empty((n, len(CHANNELS))))
     if not _unpack_checked(rec["seq"], rec["t"], rec["mask"], rec["v"], *out):
