@@ -1,7 +1,8 @@
 """Replay speed of one actuator at 1 kHz, stage by stage (target: >= 200x real time).
 
-Logs ``--seconds`` of the HF bench (leak_step scenario, 1 kHz samples, the daemon's meas
-topic and fields, one chunk per second as the daemon's 1 s flush makes) with
+Logs ``--seconds`` of the HF bench (leak_step scenario, lengthened to ``--seconds``; 1 kHz
+samples, the daemon's meas topic, fields and metadata, one chunk per second as the daemon's
+1 s flush makes) with
 ``McapLogger.log_block``, as the daemon does, then times side by side
 in one run (best of ``--repeats``, numba kernels warm):
 
@@ -11,7 +12,7 @@ in one run (best of ``--repeats``, numba kernels warm):
 * ``replay`` writing a new log with every est/residual/health (``--out``), and with them
   decimated to one output in 10 (``--log-every 10``; meas and events always logged).
 
-    .venv/bin/python bench/replay.py [--seconds 4] [--repeats 5] [--json]
+    .venv/bin/python bench/replay.py [--seconds 20] [--repeats 5] [--json]
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from models.eha import simulate  # noqa: E402
 from service.mcaplog import McapLogger, read_blocks, read_log  # noqa: E402
 from service.messages import CHANNELS, mcap_topic  # noqa: E402
+from service.monitor import Baseline, MonitorBank, MonitorConfig  # noqa: E402
 from service.proclog import MEAS_LOG_FIELDS  # noqa: E402
 from service.replay import replay  # noqa: E402
 from service.scenarios import load_scenario  # noqa: E402
@@ -38,6 +40,7 @@ from service.scenarios import load_scenario  # noqa: E402
 def write_live_log(path: Path, seconds: float) -> tuple[int, float]:
     """The daemon's meas log of one actuator (1 kHz HF bench, sensor noise); (n, duration)."""
     sc = load_scenario("leak_step")
+    sc = sc.model_copy(update={"duration_s": max(sc.duration_s, seconds)})
     r = simulate(sc, "HF", out_every=10)
     n = min(len(r.t), int(seconds * 1000) + 1)
     rng = np.random.default_rng(1)
@@ -47,18 +50,26 @@ def write_live_log(path: Path, seconds: float) -> tuple[int, float]:
     t = np.asarray(r.t[:n], float)
     vals = np.column_stack([*cols, np.arange(n), t])
     topic = mcap_topic("AC001", "elevator_L", "meas")
-    with McapLogger(path, background_flush=False) as lg:
+    cfg = MonitorConfig()
+    md = {  # as the daemon's log: replay rebuilds its monitors from this
+        "source": "bench",
+        "monitor_config": cfg.model_dump_json(),
+        "baseline": Baseline.default(cfg.model).model_dump_json(),
+    }
+    with McapLogger(path, background_flush=False, metadata=md) as lg:
         for a in range(0, n, 100):  # 10 messages of 10 samples per daemon tick
             lg.log_block(
                 topic, t[a : a + 100], MEAS_LOG_FIELDS, vals[a : a + 100], int_fields=("seq",)
             )
+            if (a + 100) % 1000 == 0:
+                lg.flush()  # one chunk per second of data, as the daemon's 1 s flush
     return n, float(t[-1] - t[0])
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=4.0, help="logged duration [s] (<= 4)")
-    ap.add_argument("--repeats", type=int, default=5, help="best of N runs per stage")
+    ap.add_argument("--seconds", type=float, default=20.0, help="logged duration [s]")
+    ap.add_argument("--repeats", type=int, default=7, help="best of N rounds per stage")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     res: dict[str, float] = {}
@@ -69,23 +80,35 @@ def main(argv: list[str] | None = None) -> int:
         write_live_log(warm, 0.05)
         replay(warm, out=Path(d) / "warm-out.mcap")
 
-        def best(fn) -> float:
-            walls = []
-            for _ in range(args.repeats):
-                t0 = time.perf_counter()
-                fn()
-                walls.append(time.perf_counter() - t0)
-            return min(walls)
+        blocks = list(read_blocks(live))  # the samples in memory, for the monitor alone
+        t_all = np.concatenate([b.values[:, b.names.index("t")] for b in blocks])
+        ch_all = np.column_stack(
+            [np.concatenate([b.values[:, b.names.index(c)] for b in blocks]) for c in CHANNELS]
+        )
+
+        def monitor_alone() -> None:
+            cfg = MonitorConfig()
+            bank = MonitorBank(cfg, Baseline.default(cfg.model))
+            k = bank.index_of("AC001/elevator_L")
+            bank.update_arrays(np.full(len(t_all), k, np.int64), t_all, ch_all)
 
         stages = {
             "read_log": lambda: sum(1 for _ in read_log(live)),
             "read_blocks": lambda: sum(len(b.t) for b in read_blocks(live)),
+            "monitor": monitor_alone,
             "replay": lambda: replay(live),
             "replay_out": lambda: replay(live, out=Path(d) / "out.mcap"),
             "replay_out_every10": lambda: replay(live, out=Path(d) / "o10.mcap", log_every=10),
         }
-        for key, fn in stages.items():
-            wall = best(fn)
+        # rounds interleave the stages, so a drift of the shared machine's speed hits all alike
+        walls: dict[str, list[float]] = {key: [] for key in stages}
+        for _ in range(args.repeats):
+            for key, fn in stages.items():
+                t0 = time.perf_counter()
+                fn()
+                walls[key].append(time.perf_counter() - t0)
+        for key in stages:
+            wall = min(walls[key])
             res[key + "_us_per_sample"] = wall / n * 1e6
             res[key + "_x_real_time"] = duration / wall
         s = replay(live)
@@ -103,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     for label, key in (
         ("read_log: a dict per message", "read_log"),
         ("read_blocks: column blocks (the replay's reader)", "read_blocks"),
+        ("monitor alone: update_arrays on the samples in memory", "monitor"),
         ("replay LOG: read + monitor + summary", "replay"),
         ("replay LOG --out: + every est/residual/health logged", "replay_out"),
         ("replay LOG --out --log-every 10", "replay_out_every10"),

@@ -685,7 +685,7 @@ class Daemon:
         old = rows.t > 1e9  # Unix-time sample clock: end-to-end age is meaningful
         if old.any():
             self.age.extend((now_w - rows.t[old]).tolist())
-        has_ev = np.fromiter(map(bool, rows.events), bool, len(idx))
+        has_ev = rows.events.flags()
         owner = ks[idx]
         states = {row: st for row, (st, *_rest) in zip(rows_of, parts, strict=True)}
         order = np.argsort(owner, kind="stable")

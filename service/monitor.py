@@ -229,6 +229,57 @@ class MonitorOutput:
     events: list[AlarmEvent] = field(default_factory=list)
 
 
+class RowEvents(Sequence):
+    """The alarm events of each output row, stored sparsely (most rows have none): a
+    sequence of lists, ``[]`` for a row without events. A list per row would be one
+    garbage-collected allocation per sample, which cost as much as the filter step."""
+
+    __slots__ = ("_n", "_at")
+
+    def __init__(self, n: int, at: dict[int, list[AlarmEvent]] | None = None):
+        self._n = n
+        self._at = at or {}
+
+    @classmethod
+    def of(cls, lists: Sequence[list[AlarmEvent]]) -> RowEvents:
+        """From one list per row."""
+        return cls(len(lists), {r: ev for r, ev in enumerate(lists) if ev})
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, r):  # type: ignore[override]
+        if isinstance(r, slice):
+            return [self[i] for i in range(*r.indices(self._n))]
+        if r < 0:
+            r += self._n
+        if not 0 <= r < self._n:
+            raise IndexError("RowEvents index out of range")
+        ev = self._at.get(r)
+        return [] if ev is None else ev
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, RowEvents):
+            return self._n == other._n and self._at == other._at
+        if isinstance(other, Sequence):
+            return list(self) == list(other)
+        return NotImplemented
+
+    def __repr__(self) -> str:
+        return f"RowEvents({self._n}, {self._at!r})"
+
+    def rows(self) -> list[int]:
+        """The rows that have events, ascending."""
+        return sorted(self._at)
+
+    def flags(self) -> NDArray:
+        """(n,) bool: the row has events."""
+        f = np.zeros(self._n, bool)
+        if self._at:
+            f[list(self._at)] = True
+        return f
+
+
 @dataclass
 class BankRows:
     """Outputs of ``MonitorBank.update_rows``: one row per accepted sample, in input order.
@@ -240,7 +291,7 @@ class BankRows:
     est: NDArray  # (R, len(EST_KEYS))
     res: NDArray  # (R, len(RES_KEYS))
     health: NDArray  # (R, len(HEALTH_KEYS))
-    events: list[list[AlarmEvent]]
+    events: RowEvents  # a sequence of lists, one per row
     _lists: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _n_out: int = field(default=0, init=False, repr=False, compare=False)
 
@@ -287,7 +338,7 @@ _PLAIN = {float, int, type(None), np.float64}
 def _empty_rows() -> BankRows:
     z = np.zeros((0,))
     return BankRows(np.zeros(0, int), z, z.reshape(0, len(_EST_KEYS)),
-                    z.reshape(0, len(_RES_KEYS)), z.reshape(0, len(_HEALTH_KEYS)), [])  # fmt: skip
+                    z.reshape(0, len(_RES_KEYS)), z.reshape(0, len(_HEALTH_KEYS)), RowEvents(0))  # fmt: skip
 
 
 def _f(v) -> float | None:
@@ -516,7 +567,7 @@ class MonitorBank:
             est=np.concatenate([p[2] for p in parts])[order],
             res=np.concatenate([p[3] for p in parts])[order],
             health=np.concatenate([p[4] for p in parts])[order],
-            events=[evs[j] for j in order],
+            events=RowEvents.of([evs[j] for j in order]),
         )
 
     # -- block path ----------------------------------------------------------------------
@@ -647,13 +698,13 @@ class MonitorBank:
             c["missing_channel"] += int(cnt[k, 1])
             c["accepted"] += int(cnt[k, 2])
         sel = np.flatnonzero(acc)
-        evs: list[list[AlarmEvent]] = [[] for _ in range(len(sel))]
+        at: dict[int, list[AlarmEvent]] = {}
         fired = fire.any(1)
         if extra or fired.any():
             row_of = np.full(n, -1, np.int64)
             row_of[sel] = np.arange(len(sel))
             for j in sorted(set(extra) | set(np.flatnonzero(fired).tolist())):
-                ev = evs[row_of[j]]
+                ev = at.setdefault(int(row_of[j]), [])
                 ev.extend(extra.get(j, ()))
                 for a in range(len(ALARM_KINDS)):
                     if fire[j, a]:
@@ -662,7 +713,12 @@ class MonitorBank:
                                              float(health[j, a])))  # fmt: skip
                 self.events_log[int(ks[j])].extend(ev)
         return BankRows(
-            index=sel, t=t[sel], est=est[sel], res=res[sel], health=health[sel], events=evs
+            index=sel,
+            t=t[sel],
+            est=est[sel],
+            res=res[sel],
+            health=health[sel],
+            events=RowEvents(len(sel), at),
         )
 
     def _run_rounds(self, samples, out) -> None:

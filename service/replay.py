@@ -16,6 +16,7 @@ import logging
 import math
 import time
 import warnings
+from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -44,6 +45,7 @@ log = logging.getLogger("servowatch.replay")
 INPUT_KEYS: tuple[str, ...] = ("t", *m.CHANNELS)
 _BATCH = 512  # samples per update_arrays call (amortised; small enough to pipeline)
 _PACED_SLICE = 10  # samples run together in a paced replay
+_IN_FLIGHT = 4  # update_arrays calls queued ahead of the one being handled
 
 
 @dataclass
@@ -213,12 +215,17 @@ def replay(
     # as fast as possible: the monitor runs in a worker thread (its compiled loop releases the
     # GIL) while this thread reads the next blocks and logs the previous outputs
     pool = ThreadPoolExecutor(1, thread_name_prefix="replay-monitor") if speed is None else None
-    running: list[tuple[Future, NDArray]] = []  # at most one update_arrays in flight
+    # update_arrays calls queued on the one worker (run in order: the bank is sequential), so
+    # it runs back to back while this thread reads ahead; their outputs handled in order
+    running: deque[tuple[Future, NDArray]] = deque()
+
+    def collect(wait: bool) -> None:
+        while running and (wait or running[0][0].done()):
+            fut, ks = running.popleft()
+            handle(fut.result(), ks)
 
     def drain() -> None:
-        if running:
-            fut, ks = running.pop()
-            handle(fut.result(), ks)
+        collect(True)
 
     def flush_batch() -> None:
         # one update_arrays call for what is pending; outputs stay numpy rows and are logged
@@ -235,11 +242,11 @@ def replay(
         if pool is None:
             handle(bank.update_arrays(ks, t, ch), ks)
             return
-        prev = running.pop() if running else None
-        prev_rows = prev[0].result() if prev is not None else None  # the bank is sequential
         running.append((pool.submit(bank.update_arrays, ks, t, ch), ks))
-        if prev is not None:
-            handle(prev_rows, prev[1])
+        while len(running) > _IN_FLIGHT:  # bounded read-ahead
+            fut, ks0 = running.popleft()
+            handle(fut.result(), ks0)
+        collect(False)
 
     def handle(rows: Any, ks: NDArray) -> None:
         idx = rows.index
@@ -247,7 +254,7 @@ def replay(
             return
         summary.outputs += len(idx)
         owner = ks[idx]
-        has_ev = np.fromiter(map(bool, rows.events), bool, len(idx))
+        has_ev = rows.events.flags()
         order = np.argsort(owner, kind="stable")
         for g in np.split(order, np.flatnonzero(np.diff(owner[order])) + 1):
             name = row_name[int(owner[g[0]])]
