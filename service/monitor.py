@@ -321,6 +321,24 @@ class BankRows:
         )
 
 
+@dataclass
+class StepBlock:
+    """A block of samples stepped through the filters (``MonitorBank.step_arrays``) whose
+    output rows are still to be made (``MonitorBank.rows_of``): inputs, innovations, NIS,
+    which samples have a row (acc) and the state snapshot of each (X, diagonal of P, OL,
+    T_INIT, NIS_AVG), and the re-initialisation events by sample."""
+
+    ks: NDArray
+    t: NDArray
+    z: NDArray
+    mask: NDArray
+    y: NDArray
+    nis: NDArray
+    acc: NDArray
+    snap: tuple[NDArray, NDArray, NDArray, NDArray, NDArray]
+    extra: dict[int, list[AlarmEvent]]
+
+
 _COUNTERS = (
     "accepted",
     "skipped_nan",
@@ -504,8 +522,8 @@ class MonitorBank:
     def update_rows(self, samples: Sequence[tuple[str, Mapping]]) -> BankRows:
         """As ``update_many`` (same numbers) but the outputs stay numpy rows (``BankRows``):
         no per-sample dicts, for a fleet that logs or publishes arrays. The whole block is
-        parsed with numpy and run through one compiled loop (``_block_run``), which returns
-        to Python only for a (re-)initialisation. A batch of one or two samples takes the
+        parsed with numpy and run through two compiled loops (``_block_steps``, which returns
+        to Python only for a (re-)initialisation, then ``_block_rows``). A batch of one or two samples takes the
         per-round path (same numbers, less fixed cost per call)."""
         if len(samples) <= 2:
             return self.update_rows_rounds(samples)
@@ -521,10 +539,20 @@ class MonitorBank:
         order of ``service.messages.CHANNELS`` (x_cmd, i, x_s, x_j, p1, p2, p_sr; SI), NaN
         where a channel is absent. Same numbers as ``update_rows`` on the equivalent dicts
         (with None for the NaNs); ``BankRows.index`` refers to positions in these arrays."""
+        sb = self.step_arrays(ks, t, channels)
+        return _empty_rows() if sb is None else self.rows_of(sb)
+
+    def step_arrays(self, ks: NDArray, t: NDArray, channels: NDArray) -> StepBlock | None:
+        """First half of ``update_arrays`` (same arguments): the filter steps, parallel model
+        and counters; None for an empty block. ``rows_of`` makes the output rows and alarms.
+        The halves touch disjoint state, so a pipeline may step block b + 1 in one thread
+        while another makes the rows of block b (both compiled loops release the GIL), as
+        long as ``rows_of`` takes the blocks in the order they were stepped and ``index_of``
+        does not add an actuator meanwhile."""
         ks = np.ascontiguousarray(ks, np.int64)
         n = len(ks)
         if n == 0:
-            return _empty_rows()
+            return None
         if ks.min() < 0 or ks.max() >= len(self.ids):
             raise ValueError("update_arrays: ks must be rows returned by index_of")
         ch = np.asarray(channels, float)
@@ -536,7 +564,12 @@ class MonitorBank:
         vals[:, 6] = ch[:, 1]  # i
         vals[:, 7] = ch[:, 0]  # x_cmd
         present = ~np.isnan(vals)
-        return self._run_inputs(*self._inputs(ks, vals, present))
+        return self._steps(*self._inputs(ks, vals, present))
+
+    def rows_of(self, sb: StepBlock) -> BankRows:
+        """Second half of ``update_arrays``: the output rows of a ``step_arrays`` block and
+        the alarms (hysteresis, persistence), with the re-initialisation events."""
+        return self._rows_of(sb)
 
     # -- reference path: one kernel call per round of at most one sample per actuator ---
     def update_many_rounds(
@@ -574,7 +607,7 @@ class MonitorBank:
     def _parse_block(self, samples: Sequence[tuple[str, Mapping]]):
         """Vectorised ``_parse`` of every sample: (ks, t, z (scaled), mask, cand, i_m, x_c)
         with NaN for an absent or bad i / x_cmd; counts bad_channel and skipped_nan (the
-        time checks are sequential and done in ``_block_run``)."""
+        time checks are sequential and done in ``_block_steps``)."""
         n = len(samples)
         ids = self.ids
         kl = []
@@ -641,25 +674,26 @@ class MonitorBank:
         return self._run_inputs(*self._parse_block(samples))
 
     def _run_inputs(self, ks, t, z, mask, cand, i_m, x_c) -> BankRows:
+        return self._rows_of(self._steps(ks, t, z, mask, cand, i_m, x_c))
+
+    def _steps(self, ks, t, z, mask, cand, i_m, x_c) -> StepBlock:
         n = len(ks)
+        nx = _NX
         y = np.zeros((n, 5))
         nis = np.zeros(n)
         nis_avg = np.zeros(n)
         acc = np.zeros(n, np.bool_)
-        est = np.zeros((n, len(_EST_KEYS)))
-        res = np.zeros((n, len(_RES_KEYS)))
-        health = np.zeros((n, len(_HEALTH_KEYS)))
-        fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
+        snap = (np.empty((n, nx)), np.empty((n, nx)), np.empty((n, nx)), np.empty(n),
+                np.empty(n))  # fmt: skip
         cnt = np.zeros((len(self.x), 3), np.int64)  # skipped_time, missing_channel, accepted
         extra: dict[int, list[AlarmEvent]] = {}
         j, emit = 0, False
         while True:
-            j, code = _block_run(
+            j, code = _block_steps(
                 j, emit, ks, t, z, mask, cand, i_m, x_c, self.x, self.P, self.ol, self.t_last,
-                self.i_last, self.nis_avg, self.t_init, self.alarm, self.pending, self._q,
-                self.R, self.scale, self._zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c,
-                self._prm, self._cst, self.config.max_gap_s, self._expect, self._ws, y, nis,
-                nis_avg, acc, est, res, health, fire, cnt,
+                self.i_last, self.nis_avg, self.t_init, self._q, self.R, self.scale,
+                self._zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c, self._prm, self._cst,
+                self.config.max_gap_s, self._expect, self._ws, y, nis, nis_avg, acc, *snap, cnt,
             )  # fmt: skip
             if code == 0:
                 break
@@ -697,7 +731,21 @@ class MonitorBank:
             c["skipped_time"] += int(cnt[k, 0])
             c["missing_channel"] += int(cnt[k, 1])
             c["accepted"] += int(cnt[k, 2])
-        sel = np.flatnonzero(acc)
+        return StepBlock(ks, t, z, mask, y, nis, acc, snap, extra)
+
+    def _rows_of(self, sb: StepBlock) -> BankRows:
+        ks, t = sb.ks, sb.t
+        n = len(ks)
+        est = np.zeros((n, len(_EST_KEYS)))
+        res = np.zeros((n, len(_RES_KEYS)))
+        health = np.zeros((n, len(_HEALTH_KEYS)))
+        fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
+        _block_rows(
+            ks, sb.acc, *sb.snap, self.scale, self._zscale, self._prm, sb.z, sb.mask, sb.y,
+            sb.nis, t, self.alarm, self.pending, self._cst, est, res, health, fire,
+        )  # fmt: skip
+        extra = sb.extra
+        sel = np.flatnonzero(sb.acc)
         at: dict[int, list[AlarmEvent]] = {}
         fired = fire.any(1)
         if extra or fired.any():
@@ -888,7 +936,7 @@ class MonitorBank:
         health = np.zeros((n, len(_HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
         _output_rows(
-            self.x, self.P, self.ol, ks, self.scale, self._zscale, self._prm, z, mask, y, nis,
+            self.x, np.diagonal(self.P, axis1=1, axis2=2).copy(), self.ol, ks, self.scale, self._zscale, self._prm, z, mask, y, nis,
             t, self.t_init, self.nis_avg, self.alarm, self.pending, self._cst, est, res,
             health, fire,
         )  # fmt: skip
@@ -999,24 +1047,26 @@ def _step_one(
 
 @njit(cache=True, inline="always")
 def _row_one(
-    j, k, X, PP, OL, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING,
-    cst, est, res, health, fire, xs, zo,
+    j, kk, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
+    PENDING, cst, est, res, health, fire, xs, zo,
 ):  # fmt: skip
     """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
     innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak
     and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence
-    and the sigma gate (fire: 1 raised, 2 cleared this sample)."""
+    and the sigma gate (fire: 1 raised, 2 cleared this sample). The filter state is row kk of
+    X, PD (the diagonal of P), OL, T_INIT and NIS_AVG: the bank's row k, or the snapshot of
+    sample j taken by ``_block_steps``; the alarm state is the bank's row k."""
     n = X.shape[1]
     m = z.shape[1]
     c_lk0, p_rated = cst[_C_C_LK0], cst[_C_P_RATED]
     for r in range(n):
-        xs[r] = X[k, r] * scale[r]
+        xs[r] = X[kk, r] * scale[r]
         est[j, 2 * r] = xs[r]
-        est[j, 2 * r + 1] = math.sqrt(max(PP[k, r, r], 0.0)) * scale[r]
+        est[j, 2 * r + 1] = math.sqrt(max(PD[kk, r], 0.0)) * scale[r]
     measure_nb(xs, prm, zo)
     est[j, 2 * n] = zo[2] - zo[3]  # P12
     est[j, 2 * n + 1] = xs[6] - c_lk0
-    measure_nb(OL[k], prm, zo)
+    measure_nb(OL[kk], prm, zo)
     dof = 0.0
     for r in range(m):
         res[j, r] = y[j, r] * zscale[r]
@@ -1031,7 +1081,7 @@ def _row_one(
     sr = xs[5] / p_rated
     sd_l = est[j, 13] / c_lk0 if c_lk0 > 0 else 0.0
     sd_s = est[j, 11] / p_rated
-    armed = t[j] - T_INIT[k] >= cst[_C_ARM]
+    armed = t[j] - T_INIT[kk] >= cst[_C_ARM]
     for a in range(2):
         on = ALARM[k, a]
         if a == 0:
@@ -1060,7 +1110,7 @@ def _row_one(
     health[j, 1] = sr
     health[j, 2] = 1.0 if ALARM[k, 0] else 0.0
     health[j, 3] = 1.0 if ALARM[k, 1] else 0.0
-    health[j, 4] = NIS_AVG[k]
+    health[j, 4] = NIS_AVG[kk]
 
 
 @njit(cache=True)
@@ -1080,37 +1130,38 @@ def _bank_step(
 
 @njit(cache=True)
 def _output_rows(
-    X, PP, OL, ks, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING, cst,
+    X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING, cst,
     est, res, health, fire,
 ):  # fmt: skip
-    """The output row of each actuator ks[j] through ``_row_one``."""
+    """The output row of each actuator ks[j] through ``_row_one`` (PD: diagonals of P)."""
     xs = np.empty(X.shape[1])
     zo = np.empty(z.shape[1])
     for j in range(ks.shape[0]):
+        k = ks[j]
         _row_one(
-            j, ks[j], X, PP, OL, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG,
-            ALARM, PENDING, cst, est, res, health, fire, xs, zo,
+            j, k, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
+            PENDING, cst, est, res, health, fire, xs, zo,
         )  # fmt: skip
 
 
 @njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
-def _block_run(
-    j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT,
-    ALARM, PENDING, q, R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis,
-    nis_avg, flag, est, res, health, fire, cnt,
+def _block_steps(
+    j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT, q,
+    R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis, nis_avg, acc, SX, SPD,
+    SOL, STI, SNA, cnt,
 ):  # fmt: skip
-    """The samples j0.. of a block in order, each through the time checks, ``_step_one`` and
-    ``_row_one`` (the same code as the per-round path, so the same bits), the row written
-    right after the sample's own step. Returns (j, code): code 0 when done; 3 when sample j
-    needs a (re-)initialisation (first sample or gap; not stepped), 1/2 when its step
-    broke/diverged. The caller re-initialises and resumes with (j, emit0=True), which writes
-    row j without stepping it. ``flag`` (here: accepted, bool per sample); cnt[k]:
-    skipped_time, missing_channel, accepted (stepped samples only)."""
+    """The samples j0.. of a block in order, each through the time checks and ``_step_one``
+    (the code of the per-round path, so the same bits); after its step, the state a sample's
+    output row is made of (X, diagonal of P, OL, T_INIT, NIS_AVG of its actuator) is copied
+    into row j of SX, SPD, SOL, STI, SNA for ``_block_rows``. Returns (j, code): code 0 when
+    done; 3 when sample j needs a (re-)initialisation (first sample or gap; not stepped), 1/2
+    when its step broke/diverged. The caller re-initialises and resumes with (j,
+    emit0=True), which takes sample j's snapshot without stepping it. acc[j]: sample j has an
+    output row; cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
     m = z.shape[1]
+    n = X.shape[1]
     coef = np.empty(4)
-    tmp = np.empty(X.shape[1])
-    xs = np.empty(X.shape[1])
-    zo = np.empty(m)
+    tmp = np.empty(n)
     for j in range(j0, ks.shape[0]):
         k = ks[j]
         if not (emit0 and j == j0):
@@ -1131,12 +1182,31 @@ def _block_run(
             )  # fmt: skip
             if code != 0:
                 return j, code
-        flag[j] = True
-        _row_one(
-            j, k, X, PP, OL, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM,
-            PENDING, cst, est, res, health, fire, xs, zo,
-        )  # fmt: skip
+        acc[j] = True
+        for r in range(n):
+            SX[j, r] = X[k, r]
+            SPD[j, r] = PP[k, r, r]
+            SOL[j, r] = OL[k, r]
+        STI[j] = T_INIT[k]
+        SNA[j] = NIS_AVG[k]
     return ks.shape[0], 0
+
+
+@njit(cache=True, nogil=True)
+def _block_rows(
+    ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t, ALARM, PENDING,
+    cst, est, res, health, fire,
+):  # fmt: skip
+    """The output rows of the samples with acc[j], in order, from their ``_block_steps``
+    snapshots, through ``_row_one`` (alarms: the bank's ALARM, PENDING)."""
+    xs = np.empty(SX.shape[1])
+    zo = np.empty(z.shape[1])
+    for j in range(ks.shape[0]):
+        if acc[j]:
+            _row_one(
+                j, j, ks[j], SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t,
+                ALARM, PENDING, cst, est, res, health, fire, xs, zo,
+            )  # fmt: skip
 
 
 class Monitor:

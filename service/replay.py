@@ -3,7 +3,8 @@
 The logged ``/fleet/{aircraft}/{actuator}/meas`` messages are read as column blocks
 (``service.mcaplog.read_blocks``: per chunk and topic, no per-message dicts; it survives a
 truncated file) and fed to one ``service.monitor.MonitorBank`` keyed by actuator, in batches
-of consecutive samples (``MonitorBank.update_arrays``). The bank
+of consecutive samples (``MonitorBank.update_arrays``; as fast as possible, its two halves
+``step_arrays`` and ``rows_of`` run pipelined in two threads). The bank
 gives results that do not depend on the batch composition (``tests/test_monitor.py``), so a
 replay reproduces the live daemon's estimates when it uses the same monitor configuration and
 baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` copied, ``est``,
@@ -43,9 +44,9 @@ __all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
 log = logging.getLogger("servowatch.replay")
 
 INPUT_KEYS: tuple[str, ...] = ("t", *m.CHANNELS)
-_BATCH = 512  # samples per update_arrays call (amortised; small enough to pipeline)
+_BATCH = 512  # samples per step_arrays call (amortised; small enough to pipeline)
 _PACED_SLICE = 10  # samples run together in a paced replay
-_IN_FLIGHT = 4  # update_arrays calls queued ahead of the one being handled
+_IN_FLIGHT = 4  # step_arrays calls queued ahead of the one being handled
 
 
 @dataclass
@@ -212,17 +213,22 @@ def replay(
     wall0 = time.perf_counter()
     t_first: float | None = None
 
-    # as fast as possible: the monitor runs in a worker thread (its compiled loop releases the
-    # GIL) while this thread reads the next blocks and logs the previous outputs
+    # as fast as possible: the filter steps run in a worker thread (MonitorBank.step_arrays, a
+    # compiled loop that releases the GIL) while this thread reads the next blocks, makes
+    # the output rows of the stepped ones (rows_of, also compiled) and logs them
     pool = ThreadPoolExecutor(1, thread_name_prefix="replay-monitor") if speed is None else None
-    # update_arrays calls queued on the one worker (run in order: the bank is sequential), so
+    # step_arrays calls queued on the one worker (run in order: the bank is sequential), so
     # it runs back to back while this thread reads ahead; their outputs handled in order
     running: deque[tuple[Future, NDArray]] = deque()
 
+    def finish(fut: Future, ks: NDArray) -> None:
+        sb = fut.result()
+        if sb is not None:
+            handle(bank.rows_of(sb), ks)
+
     def collect(wait: bool) -> None:
         while running and (wait or running[0][0].done()):
-            fut, ks = running.popleft()
-            handle(fut.result(), ks)
+            finish(*running.popleft())
 
     def drain() -> None:
         collect(True)
@@ -242,10 +248,11 @@ def replay(
         if pool is None:
             handle(bank.update_arrays(ks, t, ch), ks)
             return
-        running.append((pool.submit(bank.update_arrays, ks, t, ch), ks))
+        # the worker steps the filters; this thread makes the rows (alarms, outputs) of the
+        # blocks it has stepped, in order, while it steps the next ones
+        running.append((pool.submit(bank.step_arrays, ks, t, ch), ks))
         while len(running) > _IN_FLIGHT:  # bounded read-ahead
-            fut, ks0 = running.popleft()
-            handle(fut.result(), ks0)
+            finish(*running.popleft())
         collect(False)
 
     def handle(rows: Any, ks: NDArray) -> None:
