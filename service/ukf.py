@@ -160,14 +160,17 @@ class BatchUKF:
 #   running the generic loop set-up hundreds of times per step;
 # * sums over the sigma points keep the order k = 0, 1, ... and the products (Wc[k] d_r) d_s
 #   of the plain formulas, on deviations D[k] = sig_f[k] - mean, Dw[k] = Wc[k] D[k] computed
-#   once; covariances are computed on one triangle and mirrored;
+#   once; covariances are computed on one triangle and mirrored; the loop over k is the
+#   outer one, so the sums of all the elements advance together (independent additions
+#   instead of one chain per element; the same order, the same bits);
+# * scaling to and from filter units multiplies by reciprocals computed once per step, and
+#   the parameter states the model copies through are not scaled back and forth;
 # * the Cholesky factor is kept as U = L^T (its rows are the columns of L, i.e. the
 #   sigma-point offsets); the gain is solved for all n rows at once on the transposed
 #   cross-covariance C = Pxz^T (m, n);
 # * the 17 model steps run in stages over the points (models.eha_reduced.step_points_nb);
 # * no atomic reference counting (see _borrowed).
-# No fastmath: every operation is the plain IEEE one (a division stays a division, e.g. the
-# unscaling (x scale) / scale of the parameter states the model copies through; no FMA
+# No fastmath: every operation is the plain IEEE one written here (no reassociation, no FMA
 # contraction), so the step is bitwise the same in every caller; NaN fails the "s > 0" test
 # of the Cholesky factors (status 2).
 _N = N_STATES
@@ -248,10 +251,11 @@ def _sigma_points(x, P, c, A, L, sig):
 def _mean(X, W, mean, K, d):
     """mean = sum_k W[k] X[k] (rows of X (K, d))."""
     for r in range(d):
-        acc = 0.0
-        for k in range(K):
-            acc += W[k] * X[k, r]
-        mean[r] = acc
+        mean[r] = 0.0
+    for k in range(K):  # k outermost: d independent sums, each still in the order k = 0, 1, ..
+        w = W[k]
+        for r in range(d):
+            mean[r] += w * X[k, r]
 
 
 @njit(**_KERNEL, inline="always")
@@ -271,11 +275,15 @@ def _cov(Dw, D, P, K, d):
     (s <= r, the terms of the plain formula in its order), mirrored."""
     for r in range(d):
         for s_ in range(r + 1):
-            acc = 0.0
-            for k in range(K):
-                acc += Dw[k, r] * D[k, s_]
-            P[r, s_] = acc
-            P[s_, r] = acc
+            P[r, s_] = 0.0
+    for k in range(K):  # k outermost: the sums are independent, each in the order k = 0, 1, ..
+        for r in range(d):
+            a = Dw[k, r]
+            for s_ in range(r + 1):
+                P[r, s_] += a * D[k, s_]
+    for r in range(d):
+        for s_ in range(r):
+            P[s_, r] = P[r, s_]
 
 
 @njit(**_KERNEL)
@@ -305,9 +313,15 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
             for r in range(n):
                 D[k, r] = sig[k, r] * scale[r]
         step_points_nb(D, i_in, h, n_sub, prm, coef, Dw, W6)  # D, Dw: scratch here
+        # back to filter units; the parameter states (4..7), which the model copies through,
+        # are taken from the points themselves (exact: no (x scale) / scale round trip)
+        for r in range(4):
+            xs[r] = 1.0 / scale[r]
         for k in range(K):
-            for r in range(n):
-                sig_f[k, r] = Dw[k, r] / scale[r]
+            for r in range(4):
+                sig_f[k, r] = Dw[k, r] * xs[r]
+            for r in range(4, n):
+                sig_f[k, r] = sig[k, r]
         # unscented transform: P = sum_k Wc[k] D[k] D[k]^T + Q
         _mean(sig_f, Wm, xm, K, n)
         _dev(sig_f, xm, Wc, D, Dw, K, n)
@@ -317,12 +331,14 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
         # redraw the sigma points from the prior (as filterpy's predict does)
         st = max(st, _sigma_points_n(xm, Pb, c, L, sig_f, n))
     if st != 2:
+        for r in range(m):
+            zm[r] = 1.0 / zscale[r]  # zm: the reciprocal scales here, the mean below
         for k in range(K):
             for r in range(n):
                 xs[r] = sig_f[k, r] * scale[r]
             measure_nb(xs, prm, zo)
             for r in range(m):
-                zs[k, r] = zo[r] / zscale[r]
+                zs[k, r] = zo[r] * zm[r]
         _mean(zs, Wm, zm, K, m)
         _dev(zs, zm, Wc, Dz, Dzw, K, m)
         _cov(Dzw, Dz, S, K, m)
@@ -336,10 +352,12 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
         _dev(sig_f, xm, Wc, D, Dw, K, n)
         for s_ in range(m):
             for r in range(n):
-                acc = 0.0
-                for k in range(1, K):
-                    acc += Dw[k, r] * Dz[k, s_]
-                C[s_, r] = acc
+                C[s_, r] = 0.0
+        for k in range(1, K):
+            for s_ in range(m):
+                a = Dz[k, s_]
+                for r in range(n):
+                    C[s_, r] += Dw[k, r] * a
         # masked channels: no innovation, no cross-covariance, unit diagonal
         for r in range(m):
             if mb[r]:
