@@ -555,16 +555,19 @@ class MonitorBank:
             return None
         if ks.min() < 0 or ks.max() >= len(self.ids):
             raise ValueError("update_arrays: ks must be rows returned by index_of")
-        ch = np.asarray(channels, float)
-        if ch.shape != (n, 7) or np.shape(t) != (n,):
+        ch = np.ascontiguousarray(channels, float)
+        t = np.ascontiguousarray(t, float)
+        if ch.shape != (n, 7) or t.shape != (n,):
             raise ValueError(f"update_arrays: expected t ({n},) and channels ({n}, 7)")
-        vals = np.empty((n, 8))
-        vals[:, 0] = t
-        vals[:, 1:6] = ch[:, 2:7]  # x_s, x_j, p1, p2, p_sr
-        vals[:, 6] = ch[:, 1]  # i
-        vals[:, 7] = ch[:, 0]  # x_cmd
-        present = ~np.isnan(vals)
-        return self._steps(*self._inputs(ks, vals, present))
+        # _inputs with NaN for absent, compiled (numpy's per-call cost on these short
+        # arrays was a tenth of the filter step)
+        cnt = np.zeros((len(self.x), 2), np.int64)
+        t_f, z, mask, cand, i_m, x_c = _array_inputs(ks, t, ch, self._use, self._zscale, cnt)
+        for k in np.flatnonzero(cnt.any(1)).tolist():
+            c = self.counters[k]
+            c["bad_channel"] += int(cnt[k, 0])
+            c["skipped_nan"] += int(cnt[k, 1])
+        return self._steps(ks, t_f, z, mask, cand, i_m, x_c)
 
     def rows_of(self, sb: StepBlock) -> BankRows:
         """Second half of ``update_arrays``: the output rows of a ``step_arrays`` block and
@@ -1142,6 +1145,45 @@ def _output_rows(
             j, k, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
             PENDING, cst, est, res, health, fire, xs, zo,
         )  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _array_inputs(ks, t, ch, use, zscale, cnt):
+    """``MonitorBank._inputs`` for ``update_arrays`` (channels in ``messages.CHANNELS``
+    order, NaN: absent, so a present non-finite value is an infinity): (t, z, mask, cand,
+    i_m, x_c), the same numbers; cnt[k] += bad_channel, skipped_nan."""
+    n = ks.shape[0]
+    m = zscale.shape[0]
+    t_out = np.empty(n)
+    z = np.empty((n, m))
+    mask = np.empty((n, m), np.bool_)
+    cand = np.empty(n, np.bool_)
+    i_m = np.empty(n)
+    x_c = np.empty(n)
+    for j in range(n):
+        t_ok = math.isfinite(t[j])
+        n_bad = 0
+        any_m = False
+        for r in range(m):
+            v = ch[j, 2 + r]
+            ok = math.isfinite(v) and use[r]
+            mask[j, r] = ok
+            z[j, r] = v / zscale[r] if ok else 0.0
+            any_m = any_m or ok
+            if math.isinf(v) and use[r]:
+                n_bad += 1
+        vi, vx = ch[j, 1], ch[j, 0]
+        i_ok, x_ok = math.isfinite(vi), math.isfinite(vx)
+        i_m[j] = vi if i_ok else math.nan
+        x_c[j] = vx if x_ok else math.nan
+        n_bad += math.isinf(vi) + math.isinf(vx)
+        cand[j] = t_ok and (i_ok or x_ok or any_m)
+        t_out[j] = t[j] if t_ok else 0.0
+        if t_ok:
+            cnt[ks[j], 0] += n_bad
+        if not cand[j]:
+            cnt[ks[j], 1] += 1
+    return t_out, z, mask, cand, i_m, x_c
 
 
 @njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
