@@ -31,7 +31,7 @@ from models import eha_reduced as er
 from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
-from service.ukf import BatchUKF, ukf_one, workspace
+from service.ukf import BatchUKF, _borrowed, ukf_one, workspace
 
 __all__ = [
     "MeasurementNoise",
@@ -1200,6 +1200,30 @@ def _block_steps(
     when its step broke/diverged. The caller re-initialises and resumes with (j,
     emit0=True), which takes sample j's snapshot without stepping it. acc[j]: sample j has an
     output row; cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
+    # every array argument through _borrowed (see service.ukf): the inlined _step_one takes
+    # about 30 arrays, which numba would otherwise reference-count with atomic operations at
+    # every sample (about a fifth of the step)
+    ks, t, z, mask, cand = (
+        _borrowed(ks),
+        _borrowed(t),
+        _borrowed(z),
+        _borrowed(mask),
+        _borrowed(cand),
+    )
+    i_m, x_c, X, PP, OL = _borrowed(i_m), _borrowed(x_c), _borrowed(X), _borrowed(PP), _borrowed(OL)
+    T_LAST, I_LAST, NIS_AVG = _borrowed(T_LAST), _borrowed(I_LAST), _borrowed(NIS_AVG)
+    T_INIT, q, R, scale = _borrowed(T_INIT), _borrowed(q), _borrowed(R), _borrowed(scale)
+    zscale, Wm, Wc, prm = _borrowed(zscale), _borrowed(Wm), _borrowed(Wc), _borrowed(prm)
+    cst, expect, y, nis = _borrowed(cst), _borrowed(expect), _borrowed(y), _borrowed(nis)
+    nis_avg, acc, SX, SPD = _borrowed(nis_avg), _borrowed(acc), _borrowed(SX), _borrowed(SPD)
+    SOL, STI, SNA, cnt = _borrowed(SOL), _borrowed(STI), _borrowed(SNA), _borrowed(cnt)
+    ws = (
+        _borrowed(ws[0]), _borrowed(ws[1]), _borrowed(ws[2]), _borrowed(ws[3]), _borrowed(ws[4]),
+        _borrowed(ws[5]), _borrowed(ws[6]), _borrowed(ws[7]), _borrowed(ws[8]), _borrowed(ws[9]),
+        _borrowed(ws[10]), _borrowed(ws[11]), _borrowed(ws[12]), _borrowed(ws[13]),
+        _borrowed(ws[14]), _borrowed(ws[15]), _borrowed(ws[16]), _borrowed(ws[17]),
+        _borrowed(ws[18]),
+    )  # fmt: skip
     m = z.shape[1]
     n = X.shape[1]
     coef = np.empty(4)
@@ -1241,6 +1265,23 @@ def _block_rows(
 ):  # fmt: skip
     """The output rows of the samples with acc[j], in order, from their ``_block_steps``
     snapshots, through ``_row_one`` (alarms: the bank's ALARM, PENDING)."""
+    ks, acc, SX, SPD, SOL = (
+        _borrowed(ks),
+        _borrowed(acc),
+        _borrowed(SX),
+        _borrowed(SPD),
+        _borrowed(SOL),
+    )
+    STI, SNA, scale, zscale = _borrowed(STI), _borrowed(SNA), _borrowed(scale), _borrowed(zscale)
+    prm, z, mask, y, nis = (
+        _borrowed(prm),
+        _borrowed(z),
+        _borrowed(mask),
+        _borrowed(y),
+        _borrowed(nis),
+    )
+    t, ALARM, PENDING, cst = _borrowed(t), _borrowed(ALARM), _borrowed(PENDING), _borrowed(cst)
+    est, res, health, fire = _borrowed(est), _borrowed(res), _borrowed(health), _borrowed(fire)
     xs = np.empty(SX.shape[1])
     zo = np.empty(z.shape[1])
     for j in range(ks.shape[0]):
