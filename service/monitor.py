@@ -31,7 +31,7 @@ from models import eha_reduced as er
 from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
-from service.ukf import BatchUKF, _borrowed, ukf_one, workspace
+from service.ukf import BatchUKF, _borrowed, borrowed_ws, ukf_one, workspace
 
 __all__ = [
     "MeasurementNoise",
@@ -1122,6 +1122,18 @@ def _bank_step(
     c, prm, cst, ws, y, nis, nis_avg, flag,
 ):  # fmt: skip
     """One sample for each actuator ks[j] through ``_step_one``; flag[j] its return code."""
+    ks, t, z, mask, i_m = _borrowed(ks), _borrowed(t), _borrowed(z), _borrowed(mask), _borrowed(i_m)
+    x_c, X, PP, OL, T_LAST = (
+        _borrowed(x_c),
+        _borrowed(X),
+        _borrowed(PP),
+        _borrowed(OL),
+        _borrowed(T_LAST),
+    )
+    I_LAST, NIS_AVG, q, R = _borrowed(I_LAST), _borrowed(NIS_AVG), _borrowed(q), _borrowed(R)
+    scale, zscale, Wm, Wc = _borrowed(scale), _borrowed(zscale), _borrowed(Wm), _borrowed(Wc)
+    prm, cst, y, nis = _borrowed(prm), _borrowed(cst), _borrowed(y), _borrowed(nis)
+    nis_avg, flag, ws = _borrowed(nis_avg), _borrowed(flag), borrowed_ws(ws)
     coef = np.empty(4)
     tmp = np.empty(X.shape[1])
     for j in range(ks.shape[0]):
@@ -1137,6 +1149,23 @@ def _output_rows(
     est, res, health, fire,
 ):  # fmt: skip
     """The output row of each actuator ks[j] through ``_row_one`` (PD: diagonals of P)."""
+    X, PD, OL, ks, scale = (
+        _borrowed(X),
+        _borrowed(PD),
+        _borrowed(OL),
+        _borrowed(ks),
+        _borrowed(scale),
+    )
+    zscale, prm, z, mask, y = (
+        _borrowed(zscale),
+        _borrowed(prm),
+        _borrowed(z),
+        _borrowed(mask),
+        _borrowed(y),
+    )
+    nis, t, T_INIT, NIS_AVG = _borrowed(nis), _borrowed(t), _borrowed(T_INIT), _borrowed(NIS_AVG)
+    ALARM, PENDING, cst, est = _borrowed(ALARM), _borrowed(PENDING), _borrowed(cst), _borrowed(est)
+    res, health, fire = _borrowed(res), _borrowed(health), _borrowed(fire)
     xs = np.empty(X.shape[1])
     zo = np.empty(z.shape[1])
     for j in range(ks.shape[0]):
@@ -1217,13 +1246,7 @@ def _block_steps(
     cst, expect, y, nis = _borrowed(cst), _borrowed(expect), _borrowed(y), _borrowed(nis)
     nis_avg, acc, SX, SPD = _borrowed(nis_avg), _borrowed(acc), _borrowed(SX), _borrowed(SPD)
     SOL, STI, SNA, cnt = _borrowed(SOL), _borrowed(STI), _borrowed(SNA), _borrowed(cnt)
-    ws = (
-        _borrowed(ws[0]), _borrowed(ws[1]), _borrowed(ws[2]), _borrowed(ws[3]), _borrowed(ws[4]),
-        _borrowed(ws[5]), _borrowed(ws[6]), _borrowed(ws[7]), _borrowed(ws[8]), _borrowed(ws[9]),
-        _borrowed(ws[10]), _borrowed(ws[11]), _borrowed(ws[12]), _borrowed(ws[13]),
-        _borrowed(ws[14]), _borrowed(ws[15]), _borrowed(ws[16]), _borrowed(ws[17]),
-        _borrowed(ws[18]),
-    )  # fmt: skip
+    ws = borrowed_ws(ws)
     m = z.shape[1]
     n = X.shape[1]
     coef = np.empty(4)

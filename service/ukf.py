@@ -198,6 +198,19 @@ def _borrowed(typingctx, a):
 
 
 @njit(**_KERNEL, inline="always")
+def borrowed_ws(ws):
+    """The 19 arrays of a ``workspace`` tuple through ``_borrowed`` (for a compiled caller
+    that passes it on at every sample; the tuple must outlive the result)."""
+    return (
+        _borrowed(ws[0]), _borrowed(ws[1]), _borrowed(ws[2]), _borrowed(ws[3]), _borrowed(ws[4]),
+        _borrowed(ws[5]), _borrowed(ws[6]), _borrowed(ws[7]), _borrowed(ws[8]), _borrowed(ws[9]),
+        _borrowed(ws[10]), _borrowed(ws[11]), _borrowed(ws[12]), _borrowed(ws[13]),
+        _borrowed(ws[14]), _borrowed(ws[15]), _borrowed(ws[16]), _borrowed(ws[17]),
+        _borrowed(ws[18]),
+    )  # fmt: skip
+
+
+@njit(**_KERNEL, inline="always")
 def _chol_upper(P, c, jit, U, n):
     """U upper triangular with U^T U = c P + jit I (P (n, n) read from its lower triangle),
     strictly lower part zeroed; row k of U is column k of the lower factor L = U^T. False
