@@ -55,7 +55,7 @@ def _generator(args: argparse.Namespace) -> int:
     base_n = n_per  # no wrap: a jump back in the trajectory would make the monitors diverge
     va = VirtualActuator(load_scenario("demo"), rate_hz=args.rate)
     base = va.produce(base_n)
-    t_start = time.time() + 1.5  # sample clock: Unix time, so the daemon can measure age
+    t_start = time.time() + 3.0  # sample clock: Unix time, so the daemon can measure age
     msgs = []  # (due offset s, publisher index, payload)
     for a in range(args.actuators):
         for j in range(0, n_per, spm):
@@ -76,7 +76,9 @@ def _generator(args: argparse.Namespace) -> int:
             for a in range(args.actuators)
         ]
         time.sleep(max(0.0, t_start - time.time()))
-        w0 = time.monotonic()
+        # the pacing clock on the sample clock: had the set-up overrun t_start, the messages
+        # would go out late (counted in max_late_s), not with a shifted time stamp
+        w0 = time.monotonic() + (t_start - time.time())
         late = 0.0
         ev = threading.Event()
         for due, a, payload in msgs:
