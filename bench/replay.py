@@ -8,7 +8,9 @@ in one run (best of ``--repeats``, numba kernels warm):
 
 * reading the log per message (``read_log``, a dict per sample) and as column blocks
   (``read_blocks``, what the replay uses);
-* ``service.replay.replay`` without an output log (read + monitor + summary);
+* ``service.replay.replay`` without an output log (read + monitor + summary), of the meas
+  log and of logs as the daemon writes them, whose chunks also hold the est/residual/health
+  outputs of every sample (``log_every = 1``, the default) or of one in 10;
 * ``replay`` writing a new log with every est/residual/health (``--out``), and with them
   decimated to one output in 10 (``--log-every 10``; meas and events always logged).
 
@@ -80,6 +82,12 @@ def main(argv: list[str] | None = None) -> int:
         write_live_log(warm, 0.05)
         replay(warm, out=Path(d) / "warm-out.mcap")
 
+        # the daemon's own log also holds est/residual/health (and events) in the same chunks:
+        # a replay reads them past; written here by a replay, which has the daemon's layout
+        full1 = Path(d) / "daemon-log-every-1.mcap"
+        full10 = Path(d) / "daemon-log-every-10.mcap"
+        replay(live, out=full1)
+        replay(live, out=full10, log_every=10)
         blocks = list(read_blocks(live))  # the samples in memory, for the monitor alone
         t_all = np.concatenate([b.values[:, b.names.index("t")] for b in blocks])
         ch_all = np.column_stack(
@@ -97,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
             "read_blocks": lambda: sum(len(b.t) for b in read_blocks(live)),
             "monitor": monitor_alone,
             "replay": lambda: replay(live),
+            "replay_daemon1": lambda: replay(full1),
+            "replay_daemon10": lambda: replay(full10),
             "replay_out": lambda: replay(live, out=Path(d) / "out.mcap"),
             "replay_out_every10": lambda: replay(live, out=Path(d) / "o10.mcap", log_every=10),
         }
@@ -128,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
         ("read_blocks: column blocks (the replay's reader)", "read_blocks"),
         ("monitor alone: update_arrays on the samples in memory", "monitor"),
         ("replay LOG: read + monitor + summary", "replay"),
+        ("replay of a daemon log (every est/res/health in it)", "replay_daemon1"),
+        ("replay of a daemon log (log_every 10)", "replay_daemon10"),
         ("replay LOG --out: + every est/residual/health logged", "replay_out"),
         ("replay LOG --out --log-every 10", "replay_out_every10"),
     ):

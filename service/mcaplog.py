@@ -30,7 +30,9 @@ import threading
 import time
 import warnings
 import zlib
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, NamedTuple
@@ -715,37 +717,62 @@ def _iter_stream(
 ) -> Iterator[bytes | tuple[int, int, bytes]]:
     """Decompressed chunks (``bytes``) and un-chunked messages ``(channel_id, log_time, data)``
     in file order. Channel records outside chunks go into ``channels``; ``stats`` gets the
-    footer and the truncation (the caller counts chunks)."""
-    with open(path, "rb") as fh:
-        reader = _StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
-        records = reader.records
-        while True:
-            try:
-                rec = next(records)
-            except StopIteration:
-                break
-            except Exception as e:  # EndOfFile, struct.error, InvalidMagic, ...
-                stats.truncated = True
-                stats.reason = f"{type(e).__name__} {e}".strip()
-                return
-            if isinstance(rec, Chunk):
+    footer and the truncation (the caller counts chunks). Each chunk is decompressed and
+    CRC-checked in a helper thread (zstd and zlib release the GIL) while the next record is
+    read and the previous chunk is used."""
+    ahead: deque = deque()  # in file order: futures of chunks, un-chunked messages
+    pool: ThreadPoolExecutor | None = None
+
+    def resolved(item):
+        if not isinstance(item, Future):
+            return item
+        try:
+            return item.result()
+        except Exception as e:
+            stats.truncated = True
+            stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
+            return None
+
+    try:
+        with open(path, "rb") as fh:
+            reader = _StreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
+            records = reader.records
+            while True:
                 try:
-                    data = _decompress(rec)
-                except Exception as e:
+                    rec = next(records)
+                except StopIteration:
+                    break
+                except Exception as e:  # EndOfFile, struct.error, InvalidMagic, ...
                     stats.truncated = True
-                    stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
-                    return
-                yield data
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec.topic
-            elif isinstance(rec, Footer):
-                stats.footer = True
-                if fh.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
-                    stats.truncated = True
-                    stats.reason = "trailing magic missing"
+                    stats.reason = f"{type(e).__name__} {e}".strip()
+                    break
+                if isinstance(rec, Chunk):
+                    if pool is None:
+                        pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-read")
+                    ahead.append(pool.submit(_decompress, rec))
+                    while len(ahead) > 1:  # one chunk decompressing ahead
+                        item = resolved(ahead.popleft())
+                        if item is None:
+                            return
+                        yield item
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec.topic
+                elif isinstance(rec, Footer):
+                    stats.footer = True
+                    if fh.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+                        stats.truncated = True
+                        stats.reason = "trailing magic missing"
+                    break
+                elif getattr(rec, "channel_id", None) is not None and hasattr(rec, "data"):
+                    ahead.append((rec.channel_id, rec.log_time, rec.data))  # un-chunked
+        while ahead:
+            item = resolved(ahead.popleft())
+            if item is None:
                 return
-            elif getattr(rec, "channel_id", None) is not None and hasattr(rec, "data"):
-                yield rec.channel_id, rec.log_time, rec.data  # un-chunked Message record
+            yield item
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _iter_raw(

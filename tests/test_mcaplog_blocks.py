@@ -596,3 +596,33 @@ def test_read_blocks_of_complete_file_does_not_warn(tmp_path):
         st = LogReadStats()
         blocks = list(read_blocks(p, stats=st))
     assert st.footer and not st.truncated and st.messages == sum(b.t.size for b in blocks)
+
+
+def test_read_blocks_reads_ahead_in_order_and_stops_its_helper(tmp_path):
+    """Chunks are decompressed one ahead in a helper thread: the blocks still come in file
+    order, and the helper stops when the reader is closed early or runs to the end."""
+    p = tmp_path / "many.mcap"
+    with McapLogger(p, background_flush=False) as lg:
+        for c in range(12):  # 12 chunks of 50 messages
+            for i in range(50):
+                k = 50 * c + i
+                lg.log("/a", 1.0 + k * 1e-3, {"k": k, "v": 0.5 * k})
+            lg.flush()
+    ks = np.concatenate([b.values[:, b.names.index("k")] for b in read_blocks(p)])
+    assert ks.tolist() == list(range(600))
+
+    def helpers() -> int:
+        return sum(t.name.startswith("mcap-read") for t in threading.enumerate())
+
+    def settle() -> int:  # a closed reader's helper exits asynchronously
+        deadline = time.monotonic() + 5.0
+        while helpers() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return helpers()
+
+    assert settle() == 0  # no reader of the read above (nor of another test) left running
+    it = read_blocks(p)
+    next(it)
+    assert helpers() == 1
+    it.close()
+    assert settle() == 0
