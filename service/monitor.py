@@ -31,7 +31,7 @@ from models import eha_reduced as er
 from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
-from service.ukf import BatchUKF, _borrowed, borrowed_ws, ukf_one, workspace
+from service.ukf import BatchUKF, borrowed_all, ukf_one, workspace
 
 __all__ = [
     "MeasurementNoise",
@@ -559,15 +559,12 @@ class MonitorBank:
         t = np.ascontiguousarray(t, float)
         if ch.shape != (n, 7) or t.shape != (n,):
             raise ValueError(f"update_arrays: expected t ({n},) and channels ({n}, 7)")
-        # _inputs with NaN for absent, compiled (numpy's per-call cost on these short
-        # arrays was a tenth of the filter step)
-        cnt = np.zeros((len(self.x), 2), np.int64)
-        t_f, z, mask, cand, i_m, x_c = _array_inputs(ks, t, ch, self._use, self._zscale, cnt)
-        for k in np.flatnonzero(cnt.any(1)).tolist():
-            c = self.counters[k]
-            c["bad_channel"] += int(cnt[k, 0])
-            c["skipped_nan"] += int(cnt[k, 1])
-        return self._steps(ks, t_f, z, mask, cand, i_m, x_c)
+        vals = np.empty((n, 8))
+        vals[:, 0] = t
+        vals[:, 1:6] = ch[:, 2:7]  # x_s, x_j, p1, p2, p_sr
+        vals[:, 6] = ch[:, 1]  # i
+        vals[:, 7] = ch[:, 0]  # x_cmd
+        return self._steps(*self._inputs(ks, vals, ~np.isnan(vals)))
 
     def rows_of(self, sb: StepBlock) -> BankRows:
         """Second half of ``update_arrays``: the output rows of a ``step_arrays`` block and
@@ -648,27 +645,16 @@ class MonitorBank:
     def _inputs(self, ks: NDArray, vals: NDArray, present: NDArray):
         """Filter inputs of a block from ``vals`` (n, 8) in the order t, x_s, x_j, p1, p2,
         p_sr, i, x_cmd and ``present`` (n, 8): a present non-finite value counts as
-        bad_channel, a sample with no usable value as skipped_nan."""
-        fin = np.isfinite(vals)
-        ok = present & fin
-        bad = present & ~fin
-        t_ok = ok[:, 0]
-        mask = ok[:, 1:6] & self._use
-        z = np.where(mask, vals[:, 1:6] / self._zscale, 0.0)
-        i_ok, x_ok = ok[:, 6], ok[:, 7]
-        i_m = np.where(i_ok, vals[:, 6], math.nan)
-        x_c = np.where(x_ok, vals[:, 7], math.nan)
-        n_bad = np.where(t_ok, (bad[:, 1:6] & self._use).sum(1) + bad[:, 6] + bad[:, 7], 0)
-        cand = t_ok & (i_ok | x_ok | mask.any(1))
-        skip = ~cand
-        t = np.where(t_ok, vals[:, 0], 0.0)
-        if n_bad.any() or skip.any():
-            nb = np.bincount(ks, weights=n_bad, minlength=len(self.x))
-            ns = np.bincount(ks, weights=skip, minlength=len(self.x))
-            for k in np.flatnonzero(nb + ns).tolist():
-                c = self.counters[k]
-                c["bad_channel"] += int(nb[k])
-                c["skipped_nan"] += int(ns[k])
+        bad_channel, a sample with no usable value as skipped_nan (``_prepare_inputs``)."""
+        cnt = np.zeros((len(self.x), 2), np.int64)
+        t, z, mask, cand, i_m, x_c = _prepare_inputs(
+            ks, np.ascontiguousarray(vals), np.ascontiguousarray(present), self._use,
+            self._zscale, cnt,
+        )  # fmt: skip
+        for k in np.flatnonzero(cnt.any(1)).tolist():
+            c = self.counters[k]
+            c["bad_channel"] += int(cnt[k, 0])
+            c["skipped_nan"] += int(cnt[k, 1])
         return ks, t, z, mask, cand, i_m, x_c
 
     def _run_block(self, samples: Sequence[tuple[str, Mapping]]) -> BankRows:
@@ -1122,18 +1108,13 @@ def _bank_step(
     c, prm, cst, ws, y, nis, nis_avg, flag,
 ):  # fmt: skip
     """One sample for each actuator ks[j] through ``_step_one``; flag[j] its return code."""
-    ks, t, z, mask, i_m = _borrowed(ks), _borrowed(t), _borrowed(z), _borrowed(mask), _borrowed(i_m)
-    x_c, X, PP, OL, T_LAST = (
-        _borrowed(x_c),
-        _borrowed(X),
-        _borrowed(PP),
-        _borrowed(OL),
-        _borrowed(T_LAST),
+    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG = borrowed_all(
+        (ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG)
     )
-    I_LAST, NIS_AVG, q, R = _borrowed(I_LAST), _borrowed(NIS_AVG), _borrowed(q), _borrowed(R)
-    scale, zscale, Wm, Wc = _borrowed(scale), _borrowed(zscale), _borrowed(Wm), _borrowed(Wc)
-    prm, cst, y, nis = _borrowed(prm), _borrowed(cst), _borrowed(y), _borrowed(nis)
-    nis_avg, flag, ws = _borrowed(nis_avg), _borrowed(flag), borrowed_ws(ws)
+    q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag = borrowed_all(
+        (q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag)
+    )
+    ws = borrowed_all(ws)
     coef = np.empty(4)
     tmp = np.empty(X.shape[1])
     for j in range(ks.shape[0]):
@@ -1149,23 +1130,12 @@ def _output_rows(
     est, res, health, fire,
 ):  # fmt: skip
     """The output row of each actuator ks[j] through ``_row_one`` (PD: diagonals of P)."""
-    X, PD, OL, ks, scale = (
-        _borrowed(X),
-        _borrowed(PD),
-        _borrowed(OL),
-        _borrowed(ks),
-        _borrowed(scale),
+    X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t = borrowed_all(
+        (X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t)
     )
-    zscale, prm, z, mask, y = (
-        _borrowed(zscale),
-        _borrowed(prm),
-        _borrowed(z),
-        _borrowed(mask),
-        _borrowed(y),
+    T_INIT, NIS_AVG, ALARM, PENDING, cst, est, res, health, fire = borrowed_all(
+        (T_INIT, NIS_AVG, ALARM, PENDING, cst, est, res, health, fire)
     )
-    nis, t, T_INIT, NIS_AVG = _borrowed(nis), _borrowed(t), _borrowed(T_INIT), _borrowed(NIS_AVG)
-    ALARM, PENDING, cst, est = _borrowed(ALARM), _borrowed(PENDING), _borrowed(cst), _borrowed(est)
-    res, health, fire = _borrowed(res), _borrowed(health), _borrowed(fire)
     xs = np.empty(X.shape[1])
     zo = np.empty(z.shape[1])
     for j in range(ks.shape[0]):
@@ -1177,10 +1147,12 @@ def _output_rows(
 
 
 @njit(cache=True, nogil=True)
-def _array_inputs(ks, t, ch, use, zscale, cnt):
-    """``MonitorBank._inputs`` for ``update_arrays`` (channels in ``messages.CHANNELS``
-    order, NaN: absent, so a present non-finite value is an infinity): (t, z, mask, cand,
-    i_m, x_c), the same numbers; cnt[k] += bad_channel, skipped_nan."""
+def _prepare_inputs(ks, vals, present, use, zscale, cnt):
+    """``MonitorBank._inputs`` compiled (numpy's per-call cost on short blocks was a tenth of
+    the filter step): vals (n, 8) as t, x_s, x_j, p1, p2, p_sr, i, x_cmd, present (n, 8) ->
+    (t (0 where not usable), z (scaled, 0 where masked), mask, cand, i_m, x_c (NaN where not
+    usable)); cnt[k] += bad_channel (present and not finite, in a sample with a usable time),
+    skipped_nan (no usable value)."""
     n = ks.shape[0]
     m = zscale.shape[0]
     t_out = np.empty(n)
@@ -1190,24 +1162,29 @@ def _array_inputs(ks, t, ch, use, zscale, cnt):
     i_m = np.empty(n)
     x_c = np.empty(n)
     for j in range(n):
-        t_ok = math.isfinite(t[j])
+        t_ok = present[j, 0] and math.isfinite(vals[j, 0])
         n_bad = 0
         any_m = False
         for r in range(m):
-            v = ch[j, 2 + r]
-            ok = math.isfinite(v) and use[r]
+            v = vals[j, 1 + r]
+            fin = math.isfinite(v)
+            ok = present[j, 1 + r] and fin and use[r]
             mask[j, r] = ok
             z[j, r] = v / zscale[r] if ok else 0.0
             any_m = any_m or ok
-            if math.isinf(v) and use[r]:
+            if present[j, 1 + r] and not fin and use[r]:
                 n_bad += 1
-        vi, vx = ch[j, 1], ch[j, 0]
-        i_ok, x_ok = math.isfinite(vi), math.isfinite(vx)
+        vi, vx = vals[j, 1 + m], vals[j, 2 + m]
+        i_ok = present[j, 1 + m] and math.isfinite(vi)
+        x_ok = present[j, 2 + m] and math.isfinite(vx)
         i_m[j] = vi if i_ok else math.nan
         x_c[j] = vx if x_ok else math.nan
-        n_bad += math.isinf(vi) + math.isinf(vx)
+        if present[j, 1 + m] and not i_ok:
+            n_bad += 1
+        if present[j, 2 + m] and not x_ok:
+            n_bad += 1
         cand[j] = t_ok and (i_ok or x_ok or any_m)
-        t_out[j] = t[j] if t_ok else 0.0
+        t_out[j] = vals[j, 0] if t_ok else 0.0
         if t_ok:
             cnt[ks[j], 0] += n_bad
         if not cand[j]:
@@ -1229,24 +1206,17 @@ def _block_steps(
     when its step broke/diverged. The caller re-initialises and resumes with (j,
     emit0=True), which takes sample j's snapshot without stepping it. acc[j]: sample j has an
     output row; cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
-    # every array argument through _borrowed (see service.ukf): the inlined _step_one takes
+    # every array argument through borrowed_all (see service.ukf): the inlined _step_one takes
     # about 30 arrays, which numba would otherwise reference-count with atomic operations at
     # every sample (about a fifth of the step)
-    ks, t, z, mask, cand = (
-        _borrowed(ks),
-        _borrowed(t),
-        _borrowed(z),
-        _borrowed(mask),
-        _borrowed(cand),
+    ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT = borrowed_all(
+        (ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT)
     )
-    i_m, x_c, X, PP, OL = _borrowed(i_m), _borrowed(x_c), _borrowed(X), _borrowed(PP), _borrowed(OL)
-    T_LAST, I_LAST, NIS_AVG = _borrowed(T_LAST), _borrowed(I_LAST), _borrowed(NIS_AVG)
-    T_INIT, q, R, scale = _borrowed(T_INIT), _borrowed(q), _borrowed(R), _borrowed(scale)
-    zscale, Wm, Wc, prm = _borrowed(zscale), _borrowed(Wm), _borrowed(Wc), _borrowed(prm)
-    cst, expect, y, nis = _borrowed(cst), _borrowed(expect), _borrowed(y), _borrowed(nis)
-    nis_avg, acc, SX, SPD = _borrowed(nis_avg), _borrowed(acc), _borrowed(SX), _borrowed(SPD)
-    SOL, STI, SNA, cnt = _borrowed(SOL), _borrowed(STI), _borrowed(SNA), _borrowed(cnt)
-    ws = borrowed_ws(ws)
+    q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg = borrowed_all(
+        (q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg)
+    )
+    acc, SX, SPD, SOL, STI, SNA, cnt = borrowed_all((acc, SX, SPD, SOL, STI, SNA, cnt))
+    ws = borrowed_all(ws)
     m = z.shape[1]
     n = X.shape[1]
     coef = np.empty(4)
@@ -1288,23 +1258,12 @@ def _block_rows(
 ):  # fmt: skip
     """The output rows of the samples with acc[j], in order, from their ``_block_steps``
     snapshots, through ``_row_one`` (alarms: the bank's ALARM, PENDING)."""
-    ks, acc, SX, SPD, SOL = (
-        _borrowed(ks),
-        _borrowed(acc),
-        _borrowed(SX),
-        _borrowed(SPD),
-        _borrowed(SOL),
+    ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask = borrowed_all(
+        (ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask)
     )
-    STI, SNA, scale, zscale = _borrowed(STI), _borrowed(SNA), _borrowed(scale), _borrowed(zscale)
-    prm, z, mask, y, nis = (
-        _borrowed(prm),
-        _borrowed(z),
-        _borrowed(mask),
-        _borrowed(y),
-        _borrowed(nis),
+    y, nis, t, ALARM, PENDING, cst, est, res, health, fire = borrowed_all(
+        (y, nis, t, ALARM, PENDING, cst, est, res, health, fire)
     )
-    t, ALARM, PENDING, cst = _borrowed(t), _borrowed(ALARM), _borrowed(PENDING), _borrowed(cst)
-    est, res, health, fire = _borrowed(est), _borrowed(res), _borrowed(health), _borrowed(fire)
     xs = np.empty(SX.shape[1])
     zo = np.empty(z.shape[1])
     for j in range(ks.shape[0]):

@@ -169,7 +169,7 @@ class BatchUKF:
 #   sigma-point offsets); the gain is solved for all n rows at once on the transposed
 #   cross-covariance C = Pxz^T (m, n);
 # * the 17 model steps run in stages over the points (models.eha_reduced.step_points_nb);
-# * no atomic reference counting (see _borrowed).
+# * no atomic reference counting (see borrowed_all).
 # No fastmath: every operation is the plain IEEE one written here (no reassociation, no FMA
 # contraction), so the step is bitwise the same in every caller; NaN fails the "s > 0" test
 # of the Cholesky factors (status 2).
@@ -179,35 +179,29 @@ _KERNEL = {"cache": True, "error_model": "numpy", "boundscheck": False}
 
 
 @intrinsic
-def _borrowed(typingctx, a):
-    """The array ``a`` without its memory-info pointer: a view that numba does not
-    reference-count. Numba increfs/decrefs every array a function holds with atomic
-    operations, and its pruning pass leaves most of them in a function this size (a third of
-    the step); on such a view they are no-ops. Only for arrays that outlive the view (here
-    ukf_one's arguments, for the duration of the call); never return or store one."""
-    if not isinstance(a, types.Array):
+def borrowed_all(typingctx, arrays):
+    """The arrays of a tuple without their memory-info pointers: views that numba does not
+    reference-count (``a, b = borrowed_all((a, b))``, or a ``workspace`` tuple at once).
+    Numba increfs/decrefs every array a function holds with atomic operations, and its
+    pruning pass leaves most of them in a function this size (a third of the UKF step, a
+    fifth of the monitor's block loop); on such a view they are no-ops. Only for arrays that
+    outlive the views (a kernel's arguments, for the duration of the call); never return or
+    store one."""
+    if not isinstance(arrays, types.BaseTuple) or not all(
+        isinstance(a, types.Array) for a in arrays.types
+    ):
         return None
 
     def codegen(context, builder, sig, args):
-        ary = make_array(a)(context, builder, value=args[0])
-        ary.meminfo = Constant(ary.meminfo.type, None)
-        ary.parent = Constant(ary.parent.type, None)
-        return ary._getvalue()
+        out = []
+        for i, a in enumerate(arrays.types):
+            ary = make_array(a)(context, builder, value=builder.extract_value(args[0], i))
+            ary.meminfo = Constant(ary.meminfo.type, None)
+            ary.parent = Constant(ary.parent.type, None)
+            out.append(ary._getvalue())
+        return context.make_tuple(builder, sig.return_type, out)
 
-    return a(a), codegen
-
-
-@njit(**_KERNEL, inline="always")
-def borrowed_ws(ws):
-    """The 19 arrays of a ``workspace`` tuple through ``_borrowed`` (for a compiled caller
-    that passes it on at every sample; the tuple must outlive the result)."""
-    return (
-        _borrowed(ws[0]), _borrowed(ws[1]), _borrowed(ws[2]), _borrowed(ws[3]), _borrowed(ws[4]),
-        _borrowed(ws[5]), _borrowed(ws[6]), _borrowed(ws[7]), _borrowed(ws[8]), _borrowed(ws[9]),
-        _borrowed(ws[10]), _borrowed(ws[11]), _borrowed(ws[12]), _borrowed(ws[13]),
-        _borrowed(ws[14]), _borrowed(ws[15]), _borrowed(ws[16]), _borrowed(ws[17]),
-        _borrowed(ws[18]),
-    )  # fmt: skip
+    return arrays(arrays), codegen
 
 
 @njit(**_KERNEL, inline="always")
@@ -306,15 +300,11 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
     if xb.shape[0] != _N or zb.shape[0] != _M:
         raise ValueError("ukf_one: the model has 8 states and 5 measurement channels")
     n, m = _N, _M
-    # every array through _borrowed: no atomic reference counting in the step
-    xb, Pb, zb, mb, yb = _borrowed(xb), _borrowed(Pb), _borrowed(zb), _borrowed(mb), _borrowed(yb)
-    q, R, scale, zscale = _borrowed(q), _borrowed(R), _borrowed(scale), _borrowed(zscale)
-    Wm, Wc, prm = _borrowed(Wm), _borrowed(Wc), _borrowed(prm)
-    L, sig, sig_f, zs = _borrowed(ws[0]), _borrowed(ws[1]), _borrowed(ws[2]), _borrowed(ws[3])
-    xs, zo, xm, zm = _borrowed(ws[4]), _borrowed(ws[5]), _borrowed(ws[6]), _borrowed(ws[7])
-    S, LS, C, G = _borrowed(ws[8]), _borrowed(ws[9]), _borrowed(ws[10]), _borrowed(ws[11])
-    D, Dw, Dz, Dzw = _borrowed(ws[12]), _borrowed(ws[13]), _borrowed(ws[14]), _borrowed(ws[15])
-    yv, coef, W6 = _borrowed(ws[16]), _borrowed(ws[17]), _borrowed(ws[18])
+    # every array through borrowed_all: no atomic reference counting in the step
+    xb, Pb, zb, mb, yb, q, R, scale, zscale, Wm, Wc, prm = borrowed_all(
+        (xb, Pb, zb, mb, yb, q, R, scale, zscale, Wm, Wc, prm)
+    )
+    L, sig, sig_f, zs, xs, zo, xm, zm, S, LS, C, G, D, Dw, Dz, Dzw, yv, coef, W6 = borrowed_all(ws)
     K = 2 * n + 1
     nis = 0.0
     st = _sigma_points_n(xb, Pb, c, L, sig, n)
