@@ -35,6 +35,7 @@ SECTIONS = re.compile(
 QUOTED = re.compile(r'\s*(?:,|and|\()?\s*"([A-Za-z][^"]{0,79})"')
 ANCHOR = re.compile(r"#([\w\-]+)")
 BARE_SECTION = re.compile(rf"{SEC}\s*({_NUMS})")
+FENCED = re.compile(r"^```.*?^```", re.M | re.S)
 HEADING = re.compile(r"^#{1,6}[ \t]+(.+?)[ \t]*#*$", re.M)
 HEADING_NUMBER = re.compile(r"(\d+(?:\.\d+)*)\.?(?:\s|$)")
 
@@ -71,7 +72,8 @@ def _slug(text: str) -> str:
 
 class _Target:
     def __init__(self, path: Path):
-        headings = HEADING.findall(path.read_text(encoding="utf-8"))
+        text = FENCED.sub("", path.read_text(encoding="utf-8"))  # no "# comments" of code
+        headings = HEADING.findall(text)
         self.numbers: set[str] = set()
         self.names: list[str] = []
         for h in headings:
