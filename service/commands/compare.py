@@ -36,6 +36,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--png", default=None, help="plot the time histories side by side (PNG)")
+    p.add_argument(
+        "--plot-models",
+        type=lambda t: [m.strip() for m in t.split(",") if m.strip()],
+        default=None,
+        metavar="M1,M2",
+        help="--png: plot HF and only these models (default: all)",
+    )
     p.add_argument("--quiet", action="store_true", help="--suite: no progress lines on stderr")
 
 
@@ -191,9 +198,12 @@ def run(args: argparse.Namespace) -> int:
     if args.png:
         from service.plots import plot_comparison
 
-        plot_comparison(
-            results, args.png, title=f"{scenario.name}: HF against A, B, C1, C3, C5, WH"
-        )
+        shown = args.plot_models or list(SIMPLIFIED)
+        unknown = sorted(set(shown) - set(SIMPLIFIED))
+        if unknown:
+            return fail(f"--plot-models: unknown model(s) {unknown}; expected {SIMPLIFIED}")
+        sel = {"HF": results["HF"], **{m: results[m] for m in shown}}
+        plot_comparison(sel, args.png, title=f"{scenario.name}: HF against {', '.join(shown)}")
     if args.json:
         emit_json(out)
         return 0
