@@ -147,7 +147,7 @@ def simplified_params(p: EHAParams) -> ValveParams:
 class WHParams(NamedTuple):
     """Parameters of the WH valve model (docs/models.md section 2): the C-types' four, the
     rated supply at which G_PQ was measured, the return pressure and a lumped chamber
-    compliance V / beta. ``k_o`` and ``dp_lam`` are derived (docs/models.md eqs. 2, 4)."""
+    compliance V / beta. ``k_o`` and ``dp_lam`` are derived (docs/models.md eqs. 2, 3)."""
 
     g_pq: float  # Pa s/m^3, at the rated P_SR
     x_ss: float  # m

@@ -180,7 +180,7 @@ def test_paper_bench_back_driving_speed(paper_runs) -> None:
     assert abs(v_wh - v_hf) <= 0.30 * abs(v_hf)
     assert np.all(wh.p2[w] == P.p_vap)  # cavitating
     assert np.all(wh.p1[w] > P.p_r + 10e6)  # above the supply: held against land 1
-    # hand check (eq. 8): the jack flow leaves chamber 1 back through land 1 and the leak,
+    # hand check (eq. 9): the jack flow leaves chamber 1 back through land 1 and the leak,
     # P1 - P_S = P12 + P_vap - P_R - P_SR, P12 from the force balance at the mean speed
     p12 = (12e3 + P.c_v * v_wh - P.f_d) / P.area
     q1 = WP.k_o * (WP.x_ss + P.x_sm) * math.sqrt(p12 + P.p_vap - P.p_r - 10e6)
