@@ -9,7 +9,10 @@ Prints, side by side in one run:
     coarser 5e-4 s step;
   * the incremental ``EHAStepper`` driven in 1 ms chunks (as a paced virtual actuator);
   * HF NRMSE against the solve_ivp reference (Radau, rtol 1e-8) in the same run;
-  * whether the targets are met: simplified >= 1000x real time, HF >= 20x within 1 % NRMSE;
+  * WH against C5, interleaved run by run on paper_bench at 1e-4 s and at 1 ms: loop time
+    per step and the ratio (issue 11: WH at most 3x C5's time per step, >= 300x real time);
+  * whether the targets are met: simplified (A-C5) >= 1000x real time, HF >= 20x within 1 %
+    NRMSE, WH <= 3x C5 per step and >= 300x real time;
   * with ``--ref-kernel FILE`` (a copy of an earlier models/compiled.py kept outside the
     repo), the integration loop of ``simulate`` with that kernel and with the current one,
     interleaved run by run on paper_bench and on a 3 s hold (the jack stuck most of the
@@ -47,6 +50,9 @@ from service.scenarios import load_scenario  # noqa: E402
 TARGET_SIMPLIFIED_RTF = 1000.0
 TARGET_HF_RTF = 20.0
 TARGET_HF_NRMSE = 1.0
+TARGET_WH_RTF = 300.0
+TARGET_WH_COST_VS_C5 = 3.0
+C_TYPES = tuple(v for v in VALVE_MODELS if v not in ("HF", "WH"))
 COARSE_STEP = 5e-4  # a coarser scenario step for the simplified valves (RK4, 2 substeps)
 
 
@@ -113,6 +119,32 @@ def bench_rtf(repeat: int, step_s: float | None = None) -> dict[str, dict[str, f
     return out
 
 
+def wh_vs_c5(repeat: int) -> dict[str, dict[str, float]]:
+    """Loop wall time per step of WH and C5, interleaved run by run (best of ``repeat``), on
+    paper_bench at its 1e-4 s step and at the monitor's 1 ms step."""
+    out: dict[str, dict[str, float]] = {}
+    base = load_scenario("paper_bench")
+    for step in (1e-4, 1e-3):
+        sc = base.model_copy(update={"step_s": step})
+        n = sc.n_steps()
+        for v in ("C5", "WH"):
+            simulate(sc, v)  # warm-up
+        best = {"C5": float("inf"), "WH": float("inf")}
+        for _ in range(max(repeat, 7)):
+            for v in ("C5", "WH"):
+                best[v] = min(best[v], simulate(sc, v).wall_s)
+        out[f"{step:g}"] = {
+            "step_s": step,
+            "c5_us_per_step": 1e6 * best["C5"] / n,
+            "wh_us_per_step": 1e6 * best["WH"] / n,
+            "wh_over_c5": best["WH"] / best["C5"],
+            "c5_rtf": sc.duration_s / best["C5"],
+            "wh_rtf": sc.duration_s / best["WH"],
+            "wh_substeps": n_substeps(sc.eha_params(), "WH", step),
+        }
+    return out
+
+
 def _load_kernel(path: str):
     # registered under its file stem: numba's on-disk cache re-imports the module by name
     name = os.path.splitext(os.path.basename(path))[0]
@@ -151,6 +183,8 @@ def bench_kernel_ab(ref_path: str, repeat: int, sc: Scenario) -> dict[str, dict[
     kernels = {"ref": _load_kernel(ref_path), "new": eha.kern}
     out: dict[str, dict[str, float]] = {}
     for valve in VALVE_MODELS:
+        if valve not in kernels["ref"].MODEL_IDS:  # a model newer than the reference kernel
+            continue
         states = {k: _timed_simulate(sc, valve, m)[2] for k, m in kernels.items()}  # warm-up
         best = {k: [float("inf"), float("inf")] for k in kernels}
         for _ in range(repeat):
@@ -250,17 +284,23 @@ def main(argv: list[str] | None = None) -> int:
     laws = law_throughput(a.points, a.hf_points, a.repeat)
     rtf = bench_rtf(a.repeat)
     rtf_coarse = bench_rtf(a.repeat, COARSE_STEP)
-    step = {v: stepper_rtf(v) for v in ("HF", "C5")}
+    step = {v: stepper_rtf(v) for v in ("HF", "C5", "WH")}
+    wh = wh_vs_c5(a.repeat)
     acc = hf_accuracy()
-    simp_min = min(rtf[v]["rtf_loop"] for v in VALVE_MODELS if v != "HF")
-    coarse_min = min(d["rtf_loop"] for d in rtf_coarse.values())
-    coarse_nrmse = max(max(d["nrmse_x_j_pct"], d["nrmse_p12_pct"]) for d in rtf_coarse.values())
+    simp_min = min(rtf[v]["rtf_loop"] for v in C_TYPES)
+    coarse_min = min(rtf_coarse[v]["rtf_loop"] for v in C_TYPES)
+    coarse_nrmse = max(
+        max(rtf_coarse[v]["nrmse_x_j_pct"], rtf_coarse[v]["nrmse_p12_pct"]) for v in C_TYPES
+    )
+    wh_bench = wh["0.0001"]
     targets = {
         "simplified_rtf>=1000": simp_min >= TARGET_SIMPLIFIED_RTF,
         "simplified_coarse_rtf>=1000": coarse_min >= TARGET_SIMPLIFIED_RTF,
         "simplified_coarse_nrmse<1%": coarse_nrmse < 1.0,
         "hf_rtf>=20": rtf["HF"]["rtf_loop"] >= TARGET_HF_RTF,
         "hf_nrmse<1%": max(acc["nrmse_x_j_pct"], acc["nrmse_p12_pct"]) < TARGET_HF_NRMSE,
+        "wh_cost<=3x_c5": wh_bench["wh_over_c5"] <= TARGET_WH_COST_VS_C5,
+        "wh_rtf>=300": wh_bench["wh_rtf"] >= TARGET_WH_RTF,
     }
     report = {
         "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count()},
@@ -269,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
         "bench_rtf_coarse_step": rtf_coarse,
         "load_average": os.getloadavg(),
         "stepper_rtf_1ms_chunks": step,
+        "wh_vs_c5": wh,
         "hf_vs_reference": acc,
         "targets_met": targets,
     }
@@ -296,6 +337,15 @@ def main(argv: list[str] | None = None) -> int:
     print("\nEHAStepper in 1 ms chunks (advance(10) + signals()):")
     for v, x in step.items():
         print(f"  {v:<6} {x:>9.0f}x real time")
+    print("\nWH against C5 on paper_bench, loop time per step, interleaved (best of runs):")
+    print(f"  {'step':>7} {'sub':>3} {'C5 us':>8} {'WH us':>8} {'WH/C5':>6} {'C5 RTF':>8} "
+          f"{'WH RTF':>8}")  # fmt: skip
+    for d in wh.values():
+        print(
+            f"  {d['step_s']:>7.0e} {d['wh_substeps']:>3d} {d['c5_us_per_step']:>8.4f} "
+            f"{d['wh_us_per_step']:>8.4f} {d['wh_over_c5']:>5.2f}x {d['c5_rtf']:>7.0f}x "
+            f"{d['wh_rtf']:>7.0f}x"
+        )
     print("\nHF fixed-step vs solve_ivp Radau rtol 1e-8 (NRMSE %, physics.md section 5):")
     print(
         "  x_J {nrmse_x_j_pct:.4f}  v_J {nrmse_v_j_pct:.4f}  P12 {nrmse_p12_pct:.4f}  "
@@ -306,11 +356,16 @@ def main(argv: list[str] | None = None) -> int:
             print_kernel_ab(ab[k], a.ref_kernel, sc)
     la = os.getloadavg()
     print(f"\nTargets (load average {la[0]:.1f} on {os.cpu_count()} CPUs while measuring):")
-    print(f"  simplified >= {TARGET_SIMPLIFIED_RTF:.0f}x real time, RK4 (min {simp_min:.0f}x): "
+    print(f"  simplified (A-C5) >= {TARGET_SIMPLIFIED_RTF:.0f}x real time, RK4 (min {simp_min:.0f}x): "
           f"{'MET' if targets['simplified_rtf>=1000'] else 'NOT MET'}")  # fmt: skip
     print(f"  simplified >= {TARGET_SIMPLIFIED_RTF:.0f}x at step {COARSE_STEP:.0e} s (min "
           f"{coarse_min:.0f}x, NRMSE max {coarse_nrmse:.2f} %): "
           f"{'MET' if targets['simplified_coarse_rtf>=1000'] else 'NOT MET'}")  # fmt: skip
+    print(f"  WH <= {TARGET_WH_COST_VS_C5:.0f}x C5 per step at 1e-4 s "
+          f"({wh_bench['wh_over_c5']:.2f}x): "
+          f"{'MET' if targets['wh_cost<=3x_c5'] else 'NOT MET'}")  # fmt: skip
+    print(f"  WH >= {TARGET_WH_RTF:.0f}x real time at 1e-4 s ({wh_bench['wh_rtf']:.0f}x): "
+          f"{'MET' if targets['wh_rtf>=300'] else 'NOT MET'}")  # fmt: skip
     print(f"  HF >= {TARGET_HF_RTF:.0f}x real time ({rtf['HF']['rtf_loop']:.0f}x): "
           f"{'MET' if targets['hf_rtf>=20'] else 'NOT MET'}")  # fmt: skip
     print(f"  HF NRMSE < {TARGET_HF_NRMSE:.0f} % on x_J and P12: "

@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from models.params import EHAParams
+from models.params import EHAParams, wh_params
 
 __all__ = [
     "MODEL_IDS",
@@ -45,7 +45,7 @@ __all__ = [
     "integrate",
 ]
 
-MODEL_IDS: dict[str, int] = {"HF": 0, "A": 1, "B": 2, "C1": 3, "C3": 4, "C5": 5}
+MODEL_IDS: dict[str, int] = {"HF": 0, "A": 1, "B": 2, "C1": 3, "C3": 4, "C5": 5, "WH": 6}
 N_STATE = 7
 TAU_STICK = 1e-3
 """Relaxation time of v_J while stuck (Karnopp band) [s]: removes the classic drift at
@@ -100,8 +100,12 @@ exp(-h / TAU_STICK) per step into the subnormal range and then stays at a few ti
     I_C2ZW,
     I_INV_MASS,
     I_INV_TAU_STICK,
+    I_WH_K,
+    I_WH_DP_LAM,
+    I_WH_ISQ_LAM,
+    I_WH_BV,
     N_PRM,
-) = range(43)
+) = range(47)
 
 
 def param_array(p: EHAParams) -> np.ndarray:
@@ -147,6 +151,11 @@ def param_array(p: EHAParams) -> np.ndarray:
     a[I_C2ZW] = 2.0 * p.zeta * p.omega_n
     a[I_INV_MASS] = 1.0 / p.mass
     a[I_INV_TAU_STICK] = 1.0 / TAU_STICK
+    wp = wh_params(p)  # WH: docs/models.md section 2
+    a[I_WH_K] = wp.k_o
+    a[I_WH_DP_LAM] = wp.dp_lam
+    a[I_WH_ISQ_LAM] = 1.0 / math.sqrt(wp.dp_lam)
+    a[I_WH_BV] = wp.beta / wp.v_c
     return a
 
 
@@ -310,10 +319,119 @@ def _chambers(xse, x_j, q_j, p1, p2, p_s, c_lk, hc, fast):
     return d_p1, d_p2
 
 
+# -- WH valve (docs/models.md section 2) -----------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy")
+def _wh_consts(prm):
+    return (
+        prm[I_P_R], prm[I_X_SS], prm[I_WH_K], prm[I_WH_DP_LAM], prm[I_WH_ISQ_LAM],
+        prm[I_WH_BV], prm[I_P_VAP],
+    )  # fmt: skip
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def wh_orifice(a, dp, k_o, dp_lam, isq_lam):
+    """WH land flow K_o max(a, 0) r(dp) (docs/models.md eqs. 2-3): sign(dp) sqrt|dp| outside
+    the laminar band |dp| < dp_lam, dp / sqrt(dp_lam) inside it (isq_lam = 1/sqrt(dp_lam))."""
+    if a <= 0.0:
+        return 0.0
+    ad = abs(dp)
+    if ad >= dp_lam:
+        return k_o * a * math.copysign(math.sqrt(ad), dp)
+    return k_o * a * dp * isq_lam
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _wh_chambers(xse, q_j, pt1, pt2, p_sr, c_lk, wc):
+    """dp~1, dp~2 and P12 of the WH valve (docs/models.md eqs. 1-6): chamber pressures
+    P_k = max(p~_k, P_vap), lands underlapped by x_SS, lumped beta / V."""
+    p_r, x_ss, k_o, dp_lam, isq_lam, bv, p_vap = wc
+    p1 = max(pt1, p_vap)
+    p2 = max(pt2, p_vap)
+    p_s = p_r + p_sr
+    a_p = x_ss + xse
+    a_m = x_ss - xse
+    q1 = wh_orifice(a_p, p_s - p1, k_o, dp_lam, isq_lam)
+    q2 = wh_orifice(a_m, p1 - p_r, k_o, dp_lam, isq_lam)
+    q3 = wh_orifice(a_m, p_s - p2, k_o, dp_lam, isq_lam)
+    q4 = wh_orifice(a_p, p2 - p_r, k_o, dp_lam, isq_lam)
+    p12 = p1 - p2
+    q_lk = c_lk * p12
+    return bv * (q1 - q2 - q_lk - q_j), bv * (q3 - q4 + q_lk + q_j), p12
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _rhs_wh(cur, x_s, v_s, x_j, v_j, pt1, pt2, x_cmd, f_r, p_sr, c_lk, dc, jc, wc):
+    d_cur, d_xs, d_vs, xse = _drive(cur, x_s, v_s, x_j, x_cmd, dc)
+    d_p1, d_p2, p12 = _wh_chambers(xse, jc[0] * v_j, pt1, pt2, p_sr, c_lk, wc)
+    return d_cur, d_xs, d_vs, v_j, _jack_accel(x_j, v_j, p12, f_r, jc), d_p1, d_p2
+
+
+@njit(cache=True, error_model="numpy")
+def _integrate_wh(y, h, n_sub, k0, n_steps, u, prm, out_every, out):
+    dc = _drive_consts(prm)
+    jc = _jack_consts(prm)
+    wc = _wh_consts(prm)
+    hs = h / n_sub
+    hh = 0.5 * hs
+    h6 = hs / 6.0
+    n_u = u.shape[0]
+    y0, y1, y2, y3, y4, y5, y6 = y[0], y[1], y[2], y[3], y[4], y[5], y[6]
+    x_cmd = f_r = p_sr = c_lk = 0.0
+    cnt = k0 % out_every
+    for k in range(n_steps):
+        if k < n_u:  # row min(k, n_u - 1)
+            x_cmd = u[k, 0]
+            f_r = u[k, 1]
+            p_sr = u[k, 2]
+            c_lk = u[k, 3]
+        for _ in range(n_sub):
+            a0, a1, a2, a3, a4, a5, a6 = _rhs_wh(
+                y0, y1, y2, y3, y4, y5, y6, x_cmd, f_r, p_sr, c_lk, dc, jc, wc
+            )
+            b0, b1, b2, b3, b4, b5, b6 = _rhs_wh(
+                y0 + hh * a0, y1 + hh * a1, y2 + hh * a2, y3 + hh * a3, y4 + hh * a4,
+                y5 + hh * a5, y6 + hh * a6, x_cmd, f_r, p_sr, c_lk, dc, jc, wc,
+            )  # fmt: skip
+            c0, c1, c2, c3, c4, c5, c6 = _rhs_wh(
+                y0 + hh * b0, y1 + hh * b1, y2 + hh * b2, y3 + hh * b3, y4 + hh * b4,
+                y5 + hh * b5, y6 + hh * b6, x_cmd, f_r, p_sr, c_lk, dc, jc, wc,
+            )  # fmt: skip
+            d0, d1, d2, d3, d4, d5, d6 = _rhs_wh(
+                y0 + hs * c0, y1 + hs * c1, y2 + hs * c2, y3 + hs * c3, y4 + hs * c4,
+                y5 + hs * c5, y6 + hs * c6, x_cmd, f_r, p_sr, c_lk, dc, jc, wc,
+            )  # fmt: skip
+            y0 += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
+            y1 += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+            y2 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
+            y3 += h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+            y4 += h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
+            if abs(y4) < V_J_ZERO:
+                y4 = 0.0
+            y5 += h6 * (a5 + 2.0 * b5 + 2.0 * c5 + d5)
+            y6 += h6 * (a6 + 2.0 * b6 + 2.0 * c6 + d6)
+        cnt += 1
+        if cnt == out_every:
+            cnt = 0
+            row = (k0 + k + 1) // out_every
+            out[row, 0] = y0
+            out[row, 1] = y1
+            out[row, 2] = y2
+            out[row, 3] = y3
+            out[row, 4] = y4
+            out[row, 5] = y5
+            out[row, 6] = y6
+    y[0], y[1], y[2], y[3], y[4], y[5], y[6] = y0, y1, y2, y3, y4, y5, y6
+
+
 @njit(cache=True, error_model="numpy")
 def _p12_of_state(y, p_sr, c_lk, prm, model):
     if model == 0:
         return y[5] - y[6]
+    if model == 6:
+        p_vap = prm[I_P_VAP]
+        return max(y[5], p_vap) - max(y[6], p_vap)
     x_sm = prm[I_X_SM]
     xse = min(max(y[1], -x_sm), x_sm)
     return law_p12(
@@ -340,6 +458,8 @@ def rhs(y, x_cmd, f_r, p_sr, c_lk, prm, model, dy):
             xse, y[3], q_j, p1, p2, prm[I_P_R] + p_sr, c_lk, _hf_consts(prm), False
         )
         p12 = p1 - p2
+    elif model == 6:
+        d_p1, d_p2, p12 = _wh_chambers(xse, q_j, y[5], y[6], p_sr, c_lk, _wh_consts(prm))
     else:
         g_pq = prm[I_G_PQ]
         x_ss = prm[I_X_SS]
@@ -581,5 +701,7 @@ def integrate(y, h, n_sub, k0, n_steps, u, prm, model, out_every, out):
         _LOOP_C3(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
     elif model == 5:
         _LOOP_C5(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
+    elif model == 6:
+        _integrate_wh(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
     else:
         raise ValueError("unknown valve model id")

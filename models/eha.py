@@ -3,8 +3,10 @@
 ECU (proportional position loop, current limit) -> torque motor (first order) -> spool
 (second order, limited to +-x_SM) -> fluid-dynamic valve -> jack (mass, viscous and
 Karnopp dry friction, end stops). The valve is either the HF model ("HF", 7 states with
-the two compressible chambers) or a simplified algebraic law ("A", "B", "C1", "C3", "C5",
-5 states; P12 = law(x_S, A v_J, P_SR) with parameters from ``simplified_params``).
+the two compressible chambers), a simplified algebraic law ("A", "B", "C1", "C3", "C5",
+5 states; P12 = law(x_S, A v_J, P_SR) with parameters from ``simplified_params``) or the
+WH model ("WH", 7 states: the C-types' parameters, square-root lands and two lumped
+chambers with a cavitation floor, docs/models.md; parameters from ``wh_params``).
 
 Integration (``models.compiled.integrate``): classic RK4 for every valve. The
 simplified laws are stiff in v_J (dP12/dQ_J ~ -G_PQ, lambda ~ -A^2 G_PQ / m = -6446 1/s,
@@ -21,7 +23,9 @@ leaving it parked at a slow subnormal); breakaway with F_s sign(F) in the band; 
 F_d sign(v_J) outside it.
 
 For the simplified valves the reported chamber pressures are the symmetric split
-P1 = P_R + (P_SR + P12)/2, P2 = P_R + (P_SR - P12)/2 (not states of those models).
+P1 = P_R + (P_SR + P12)/2, P2 = P_R + (P_SR - P12)/2 (not states of those models). For WH
+the states 5, 6 are the chambers' volume balances p~1, p~2 and the reported pressures are
+P_k = max(p~_k, P_vap) (docs/models.md eq. 6).
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from numpy.typing import NDArray
 
 from models import compiled as kern
 from models.hf_valve import hf_static_pressures, orifice_slope
-from models.params import EHAParams, simplified_params
+from models.params import EHAParams, simplified_params, wh_params
 from models.scenario import Scenario
 from models.valve_laws import p12 as law_p12
 
@@ -50,7 +54,7 @@ __all__ = [
     "state_outputs",
 ]
 
-VALVE_MODELS: tuple[str, ...] = ("HF", "A", "B", "C1", "C3", "C5")
+VALVE_MODELS: tuple[str, ...] = ("HF", "A", "B", "C1", "C3", "C5", "WH")
 
 _RK4_LIMIT = 2.5  # |h lambda| kept below RK4's real-axis stability bound 2.785
 
@@ -94,7 +98,9 @@ def n_substeps(params: EHAParams, valve: str, step_s: float) -> int:
     conservative estimate of the fastest modes.
 
     All valves: torque motor 1/tau_tm, spool 2 w_n, end stop sqrt(k/m) + c/m, stick
-    relaxation. HF: the chambers beta_l / V_dead (2 max orifice slope + C_Lk) (orifice
+    relaxation. WH: the chambers beta/V (2 K_o (x_SS + x_SM) / sqrt(dp_lam) + C_Lk) and
+    the hydraulic frequency sqrt(2 beta A^2 / (V m)) (6.5e3 1/s with the defaults: one
+    substep at 1e-4 s, three at 1 ms). HF: the chambers beta_l / V_dead (2 max orifice slope + C_Lk) (orifice
     slope bounded via dp_tr) and the hydraulic frequency near a stop. Simplified valves:
     the jack-velocity stiffness A^2 G_PQ / m (dP12/dQ_J ~ -G_PQ): 6446 1/s with the
     defaults, so one substep up to 3.9e-4 s, three at a 1 ms step.
@@ -111,6 +117,12 @@ def n_substeps(params: EHAParams, valve: str, step_s: float) -> int:
         s_max = float(orifice_slope(a_max, 0.0, p))
         lam.append(p.beta_l / p.v_dead * (2.0 * s_max + p.c_lk))
         lam.append(math.sqrt(p.beta_l * p.area**2 * (1.0 / p.v_dead) / p.mass))
+    elif valve == "WH":
+        wp = wh_params(p)
+        s_max = wp.k_o * (wp.x_ss + p.x_sm) / math.sqrt(wp.dp_lam)  # laminar band slope
+        bv = wp.beta / wp.v_c
+        lam.append(bv * (2.0 * s_max + p.c_lk))
+        lam.append(math.sqrt(2.0 * bv * p.area**2 / p.mass))
     else:
         lam.append(p.area**2 * p.g_pq / p.mass)
     return max(1, math.ceil(step_s * max(lam) / _RK4_LIMIT))
@@ -123,7 +135,9 @@ def initial_state(
     pressures of ``hf_static_pressures(0, 0, p_sr)`` (about (P_S + P_R)/2 for a symmetric valve)."""
     y = np.zeros(kern.N_STATE)
     y[3] = x_j
-    if valve == "HF":
+    if valve == "WH":  # symmetric lands: null balance at mid-pressure (docs/models.md eq. 7)
+        y[5] = y[6] = params.p_r + 0.5 * p_sr
+    elif valve == "HF":
         p1, p2 = hf_static_pressures(0.0, 0.0, p_sr, params, c_lk)
         y[5], y[6] = float(p1), float(p2)
     else:
@@ -149,6 +163,10 @@ def state_outputs(
     q_j = p.area * y[..., 4]
     if valve == "HF":
         p1, p2 = y[..., 5], y[..., 6]
+        p12 = p1 - p2
+    elif valve == "WH":
+        p1 = np.maximum(y[..., 5], p.p_vap)
+        p2 = np.maximum(y[..., 6], p.p_vap)
         p12 = p1 - p2
     else:
         vp = simplified_params(p)._replace(c_lk=c_lk)
@@ -344,6 +362,9 @@ class EHAStepper:
             v_s = 0.0
         if self.model == 0:
             p1, p2 = float(y[5]), float(y[6])
+            p12 = p1 - p2
+        elif self.valve == "WH":
+            p1, p2 = max(float(y[5]), p.p_vap), max(float(y[6]), p.p_vap)
             p12 = p1 - p2
         else:
             prm = self._prm

@@ -12,7 +12,14 @@ from typing import NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-__all__ = ["EHAParams", "ValveParams", "simplified_params", "DEFAULT_PARAMS"]
+__all__ = [
+    "EHAParams",
+    "ValveParams",
+    "WHParams",
+    "simplified_params",
+    "wh_params",
+    "DEFAULT_PARAMS",
+]
 
 
 class EHAParams(BaseModel):
@@ -135,6 +142,51 @@ class ValveParams(NamedTuple):
 def simplified_params(p: EHAParams) -> ValveParams:
     """Derive the simplified laws' parameters from the HF parameter set."""
     return ValveParams(g_pq=p.g_pq, x_ss=p.x_ss, c_lk=p.c_lk, p_vap=p.p_vap)
+
+
+class WHParams(NamedTuple):
+    """Parameters of the WH valve model (docs/models.md section 2): the C-types' four, the
+    rated supply at which G_PQ was measured, the return pressure and a lumped chamber
+    compliance V / beta. ``k_o`` and ``dp_lam`` are derived (docs/models.md eqs. 2, 3)."""
+
+    g_pq: float  # Pa s/m^3, at the rated P_SR
+    x_ss: float  # m
+    c_lk: float  # m^3/s/Pa
+    p_vap: float  # Pa (absolute)
+    p_sr_nom: float  # Pa, rated P_SR of the datasheet (G_PQ, G_Q measured there)
+    p_r: float  # Pa (absolute return pressure)
+    v_c: float  # m^3, lumped chamber volume
+    beta: float  # Pa, lumped bulk modulus
+
+    @property
+    def k_o(self) -> float:
+        """Land orifice coefficient K_o = sqrt(2 P_SR,nom) / (x_SS G_PQ) [m^2/s/sqrt(Pa)] (eq. 2)."""
+        return math.sqrt(2.0 * self.p_sr_nom) / (self.x_ss * self.g_pq)
+
+    @property
+    def dp_lam(self) -> float:
+        """Laminar band of each land dp_lam = 5e-3 P_SR,nom [Pa] (eq. 3, numerical)."""
+        return WH_DP_LAM_FRACTION * self.p_sr_nom
+
+
+WH_DP_LAM_FRACTION = 5e-3
+"""Width of each land's linear (laminar) band as a fraction of the rated P_SR (0.1 MPa at
+20 MPa): removes the infinite slope of sqrt(dp) at dp = 0 (docs/models.md eq. 3)."""
+
+
+def wh_params(p: EHAParams) -> WHParams:
+    """The WH model's parameters from the HF parameter set: the C-types' G_PQ, x_SS, C_Lk,
+    P_vap at the rated P_SR, the return pressure, V = V0 (mid-stroke chamber) and beta_l."""
+    return WHParams(
+        g_pq=p.g_pq,
+        x_ss=p.x_ss,
+        c_lk=p.c_lk,
+        p_vap=p.p_vap,
+        p_sr_nom=p.p_sr,
+        p_r=p.p_r,
+        v_c=p.v0,
+        beta=p.beta_l,
+    )
 
 
 DEFAULT_PARAMS = EHAParams()

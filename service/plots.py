@@ -81,7 +81,11 @@ def plot_comparison(results: Mapping[str, object], path: str | Path, title: str 
     """The same scenario through HF and each simplified model, side by side (seed Figs. 13-17)."""
     fig, axes = plt.subplots(len(_SIGNALS), 1, figsize=(9, 10), sharex=True)
     for name, res in results.items():
-        style = {"color": "k", "lw": 1.6} if name == "HF" else {"lw": 1.0}
+        style = {"lw": 1.0}
+        if name == "HF":
+            style = {"color": "k", "lw": 1.6}
+        elif name == "WH":
+            style = {"color": "tab:red", "lw": 1.1, "ls": "--"}
         for ax, (sig, scale, label) in zip(axes, _SIGNALS, strict=True):
             ax.plot(res.t, getattr(res, sig) * scale, label=name, **style)
             ax.set_ylabel(label)

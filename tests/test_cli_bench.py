@@ -100,7 +100,7 @@ def test_compare_json_contract(short_scenario, tmp_path, capsys):
     assert rc == 0
     d = json.loads(capsys.readouterr().out)
     assert d["reference"] == "HF" and d["scenario"] == "short_bench" and d["hf_wall_s"] > 0
-    assert set(d["models"]) == {"A", "B", "C1", "C3", "C5"}
+    assert set(d["models"]) == {"A", "B", "C1", "C3", "C5", "WH"}
     for m in d["models"].values():
         assert set(m["nrmse_pct"]) == {"x_j", "v_j", "p12", "x_s"}
         assert all(np.isfinite(v) and v >= 0 for v in m["nrmse_pct"].values())

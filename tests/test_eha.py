@@ -41,7 +41,11 @@ def _window(r: SimResult, t0: float, t1: float) -> np.ndarray:
 #            (B saturates G_P x_S before the flow feedback: speed limit G_Q x_SS / A);
 # HF:        G_Q (u + x_SM) / A = 0.27027 * 6e-4 / 1e-3 = 162 mm/s less the friction drop
 #            -> about 160 mm/s (physics.md section 4).
-NO_LOAD_MM_S = {"HF": 160.0, "A": 134.10, "B": 26.32, "C1": 134.10, "C3": 134.21, "C5": 134.10}
+# WH:        K_o (x_SS + x_SM) sqrt((P_SR - P12) / 2) - C_Lk P12 with P12 = (c_v v + F_d) / A
+#            (docs/models.md eq. 8): K_o = 8.5467e-5, P12 = 0.718 MPa -> 159.07 mm/s.
+NO_LOAD_MM_S = {
+    "HF": 160.0, "A": 134.10, "B": 26.32, "C1": 134.10, "C3": 134.21, "C5": 134.10, "WH": 159.07,
+}  # fmt: skip
 
 
 @pytest.mark.parametrize("valve", VALVE_MODELS)

@@ -108,7 +108,7 @@ def test_broadcasting(law: str) -> None:
 
 
 def test_law_names_and_model_ids_agree() -> None:
-    assert set(LAW_NAMES) | {"HF"} == set(kern.MODEL_IDS)
+    assert set(LAW_NAMES) | {"HF", "WH"} == set(kern.MODEL_IDS)
 
 
 @pytest.mark.parametrize("law", LAW_NAMES)

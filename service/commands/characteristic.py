@@ -1,4 +1,5 @@
-"""``servowatch characteristic``: P12-x_S curves parameterised by Q_J (seed Figs. 2, 8-11)."""
+"""``servowatch characteristic``: P12-x_S curves parameterised by Q_J (seed Figs. 2, 8-11;
+WH: the steady state of docs/models.md eq. 7)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from service.cliutil import emit_json, finite_float, float_list
 NAME = "characteristic"
 HELP = "P12-x_S valve characteristic of one model, parameterised by the jack flow Q_J"
 
-MODELS = (*LAW_NAMES, "HF")
+MODELS = (*LAW_NAMES, "HF", "WH")
 DEFAULT_Q_J = (-1e-4, -5e-5, 0.0, 5e-5, 1e-4)  # m^3/s
 
 
@@ -40,6 +41,11 @@ def characteristic(
         from models.hf_valve import hf_static_p12
 
         return hf_static_p12(xs, qj, p_sr, params)
+    if model == "WH":
+        from models.params import wh_params
+        from models.wh_valve import wh_static_p12
+
+        return wh_static_p12(xs, qj, p_sr, wh_params(params))
     return p12(model, xs, qj, p_sr, simplified_params(params))
 
 

@@ -13,9 +13,9 @@ from service.progress import Progress
 from service.scenarios import ScenarioError, load_scenario
 
 NAME = "simulate"
-HELP = "run the EHA bench on a scenario with one valve model (HF, A, B, C1, C3, C5)"
+HELP = "run the EHA bench on a scenario with one valve model (HF, A, B, C1, C3, C5, WH)"
 
-VALVES = ("HF", "A", "B", "C1", "C3", "C5")
+VALVES = ("HF", "A", "B", "C1", "C3", "C5", "WH")
 SIGNALS = (
     "x_cmd",
     "f_r",
