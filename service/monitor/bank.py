@@ -372,9 +372,10 @@ class MonitorBank:
         return self._inputs(ks, vals, present)
 
     def _inputs(self, ks: NDArray, vals: NDArray, present: NDArray):
-        """Filter inputs of a block from ``vals`` (n, 8) in the order t, x_s, x_j, p1, p2,
-        p_sr, i, x_cmd and ``present`` (n, 8): a present non-finite value counts as
-        bad_channel, a sample with no usable value as skipped_nan (``prepare_inputs``)."""
+        """Filter inputs of a block from ``vals`` (n, 8) in the order of ``INPUT_COLUMNS``
+        (t, x_s, x_j, p1, p2, p_sr, i, x_cmd) and ``present`` (n, 8): a present non-finite
+        value counts as bad_channel, a sample with no usable value as skipped_nan
+        (``prepare_inputs``)."""
         cnt = np.zeros((len(self.x), len(PREP_COUNTERS)), np.int64)
         t, z, mask, cand, i_m, x_c = prepare_inputs(
             ks, np.ascontiguousarray(vals), np.ascontiguousarray(present), self._use,
