@@ -24,12 +24,11 @@ from functools import lru_cache
 
 import numpy as np
 from numba import njit
-from numba.core import cpu
+
+from service.compat.numba import NO_NRT
 
 # kernels that allocate nothing: compiled without NRT reference counting
-_LEAF = {"cache": True, "error_model": "numpy", "nogil": True}
-if hasattr(cpu.CPUTargetOptions, "_nrt"):
-    _LEAF["_nrt"] = False
+_LEAF = {"cache": True, "error_model": "numpy", "nogil": True, **NO_NRT}
 _INLINE = {**_LEAF, "inline": "always"}  # small helpers: inlined into their callers
 
 __all__ = [

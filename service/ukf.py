@@ -20,13 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints
-from llvmlite.ir import Constant
-from numba import njit, types
-from numba.extending import intrinsic
-from numba.np.arrayobj import make_array
+from numba import njit
 from numpy.typing import NDArray
 
 from models.eha_reduced import MEAS_NAMES, N_STATES, measure_nb, spool_coef_nb, step_points_nb
+from service.compat.numba import borrowed_all
 
 __all__ = [
     "SigmaWeights",
@@ -169,39 +167,13 @@ class BatchUKF:
 #   sigma-point offsets); the gain is solved for all n rows at once on the transposed
 #   cross-covariance C = Pxz^T (m, n);
 # * the 17 model steps run in stages over the points (models.eha_reduced.step_points_nb);
-# * no atomic reference counting (see borrowed_all).
+# * no atomic reference counting (``service.compat.numba.borrowed_all``).
 # No fastmath: every operation is the plain IEEE one written here (no reassociation, no FMA
 # contraction), so the step is bitwise the same in every caller; NaN fails the "s > 0" test
 # of the Cholesky factors (status 2).
 _N = N_STATES
 _M = len(MEAS_NAMES)
 _KERNEL = {"cache": True, "error_model": "numpy", "boundscheck": False}
-
-
-@intrinsic
-def borrowed_all(typingctx, arrays):
-    """The arrays of a tuple without their memory-info pointers: views that numba does not
-    reference-count (``a, b = borrowed_all((a, b))``, or a ``workspace`` tuple at once).
-    Numba increfs/decrefs every array a function holds with atomic operations, and its
-    pruning pass leaves most of them in a function this size (a third of the UKF step, a
-    fifth of the monitor's block loop); on such a view they are no-ops. Only for arrays that
-    outlive the views (a kernel's arguments, for the duration of the call); never return or
-    store one."""
-    if not isinstance(arrays, types.BaseTuple) or not all(
-        isinstance(a, types.Array) for a in arrays.types
-    ):
-        return None
-
-    def codegen(context, builder, sig, args):
-        out = []
-        for i, a in enumerate(arrays.types):
-            ary = make_array(a)(context, builder, value=builder.extract_value(args[0], i))
-            ary.meminfo = Constant(ary.meminfo.type, None)
-            ary.parent = Constant(ary.parent.type, None)
-            out.append(ary._getvalue())
-        return context.make_tuple(builder, sig.return_type, out)
-
-    return arrays(arrays), codegen
 
 
 @njit(**_KERNEL, inline="always")

@@ -1,0 +1,52 @@
+"""The numba internals the kernels rely on, fenced in one module (checked by
+``tests/test_compat_numba.py`` on every numba release the project allows).
+
+* ``borrowed_all``: an intrinsic built on ``numba.np.arrayobj.make_array`` (the array's
+  LLVM struct proxy) that nulls the ``meminfo`` and ``parent`` members of array structs, so
+  numba's reference counting skips them. Numba increfs/decrefs every array a function holds
+  with atomic operations and its pruning pass leaves most of them in a function the size of
+  the UKF step: about a third of ``service.ukf.ukf_one`` and a fifth of the monitor's block
+  loop (``service.monitor.kernels``).
+* ``NO_NRT``: the private ``_nrt`` target option (``numba.core.cpu.CPUTargetOptions``), which
+  compiles a kernel without the runtime's reference counting at all; for kernels that
+  allocate nothing (``service.logcodec``). Empty when the option is gone (the kernels still
+  work, slower), which the check tests report.
+
+Every other module imports these from here, never from numba's private packages.
+"""
+
+from __future__ import annotations
+
+from llvmlite.ir import Constant
+from numba import types
+from numba.core import cpu
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array
+
+__all__ = ["borrowed_all", "NO_NRT", "HAS_NRT_OPTION"]
+
+HAS_NRT_OPTION: bool = hasattr(cpu.CPUTargetOptions, "_nrt")
+NO_NRT: dict[str, bool] = {"_nrt": False} if HAS_NRT_OPTION else {}
+
+
+@intrinsic
+def borrowed_all(typingctx, arrays):
+    """The arrays of a tuple without their memory-info pointers: views that numba does not
+    reference-count (``a, b = borrowed_all((a, b))``, or a ``workspace`` tuple at once); on
+    such a view numba's atomic increfs/decrefs are no-ops. Only for arrays that outlive the
+    views (a kernel's arguments, for the duration of the call); never return or store one."""
+    if not isinstance(arrays, types.BaseTuple) or not all(
+        isinstance(a, types.Array) for a in arrays.types
+    ):
+        return None
+
+    def codegen(context, builder, sig, args):
+        out = []
+        for i, a in enumerate(arrays.types):
+            ary = make_array(a)(context, builder, value=builder.extract_value(args[0], i))
+            ary.meminfo = Constant(ary.meminfo.type, None)
+            ary.parent = Constant(ary.parent.type, None)
+            out.append(ary._getvalue())
+        return context.make_tuple(builder, sig.return_type, out)
+
+    return arrays(arrays), codegen

@@ -1,0 +1,49 @@
+"""Per-actuator health monitor: a UKF on the simplified (C-type) EHA model, no I/O.
+
+``config`` (MonitorConfig, Baseline, noise and alarm settings), ``outputs`` (the output
+row layout EST_KEYS / RES_KEYS / HEALTH_KEYS and the output types), ``bank`` (MonitorBank,
+Monitor) and ``kernels`` (the compiled per-sample loops). See docs/estimation.md.
+"""
+
+from service.monitor.bank import Monitor, MonitorBank
+from service.monitor.config import (
+    AlarmConfig,
+    Baseline,
+    MeasurementNoise,
+    MonitorConfig,
+    ProcessNoise,
+)
+from service.monitor.outputs import (
+    ALARM_KINDS,
+    COUNTERS,
+    EST_KEYS,
+    HEALTH_KEYS,
+    MEAS_CHANNELS,
+    RES_KEYS,
+    AlarmEvent,
+    BankRows,
+    MonitorOutput,
+    RowEvents,
+    StepBlock,
+)
+
+__all__ = [
+    "MeasurementNoise",
+    "ProcessNoise",
+    "AlarmConfig",
+    "MonitorConfig",
+    "Baseline",
+    "AlarmEvent",
+    "MonitorOutput",
+    "Monitor",
+    "MonitorBank",
+    "BankRows",
+    "RowEvents",
+    "StepBlock",
+    "MEAS_CHANNELS",
+    "ALARM_KINDS",
+    "COUNTERS",
+    "EST_KEYS",
+    "RES_KEYS",
+    "HEALTH_KEYS",
+]

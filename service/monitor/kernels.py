@@ -1,0 +1,406 @@
+"""The monitor's compiled kernels (numba): the per-sample filter step and output row, and the
+loops of the per-round path (``bank_step``, ``output_rows``) and of the block path
+(``prepare_inputs``, ``block_steps``, ``block_rows``) that ``MonitorBank`` calls.
+
+Array layouts are named by the constants below (module globals are compile-time constants in
+numba, so a name costs nothing): filter state columns ``S_*`` (``models.eha_reduced``
+state order), measurement channels ``Z_*``, input columns ``IN_*``, the bank's constant
+vector ``C_*`` (built by name from ``CST_FIELDS``), counter columns ``CNT_*`` and step codes
+``STEP_*``; the output columns ``EST_*``, ``RES_*``, ``HEALTH_*`` come from
+``service.monitor.outputs``. Every array argument goes through ``borrowed_all``
+(``service.compat.numba``): no atomic reference counting in the loops.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from models import eha_reduced as er
+from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
+from service.compat.numba import borrowed_all
+from service.monitor.outputs import (
+    ALARM_LEAK,
+    EST_C_LK_INCREASE,
+    EST_C_LK_SIGMA,
+    EST_P12,
+    EST_P_SR_SIGMA,
+    EST_STATE,
+    FIRE_CLEARED,
+    FIRE_RAISED,
+    HEALTH_ALARM,
+    HEALTH_LEAK_RATIO,
+    HEALTH_NIS_AVG,
+    HEALTH_SUPPLY_RATIO,
+    N_ALARMS,
+    RES_INNOV,
+    RES_NIS,
+    RES_NIS_DOF,
+    RES_OL,
+)
+from service.ukf import ukf_one
+
+# filter state columns (X, P, OL rows)
+S_X_S, S_V_S, S_X_J, S_V_J, S_F_R, S_P_SR, S_C_LK, S_I_B = (
+    er.IX[n] for n in ("x_s", "v_s", "x_j", "v_j", "f_r", "p_sr", "c_lk", "i_b")
+)
+N_STATES = er.N_STATES
+# measurement channels (z, mask, y columns)
+Z_X_S, Z_X_J, Z_P1, Z_P2, Z_P_SR = (
+    er.MEAS_NAMES.index(n) for n in ("x_s", "x_j", "p1", "p2", "p_sr")
+)
+N_CHANNELS = len(er.MEAS_NAMES)
+# input columns of prepare_inputs: t, the channels, the current i and the command x_cmd
+INPUT_COLUMNS: tuple[str, ...] = ("t", *er.MEAS_NAMES, "i", "x_cmd")
+IN_T = INPUT_COLUMNS.index("t")
+IN_Z = INPUT_COLUMNS.index(er.MEAS_NAMES[0])  # channel r at IN_Z + r
+IN_I = INPUT_COLUMNS.index("i")
+IN_X_CMD = INPUT_COLUMNS.index("x_cmd")
+
+# the bank's constant vector (MonitorBank builds it by these names)
+CST_FIELDS: tuple[str, ...] = (
+    "h_max",  # longest model sub-step [s]
+    "c_lk_max",  # C_Lk upper clip (filter units)
+    "p_vap",  # P_SR lower clip (filter units)
+    "p_sr_max",  # P_SR upper clip = rated (filter units)
+    "nis_tau",  # NIS average time constant [s]
+    "nis_reinit",  # re-initialise above this NIS/dof average
+    "c_lk0",  # baseline C_Lk [m^3/s/Pa]
+    "p_rated",  # rated P_SR [Pa]
+    "arm",  # alarms armed this long after a (re-)init [s]
+    "leak_raise",
+    "leak_clear",
+    "supply_raise",
+    "supply_clear",
+    "hold",  # alarm persistence [s]
+    "leak_max_sigma",
+    "supply_max_sigma",
+)
+(
+    C_H_MAX,
+    C_C_LK_MAX,
+    C_P_VAP,
+    C_P_SR_MAX,
+    C_NIS_TAU,
+    C_NIS_REINIT,
+    C_C_LK0,
+    C_P_RATED,
+    C_ARM,
+    C_LEAK_RAISE,
+    C_LEAK_CLEAR,
+    C_SUP_RAISE,
+    C_SUP_CLEAR,
+    C_HOLD,
+    C_LEAK_SIG,
+    C_SUP_SIG,
+) = range(len(CST_FIELDS))
+
+# counter columns: prepare_inputs' cnt (n_act, 2) and block_steps' cnt (n_act, 3)
+PREP_COUNTERS: tuple[str, ...] = ("bad_channel", "skipped_nan")
+CNT_BAD_CHANNEL, CNT_SKIPPED_NAN = range(len(PREP_COUNTERS))
+STEP_COUNTERS: tuple[str, ...] = ("skipped_time", "missing_channel", "accepted")
+CNT_SKIPPED_TIME, CNT_MISSING_CHANNEL, CNT_ACCEPTED = range(len(STEP_COUNTERS))
+
+UKF_FAILED = 2  # status of service.ukf.ukf_one: no positive definite factor
+# codes of step_one / block_steps
+STEP_OK = 0  # stepped
+STEP_BROKEN = 1  # non-finite or not positive definite: re-initialise
+STEP_DIVERGED = 2  # NIS average above nis_reinit: re-initialise, keep the parameters
+STEP_INIT = 3  # first sample or gap: (re-)initialise from this sample, not stepped
+
+
+@njit(cache=True, inline="always")
+def step_one(
+    j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale, zscale, Wm,
+    Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
+):  # fmt: skip
+    """Sample j of actuator k (in place on the bank arrays): inputs (measured current, else
+    the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average. Returns
+    STEP_OK, STEP_BROKEN (non-finite / not positive definite) or STEP_DIVERGED (NIS average)."""
+    n = X.shape[1]
+    k_p, i_max = prm[er.K_K_P], prm[er.K_I_MAX]
+    dt = t[j] - T_LAST[k]
+    n_sub = max(1, int(math.ceil(dt / cst[C_H_MAX] - 1e-9)))
+    if not math.isnan(i_m[j]):
+        i_f = i_m[j]
+    elif not math.isnan(x_c[j]):
+        i_f = min(max(k_p * (x_c[j] - X[k, S_X_J] * scale[S_X_J]), -i_max), i_max)
+    else:
+        i_f = I_LAST[k]
+    i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, S_X_J]), -i_max), i_max)
+    I_LAST[k] = i_f
+    nis_j, st = ukf_one(
+        X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
+        y[j], ws,
+    )  # fmt: skip
+    nis[j] = nis_j
+    # the parallel (open-loop) model, driven by the command, with the estimated load
+    OL[k, S_F_R] = X[k, S_F_R] * scale[S_F_R]
+    h = dt / n_sub
+    spool_coef_nb(h, prm, coef)
+    step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
+    for r in range(n):
+        OL[k, r] = tmp[r]
+    # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
+    X[k, S_C_LK] = min(max(X[k, S_C_LK], 0.0), cst[C_C_LK_MAX])
+    X[k, S_P_SR] = min(max(X[k, S_P_SR], cst[C_P_VAP]), cst[C_P_SR_MAX])
+    dof = 0.0
+    for r in range(mask.shape[1]):
+        if mask[j, r]:
+            dof += 1.0
+    a = 1.0 - math.exp(-dt / cst[C_NIS_TAU])
+    avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
+    nis_avg[j] = avg
+    ok = st != UKF_FAILED and math.isfinite(avg)
+    for r in range(n):
+        if not math.isfinite(X[k, r]):
+            ok = False
+        for s_ in range(n):
+            if not math.isfinite(PP[k, r, s_]):
+                ok = False
+    T_LAST[k] = t[j]
+    if ok:
+        NIS_AVG[k] = avg
+        return STEP_DIVERGED if avg > cst[C_NIS_REINIT] else STEP_OK
+    NIS_AVG[k] = 0.0
+    return STEP_BROKEN
+
+
+@njit(cache=True, inline="always")
+def row_one(
+    j, kk, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
+    PENDING, cst, est, res, health, fire, xs, zo,
+):  # fmt: skip
+    """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
+    innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak
+    and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence
+    and the sigma gate (fire: FIRE_RAISED or FIRE_CLEARED this sample, else 0). The filter state is row kk of
+    X, PD (the diagonal of P), OL, T_INIT and NIS_AVG: the bank's row k, or the snapshot of
+    sample j taken by ``block_steps``; the alarm state is the bank's row k."""
+    n = X.shape[1]
+    m = z.shape[1]
+    c_lk0, p_rated = cst[C_C_LK0], cst[C_P_RATED]
+    for r in range(n):
+        xs[r] = X[kk, r] * scale[r]
+        est[j, EST_STATE + 2 * r] = xs[r]
+        est[j, EST_STATE + 2 * r + 1] = math.sqrt(max(PD[kk, r], 0.0)) * scale[r]
+    measure_nb(xs, prm, zo)
+    est[j, EST_P12] = zo[Z_P1] - zo[Z_P2]
+    est[j, EST_C_LK_INCREASE] = xs[S_C_LK] - c_lk0
+    measure_nb(OL[kk], prm, zo)
+    dof = 0.0
+    for r in range(m):
+        res[j, RES_INNOV + r] = y[j, r] * zscale[r]
+        if mask[j, r]:
+            dof += 1.0
+            res[j, RES_OL + r] = z[j, r] * zscale[r] - zo[r]
+        else:
+            res[j, RES_OL + r] = 0.0
+    res[j, RES_NIS] = nis[j]
+    res[j, RES_NIS_DOF] = dof
+    lr = xs[S_C_LK] / c_lk0 if c_lk0 > 0 else 0.0
+    sr = xs[S_P_SR] / p_rated
+    sd_l = est[j, EST_C_LK_SIGMA] / c_lk0 if c_lk0 > 0 else 0.0
+    sd_s = est[j, EST_P_SR_SIGMA] / p_rated
+    armed = t[j] - T_INIT[kk] >= cst[C_ARM]
+    for a in range(N_ALARMS):
+        on = ALARM[k, a]
+        if a == ALARM_LEAK:
+            want = (
+                lr <= cst[C_LEAK_CLEAR]
+                if on
+                else (lr >= cst[C_LEAK_RAISE] and sd_l < cst[C_LEAK_SIG])
+            )
+        else:
+            want = (
+                sr >= cst[C_SUP_CLEAR] if on else (sr <= cst[C_SUP_RAISE] and sd_s < cst[C_SUP_SIG])
+            )
+        fire[j, a] = 0
+        if want and armed:
+            if math.isnan(PENDING[k, a]):
+                PENDING[k, a] = t[j]
+            if t[j] - PENDING[k, a] >= cst[C_HOLD] - 1e-12:
+                ALARM[k, a] = not on
+                PENDING[k, a] = math.nan
+                fire[j, a] = FIRE_CLEARED if on else FIRE_RAISED
+        else:
+            PENDING[k, a] = math.nan
+    health[j, HEALTH_LEAK_RATIO] = lr
+    health[j, HEALTH_SUPPLY_RATIO] = sr
+    for a in range(N_ALARMS):
+        health[j, HEALTH_ALARM + a] = 1.0 if ALARM[k, a] else 0.0
+    health[j, HEALTH_NIS_AVG] = NIS_AVG[kk]
+
+
+@njit(cache=True)
+def bank_step(
+    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale, zscale, Wm, Wc,
+    c, prm, cst, ws, y, nis, nis_avg, flag,
+):  # fmt: skip
+    """One sample for each actuator ks[j] through ``step_one``; flag[j] its return code."""
+    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG = borrowed_all(
+        (ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG)
+    )
+    q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag = borrowed_all(
+        (q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag)
+    )
+    ws = borrowed_all(ws)
+    coef = np.empty(4)
+    tmp = np.empty(X.shape[1])
+    for j in range(ks.shape[0]):
+        flag[j] = step_one(
+            j, ks[j], t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale,
+            zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
+        )  # fmt: skip
+
+
+@njit(cache=True)
+def output_rows(
+    X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING, cst,
+    est, res, health, fire,
+):  # fmt: skip
+    """The output row of each actuator ks[j] through ``row_one`` (PD: diagonals of P)."""
+    X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t = borrowed_all(
+        (X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t)
+    )
+    T_INIT, NIS_AVG, ALARM, PENDING, cst, est, res, health, fire = borrowed_all(
+        (T_INIT, NIS_AVG, ALARM, PENDING, cst, est, res, health, fire)
+    )
+    xs = np.empty(X.shape[1])
+    zo = np.empty(z.shape[1])
+    for j in range(ks.shape[0]):
+        k = ks[j]
+        row_one(
+            j, k, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
+            PENDING, cst, est, res, health, fire, xs, zo,
+        )  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def prepare_inputs(ks, vals, present, use, zscale, cnt):
+    """``MonitorBank._inputs`` compiled (numpy's per-call cost on short blocks was a tenth of
+    the filter step): vals (n, 8) as t, x_s, x_j, p1, p2, p_sr, i, x_cmd, present (n, 8) ->
+    (t (0 where not usable), z (scaled, 0 where masked), mask, cand, i_m, x_c (NaN where not
+    usable)); cnt[k] += bad_channel (present and not finite, in a sample with a usable time),
+    skipped_nan (no usable value)."""
+    n = ks.shape[0]
+    m = zscale.shape[0]
+    t_out = np.empty(n)
+    z = np.empty((n, m))
+    mask = np.empty((n, m), np.bool_)
+    cand = np.empty(n, np.bool_)
+    i_m = np.empty(n)
+    x_c = np.empty(n)
+    for j in range(n):
+        t_ok = present[j, IN_T] and math.isfinite(vals[j, IN_T])
+        n_bad = 0
+        any_m = False
+        for r in range(m):
+            v = vals[j, IN_Z + r]
+            fin = math.isfinite(v)
+            ok = present[j, IN_Z + r] and fin and use[r]
+            mask[j, r] = ok
+            z[j, r] = v / zscale[r] if ok else 0.0
+            any_m = any_m or ok
+            if present[j, IN_Z + r] and not fin and use[r]:
+                n_bad += 1
+        vi, vx = vals[j, IN_I], vals[j, IN_X_CMD]
+        i_ok = present[j, IN_I] and math.isfinite(vi)
+        x_ok = present[j, IN_X_CMD] and math.isfinite(vx)
+        i_m[j] = vi if i_ok else math.nan
+        x_c[j] = vx if x_ok else math.nan
+        if present[j, IN_I] and not i_ok:
+            n_bad += 1
+        if present[j, IN_X_CMD] and not x_ok:
+            n_bad += 1
+        cand[j] = t_ok and (i_ok or x_ok or any_m)
+        t_out[j] = vals[j, IN_T] if t_ok else 0.0
+        if t_ok:
+            cnt[ks[j], CNT_BAD_CHANNEL] += n_bad
+        if not cand[j]:
+            cnt[ks[j], CNT_SKIPPED_NAN] += 1
+    return t_out, z, mask, cand, i_m, x_c
+
+
+@njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
+def block_steps(
+    j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT, q,
+    R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis, nis_avg, acc, SX, SPD,
+    SOL, STI, SNA, cnt,
+):  # fmt: skip
+    """The samples j0.. of a block in order, each through the time checks and ``step_one``
+    (the code of the per-round path, so the same bits); after its step, the state a sample's
+    output row is made of (X, diagonal of P, OL, T_INIT, NIS_AVG of its actuator) is copied
+    into row j of SX, SPD, SOL, STI, SNA for ``block_rows``. Returns (j, code): code 0 when
+    done; 3 when sample j needs a (re-)initialisation (first sample or gap; not stepped), 1/2
+    when its step broke/diverged. The caller re-initialises and resumes with (j,
+    emit0=True), which takes sample j's snapshot without stepping it. acc[j]: sample j has an
+    output row; cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
+    # every array argument through borrowed_all (see service.ukf): the inlined step_one takes
+    # about 30 arrays, which numba would otherwise reference-count with atomic operations at
+    # every sample (about a fifth of the step)
+    ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT = borrowed_all(
+        (ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT)
+    )
+    q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg = borrowed_all(
+        (q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg)
+    )
+    acc, SX, SPD, SOL, STI, SNA, cnt = borrowed_all((acc, SX, SPD, SOL, STI, SNA, cnt))
+    ws = borrowed_all(ws)
+    m = z.shape[1]
+    n = X.shape[1]
+    coef = np.empty(4)
+    tmp = np.empty(n)
+    for j in range(j0, ks.shape[0]):
+        k = ks[j]
+        if not (emit0 and j == j0):
+            if not cand[j]:
+                continue
+            if t[j] <= T_LAST[k]:
+                cnt[k, CNT_SKIPPED_TIME] += 1
+                continue
+            for r in range(m):
+                if expect[r] and not mask[j, r]:
+                    cnt[k, CNT_MISSING_CHANNEL] += 1
+            if not math.isfinite(T_LAST[k]) or t[j] - T_LAST[k] > max_gap:
+                return j, STEP_INIT
+            cnt[k, CNT_ACCEPTED] += 1
+            code = step_one(
+                j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale,
+                zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
+            )  # fmt: skip
+            if code != STEP_OK:
+                return j, code
+        acc[j] = True
+        for r in range(n):
+            SX[j, r] = X[k, r]
+            SPD[j, r] = PP[k, r, r]
+            SOL[j, r] = OL[k, r]
+        STI[j] = T_INIT[k]
+        SNA[j] = NIS_AVG[k]
+    return ks.shape[0], STEP_OK
+
+
+@njit(cache=True, nogil=True)
+def block_rows(
+    ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t, ALARM, PENDING,
+    cst, est, res, health, fire,
+):  # fmt: skip
+    """The output rows of the samples with acc[j], in order, from their ``block_steps``
+    snapshots, through ``row_one`` (alarms: the bank's ALARM, PENDING)."""
+    ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask = borrowed_all(
+        (ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask)
+    )
+    y, nis, t, ALARM, PENDING, cst, est, res, health, fire = borrowed_all(
+        (y, nis, t, ALARM, PENDING, cst, est, res, health, fire)
+    )
+    xs = np.empty(SX.shape[1])
+    zo = np.empty(z.shape[1])
+    for j in range(ks.shape[0]):
+        if acc[j]:
+            row_one(
+                j, j, ks[j], SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t,
+                ALARM, PENDING, cst, est, res, health, fire, xs, zo,
+            )  # fmt: skip
