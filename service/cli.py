@@ -21,6 +21,8 @@ COMMANDS: tuple[str, ...] = (
     "compare",
     "estimate",
     "calibrate",
+    "baselines",
+    "fleet",
     "actuator",
     "inject",
     "run",

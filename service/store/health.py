@@ -256,6 +256,11 @@ class HealthStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    @property
+    def where(self) -> str:
+        """The store's path or URL with any password hidden (for messages)."""
+        return describe_url(self.url)
+
     def close(self) -> None:
         """Close the connection (idempotent)."""
         self._b.close()
@@ -654,9 +659,11 @@ class HealthStore:
         return problems
 
 
-def open_store(url_or_path: str | os.PathLike[str], *, timeout_s: float = 30.0) -> HealthStore:
-    """Open (creating and migrating as needed) the store at a ``postgresql://`` URL or a
-    SQLite file path (its directory is created)."""
+def open_store(
+    url_or_path: str | os.PathLike[str], *, create: bool = True, timeout_s: float = 30.0
+) -> HealthStore:
+    """Open (migrating as needed) the store at a ``postgresql://`` URL or a SQLite file
+    path; a missing SQLite file (and its directory) is created unless ``create`` is False."""
     if isinstance(url_or_path, os.PathLike):
         url_or_path = os.fspath(url_or_path)
     if not isinstance(url_or_path, str) or not url_or_path.strip():
@@ -674,6 +681,8 @@ def open_store(url_or_path: str | os.PathLike[str], *, timeout_s: float = 30.0) 
         path = Path(text.removeprefix("sqlite:///") if text.startswith("sqlite:///") else text)
         if path.is_dir():
             raise StoreError(f"store: {path} is a directory; expected a SQLite file path")
+        if not create and not path.exists():
+            raise StoreError(f"store: {path} does not exist (no health store there yet)")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             backend = _SQLite(path, timeout_s)
