@@ -9,10 +9,11 @@ rows (``HealthStore.fleet_summary``), so it answers in well under a second on a 
 from __future__ import annotations
 
 import argparse
+import json
 import math
+import sys
 from typing import Any
 
-from service.cliutil import emit_json, fail
 from service.store import StoreError
 from service.store.cli import add_store_argument, open_store_arg
 
@@ -26,6 +27,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_store_argument(p)
     p.add_argument("--top", type=int, default=None, metavar="N", help="only the N most urgent")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_plain(x) for x in v]
+    return v
+
+
+def emit_json(obj: Any) -> None:
+    """One JSON object on stdout (non-finite floats as null); no numpy import, to keep the
+    command's start-up short."""
+    sys.stdout.write(json.dumps(_plain(obj)) + "\n")
+    sys.stdout.flush()
+
+
+def fail(message: str, code: int = 2) -> int:
+    """Print an error on stderr and return the exit code."""
+    print(f"servowatch: error: {message}", file=sys.stderr)
+    return code
 
 
 def _num(v: Any) -> float | None:
