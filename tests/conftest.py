@@ -2,7 +2,8 @@
 
 The PostgreSQL side starts one throwaway cluster for the session when the server binaries
 are installed (PATH or /usr/lib/postgresql/*/bin) and gives each test a fresh database;
-without them those tests skip and the run says so in its summary.
+without them those tests skip and the run says so in its summary (they fail instead when
+``SERVOWATCH_REQUIRE_PG=1``, as in CI).
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ def store_url(request, tmp_path) -> str:
         return str(tmp_path / "health.sqlite")
     cluster = request.getfixturevalue("pg_cluster")
     if cluster is None:
+        if os.environ.get("SERVOWATCH_REQUIRE_PG") == "1":
+            pytest.fail(f"PostgreSQL required (SERVOWATCH_REQUIRE_PG=1): {_PG['reason']}")
         _PG["skipped"] += 1
         pytest.skip(f"PostgreSQL tests skipped: {_PG['reason']}")
     _PG["used"] += 1
