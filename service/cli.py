@@ -23,6 +23,8 @@ COMMANDS: tuple[str, ...] = (
     "calibrate",
     "baselines",
     "fleet",
+    "rul",
+    "fleet-sim",
     "actuator",
     "inject",
     "run",
@@ -34,7 +36,7 @@ COMMANDS: tuple[str, ...] = (
 
 
 def _load(name: str):
-    modname = f"service.commands.{name}"
+    modname = f"service.commands.{name.replace('-', '_')}"
     try:
         return importlib.import_module(modname)
     except ModuleNotFoundError as e:
