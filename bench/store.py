@@ -17,6 +17,7 @@ import json
 import math
 import os
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -145,6 +146,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", action="store_true", help="print one JSON object at the end")
     a = ap.parse_args()
+    # SIGTERM unwinds like Ctrl-C, so the throwaway cluster and the files are removed
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
     if a.actuators < 1 or a.years <= 0 or a.flights_per_day < 1:
         ap.error("--actuators, --years and --flights-per-day must be positive")
     out: dict = {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import signal
@@ -218,3 +219,22 @@ def test_a_writer_killed_with_sigkill_leaves_a_consistent_store(store_url):
             got = s.periods(f"AC{j}/act")
             assert got == [make_period(f"AC{j}/act", k) for k in range(counts[0])]
         assert len(s.alarms("AC0/act")) in (counts[0] // 5, counts[0] // 5 - 1)
+
+
+def test_migration_2_computes_the_trend_of_a_version_1_store(store_url, monkeypatch):
+    import service.store.health as health
+
+    with monkeypatch.context() as m:
+        m.setattr(health, "MIGRATIONS", MIGRATIONS[:1])
+        m.setattr(health, "LATEST_VERSION", 1)
+        with open_store(store_url) as s:
+            assert s.schema_version() == 1
+            s.ensure_actuator("AC1/a")
+            recent = [[100.0 * k, 3600.0, 1.0 + 0.1 * k, 100] for k in range(5)]
+            with s._b.transaction():
+                s._b.execute("UPDATE summary SET recent = ?", (json.dumps(recent),))
+    with open_store(store_url) as s:
+        assert s.schema_version() == 2
+        tr = s.fleet_summary()[0]["trend"]
+        assert tr["label"] == "rising" and tr["slope_per_h"] == pytest.approx(0.1)
+        assert tr["periods"] == 5

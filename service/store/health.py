@@ -29,7 +29,7 @@ from service.store.records import (
     Period,
     check_actuator,
 )
-from service.store.schema import LATEST_VERSION, MIGRATIONS, RECENT_WINDOW
+from service.store.schema import LATEST_VERSION, MIGRATIONS, RECENT_WINDOW, RECOMPUTE_TRENDS
 
 __all__ = ["HealthStore", "StoreError", "open_store", "trend_of", "describe_url"]
 
@@ -52,7 +52,12 @@ _SUMMARY_COLS: tuple[str, ...] = (
     "last_alarm_t",
     "last_alarm_kind",
     "baseline_version",
+    "trend_n",
+    "trend_slope_per_h",
+    "trend_change",
+    "trend_label",
 )
+_FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c != "recent")
 _CHUNK = 500  # parameters per IN (...) list
 
 
@@ -292,12 +297,25 @@ class HealthStore:
                 if row:
                     continue
                 for s in stmts:
-                    b.execute(s)
+                    if s == RECOMPUTE_TRENDS:
+                        self._recompute_trends()
+                    else:
+                        b.execute(s)
                 b.execute(
                     "INSERT INTO schema_migrations (version, description, applied_s) "
                     "VALUES (?, ?, ?)",
                     (version, desc, time.time()),
                 )
+
+    def _recompute_trends(self) -> None:
+        rows = self._b.execute("SELECT actuator, recent FROM summary").fetchall()
+        for a, recent in rows:
+            tr = trend_of(json.loads(recent or "[]"))
+            self._b.execute(
+                "UPDATE summary SET trend_n = ?, trend_slope_per_h = ?, trend_change = ?, "
+                "trend_label = ? WHERE actuator = ?",
+                (tr["periods"], tr["slope_per_h"], tr["change"], tr["label"], a),
+            )
 
     def schema_version(self) -> int:
         """The highest migration applied (0 for an empty store)."""
@@ -482,7 +500,11 @@ class HealthStore:
         recent = json.loads(s["recent"] or "[]")
         recent.extend([p.start_t, p.op_time_s, p.c_lk_ratio, p.observable_samples] for p in fresh)
         recent.sort(key=lambda r: r[0])
-        s["recent"] = _dumps(recent[-RECENT_WINDOW:])
+        recent = recent[-RECENT_WINDOW:]
+        s["recent"] = _dumps(recent)
+        tr = trend_of(recent)
+        s["trend_n"], s["trend_slope_per_h"] = tr["periods"], tr["slope_per_h"]
+        s["trend_change"], s["trend_label"] = tr["change"], tr["label"]
 
     def periods(self, actuator: str) -> list[Period]:
         """The actuator's periods, by start_t."""
@@ -591,13 +613,13 @@ class HealthStore:
         period's indicators, the C_Lk-ratio trend, the last RUL dict, alarm counts and
         whether it is commissioned (has a baseline). Reads O(actuators) rows."""
         rows = self._b.execute(
-            f"SELECT a.name, {','.join('s.' + c for c in _SUMMARY_COLS)}, r.rul, r.updated_s "
+            f"SELECT a.name, {','.join('s.' + c for c in _FLEET_COLS)}, r.rul, r.updated_s "
             "FROM actuators a LEFT JOIN summary s ON s.actuator = a.name "
             "LEFT JOIN rul r ON r.actuator = a.name ORDER BY a.name"
         ).fetchall()
         out: list[dict[str, Any]] = []
         for r in rows:
-            s = dict(zip(_SUMMARY_COLS, r[1:-2], strict=True))
+            s = dict(zip(_FLEET_COLS, r[1:-2], strict=True))
             last = json.loads(s["last_period"]) if s["last_period"] else None
             if last is not None:
                 for k in PERIOD_FLOAT_FIELDS:
@@ -614,7 +636,12 @@ class HealthStore:
                     "first_t": s["first_start_t"],
                     "last_t": None if last is None else last["end_t"],
                     "last": last,
-                    "trend": trend_of(json.loads(s["recent"] or "[]")),
+                    "trend": {
+                        "periods": int(s["trend_n"] or 0),
+                        "slope_per_h": s["trend_slope_per_h"],
+                        "change": s["trend_change"],
+                        "label": s["trend_label"] or "unknown",
+                    },
                     "alarms": int(s["alarms"] or 0),
                     "alarm_events": int(s["alarm_events"] or 0),
                     "last_alarm": None

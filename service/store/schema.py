@@ -7,10 +7,13 @@ in ``schema_migrations``. The DDL is portable: SQLite and PostgreSQL both take t
 
 from __future__ import annotations
 
-__all__ = ["MIGRATIONS", "LATEST_VERSION", "RECENT_WINDOW"]
+__all__ = ["MIGRATIONS", "LATEST_VERSION", "RECENT_WINDOW", "RECOMPUTE_TRENDS"]
 
 # periods kept in each actuator's summary row for the trend (the fleet query reads only these)
 RECENT_WINDOW = 32
+
+# data step of a migration: recompute every summary row's trend from its ``recent`` window
+RECOMPUTE_TRENDS = "-- recompute trends"
 
 _V1: tuple[str, ...] = (
     """CREATE TABLE actuators (
@@ -82,9 +85,21 @@ _V1: tuple[str, ...] = (
     )""",
 )
 
-# (version, description, statements): append only; never edit a released migration
+# the C_Lk-ratio trend kept in the summary row (the fleet query then parses no history);
+# rows written before it get theirs from ``recent`` when the migration runs
+_V2: tuple[str, ...] = (
+    "ALTER TABLE summary ADD COLUMN trend_n INTEGER NOT NULL DEFAULT 0",
+    "ALTER TABLE summary ADD COLUMN trend_slope_per_h DOUBLE PRECISION",
+    "ALTER TABLE summary ADD COLUMN trend_change DOUBLE PRECISION",
+    "ALTER TABLE summary ADD COLUMN trend_label TEXT NOT NULL DEFAULT 'unknown'",
+    RECOMPUTE_TRENDS,
+)
+
+# (version, description, statements): append only; never edit a released migration. A
+# statement is SQL, or RECOMPUTE_TRENDS (a data step run by the store in the same transaction)
 MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
     (1, "actuators, baselines, periods, alarms, rul, per-actuator summary", _V1),
+    (2, "C_Lk-ratio trend columns in the summary", _V2),
 )
 
 LATEST_VERSION = MIGRATIONS[-1][0]
