@@ -142,7 +142,7 @@ def main() -> int:
         print(_row("MATLAB exp. model", base))
         print(
             f"RUL per actuator: servowatch {1e3 * np.median(times):.1f} ms (median, "
-            f"{len(hist[0].t_h)}-{max(len(h.t_h) for h in hist)} periods; fleet prior "
+            f"{min(len(h.t_h) for h in hist)}-{max(len(h.t_h) for h in hist)} periods; fleet prior "
             f"{1e3 * (tp1 - tp0):.0f} ms for {len(hist)} units), MATLAB exp. "
             f"{1e3 * np.median(mtimes):.2f} ms; evaluation {t1 - t0:.1f} s vs {t2 - t1:.1f} s\n"
         )

@@ -42,7 +42,7 @@ __all__ = [
 ]
 
 MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step")
-BETA_GRID = np.geomspace(1e-4, 0.5, 48)
+BETA_GRID = np.geomspace(1e-4, 0.5, 240)
 """Exponential rates beta [1/h] of the grid."""
 
 
