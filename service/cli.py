@@ -21,6 +21,10 @@ COMMANDS: tuple[str, ...] = (
     "compare",
     "estimate",
     "calibrate",
+    "baselines",
+    "fleet",
+    "rul",
+    "fleet-sim",
     "actuator",
     "inject",
     "run",
@@ -32,7 +36,7 @@ COMMANDS: tuple[str, ...] = (
 
 
 def _load(name: str):
-    modname = f"service.commands.{name}"
+    modname = f"service.commands.{name.replace('-', '_')}"
     try:
         return importlib.import_module(modname)
     except ModuleNotFoundError as e:

@@ -3,6 +3,9 @@
 The healthy run is a scenario (HF bench + its sensor noise) or a recorded MCAP log whose
 topic ending in ``/meas`` carries t, x_cmd, i, x_s, x_j, p1, p2 (as written by
 ``servowatch estimate --out``). The method is in ``service.calibration``.
+
+``--out`` writes the baseline JSON; ``--actuator AC/ACT`` records it as that actuator's next
+baseline version in the health store (``--store``, default servowatch-data/health.sqlite).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ import numpy as np
 from service.cliutil import emit_json, fail
 from service.progress import Progress
 from service.scenarios import ScenarioError, load_scenario
+from service.store import StoreError, check_actuator
+from service.store.cli import add_store_argument, open_store_arg
 
 NAME = "calibrate"
 HELP = "identify the monitor's nominal (baseline) parameters from a healthy run"
@@ -27,7 +32,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--scenario", help="healthy scenario TOML (or a bundled name)")
     src.add_argument("--log", help="recorded MCAP log with a .../meas topic")
     p.add_argument("--model", default="C5", help="valve law of the monitor (A, B, C1, C3, C5)")
-    p.add_argument("--out", required=True, help="write the baseline JSON here")
+    p.add_argument("--out", default=None, help="write the baseline JSON here")
+    p.add_argument(
+        "--actuator",
+        default=None,
+        metavar="AC/ACT",
+        help="record the baseline as this actuator's next version in the health store",
+    )
+    add_store_argument(p)
     p.add_argument("--passes", type=int, default=2, help="bias-correction passes (default 2)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
@@ -54,12 +66,32 @@ def meas_from_log(path: str) -> dict[str, np.ndarray]:
 
 def run(args: argparse.Namespace) -> int:
     from models.valve_laws import LAW_NAMES
-    from service.calibration import calibrate, measured_run
 
     if args.model not in LAW_NAMES:
         return fail(f"unknown model {args.model!r}; expected one of {', '.join(LAW_NAMES)}")
     if args.passes < 0:
         return fail("--passes must be >= 0")
+    if args.store is not None and args.actuator is None:
+        return fail("--store needs --actuator AC/ACT (the actuator the baseline belongs to)")
+    if args.out is None and args.actuator is None:
+        return fail("give --out FILE.json and/or --actuator AC/ACT (to record it in --store)")
+    store = None
+    if args.actuator is not None:
+        try:
+            check_actuator(args.actuator, "--actuator")
+            store = open_store_arg(args, create=True)  # fail fast, before the long run
+        except (ValueError, StoreError) as e:
+            return fail(str(e))
+    try:
+        return _run(args, store)
+    finally:
+        if store is not None:
+            store.close()
+
+
+def _run(args: argparse.Namespace, store) -> int:
+    from service.calibration import calibrate, measured_run
+
     prog = Progress("calibrate")
     t0 = time.perf_counter()
     if args.scenario:
@@ -84,18 +116,34 @@ def run(args: argparse.Namespace) -> int:
         return fail(str(e))
     prog.done()
     base = base.model_copy(update={"source": f"calibrated on {source}"})
-    base.save(args.out)
+    if args.out is not None:
+        base.save(args.out)
+    wall_s = time.perf_counter() - t0
     out = {
         "source": source,
         "model": args.model,
         "out": args.out,
-        "wall_s": time.perf_counter() - t0,
+        "wall_s": wall_s,
         "baseline": base.model_dump(),
     }
+    if store is not None:
+        t = np.asarray(meas["t"], float)
+        figures = {
+            "model": args.model,
+            "passes": args.passes,
+            "samples": int(len(t)),
+            "duration_s": float(t[-1] - t[0]) if len(t) else 0.0,
+            "wall_s": wall_s,
+        }
+        rec = store.add_baseline(args.actuator, base.model_dump(), source, figures)
+        out.update(actuator=rec.actuator, version=rec.version, store=store.where)
     if args.json:
         emit_json(out)
         return 0
-    print(f"baseline for {args.model} from {source} written to {args.out}")
+    if args.out is not None:
+        print(f"baseline for {args.model} from {source} written to {args.out}")
+    if store is not None:
+        print(f"baseline version {out['version']} of {args.actuator} recorded in {store.where}")
     print(f"  effective x_SS {base.x_ss * 1e6:.2f} um (nominal 100), G_PQ {base.g_pq:.3e} Pa s/m^3")
     print(f"  C_Lk (fixed, nominal) {base.c_lk:.2e}, P_R {base.p_r / 1e6:.3f} MPa")
     return 0

@@ -1,0 +1,344 @@
+"""Degradation models of the C_Lk ratio y against operating hours t, Bayesian with a fleet prior.
+
+Every model is linear in its weights w given at most one nonlinear parameter eta on a grid,
+y = Phi(t; eta) w + e, e ~ N(0, sigma^2) (docs/prognostics.md, "Degradation models"):
+
+- ``none``        Phi = [1]                                   (no wear)
+- ``linear``      Phi = [1, t]
+- ``exponential`` Phi = [1, (exp(beta t) - 1) / beta], eta = beta > 0 on a log grid
+  (MATLAB's exponential degradation model y = phi + theta exp(beta t) with phi = w0 - w1/beta,
+  theta = w1/beta; w1 is the initial wear rate, so beta -> 0 is the linear model)
+- ``step``        Phi = [1, H(t - tau), (t - tau)+], eta = tau on the observed times
+  (a step of the indicator followed by linear growth)
+
+Prior: w ~ N(m0, V0) (per model, learned from the fleet, ``FleetPrior``), eta uniform on its
+grid, sigma^2 fixed per unit (its robust first-difference estimate shrunk toward the fleet's).
+Then the posterior of w for each eta is Gaussian (precision A = V0^-1 + Phi'Phi / sigma^2)
+and the evidence p(y | model, eta) = N(y; Phi m0, sigma^2 I + Phi V0 Phi') is closed form;
+model weights are prior(model) x evidence (Bayesian model averaging). The RUL to a threshold
+is sampled from that mixture: for each draw the crossing time of the noise-free path.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "MODELS",
+    "ModelPrior",
+    "FleetPrior",
+    "Fit",
+    "noise_sigma",
+    "fit_history",
+    "sample_crossing",
+    "sample_paths",
+    "learn_fleet_prior",
+    "BETA_GRID",
+]
+
+MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step")
+BETA_GRID = np.geomspace(1e-4, 0.5, 240)
+"""Exponential rates beta [1/h] of the grid."""
+
+
+@dataclass(frozen=True)
+class ModelPrior:
+    """Gaussian prior N(mean, diag(sd^2)) of one model's weights."""
+
+    mean: tuple[float, ...]
+    sd: tuple[float, ...]
+
+
+def _default_priors() -> dict[str, ModelPrior]:
+    return {
+        "none": ModelPrior((1.0,), (0.3,)),
+        "linear": ModelPrior((1.0, 0.0), (0.3, 0.2)),
+        "exponential": ModelPrior((1.0, 0.0), (0.3, 0.2)),
+        "step": ModelPrior((1.0, 0.0, 0.0), (0.3, 2.0, 0.2)),
+    }
+
+
+@dataclass(frozen=True)
+class FleetPrior:
+    """Fleet-level prior: model probabilities, weight priors per model, indicator noise."""
+
+    p_model: dict[str, float] = field(
+        default_factory=lambda: {"none": 0.4, "linear": 0.2, "exponential": 0.2, "step": 0.2}
+    )
+    weights: dict[str, ModelPrior] = field(default_factory=_default_priors)
+    sigma: float = 0.03
+    sigma_strength: float = 5.0
+    units: int = 0
+
+    def as_dict(self) -> dict:
+        """Plain dict (JSON)."""
+        return {
+            "p_model": dict(self.p_model),
+            "weights": {
+                k: {"mean": list(v.mean), "sd": list(v.sd)} for k, v in self.weights.items()
+            },
+            "sigma": self.sigma,
+            "units": self.units,
+        }
+
+
+@dataclass
+class Fit:
+    """Posterior of one history: per model the grid of eta, the posterior weight of each grid
+    point (summing to the model's posterior probability), means and covariances of w."""
+
+    t_now: float
+    sigma: float
+    p_model: dict[str, float]
+    grids: dict[str, NDArray]
+    post: dict[str, NDArray]
+    means: dict[str, NDArray]
+    covs: dict[str, NDArray]
+    log_evidence: dict[str, float]
+
+    def best(self) -> str:
+        """The model with the largest posterior probability."""
+        return max(self.p_model, key=self.p_model.__getitem__)
+
+    def mean_path(self, t: NDArray) -> NDArray:
+        """Posterior-mean indicator at times ``t`` (model-averaged)."""
+        t = np.asarray(t, float)
+        y = np.zeros_like(t)
+        for m in MODELS:
+            for g, pw in enumerate(self.post[m]):
+                if pw > 1e-9:
+                    y += pw * (_basis(m, t, self.grids[m][g]) @ self.means[m][g])
+        return y
+
+
+def _basis(model: str, t: NDArray, eta: float) -> NDArray:
+    """Phi(t; eta) of the module docstring, (len(t), p)."""
+    one = np.ones_like(t)
+    if model == "none":
+        return one[:, None]
+    if model == "linear":
+        return np.stack([one, t], axis=1)
+    if model == "exponential":
+        return np.stack([one, np.expm1(eta * t) / eta], axis=1)
+    if model == "step":
+        d = t - eta
+        return np.stack([one, (d > 0).astype(float), np.maximum(d, 0.0)], axis=1)
+    raise ValueError(f"unknown model {model!r}")
+
+
+def noise_sigma(y: NDArray) -> float:
+    """Robust indicator noise from second differences (blind to a linear trend, a step
+    spoils only three of them): 1.4826 MAD(diff2 y) / sqrt(6); NaN below 4 points."""
+    y = np.asarray(y, float)
+    if len(y) < 4:
+        return math.nan
+    d = np.diff(y, 2)
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(6.0))
+
+
+def _grid(model: str, t: NDArray) -> NDArray:
+    if model == "exponential":
+        return BETA_GRID
+    if model == "step":
+        # change points between observations, at least two points after and one before
+        if len(t) < 4:
+            return np.zeros(0)
+        return 0.5 * (t[:-3] + t[1:-2])
+    return np.zeros(1)
+
+
+def _fit_model(model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPrior):
+    """Gaussian posteriors and log evidences of one model over its grid (batched)."""
+    grid = _grid(model, t)
+    if len(grid) == 0:
+        return grid, np.full(0, -np.inf), np.zeros((0, 0)), np.zeros((0, 0, 0))
+    Phi = np.stack([_basis(model, t, float(e)) for e in grid])  # (G, n, p)
+    m0 = np.asarray(prior.mean, float)
+    v0 = np.asarray(prior.sd, float) ** 2
+    s2 = sigma * sigma
+    A = np.einsum("gnp,gnq->gpq", Phi, Phi) / s2 + np.diag(1.0 / v0)
+    b = m0 / v0 + np.einsum("gnp,n->gp", Phi, y) / s2
+    L = np.linalg.cholesky(A)
+    mn = np.linalg.solve(A, b[..., None])[..., 0]
+    logdet_A = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+    n = len(y)
+    logev = (
+        -0.5 * n * math.log(2 * math.pi * s2)
+        - 0.5 * float(y @ y) / s2
+        - 0.5 * float(m0 @ (m0 / v0))
+        + 0.5 * np.einsum("gp,gp->g", b, mn)
+        - 0.5 * float(np.log(v0).sum())
+        - 0.5 * logdet_A
+    )
+    cov = np.linalg.inv(A)
+    return grid, logev, mn, cov
+
+
+def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | None = None) -> Fit:
+    """Posterior of the four models (module docstring) for one unit's history: ``t_h``
+    cumulative operating hours, ``y`` the C_Lk ratio (NaN entries are ignored)."""
+    prior = prior or FleetPrior()
+    t = np.asarray(t_h, float)
+    y = np.asarray(y, float)
+    ok = np.isfinite(t) & np.isfinite(y)
+    t, y = t[ok], y[ok]
+    if len(t) == 0:
+        raise ValueError("fit_history: no finite point")
+    s_u = noise_sigma(y)
+    k0 = prior.sigma_strength
+    n_d = max(len(y) - 3, 0) if math.isfinite(s_u) else 0
+    s2 = (k0 * prior.sigma**2 + n_d * (s_u**2 if n_d else 0.0)) / (k0 + n_d)
+    sigma = max(math.sqrt(s2), 1e-4)
+    grids, post, means, covs, logz = {}, {}, {}, {}, {}
+    tot = []
+    for m in MODELS:
+        g, le, mn, cv = _fit_model(m, t, y, sigma, prior.weights[m])
+        grids[m], means[m], covs[m] = g, mn, cv
+        if len(g) == 0 or prior.p_model.get(m, 0.0) <= 0:
+            logz[m] = -math.inf
+            post[m] = np.zeros(len(g))
+            continue
+        mx = float(le.max())
+        z = mx + math.log(float(np.exp(le - mx).mean()))  # eta uniform on the grid
+        logz[m] = z
+        post[m] = np.exp(le - mx) / np.exp(le - mx).sum()
+        tot.append(z + math.log(prior.p_model[m]))
+    mx = max(tot)
+    norm = sum(math.exp(v - mx) for v in tot)
+    p_model = {}
+    for m in MODELS:
+        if logz[m] == -math.inf:
+            p_model[m] = 0.0
+        else:
+            p_model[m] = math.exp(logz[m] + math.log(prior.p_model[m]) - mx) / norm
+        post[m] = post[m] * p_model[m]
+    return Fit(float(t[-1]), sigma, p_model, grids, post, means, covs, logz)
+
+
+def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> NDArray:
+    """Crossing times of the noise-free paths Phi(t; eta) w = thr after t_now (inf if none);
+    t_now where the path is already above."""
+    a = w[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        if model == "none":
+            tc = np.full(len(w), np.inf)
+            level = a
+        elif model == "linear":
+            level = a + w[:, 1] * t_now
+            tc = np.where(w[:, 1] > 0, (thr - a) / w[:, 1], np.inf)
+        elif model == "exponential":
+            c = w[:, 1]
+            level = a + c * np.expm1(eta * t_now) / eta
+            arg = 1.0 + eta * (thr - a) / c
+            tc = np.where((c > 0) & (arg > 0), np.log(arg) / eta, np.inf)
+        else:  # step, eta = tau < t_now
+            s, c = w[:, 1], w[:, 2]
+            level = a + s + c * max(t_now - eta, 0.0)
+            tc = np.where(c > 0, eta + (thr - a - s) / c, np.inf)
+    tc = np.where(level >= thr, t_now, tc)
+    return np.where(np.isfinite(tc), np.maximum(tc, t_now), np.inf)
+
+
+def sample_crossing(
+    fit: Fit, threshold: float, n: int = 4000, rng: np.random.Generator | None = None
+) -> NDArray:
+    """Draws of the time [h] at which the indicator path reaches ``threshold`` (inf: never),
+    from the model-averaged posterior of ``fit``."""
+    rng = rng or np.random.default_rng(0)
+    keys, probs = [], []
+    for m in MODELS:
+        for g, pw in enumerate(fit.post[m]):
+            if pw > 1e-12:
+                keys.append((m, g))
+                probs.append(pw)
+    probs = np.asarray(probs) / np.sum(probs)
+    counts = rng.multinomial(n, probs)
+    out = []
+    for (m, g), c in zip(keys, counts, strict=True):
+        if c == 0:
+            continue
+        w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c), method="cholesky")
+        out.append(_crossing(m, w, float(fit.grids[m][g]), threshold, fit.t_now))
+    return np.concatenate(out)
+
+
+def learn_fleet_prior(
+    histories: Sequence[tuple[NDArray, NDArray]],
+    base: FleetPrior | None = None,
+    min_points: int = 5,
+) -> FleetPrior:
+    """Empirical-Bayes fleet prior from the histories (t_h, y) of many units: each unit is
+    fitted under ``base`` (vague default), its most probable model counted (Dirichlet(1)
+    smoothing) and its posterior-mean weights pooled; a model's prior mean is the pooled mean
+    and its sd the pooled spread (floored at the base sd / 4, inflated x 2 for units not yet
+    seen). The noise sigma is the median of the units' robust estimates."""
+    base = base or FleetPrior()
+    counts = dict.fromkeys(MODELS, 1.0)
+    ws: dict[str, list[NDArray]] = {m: [] for m in MODELS}
+    sig = []
+    used = 0
+    for t, y in histories:
+        t, y = np.asarray(t, float), np.asarray(y, float)
+        ok = np.isfinite(t) & np.isfinite(y)
+        t, y = t[ok], y[ok]
+        if len(t) < min_points:
+            continue
+        used += 1
+        s = noise_sigma(y)
+        if math.isfinite(s):
+            sig.append(s)
+        f = fit_history(t, y, base)
+        best = f.best()
+        counts[best] += 1.0
+        g = int(np.argmax(f.post[best]))
+        ws[best].append(f.means[best][g])
+    if used == 0:
+        return base
+    tot = sum(counts.values())
+    weights = {}
+    for m in MODELS:
+        b = base.weights[m]
+        if len(ws[m]) >= 3:
+            w = np.array(ws[m])
+            mean = w.mean(axis=0)
+            sd = np.maximum(2.0 * w.std(axis=0, ddof=1), np.asarray(b.sd) / 4.0)
+            # wear rates: keep the prior centred at or above zero and wide enough for the tail
+            sd = np.maximum(sd, np.abs(mean))
+            weights[m] = ModelPrior(tuple(float(v) for v in mean), tuple(float(v) for v in sd))
+        else:
+            weights[m] = b
+    sigma = float(np.median(sig)) if sig else base.sigma
+    return FleetPrior(
+        p_model={m: counts[m] / tot for m in MODELS},
+        weights=weights,
+        sigma=max(sigma, 1e-3),
+        sigma_strength=base.sigma_strength,
+        units=used,
+    )
+
+
+def sample_paths(
+    fit: Fit, t: NDArray, n: int = 500, rng: np.random.Generator | None = None
+) -> NDArray:
+    """Draws (n, len(t)) of the noise-free indicator path at times ``t`` from the
+    model-averaged posterior (for the RUL fan plot)."""
+    rng = rng or np.random.default_rng(0)
+    t = np.asarray(t, float)
+    keys, probs = [], []
+    for m in MODELS:
+        for g, pw in enumerate(fit.post[m]):
+            if pw > 1e-12:
+                keys.append((m, g))
+                probs.append(pw)
+    counts = rng.multinomial(n, np.asarray(probs) / np.sum(probs))
+    out = []
+    for (m, g), c in zip(keys, counts, strict=True):
+        if c:
+            w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c))
+            out.append(w @ _basis(m, t, float(fit.grids[m][g])).T)
+    return np.concatenate(out)

@@ -1,0 +1,30 @@
+"""Command-line helpers for the store: the ``--store`` option and opening it with clear
+errors (exit 2), shared by every command that uses the store."""
+
+from __future__ import annotations
+
+import argparse
+
+from service.store import HealthStore, StoreError, default_store, open_store
+
+__all__ = ["add_store_argument", "open_store_arg"]
+
+
+def add_store_argument(p: argparse.ArgumentParser) -> None:
+    """``--store PATH|URL`` (default ``$SERVOWATCH_STORE`` or servowatch-data/health.sqlite)."""
+    p.add_argument(
+        "--store",
+        default=None,
+        metavar="PATH|URL",
+        help="health store: a SQLite file path or a postgresql:// URL "
+        "(default $SERVOWATCH_STORE, else servowatch-data/health.sqlite)",
+    )
+
+
+def open_store_arg(args: argparse.Namespace, *, create: bool) -> HealthStore:
+    """Open ``args.store`` (or the default); raises ``StoreError`` naming ``--store``."""
+    target = args.store if args.store is not None else default_store()
+    try:
+        return open_store(target, create=create)
+    except StoreError as e:
+        raise StoreError(f"--store: {e}") from e

@@ -1,0 +1,725 @@
+"""The health store: one class over SQLite (embedded, WAL) or PostgreSQL (psycopg 3).
+
+All SQL is written once with ``?`` placeholders; ``_Backend`` is the one place that knows
+the dialects (placeholder style, transaction start, row locks, bulk insert). Every public
+write is one transaction, so a writer killed at any point leaves either the whole write or
+none of it; the per-actuator ``summary`` row is updated in the same transaction as the
+periods, alarms and baselines it summarises.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import sqlite3
+import time
+from collections import defaultdict
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from service.store.records import (
+    PERIOD_FIELDS,
+    PERIOD_FLOAT_FIELDS,
+    AlarmEvent,
+    BaselineRecord,
+    Period,
+    check_actuator,
+)
+from service.store.schema import LATEST_VERSION, MIGRATIONS, RECENT_WINDOW, RECOMPUTE_TRENDS
+
+__all__ = ["HealthStore", "StoreError", "open_store", "trend_of", "describe_url"]
+
+# column order of the periods table as written (the key first)
+_PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
+    f for f in PERIOD_FIELDS if f not in ("actuator", "start_t", "source")
+)
+_SUMMARY_COLS: tuple[str, ...] = (
+    "n_periods",
+    "op_time_s",
+    "samples",
+    "alarms",
+    "bad_samples",
+    "dropped",
+    "first_start_t",
+    "last_start_t",
+    "last_period",
+    "recent",
+    "alarm_events",
+    "last_alarm_t",
+    "last_alarm_kind",
+    "baseline_version",
+    "trend_n",
+    "trend_slope_per_h",
+    "trend_change",
+    "trend_label",
+)
+_FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c != "recent")
+_CHUNK = 500  # parameters per IN (...) list
+
+
+class StoreError(RuntimeError):
+    """The store cannot be opened or used (bad URL/path, newer schema, unreachable server)."""
+
+
+def _dumps(obj: Any) -> str:
+    return json.dumps(obj, separators=(",", ":"), sort_keys=True)
+
+
+def describe_url(url: str) -> str:
+    """``url`` with any password replaced by ``***`` (for messages)."""
+    if "://" in url and "@" in url.split("://", 1)[1]:
+        scheme, rest = url.split("://", 1)
+        cred, host = rest.rsplit("@", 1)
+        if ":" in cred:
+            cred = cred.split(":", 1)[0] + ":***"
+        return f"{scheme}://{cred}@{host}"
+    return url
+
+
+class _Backend:
+    """Dialect and connection: the only code that differs between SQLite and PostgreSQL."""
+
+    name = "?"
+
+    def __init__(self) -> None:
+        self.conn: Any = None
+
+    def sql(self, text: str) -> str:
+        return text
+
+    def execute(self, text: str, params: Sequence[Any] = ()) -> Any:
+        raise NotImplementedError
+
+    def executemany(self, text: str, rows: list[Sequence[Any]]) -> None:
+        raise NotImplementedError
+
+    def bulk_insert(self, table: str, cols: Sequence[str], rows: list[Sequence[Any]]) -> None:
+        ph = ",".join("?" * len(cols))
+        self.executemany(f"INSERT INTO {table} ({','.join(cols)}) VALUES ({ph})", rows)
+
+    @contextmanager
+    def transaction(self) -> Iterator[None]:
+        raise NotImplementedError
+
+    def lock_migrations(self) -> None:
+        """Serialise concurrent migrators (inside the migration transaction)."""
+
+    for_update = ""
+
+    def close(self) -> None:
+        if self.conn is not None:
+            self.conn.close()
+            self.conn = None
+
+
+class _SQLite(_Backend):
+    name = "sqlite"
+
+    def __init__(self, path: Path, timeout_s: float = 30.0) -> None:
+        super().__init__()
+        self.path = path
+        self.conn = sqlite3.connect(str(path), timeout=timeout_s, isolation_level=None)
+        self.conn.execute("PRAGMA journal_mode=WAL")
+        # WAL + NORMAL: a killed process loses nothing committed; power loss may lose the
+        # last transactions but never leaves a half-written one
+        self.conn.execute("PRAGMA synchronous=NORMAL")
+        self.conn.execute("PRAGMA foreign_keys=ON")
+        self._depth = 0
+
+    def execute(self, text: str, params: Sequence[Any] = ()) -> Any:
+        return self.conn.execute(text, tuple(params))
+
+    def executemany(self, text: str, rows: list[Sequence[Any]]) -> None:
+        self.conn.executemany(text, rows)
+
+    @contextmanager
+    def transaction(self) -> Iterator[None]:
+        if self._depth:
+            self._depth += 1
+            try:
+                yield
+            finally:
+                self._depth -= 1
+            return
+        self.conn.execute("BEGIN IMMEDIATE")  # take the write lock now: no upgrade deadlock
+        self._depth = 1
+        try:
+            yield
+        except BaseException:
+            self._depth = 0
+            self.conn.execute("ROLLBACK")
+            raise
+        self._depth = 0
+        self.conn.execute("COMMIT")
+
+
+class _Postgres(_Backend):
+    name = "postgresql"
+    for_update = " FOR UPDATE"
+
+    def __init__(self, url: str, timeout_s: float = 30.0) -> None:
+        super().__init__()
+        try:
+            import psycopg
+        except ImportError as e:  # pragma: no cover - a dependency
+            raise StoreError("store: PostgreSQL needs the psycopg package") from e
+        self._psycopg = psycopg
+        try:
+            self.conn = psycopg.connect(url, autocommit=True, connect_timeout=int(timeout_s))
+        except psycopg.Error as e:
+            msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise StoreError(f"store: cannot connect to {describe_url(url)}: {msg}") from e
+        self.cur = self.conn.cursor()
+
+    def sql(self, text: str) -> str:
+        return text.replace("?", "%s")
+
+    def execute(self, text: str, params: Sequence[Any] = ()) -> Any:
+        self.cur.execute(self.sql(text), tuple(params))
+        return self.cur
+
+    def executemany(self, text: str, rows: list[Sequence[Any]]) -> None:
+        self.cur.executemany(self.sql(text), rows)
+
+    def bulk_insert(self, table: str, cols: Sequence[str], rows: list[Sequence[Any]]) -> None:
+        with self.cur.copy(f"COPY {table} ({','.join(cols)}) FROM STDIN") as cp:
+            for r in rows:
+                cp.write_row(r)
+
+    @contextmanager
+    def transaction(self) -> Iterator[None]:
+        with self.conn.transaction():
+            yield
+
+    def lock_migrations(self) -> None:
+        self.execute("SELECT pg_advisory_xact_lock(7431201)")
+
+
+def _float(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
+def trend_of(recent: Sequence[Sequence[float]]) -> dict[str, Any]:
+    """Least-squares slope of the C_Lk ratio against operating time over ``recent``
+    ``[[start_t, op_time_s, c_lk_ratio, observable_samples], ...]`` (sorted by start_t).
+
+    Returns ``slope_per_h`` (ratio per operating hour), the number of periods used, the
+    ratio change over the window and a label: ``rising``/``falling`` when the change is
+    above 0.05 and twice its standard error, else ``stable`` (``unknown`` below 3 periods).
+    """
+    xs: list[float] = []
+    ys: list[float] = []
+    cum = 0.0
+    for row in recent:
+        op, ratio, obs = float(row[1]), row[2], row[3]
+        cum += op
+        if ratio is None or obs <= 0 or not math.isfinite(float(ratio)):
+            continue
+        xs.append(cum / 3600.0)
+        ys.append(float(ratio))
+    n = len(xs)
+    out: dict[str, Any] = {"periods": n, "slope_per_h": None, "change": None, "label": "unknown"}
+    if n < 3:
+        return out
+    mx, my = sum(xs) / n, sum(ys) / n
+    sxx = sum((x - mx) ** 2 for x in xs)
+    if sxx <= 0:
+        return out
+    slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True)) / sxx
+    resid = sum((y - my - slope * (x - mx)) ** 2 for x, y in zip(xs, ys, strict=True))
+    se = math.sqrt(resid / (n - 2) / sxx) if n > 2 else math.inf
+    span = xs[-1] - xs[0]
+    change = slope * span
+    label = "stable"
+    if abs(change) > 0.05 and abs(slope) > 2 * se:
+        label = "rising" if slope > 0 else "falling"
+    out.update(slope_per_h=slope, change=change, label=label)
+    return out
+
+
+class HealthStore:
+    """Actuators, versioned baselines, operating periods, alarm events and RUL summaries.
+
+    Open with ``open_store``; a context manager (``close()`` on exit).
+    """
+
+    def __init__(self, backend: _Backend, url: str) -> None:
+        self._b = backend
+        self.url = url
+        self.backend = backend.name
+        self._known: set[str] = set()
+        self._migrate()
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def __enter__(self) -> HealthStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def where(self) -> str:
+        """The store's path or URL with any password hidden (for messages)."""
+        return describe_url(self.url)
+
+    def close(self) -> None:
+        """Close the connection (idempotent)."""
+        self._b.close()
+
+    def _migrate(self) -> None:
+        b = self._b
+        with b.transaction():
+            b.lock_migrations()
+            b.execute(
+                "CREATE TABLE IF NOT EXISTS schema_migrations ("
+                "version INTEGER PRIMARY KEY, description TEXT NOT NULL, "
+                "applied_s DOUBLE PRECISION NOT NULL)"
+            )
+        current = self.schema_version()
+        if current > LATEST_VERSION:
+            raise StoreError(
+                f"store {describe_url(self.url)}: schema version {current} is newer than this "
+                f"servowatch understands ({LATEST_VERSION}); upgrade servowatch"
+            )
+        for version, desc, stmts in MIGRATIONS:
+            if version <= current:
+                continue
+            with b.transaction():
+                b.lock_migrations()
+                # another process may have applied it meanwhile
+                row = b.execute(
+                    "SELECT 1 FROM schema_migrations WHERE version = ?", (version,)
+                ).fetchone()
+                if row:
+                    continue
+                for s in stmts:
+                    if s == RECOMPUTE_TRENDS:
+                        self._recompute_trends()
+                    else:
+                        b.execute(s)
+                b.execute(
+                    "INSERT INTO schema_migrations (version, description, applied_s) "
+                    "VALUES (?, ?, ?)",
+                    (version, desc, time.time()),
+                )
+
+    def _recompute_trends(self) -> None:
+        rows = self._b.execute("SELECT actuator, recent FROM summary").fetchall()
+        for a, recent in rows:
+            tr = trend_of(json.loads(recent or "[]"))
+            self._b.execute(
+                "UPDATE summary SET trend_n = ?, trend_slope_per_h = ?, trend_change = ?, "
+                "trend_label = ? WHERE actuator = ?",
+                (tr["periods"], tr["slope_per_h"], tr["change"], tr["label"], a),
+            )
+
+    def schema_version(self) -> int:
+        """The highest migration applied (0 for an empty store)."""
+        row = self._b.execute("SELECT MAX(version) FROM schema_migrations").fetchone()
+        return int(row[0] or 0)
+
+    # -- actuators ------------------------------------------------------------------------
+    def _ensure(self, actuator: str) -> None:
+        if actuator in self._known:
+            return
+        b = self._b
+        b.execute(
+            "INSERT INTO actuators (name, created_s) VALUES (?, ?) ON CONFLICT (name) DO NOTHING",
+            (actuator, time.time()),
+        )
+        b.execute(
+            "INSERT INTO summary (actuator) VALUES (?) ON CONFLICT (actuator) DO NOTHING",
+            (actuator,),
+        )
+
+    def ensure_actuator(self, actuator: str) -> None:
+        """Register ``actuator`` (``AIRCRAFT/ACTUATOR``) if it is not in the store yet."""
+        check_actuator(actuator)
+        with self._b.transaction():
+            self._ensure(actuator)
+        self._known.add(actuator)
+
+    def actuators(self) -> list[str]:
+        """Every actuator in the store, sorted."""
+        rows = self._b.execute("SELECT name FROM actuators ORDER BY name").fetchall()
+        return [r[0] for r in rows]
+
+    def has_actuator(self, actuator: str) -> bool:
+        """Whether ``actuator`` is in the store."""
+        row = self._b.execute("SELECT 1 FROM actuators WHERE name = ?", (actuator,)).fetchone()
+        return row is not None
+
+    def _lock_summaries(self, actuators: Sequence[str]) -> dict[str, dict[str, Any]]:
+        """The summary rows of ``actuators``, locked for this transaction."""
+        out: dict[str, dict[str, Any]] = {}
+        acts = list(actuators)
+        for i in range(0, len(acts), _CHUNK):
+            part = acts[i : i + _CHUNK]
+            ph = ",".join("?" * len(part))
+            rows = self._b.execute(
+                f"SELECT actuator, {','.join(_SUMMARY_COLS)} FROM summary "
+                f"WHERE actuator IN ({ph}){self._b.for_update}",
+                part,
+            ).fetchall()
+            for r in rows:
+                out[r[0]] = dict(zip(_SUMMARY_COLS, r[1:], strict=True))
+        return out
+
+    def _write_summary(self, actuator: str, s: dict[str, Any]) -> None:
+        cols = [c for c in _SUMMARY_COLS]
+        self._b.execute(
+            f"UPDATE summary SET {','.join(f'{c} = ?' for c in cols)} WHERE actuator = ?",
+            [s[c] for c in cols] + [actuator],
+        )
+
+    # -- baselines ------------------------------------------------------------------------
+    def add_baseline(
+        self,
+        actuator: str,
+        baseline: dict[str, Any],
+        source: str,
+        figures: dict[str, Any] | None = None,
+    ) -> BaselineRecord:
+        """Record ``baseline`` (``Baseline.model_dump()``) as the actuator's next version."""
+        check_actuator(actuator)
+        if not isinstance(baseline, dict) or not baseline:
+            raise ValueError("baseline: expected a non-empty dict (Baseline.model_dump())")
+        if not isinstance(source, str) or not source:
+            raise ValueError(f"source: expected a non-empty string, got {source!r}")
+        figures = dict(figures or {})
+        b = self._b
+        with b.transaction():
+            self._ensure(actuator)
+            s = self._lock_summaries([actuator])[actuator]
+            row = b.execute(
+                "SELECT MAX(version) FROM baselines WHERE actuator = ?", (actuator,)
+            ).fetchone()
+            version = int(row[0] or 0) + 1
+            rec = BaselineRecord(actuator, version, source, time.time(), dict(baseline), figures)
+            b.execute(
+                "INSERT INTO baselines (actuator, version, source, created_s, baseline, figures) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                (actuator, version, source, rec.created_s, _dumps(baseline), _dumps(figures)),
+            )
+            s["baseline_version"] = version
+            self._write_summary(actuator, s)
+        self._known.add(actuator)
+        return rec
+
+    @staticmethod
+    def _baseline_row(r: Sequence[Any]) -> BaselineRecord:
+        return BaselineRecord(
+            r[0], int(r[1]), r[2], float(r[3]), json.loads(r[4]), json.loads(r[5])
+        )
+
+    def latest_baseline(self, actuator: str) -> BaselineRecord | None:
+        """The actuator's highest baseline version, or None (not commissioned)."""
+        r = self._b.execute(
+            "SELECT actuator, version, source, created_s, baseline, figures FROM baselines "
+            "WHERE actuator = ? ORDER BY version DESC LIMIT 1",
+            (actuator,),
+        ).fetchone()
+        return None if r is None else self._baseline_row(r)
+
+    def baselines(self, actuator: str | None = None) -> list[BaselineRecord]:
+        """Every baseline version (of one actuator), by actuator then version."""
+        sql = "SELECT actuator, version, source, created_s, baseline, figures FROM baselines"
+        params: tuple[Any, ...] = ()
+        if actuator is not None:
+            sql += " WHERE actuator = ?"
+            params = (actuator,)
+        rows = self._b.execute(sql + " ORDER BY actuator, version", params).fetchall()
+        return [self._baseline_row(r) for r in rows]
+
+    # -- periods --------------------------------------------------------------------------
+    def add_period(self, p: Period) -> bool:
+        """Store one period; False (and nothing written) if ``(actuator, source, start_t)``
+        is already stored."""
+        return self.add_periods([p]) == 1
+
+    def add_periods(self, ps: Iterable[Period]) -> int:
+        """Store periods in one transaction, skipping those already stored; returns how many
+        were new."""
+        batch: dict[tuple[str, str, float], Period] = {}
+        for p in ps:
+            if not isinstance(p, Period):
+                raise TypeError(f"add_periods: expected Period records, got {type(p).__name__}")
+            batch.setdefault((p.actuator, p.source, float(p.start_t)), p)
+        if not batch:
+            return 0
+        by_act: dict[str, list[Period]] = defaultdict(list)
+        for p in batch.values():
+            by_act[p.actuator].append(p)
+        b = self._b
+        new: list[Period] = []
+        with b.transaction():
+            for a in by_act:
+                self._ensure(a)
+            summaries = self._lock_summaries(sorted(by_act))
+            for a, plist in by_act.items():
+                lo = min(p.start_t for p in plist)
+                hi = max(p.start_t for p in plist)
+                have = {
+                    (r[0], float(r[1]))
+                    for r in b.execute(
+                        "SELECT source, start_t FROM periods "
+                        "WHERE actuator = ? AND start_t >= ? AND start_t <= ?",
+                        (a, lo, hi),
+                    ).fetchall()
+                }
+                fresh = [p for p in plist if (p.source, float(p.start_t)) not in have]
+                if fresh:
+                    self._summarise(summaries[a], fresh)
+                    new.extend(fresh)
+            if new:
+                b.bulk_insert(
+                    "periods", _PERIOD_COLS, [[getattr(p, c) for c in _PERIOD_COLS] for p in new]
+                )
+                for a in {p.actuator for p in new}:
+                    self._write_summary(a, summaries[a])
+        self._known.update(by_act)
+        return len(new)
+
+    @staticmethod
+    def _summarise(s: dict[str, Any], fresh: list[Period]) -> None:
+        s["n_periods"] = int(s["n_periods"]) + len(fresh)
+        for k in ("samples", "alarms", "bad_samples", "dropped"):
+            s[k] = int(s[k]) + sum(getattr(p, k) for p in fresh)
+        s["op_time_s"] = float(s["op_time_s"]) + sum(p.op_time_s for p in fresh)
+        first = min(p.start_t for p in fresh)
+        if s["first_start_t"] is None or first < s["first_start_t"]:
+            s["first_start_t"] = first
+        last = max(fresh, key=lambda p: p.start_t)
+        if s["last_start_t"] is None or last.start_t >= s["last_start_t"]:
+            s["last_start_t"] = last.start_t
+            s["last_period"] = _dumps(last.to_dict())
+        recent = json.loads(s["recent"] or "[]")
+        recent.extend([p.start_t, p.op_time_s, p.c_lk_ratio, p.observable_samples] for p in fresh)
+        recent.sort(key=lambda r: r[0])
+        recent = recent[-RECENT_WINDOW:]
+        s["recent"] = _dumps(recent)
+        tr = trend_of(recent)
+        s["trend_n"], s["trend_slope_per_h"] = tr["periods"], tr["slope_per_h"]
+        s["trend_change"], s["trend_label"] = tr["change"], tr["label"]
+
+    def periods(self, actuator: str) -> list[Period]:
+        """The actuator's periods, by start_t."""
+        rows = self._b.execute(
+            f"SELECT {','.join(_PERIOD_COLS)} FROM periods WHERE actuator = ? "
+            "ORDER BY start_t, source",
+            (actuator,),
+        ).fetchall()
+        return [Period.from_dict(dict(zip(_PERIOD_COLS, r, strict=True))) for r in rows]
+
+    def count_periods(self, actuator: str | None = None) -> int:
+        """Number of stored periods (of one actuator)."""
+        if actuator is None:
+            row = self._b.execute("SELECT COUNT(*) FROM periods").fetchone()
+        else:
+            row = self._b.execute(
+                "SELECT COUNT(*) FROM periods WHERE actuator = ?", (actuator,)
+            ).fetchone()
+        return int(row[0])
+
+    # -- alarms ---------------------------------------------------------------------------
+    def add_alarms(self, events: Iterable[AlarmEvent]) -> int:
+        """Store alarm events in one transaction, skipping those already stored
+        (same actuator, t, kind and source); returns how many were new."""
+        batch: dict[tuple[str, float, str, str], AlarmEvent] = {}
+        for e in events:
+            if not isinstance(e, AlarmEvent):
+                raise TypeError(f"add_alarms: expected AlarmEvent records, got {type(e).__name__}")
+            batch.setdefault((e.actuator, float(e.t), e.kind, e.source), e)
+        if not batch:
+            return 0
+        by_act: dict[str, list[AlarmEvent]] = defaultdict(list)
+        for e in batch.values():
+            by_act[e.actuator].append(e)
+        b = self._b
+        n = 0
+        with b.transaction():
+            for a in by_act:
+                self._ensure(a)
+            summaries = self._lock_summaries(sorted(by_act))
+            for a, elist in by_act.items():
+                lo, hi = min(e.t for e in elist), max(e.t for e in elist)
+                have = {
+                    (float(r[0]), r[1], r[2])
+                    for r in b.execute(
+                        "SELECT t, kind, source FROM alarms WHERE actuator = ? AND t >= ? AND t <= ?",
+                        (a, lo, hi),
+                    ).fetchall()
+                }
+                fresh = [e for e in elist if (float(e.t), e.kind, e.source) not in have]
+                if not fresh:
+                    continue
+                b.bulk_insert(
+                    "alarms",
+                    ("actuator", "t", "kind", "source", "value"),
+                    [[e.actuator, e.t, e.kind, e.source, e.value] for e in fresh],
+                )
+                s = summaries[a]
+                s["alarm_events"] = int(s["alarm_events"]) + len(fresh)
+                last = max(fresh, key=lambda e: e.t)
+                if s["last_alarm_t"] is None or last.t >= s["last_alarm_t"]:
+                    s["last_alarm_t"], s["last_alarm_kind"] = last.t, last.kind
+                self._write_summary(a, s)
+                n += len(fresh)
+        self._known.update(by_act)
+        return n
+
+    def alarms(self, actuator: str) -> list[AlarmEvent]:
+        """The actuator's alarm events, by t."""
+        rows = self._b.execute(
+            "SELECT actuator, t, kind, value, source FROM alarms WHERE actuator = ? ORDER BY t, kind",
+            (actuator,),
+        ).fetchall()
+        return [AlarmEvent(r[0], float(r[1]), r[2], _float(r[3]), r[4]) for r in rows]
+
+    # -- RUL ------------------------------------------------------------------------------
+    def put_rul(self, actuator: str, rul: dict[str, Any]) -> None:
+        """Replace the actuator's latest RUL summary (a JSON-able dict).
+
+        The fleet view reads ``median_h``, ``lo_h``, ``hi_h`` (90 % interval, operating
+        hours), ``median_flights``/``lo_flights``/``hi_flights`` and ``p_horizon`` from it
+        when present; any other keys are kept as they are.
+        """
+        check_actuator(actuator)
+        if not isinstance(rul, dict):
+            raise ValueError(f"rul: expected a dict, got {type(rul).__name__}")
+        text = json.dumps(rul, separators=(",", ":"), sort_keys=True, default=float)
+        with self._b.transaction():
+            self._ensure(actuator)
+            self._b.execute(
+                "INSERT INTO rul (actuator, updated_s, rul) VALUES (?, ?, ?) "
+                "ON CONFLICT (actuator) DO UPDATE SET updated_s = excluded.updated_s, "
+                "rul = excluded.rul",
+                (actuator, time.time(), text),
+            )
+        self._known.add(actuator)
+
+    def rul(self, actuator: str) -> dict[str, Any] | None:
+        """The actuator's latest RUL summary, or None."""
+        r = self._b.execute("SELECT rul FROM rul WHERE actuator = ?", (actuator,)).fetchone()
+        return None if r is None else json.loads(r[0])
+
+    # -- fleet ----------------------------------------------------------------------------
+    def fleet_summary(self) -> list[dict[str, Any]]:
+        """One dict per actuator (sorted by name) from the summary rows only: the last
+        period's indicators, the C_Lk-ratio trend, the last RUL dict, alarm counts and
+        whether it is commissioned (has a baseline). Reads O(actuators) rows."""
+        rows = self._b.execute(
+            f"SELECT a.name, {','.join('s.' + c for c in _FLEET_COLS)}, r.rul, r.updated_s "
+            "FROM actuators a LEFT JOIN summary s ON s.actuator = a.name "
+            "LEFT JOIN rul r ON r.actuator = a.name ORDER BY a.name"
+        ).fetchall()
+        out: list[dict[str, Any]] = []
+        for r in rows:
+            s = dict(zip(_FLEET_COLS, r[1:-2], strict=True))
+            last = json.loads(s["last_period"]) if s["last_period"] else None
+            if last is not None:
+                for k in PERIOD_FLOAT_FIELDS:
+                    last[k] = _float(last.get(k))
+            bv = int(s["baseline_version"] or 0)
+            out.append(
+                {
+                    "actuator": r[0],
+                    "commissioned": bv > 0,
+                    "baseline_version": bv or None,
+                    "periods": int(s["n_periods"] or 0),
+                    "op_time_s": float(s["op_time_s"] or 0.0),
+                    "samples": int(s["samples"] or 0),
+                    "first_t": s["first_start_t"],
+                    "last_t": None if last is None else last["end_t"],
+                    "last": last,
+                    "trend": {
+                        "periods": int(s["trend_n"] or 0),
+                        "slope_per_h": s["trend_slope_per_h"],
+                        "change": s["trend_change"],
+                        "label": s["trend_label"] or "unknown",
+                    },
+                    "alarms": int(s["alarms"] or 0),
+                    "alarm_events": int(s["alarm_events"] or 0),
+                    "last_alarm": None
+                    if s["last_alarm_t"] is None
+                    else {"t": float(s["last_alarm_t"]), "kind": s["last_alarm_kind"]},
+                    "bad_samples": int(s["bad_samples"] or 0),
+                    "dropped": int(s["dropped"] or 0),
+                    "rul": None if r[-2] is None else json.loads(r[-2]),
+                    "rul_updated_s": None if r[-1] is None else float(r[-1]),
+                }
+            )
+        return out
+
+    # -- checks ---------------------------------------------------------------------------
+    def check(self) -> list[str]:
+        """Consistency problems (empty when consistent): each summary row against the
+        periods and alarms it summarises, and SQLite's own integrity check."""
+        problems: list[str] = []
+        b = self._b
+        if b.name == "sqlite":
+            res = b.execute("PRAGMA integrity_check").fetchall()
+            if [tuple(x) for x in res] != [("ok",)]:
+                problems.append(f"integrity_check: {res}")
+        counts = {
+            r[0]: (int(r[1]), int(r[2] or 0))
+            for r in b.execute(
+                "SELECT actuator, COUNT(*), SUM(samples) FROM periods GROUP BY actuator"
+            ).fetchall()
+        }
+        nal = {
+            r[0]: int(r[1])
+            for r in b.execute("SELECT actuator, COUNT(*) FROM alarms GROUP BY actuator").fetchall()
+        }
+        for a, n, smp, ae in b.execute(
+            "SELECT actuator, n_periods, samples, alarm_events FROM summary"
+        ).fetchall():
+            if counts.get(a, (0, 0)) != (int(n), int(smp)):
+                problems.append(f"{a}: summary says {n} periods/{smp} samples, "
+                                f"periods table has {counts.get(a, (0, 0))}")  # fmt: skip
+            if nal.get(a, 0) != int(ae):
+                problems.append(f"{a}: summary says {ae} alarms, alarms table has {nal.get(a, 0)}")
+        return problems
+
+
+def open_store(
+    url_or_path: str | os.PathLike[str], *, create: bool = True, timeout_s: float = 30.0
+) -> HealthStore:
+    """Open (migrating as needed) the store at a ``postgresql://`` URL or a SQLite file
+    path; a missing SQLite file (and its directory) is created unless ``create`` is False."""
+    if isinstance(url_or_path, os.PathLike):
+        url_or_path = os.fspath(url_or_path)
+    if not isinstance(url_or_path, str) or not url_or_path.strip():
+        raise StoreError(f"store: expected a file path or a postgresql:// URL, got {url_or_path!r}")
+    text = url_or_path.strip()
+    if text.startswith(("postgresql://", "postgres://")):
+        backend: _Backend = _Postgres(text, timeout_s)
+    elif re.match(r"^[A-Za-z][A-Za-z0-9+.\-]*://", text) and not text.startswith("sqlite:///"):
+        scheme = text.split("://", 1)[0]
+        raise StoreError(
+            f"store: unsupported URL scheme {scheme!r} in {describe_url(text)}; "
+            "expected a file path or postgresql://user@host:port/db"
+        )
+    else:
+        path = Path(text.removeprefix("sqlite:///") if text.startswith("sqlite:///") else text)
+        if path.is_dir():
+            raise StoreError(f"store: {path} is a directory; expected a SQLite file path")
+        if not create and not path.exists():
+            raise StoreError(f"store: {path} does not exist (no health store there yet)")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            backend = _SQLite(path, timeout_s)
+        except (OSError, sqlite3.Error) as e:
+            raise StoreError(f"store: cannot open SQLite file {path}: {e}") from e
+    try:
+        return HealthStore(backend, text)
+    except sqlite3.DatabaseError as e:
+        backend.close()
+        raise StoreError(f"store: {describe_url(text)} is not a usable health store: {e}") from e
+    except BaseException:
+        backend.close()
+        raise

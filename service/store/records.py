@@ -1,0 +1,181 @@
+"""Record types of the health store (SI units; times in seconds).
+
+``BaselineRecord`` is one calibrated baseline version of an actuator, ``Period`` one closed
+operating period with its condition indicators, ``AlarmEvent`` one alarm raised by the
+monitor. All are frozen dataclasses; they validate their identity fields on construction.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+__all__ = [
+    "ActuatorKey",
+    "BaselineRecord",
+    "Period",
+    "AlarmEvent",
+    "PERIOD_FIELDS",
+    "PERIOD_FLOAT_FIELDS",
+    "PERIOD_INT_FIELDS",
+    "check_actuator",
+]
+
+ActuatorKey = str  # "AC001/elevator_L": aircraft / actuator
+
+_ACTUATOR_RE = re.compile(r"^[A-Za-z0-9_.\-]+/[A-Za-z0-9_.\-]+$")
+
+
+def check_actuator(actuator: object, field_name: str = "actuator") -> str:
+    """Return ``actuator`` if it reads ``AIRCRAFT/ACTUATOR`` (letters, digits, ``_.-``)."""
+    if not isinstance(actuator, str) or not _ACTUATOR_RE.match(actuator):
+        raise ValueError(
+            f"{field_name}: expected 'AIRCRAFT/ACTUATOR' (letters, digits, '_', '.', '-'), "
+            f"got {actuator!r}"
+        )
+    return actuator
+
+
+def _check_finite(name: str, v: object) -> None:
+    if not isinstance(v, int | float) or not math.isfinite(v):
+        raise ValueError(f"{name}: expected a finite number, got {v!r}")
+
+
+@dataclass(frozen=True)
+class BaselineRecord:
+    """One baseline version of an actuator.
+
+    ``baseline`` is ``service.monitor.Baseline.model_dump()``, ``figures`` the calibration
+    figures (free-form JSON), ``created_s`` the unix time it was recorded.
+    """
+
+    actuator: str
+    version: int
+    source: str
+    created_s: float
+    baseline: dict[str, Any] = field(default_factory=dict)
+    figures: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_actuator(self.actuator)
+        if not isinstance(self.version, int) or self.version < 1:
+            raise ValueError(f"version: expected an integer >= 1, got {self.version!r}")
+        _check_finite("created_s", self.created_s)
+
+
+@dataclass(frozen=True)
+class Period:
+    """One closed operating period of an actuator with its condition indicators.
+
+    ``start_t``/``end_t`` are sample times [s]; ``op_time_s`` the operating time in it [s].
+    C_Lk statistics are taken over the ``observable_samples`` only (NaN when there were
+    none); ``c_lk_ratio`` is ``c_lk_mean`` over the baseline's C_Lk. ``nis_in_band`` is a
+    fraction in [0, 1]. ``source`` names what produced it (a log file id, ``live:station``);
+    ``(actuator, source, start_t)`` identifies a period in the store.
+    """
+
+    actuator: str
+    start_t: float
+    end_t: float
+    op_time_s: float
+    samples: int
+    flight: int | None
+    c_lk_mean: float
+    c_lk_sigma: float
+    c_lk_ratio: float
+    observable_samples: int
+    p_sr_mean: float
+    p_sr_min: float
+    i_b_mean: float
+    nis_mean: float
+    nis_in_band: float
+    alarms: int
+    bad_samples: int
+    dropped: int
+    source: str
+
+    def __post_init__(self) -> None:
+        check_actuator(self.actuator)
+        _check_finite("start_t", self.start_t)
+        _check_finite("end_t", self.end_t)
+        if self.end_t < self.start_t:
+            raise ValueError(f"end_t: {self.end_t} is before start_t {self.start_t}")
+        _check_finite("op_time_s", self.op_time_s)
+        if self.op_time_s < 0:
+            raise ValueError(f"op_time_s: expected >= 0, got {self.op_time_s}")
+        for name in PERIOD_INT_FIELDS:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"{name}: expected an integer >= 0, got {v!r}")
+        if self.flight is not None and (
+            isinstance(self.flight, bool) or not isinstance(self.flight, int)
+        ):
+            raise ValueError(f"flight: expected an integer or None, got {self.flight!r}")
+        for name in PERIOD_FLOAT_FIELDS:
+            if not isinstance(getattr(self, name), int | float):
+                raise ValueError(f"{name}: expected a number, got {getattr(self, name)!r}")
+        if not isinstance(self.source, str) or not self.source:
+            raise ValueError(f"source: expected a non-empty string, got {self.source!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a plain dict."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Period:
+        """Inverse of ``to_dict``; ``None`` in a float field reads as NaN."""
+        kw = {k: d[k] for k in PERIOD_FIELDS}
+        for k in PERIOD_FLOAT_FIELDS:
+            kw[k] = math.nan if kw[k] is None else float(kw[k])
+        for k in PERIOD_INT_FIELDS:
+            kw[k] = int(kw[k])
+        if kw["flight"] is not None:
+            kw["flight"] = int(kw["flight"])
+        return cls(**kw)
+
+
+@dataclass(frozen=True)
+class AlarmEvent:
+    """One alarm: its sample time ``t`` [s], ``kind`` (e.g. ``leak``) and the value that
+    raised it (SI). ``(actuator, source, t, kind)`` identifies it in the store."""
+
+    actuator: str
+    t: float
+    kind: str
+    value: float
+    source: str
+
+    def __post_init__(self) -> None:
+        check_actuator(self.actuator)
+        _check_finite("t", self.t)
+        if not isinstance(self.kind, str) or not self.kind:
+            raise ValueError(f"kind: expected a non-empty string, got {self.kind!r}")
+        if not isinstance(self.value, int | float):
+            raise ValueError(f"value: expected a number, got {self.value!r}")
+        if not isinstance(self.source, str) or not self.source:
+            raise ValueError(f"source: expected a non-empty string, got {self.source!r}")
+
+
+PERIOD_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Period))
+PERIOD_INT_FIELDS: tuple[str, ...] = (
+    "samples",
+    "observable_samples",
+    "alarms",
+    "bad_samples",
+    "dropped",
+)
+PERIOD_FLOAT_FIELDS: tuple[str, ...] = (
+    "start_t",
+    "end_t",
+    "op_time_s",
+    "c_lk_mean",
+    "c_lk_sigma",
+    "c_lk_ratio",
+    "p_sr_mean",
+    "p_sr_min",
+    "i_b_mean",
+    "nis_mean",
+    "nis_in_band",
+)

@@ -1,0 +1,105 @@
+"""Schema of the health store as an ordered list of migrations.
+
+Each migration is applied once, in order, in one transaction that also records its version
+in ``schema_migrations``. The DDL is portable: SQLite and PostgreSQL both take these types
+(TEXT, DOUBLE PRECISION, BIGINT, INTEGER). JSON documents are stored as TEXT.
+"""
+
+from __future__ import annotations
+
+__all__ = ["MIGRATIONS", "LATEST_VERSION", "RECENT_WINDOW", "RECOMPUTE_TRENDS"]
+
+# periods kept in each actuator's summary row for the trend (the fleet query reads only these)
+RECENT_WINDOW = 32
+
+# data step of a migration: recompute every summary row's trend from its ``recent`` window
+RECOMPUTE_TRENDS = "-- recompute trends"
+
+_V1: tuple[str, ...] = (
+    """CREATE TABLE actuators (
+        name TEXT PRIMARY KEY,
+        created_s DOUBLE PRECISION NOT NULL
+    )""",
+    """CREATE TABLE baselines (
+        actuator TEXT NOT NULL REFERENCES actuators(name),
+        version INTEGER NOT NULL,
+        source TEXT NOT NULL,
+        created_s DOUBLE PRECISION NOT NULL,
+        baseline TEXT NOT NULL,
+        figures TEXT NOT NULL,
+        PRIMARY KEY (actuator, version)
+    )""",
+    # the key (actuator, start_t, source) also serves "periods of one actuator by start_t"
+    """CREATE TABLE periods (
+        actuator TEXT NOT NULL REFERENCES actuators(name),
+        start_t DOUBLE PRECISION NOT NULL,
+        source TEXT NOT NULL,
+        end_t DOUBLE PRECISION NOT NULL,
+        op_time_s DOUBLE PRECISION NOT NULL,
+        samples BIGINT NOT NULL,
+        flight BIGINT,
+        c_lk_mean DOUBLE PRECISION,
+        c_lk_sigma DOUBLE PRECISION,
+        c_lk_ratio DOUBLE PRECISION,
+        observable_samples BIGINT NOT NULL,
+        p_sr_mean DOUBLE PRECISION,
+        p_sr_min DOUBLE PRECISION,
+        i_b_mean DOUBLE PRECISION,
+        nis_mean DOUBLE PRECISION,
+        nis_in_band DOUBLE PRECISION,
+        alarms BIGINT NOT NULL,
+        bad_samples BIGINT NOT NULL,
+        dropped BIGINT NOT NULL,
+        PRIMARY KEY (actuator, start_t, source)
+    )""",
+    """CREATE TABLE alarms (
+        actuator TEXT NOT NULL REFERENCES actuators(name),
+        t DOUBLE PRECISION NOT NULL,
+        kind TEXT NOT NULL,
+        source TEXT NOT NULL,
+        value DOUBLE PRECISION,
+        PRIMARY KEY (actuator, t, kind, source)
+    )""",
+    """CREATE TABLE rul (
+        actuator TEXT PRIMARY KEY REFERENCES actuators(name),
+        updated_s DOUBLE PRECISION NOT NULL,
+        rul TEXT NOT NULL
+    )""",
+    # one row per actuator, updated in the same transaction as its periods/alarms/baselines
+    """CREATE TABLE summary (
+        actuator TEXT PRIMARY KEY REFERENCES actuators(name),
+        n_periods BIGINT NOT NULL DEFAULT 0,
+        op_time_s DOUBLE PRECISION NOT NULL DEFAULT 0,
+        samples BIGINT NOT NULL DEFAULT 0,
+        alarms BIGINT NOT NULL DEFAULT 0,
+        bad_samples BIGINT NOT NULL DEFAULT 0,
+        dropped BIGINT NOT NULL DEFAULT 0,
+        first_start_t DOUBLE PRECISION,
+        last_start_t DOUBLE PRECISION,
+        last_period TEXT,
+        recent TEXT NOT NULL DEFAULT '[]',
+        alarm_events BIGINT NOT NULL DEFAULT 0,
+        last_alarm_t DOUBLE PRECISION,
+        last_alarm_kind TEXT,
+        baseline_version INTEGER NOT NULL DEFAULT 0
+    )""",
+)
+
+# the C_Lk-ratio trend kept in the summary row (the fleet query then parses no history);
+# rows written before it get theirs from ``recent`` when the migration runs
+_V2: tuple[str, ...] = (
+    "ALTER TABLE summary ADD COLUMN trend_n INTEGER NOT NULL DEFAULT 0",
+    "ALTER TABLE summary ADD COLUMN trend_slope_per_h DOUBLE PRECISION",
+    "ALTER TABLE summary ADD COLUMN trend_change DOUBLE PRECISION",
+    "ALTER TABLE summary ADD COLUMN trend_label TEXT NOT NULL DEFAULT 'unknown'",
+    RECOMPUTE_TRENDS,
+)
+
+# (version, description, statements): append only; never edit a released migration. A
+# statement is SQL, or RECOMPUTE_TRENDS (a data step run by the store in the same transaction)
+MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
+    (1, "actuators, baselines, periods, alarms, rul, per-actuator summary", _V1),
+    (2, "C_Lk-ratio trend columns in the summary", _V2),
+)
+
+LATEST_VERSION = MIGRATIONS[-1][0]

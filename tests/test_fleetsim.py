@@ -1,0 +1,85 @@
+"""Fleet simulator: the fast calibration equals service.calibration's, the hidden truth is
+consistent, and a small fleet runs end to end through the real SQLite store and the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from service.calibration import calibrate
+from service.cli import main
+from service.prognostics.fleetsim import (
+    FleetSimConfig,
+    _segment,
+    calibrate_fast,
+    draw_units,
+)
+from service.store import open_store
+
+
+def test_calibrate_fast_equals_calibrate():
+    cfg = FleetSimConfig(actuators=2, flights=2, seed=4)
+    unit = draw_units(cfg)[1]
+    meas = _segment(unit, 0, 1.0, cfg)
+    assert calibrate_fast(meas) == calibrate(meas)
+
+
+def test_truth_end_of_life_crosses_the_threshold():
+    cfg = FleetSimConfig(actuators=12, flights=50, seed=2, threshold_ratio=8.0)
+    units = draw_units(cfg)
+    assert {u.law for u in units} == {"none", "linear", "exponential", "step"}
+    total = [float(np.sum(u.flight_hours)) for u in units]
+    for u, tot in zip(units, total, strict=True):
+        if u.law == "none":
+            assert math.isinf(u.eol_h)
+            continue
+        assert u.ratio_at(u.eol_h) == pytest.approx(8.0, rel=1e-9)
+        assert u.ratio_at(0.99 * u.eol_h) < 8.0
+        assert 0.4 * tot <= u.eol_h <= 1.2 * tot
+        # plant variation within the stated tolerances
+        assert 85.0 <= u.plant["mass"] <= 130.0
+        assert 0.9e-4 <= u.plant["u1"] <= 1.2e-4
+    assert draw_units(cfg)[3].wear == units[3].wear  # reproducible from the seed
+
+
+@pytest.mark.slow
+def test_fleet_sim_end_to_end(tmp_path, capsys):
+    store = tmp_path / "fleet.sqlite"
+    truth = tmp_path / "truth.json"
+    args = ["fleet-sim", "--actuators", "6", "--flights", "20", "--seed", "3", "--store",
+            str(store), "--truth", str(truth), "--evaluate", "--json", "--workers", "1"]  # fmt: skip
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    for k in ("actuators", "flights", "segments", "wall_s", "alpha_lambda_pct",
+              "relative_accuracy_pct", "prognostic_horizon_pct", "healthy_units",
+              "false_rul_warnings", "false_alarms"):  # fmt: skip
+        assert k in out
+    assert out["actuators"] == 6 and out["flights"] == 20
+    tr = json.loads(truth.read_text())
+    laws = [u["law"] for u in tr["units"]]
+    assert out["healthy_units"] == laws.count("none") >= 1
+    # units stop after the flight that reaches the end of life
+    assert out["segments"] == sum(u["flown"] for u in tr["units"])
+    assert out["false_alarms"] == 0
+    assert out["false_rul_warnings"] == 0
+    if out["scored_units"]:
+        assert out["relative_accuracy_pct"] > 80.0
+    with open_store(store) as st:
+        assert len(st.actuators()) == 6
+        for u in tr["units"]:
+            ps = st.periods(u["actuator"])
+            assert len(ps) == u["flown"]
+            assert st.latest_baseline(u["actuator"]) is not None
+            # the indicator follows the hidden truth (calibrated on the first flight)
+            est = np.array([p.c_lk_ratio for p in ps])
+            assert np.max(np.abs(est - np.array(u["ratio"]))) < 0.05 * max(u["ratio"]) + 0.05
+            assert st.rul(u["actuator"]) is not None
+    # the RUL command on the same store, with the fan plot
+    png = tmp_path / "fan.png"
+    assert main(["rul", "--store", str(store), "--json", "--png", str(png)]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert len(r["actuators"]) == 6 and r["threshold_ratio"] == pytest.approx(tr["threshold_ratio"])
+    assert png.stat().st_size > 10_000
