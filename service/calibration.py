@@ -29,9 +29,16 @@ from scipy.signal import savgol_filter
 
 from models.eha import SimResult, simulate
 from models.scenario import Scenario
-from service.monitor import Baseline, MonitorConfig
+from service.monitor import Baseline, MeasurementNoise, MonitorConfig
 
-__all__ = ["measured_run", "identify_baseline", "calibrate", "run_monitor", "SAMPLE_KEYS"]
+__all__ = [
+    "measured_run",
+    "identify_baseline",
+    "identify_noise",
+    "calibrate",
+    "run_monitor",
+    "SAMPLE_KEYS",
+]
 
 SAMPLE_KEYS: tuple[str, ...] = ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2")
 
@@ -95,6 +102,33 @@ def identify_baseline(
         raise ValueError("calibration failed: the healthy run does not excite the valve near null")
     return nom.model_copy(
         update={"x_ss": 1.0 / a, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "source": "lsq"}
+    )
+
+
+def noise_sigma(y: NDArray) -> float:
+    """1-sigma of the white noise on a signal sampled much faster than it moves: the second
+    difference of white noise has variance 6 sigma^2; median absolute deviation (robust to
+    the few samples where the signal itself bends sharply)."""
+    d2 = np.diff(np.asarray(y, float), 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+# model mismatch the filter's default chamber-pressure noise carries above the bundled 50 kPa
+# transducers (55 kPa assumed: sqrt(55^2 - 50^2) = 23 kPa)
+_P_MISMATCH_PA = float(np.sqrt(55e3**2 - 50e3**2))
+
+
+def identify_noise(meas: dict[str, NDArray]) -> MeasurementNoise:
+    """The filter's measurement noise from a healthy run: each sensor's white noise
+    (``noise_sigma``), plus the default model-mismatch share on the chamber pressures."""
+    d = MeasurementNoise()
+    p = float(np.hypot(noise_sigma(np.concatenate([meas["p1"], meas["p2"]])), _P_MISMATCH_PA))
+    p_sr = float(np.hypot(noise_sigma(meas["p_sr"]), _P_MISMATCH_PA)) if "p_sr" in meas else p
+    return MeasurementNoise(
+        x_s_m=max(noise_sigma(meas["x_s"]), 1e-3 * d.x_s_m),
+        x_j_m=max(noise_sigma(meas["x_j"]), 1e-3 * d.x_j_m),
+        p_pa=p,
+        p_sr_pa=p_sr,
     )
 
 
