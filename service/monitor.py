@@ -122,6 +122,12 @@ class MonitorConfig(_Cfg):
     nis_reinit: float = Field(30.0, gt=1, description="re-init when mean NIS/dof exceeds this")
     c_lk_max: float = Field(1e-10, gt=0, description="upper clip of C_Lk [m^3/s/Pa]")
     arm_s: float = Field(0.5, ge=0, description="alarms armed this long after a (re)init [s]")
+    c_lk_gate_v: float = Field(
+        0.01,
+        gt=0,
+        description="C_Lk is learnt only while |v_J| is below this [m/s] and the spool within "
+        "its underlap (docs/estimation.md, observability gate)",
+    )
     reduced_param_q: float = Field(
         0.01,
         ge=0,
@@ -158,6 +164,9 @@ class Baseline(_Cfg):
     zeta: float = 0.7
     k_p: float = 2.0
     i_max: float = 0.01
+    x_u: float = Field(
+        1e-4, ge=0, description="land underlap [m]; the flow gain halves beyond it (0 = off)"
+    )
     source: str = "nominal"
 
     @classmethod
@@ -441,6 +450,8 @@ class MonitorBank:
                 a.hold_s,
                 a.leak_max_sigma,
                 a.supply_max_sigma,
+                c.c_lk_gate_v / self.scale[3],
+                (self.rp.x_u if self.rp.x_u > 0 else math.inf) / self.scale[0],
             ]
         )  # layout: the _C_* constants
         self._ws = workspace(_NX, 5)
@@ -974,7 +985,9 @@ _RES_KEYS = tuple(
     _C_HOLD,
     _C_LEAK_SIG,
     _C_SUP_SIG,
-) = range(16)
+    _C_GATE_V,
+    _C_GATE_XS,
+) = range(18)
 
 
 @njit(cache=True, inline="always")
@@ -997,10 +1010,16 @@ def _step_one(
         i_f = I_LAST[k]
     i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, 2]), -i_max), i_max)
     I_LAST[k] = i_f
+    # observability gate: C_Lk only from the valve's linear region at low speed
+    gate = abs(X[k, 3]) > cst[_C_GATE_V] or abs(X[k, 0]) > cst[_C_GATE_XS]
+    c_prior, p_prior = X[k, 6], PP[k, 6, 6]
     nis_j, st = ukf_one(
         X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
         y[j], ws,
     )  # fmt: skip
+    if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
+        X[k, 6] = c_prior
+        PP[k, 6, 6] = p_prior + q[6] * dt
     nis[j] = nis_j
     # the parallel (open-loop) model, driven by the command, with the estimated load
     OL[k, 4] = X[k, 4] * scale[4]
