@@ -189,7 +189,9 @@ def summary(rows: list[dict]) -> dict:
         v = np.array([r[key] for r in rows if r[key] is not None], float)
         if len(v) == 0:
             continue
-        med = float(np.median(np.abs(v))) if key in ("inc%", "bias%", "psr%") else float(np.median(v))
+        med = (
+            float(np.median(np.abs(v))) if key in ("inc%", "bias%", "psr%") else float(np.median(v))
+        )
         out[key] = {"n": len(v), "median": med, "worst": float(worst_of(v))}
     healthy = [r["reinit"] for r in rows if r["kind"] == "healthy"]
     out["reinit_healthy"] = {"n": len(healthy), "worst": max(healthy, default=0)}

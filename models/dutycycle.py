@@ -190,7 +190,11 @@ def duty_cycle(seed: int, index: int) -> DutyCycle:
         small = rng.random() < 0.4
         leak_ratio = float(rng.uniform(1.5, 1.9) if small else rng.uniform(2.75, 5.0))
         t_l = _r(float(rng.uniform(2.0, 5.0)))
-        span = {"step": 0.0, "ramp": float(rng.uniform(1.0, 4.0)), "growth": float(rng.uniform(5.0, 8.0))}
+        span = {
+            "step": 0.0,
+            "ramp": float(rng.uniform(1.0, 4.0)),
+            "growth": float(rng.uniform(5.0, 8.0)),
+        }
         ramp = _r(span[leak_shape])
         leak_events.append(Event(t=t_l, value=c0 * leak_ratio, ramp_s=ramp))
         leak_t = (t_l, t_l + ramp)
