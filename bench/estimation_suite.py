@@ -13,8 +13,9 @@ issue 10 in brackets):
 
 - ``inc%``: C_Lk increase error once settled, mean estimate over the last second against the
   true increase [|.| <= 10 %];
-- ``psr%``: worst |P_SR error| from 0.2 s after the end of each supply change to the next
-  change [<= 5 %];
+- ``psr%``: worst |P_SR error| from 0.2 s to 1 s after the end of each supply change [<= 5 %];
+  ``psr_all%`` (no target): the same up to the next change or the end, through every later
+  step and load change;
 - ``delay``: leak alarm time after the true crossing of the raise level [<= 1 s];
 - ``false``: alarms raised while the truth is on the healthy side of the clear level [0];
 - ``nis%``: share of samples (after the arming time) whose NIS is in its 95 % band [>= 90 %];
@@ -91,14 +92,20 @@ def run_one(dc: DutyCycle, fixed_noise: bool = False) -> dict:
     worst = None
     ends = [c[1] for c in dc.supply_changes]
     starts = [c[0] for c in dc.supply_changes[1:]] + [float(t[-1]) + 1.0] * bool(ends)
+    worst_all = None
     for te, tn in zip(ends, starts, strict=True):
-        sel = (t >= te + 0.2) & (t < tn)
-        if sel.any():
+        for lo, hi, kind in ((te + 0.2, min(tn, te + 1.0), "settle"), (te + 0.2, tn, "all")):
+            sel = (t >= lo) & (t < hi)
+            if not sel.any():
+                continue
             e = 100.0 * (est["p_sr"][sel] - p_true[sel]) / p_true[sel]
-            j = int(np.argmax(np.abs(e)))
-            if worst is None or abs(e[j]) > abs(worst):
-                worst = float(e[j])
+            v = float(e[int(np.argmax(np.abs(e)))])
+            if kind == "settle" and (worst is None or abs(v) > abs(worst)):
+                worst = v
+            if kind == "all" and (worst_all is None or abs(v) > abs(worst_all)):
+                worst_all = v
     out["psr%"] = worst
+    out["psr_all%"] = worst_all
     lr_true = c_true / c0
     cross = np.flatnonzero(lr_true >= acfg.leak_raise)
     delay = None
@@ -162,13 +169,14 @@ def _f(v, spec: str, width: int) -> str:
 
 def print_table(rows: list[dict]) -> None:
     hdr = (f"{'scenario':<11}{'kind':<19}{'leak x':>7}{'noise':>6}{'inc%':>7}{'bias%':>7}"
-           f"{'psr%':>7}{'delay':>7}{'false':>6}{'nis%':>6}{'reinit':>7}  fails")  # fmt: skip
+           f"{'psr%':>7}{'psr_all':>8}{'delay':>7}{'false':>6}{'nis%':>6}{'reinit':>7}  fails")  # fmt: skip
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
         print(
             f"{r['name']:<11}{r['kind']:<19}{r['leak_ratio']:>7.2f}{r['noise_scale']:>6.2f}"
             f"{_f(r['inc%'], '+.1f', 7)}{_f(r['bias%'], '+.1f', 7)}{_f(r['psr%'], '+.2f', 7)}"
+            f"{_f(r.get('psr_all%'), '+.2f', 8)}"
             f"{_f(r['delay'], '.3f', 7)}{r['false']:>6d}{r['nis%']:>6.1f}{r['reinit']:>7d}  "
             f"{','.join(failures(r)) or 'ok'}"
         )
@@ -181,6 +189,7 @@ def summary(rows: list[dict]) -> dict:
         ("inc%", lambda a: a[np.argmax(np.abs(a))]),
         ("bias%", lambda a: a[np.argmax(np.abs(a))]),
         ("psr%", lambda a: a[np.argmax(np.abs(a))]),
+        ("psr_all%", lambda a: a[np.argmax(np.abs(a))]),
         ("delay", np.max),
         ("false", np.max),
         ("nis%", np.min),
@@ -190,7 +199,9 @@ def summary(rows: list[dict]) -> dict:
         if len(v) == 0:
             continue
         med = (
-            float(np.median(np.abs(v))) if key in ("inc%", "bias%", "psr%") else float(np.median(v))
+            float(np.median(np.abs(v)))
+            if key in ("inc%", "bias%", "psr%", "psr_all%")
+            else float(np.median(v))
         )
         out[key] = {"n": len(v), "median": med, "worst": float(worst_of(v))}
     healthy = [r["reinit"] for r in rows if r["kind"] == "healthy"]
@@ -202,8 +213,8 @@ def summary(rows: list[dict]) -> dict:
 def print_summary(s: dict) -> None:
     print("\nfigure   n   median    worst   target")
     tgt = {"inc%": "|.|<=10", "psr%": "|.|<=5", "delay": "<=1 s", "false": "0", "nis%": ">=90",
-           "reinit": "0 healthy", "bias%": "-"}  # fmt: skip
-    for key in ("inc%", "bias%", "psr%", "delay", "false", "nis%", "reinit"):
+           "reinit": "0 healthy", "bias%": "-", "psr_all%": "-"}  # fmt: skip
+    for key in ("inc%", "bias%", "psr%", "psr_all%", "delay", "false", "nis%", "reinit"):
         if key in s:
             d = s[key]
             print(f"{key:<7}{d['n']:>4}{d['median']:>9.3f}{d['worst']:>9.3f}   {tgt[key]}")

@@ -128,6 +128,11 @@ class MonitorConfig(_Cfg):
         description="C_Lk is learnt only while |v_J| is below this [m/s] and the spool within "
         "its underlap (docs/estimation.md, observability gate)",
     )
+    c_lk_gate_nis: float = Field(
+        5.0,
+        gt=0,
+        description="... and while the NIS/dof average is below this (the model explains the data)",
+    )
     reduced_param_q: float = Field(
         0.01,
         ge=0,
@@ -452,6 +457,7 @@ class MonitorBank:
                 a.supply_max_sigma,
                 c.c_lk_gate_v / self.scale[3],
                 (self.rp.x_u if self.rp.x_u > 0 else math.inf) / self.scale[0],
+                c.c_lk_gate_nis,
             ]
         )  # layout: the _C_* constants
         self._ws = workspace(_NX, 5)
@@ -987,7 +993,8 @@ _RES_KEYS = tuple(
     _C_SUP_SIG,
     _C_GATE_V,
     _C_GATE_XS,
-) = range(18)
+    _C_GATE_NIS,
+) = range(19)
 
 
 @njit(cache=True, inline="always")
@@ -1012,6 +1019,7 @@ def _step_one(
     I_LAST[k] = i_f
     # observability gate: C_Lk only from the valve's linear region at low speed
     gate = abs(X[k, 3]) > cst[_C_GATE_V] or abs(X[k, 0]) > cst[_C_GATE_XS]
+    gate = gate or NIS_AVG[k] > cst[_C_GATE_NIS]
     c_prior, p_prior = X[k, 6], PP[k, 6, 6]
     nis_j, st = ukf_one(
         X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
