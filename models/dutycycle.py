@@ -3,8 +3,8 @@
 ``duty_cycle(seed, index)`` is pure: the same (seed, index) always gives the same two
 validated scenarios on the same off-nominal plant:
 
-- ``calibration``: a healthy segment (hold near mid stroke, position sines under a constant
-  load, as ``scenarios/healthy_noise.toml``) from which the monitor's baseline is identified
+- ``calibration``: a healthy segment (hold near mid stroke, position sines as
+  ``scenarios/healthy_noise.toml``, under an opposing then an aiding load) from which the monitor's baseline is identified
   (``service.calibration.calibrate``) before the plant is judged;
 - ``test``: the duty cycle: position steps and ramps up to +-80 % of the half stroke, sines,
   stepped-frequency chirps (phase-continuous sine bursts) and holds; a load that steps, ramps
@@ -164,11 +164,11 @@ def duty_cycle(seed: int, index: int) -> DutyCycle:
     plant = EHAParams().with_overrides(**params)
     noise_scale = float(rng.uniform(0.7, 1.5))
     c0, p0 = plant.c_lk, plant.p_sr
-    # -- calibration segment: healthy, hold near mid stroke with sines under a constant load
+    # -- calibration segment: healthy, hold near mid stroke with sines under two loads
     cal = Scenario(
         name=f"dc{seed}_{index:03d}_cal",
         description="healthy calibration segment of the same plant",
-        duration_s=4.0,
+        duration_s=5.0,
         command=Profile(
             initial=0.0,
             periodic=[
@@ -176,7 +176,10 @@ def duty_cycle(seed: int, index: int) -> DutyCycle:
                 Periodic(amplitude=0.2e-3, freq_hz=1.1),
             ],
         ),
-        load=Profile(initial=float(rng.uniform(2e3, 5e3))),
+        load=Profile(
+            initial=float(rng.uniform(2e3, 5e3)),
+            events=[Event(t=2.5, value=float(rng.uniform(-5e3, -2e3)), ramp_s=0.2)],
+        ),
         supply=Profile(initial=p0),
         params=params,
         sensors=_sensors(noise_scale, seed=int(rng.integers(2**31))),

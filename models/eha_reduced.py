@@ -81,6 +81,7 @@ class ReducedParams(NamedTuple):
     i_max: float = 0.01  # [A]
     h_max: float = 1e-3  # longest internal integration substep [s]
     x_u: float = 0.0  # land underlap [m]: beyond it one land pair closes (x_eq); 0 = off
+    x_0: float = 0.0  # hydraulic null of the spool [m]: the law sees x_S - x_0 (land mismatch)
 
 
 def x_eq(x_s, x_u: float):
@@ -143,7 +144,9 @@ def spool_step(x_s: NDArray, v_s: NDArray, i: NDArray, h: NDArray | float, rp: R
 def p12_state(x_s, v_j, p_sr, c_lk, rp: ReducedParams) -> NDArray:
     """Load pressure P12 = law(x_S, A v_J, P_SR) with the effective valve parameters."""
     g_pq = g_pq_at(p_sr, rp)
-    return LAWS[rp.law](x_eq(x_s, rp.x_u), rp.area * v_j, p_sr, g_pq, rp.x_ss, c_lk, rp.p_vap)
+    return LAWS[rp.law](
+        x_eq(np.asarray(x_s) - rp.x_0, rp.x_u), rp.area * v_j, p_sr, g_pq, rp.x_ss, c_lk, rp.p_vap
+    )
 
 
 def g_pq_at(p_sr, rp: ReducedParams):
@@ -223,8 +226,9 @@ def measure(x: NDArray, rp: ReducedParams) -> NDArray:
     K_P_SR_RATED,
     K_G_PQ_EXP,
     K_X_U,
+    K_X_0,
     N_PRM,
-) = range(21)
+) = range(22)
 
 
 def param_vector(rp: ReducedParams) -> NDArray:
@@ -238,7 +242,7 @@ def param_vector(rp: ReducedParams) -> NDArray:
     a[K_K_P], a[K_I_MAX], a[K_H_MAX] = rp.k_p, rp.i_max, rp.h_max
     a[K_LAW] = MODEL_IDS[rp.law]
     a[K_P_SR_RATED], a[K_G_PQ_EXP] = rp.p_sr_rated, rp.g_pq_exp
-    a[K_X_U] = rp.x_u
+    a[K_X_U], a[K_X_0] = rp.x_u, rp.x_0
     return a
 
 
@@ -328,12 +332,12 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
     dv = _DV
     law, area, x_ss, p_vap = int(prm[K_LAW]), prm[K_AREA], prm[K_X_SS], prm[K_P_VAP]
     c_v, f_d, v_f, mass = prm[K_C_V], prm[K_F_D], prm[K_V_F], prm[K_MASS]
-    x_u = prm[K_X_U]
+    x_u, x_0 = prm[K_X_U], prm[K_X_0]
     for _ in range(n_sub):
         x_s, v_s = _spool_nb(x_s, v_s, x_ref, x_sm, coef)
         v1 = v_j + dv
         fr0, fr1 = _friction_nb(v_j, f_d, v_f), _friction_nb(v1, f_d, v_f)
-        x_e = _x_eq_nb(x_s, x_u)
+        x_e = _x_eq_nb(x_s - x_0, x_u)
         a0 = _accel_nb(x_e, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fr0)
         a1 = _accel_nb(x_e, v1, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fr1)
         v_j = _jack_nb(v_j, a0, a1, h, dv)
@@ -355,7 +359,7 @@ def step_points_nb(X, i, h, n_sub, prm, coef, out, w):
     dv = _DV
     law, area, x_ss = int(prm[K_LAW]), prm[K_AREA], prm[K_X_SS]
     c_v, f_d, v_f, mass = prm[K_C_V], prm[K_F_D], prm[K_V_F], prm[K_MASS]
-    x_u = prm[K_X_U]
+    x_u, x_0 = prm[K_X_U], prm[K_X_0]
     for k in range(K):
         for r in range(8):
             out[k, r] = X[k, r]
@@ -376,7 +380,7 @@ def step_points_nb(X, i, h, n_sub, prm, coef, out, w):
                 w[k, 4] = _friction_nb(v_j, f_d, v_f)
                 w[k, 5] = _friction_nb(v_j + dv, f_d, v_f)
         for k in range(K):
-            x_s, v_j, f_r = _x_eq_nb(out[k, 0], x_u), out[k, 3], out[k, 4]
+            x_s, v_j, f_r = _x_eq_nb(out[k, 0] - x_0, x_u), out[k, 3], out[k, 4]
             p_sr, c_lk, g_pq = w[k, 0], w[k, 1], w[k, 2]
             a0 = _accel_nb(
                 x_s, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, w[k, 4]
@@ -406,7 +410,7 @@ def measure_nb(x, prm, out):
     p_ev = max(p_sr, prm[K_P_VAP])
     p12 = law_p12(
         int(prm[K_LAW]),
-        _x_eq_nb(x[0], prm[K_X_U]),
+        _x_eq_nb(x[0] - prm[K_X_0], prm[K_X_U]),
         prm[K_AREA] * x[3],
         p_ev,
         _g_pq_nb(p_ev, prm),

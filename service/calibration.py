@@ -78,6 +78,10 @@ def measured_run(
     return sim, meas
 
 
+NULL_FIT_SPREAD = 0.1  # fit x_0 when P12 at rest spans more than this share of P_SR (5-95 %)
+NULL_FIT_V = 0.5e-3  # "at rest": smoothed |v_J| below this [m/s]
+
+
 def identify_baseline(
     meas: dict[str, NDArray], law: str = "C5", p_sr_rated: float | None = None
 ) -> Baseline:
@@ -95,14 +99,24 @@ def identify_baseline(
     keep = np.abs(x_s) < 0.7 * nom.x_ss
     keep[: win * 2] = False  # start-up transient
     keep[-win:] = False
-    A = np.stack([p_sr * x_s, -(nom.area * v_j + nom.c_lk * p12)], axis=1)[keep]
+    # the hydraulic null x_0: at rest (v_J ~ 0) the null relation is the line
+    # x_S = x_0 + P12 (1/G_PQ + C_Lk) / K_q, whose offset is seen only if the run holds P12
+    # at different levels (two loads); otherwise x_0 = 0
+    rest = keep & (np.abs(v_j) < NULL_FIT_V)
+    x_0 = 0.0
+    if rest.sum() > 100 and np.ptp(np.percentile(p12[rest], [5, 95])) > NULL_FIT_SPREAD * p_sr:
+        x_0 = float(np.polyfit(p12[rest], x_s[rest], 1)[1])
+    A = np.stack([p_sr * (x_s - x_0), -(nom.area * v_j + nom.c_lk * p12)], axis=1)[keep]
     coef, *_ = np.linalg.lstsq(A, p12[keep], rcond=None)
     a, g_pq = float(coef[0]), float(coef[1])
     if not (a > 0 and g_pq > 0):
-        raise ValueError("calibration failed: the healthy run does not excite the valve near null")
+        raise ValueError(
+            f"calibration failed: the healthy run does not excite the valve near null ({coef})"
+        )
     return nom.model_copy(
-        update={"x_ss": 1.0 / a, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "source": "lsq"}
-    )
+        update={"x_ss": 1.0 / a, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "x_0": x_0,
+                "source": "lsq"}
+    )  # fmt: skip
 
 
 def noise_sigma(y: NDArray) -> float:

@@ -172,6 +172,9 @@ class Baseline(_Cfg):
     x_u: float = Field(
         1e-4, ge=0, description="land underlap [m]; the flow gain halves beyond it (0 = off)"
     )
+    x_0: float = Field(
+        0.0, description="hydraulic null of the spool [m] (land mismatch), from calibration"
+    )
     source: str = "nominal"
 
     @classmethod
