@@ -93,3 +93,28 @@ def test_noise_identification_recovers_the_sensor_noise():
     n = identify_noise(meas)
     assert n.x_s_m == pytest.approx(1e-6, rel=0.1)
     assert n.p_pa == pytest.approx(np.hypot(70e3, 23e3), rel=0.05)
+
+
+def _two_load_run(**params: float):
+    sc = Scenario(name="cal", duration_s=5.0,
+                  command=Profile(periodic=[{"amplitude": 2e-3, "freq_hz": 0.3},
+                                            {"amplitude": 0.2e-3, "freq_hz": 1.1}]),
+                  load=Profile(initial=4e3, events=[Event(t=2.5, value=-3e3, ramp_s=0.2)]),
+                  params=params)  # fmt: skip
+    sim = simulate(sc, "HF", out_every=10)
+    return {"t": sim.t, "x_s": sim.x_s, "x_j": sim.x_j, "p1": sim.p1, "p2": sim.p2}
+
+
+def test_hydraulic_null_from_two_loads():
+    """Lands S->1 and 2->R 5 um wider than 1->R and S->2: the flows balance at
+    x_S = (u2 - u1) / 2 = -5 um (physics.md section 3); a matched valve at 0; a run at one
+    load does not fit it (x_0 = 0)."""
+    from service.calibration import identify_baseline
+
+    b = identify_baseline(_two_load_run(u1=105e-6, u4=105e-6, u2=95e-6, u3=95e-6))
+    assert b.x_0 == pytest.approx(-5e-6, rel=0.2)
+    assert abs(identify_baseline(_two_load_run()).x_0) < 0.3e-6
+    sim, _ = measured_run(Scenario(name="one", duration_s=3.0, load=Profile(initial=4e3),
+                          command=Profile(periodic=[{"amplitude": 2e-3, "freq_hz": 0.3}])))  # fmt: skip
+    one = {"t": sim.t, "x_s": sim.x_s, "x_j": sim.x_j, "p1": sim.p1, "p2": sim.p2}
+    assert identify_baseline(one).x_0 == 0.0
