@@ -1,4 +1,4 @@
-"""Filter changes for large duty cycles (docs/estimation.md, "Large duty cycles"): the
+"""Filter changes for large duty cycles (docs/estimation.md, "Large duty cycles (issue 10)"): the
 equivalent spool opening beyond the underlap, the C_Lk observability gate, noise
 identification."""
 
