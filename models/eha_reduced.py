@@ -80,6 +80,20 @@ class ReducedParams(NamedTuple):
     k_p: float = 2.0  # ECU position gain [A/m] (used only when the current is not measured)
     i_max: float = 0.01  # [A]
     h_max: float = 1e-3  # longest internal integration substep [s]
+    x_u: float = 0.0  # land underlap [m]: beyond it one land pair closes (x_eq); 0 = off
+    x_0: float = 0.0  # hydraulic null of the spool [m]: the law sees x_S - x_0 (land mismatch)
+
+
+def x_eq(x_s, x_u: float):
+    """Equivalent opening of the null-calibrated law (docs/estimation.md section "Large
+    openings"): an underlapped four-land spool passes its no-load flow through both land
+    pairs while |x_S| <= u (flow gain 2 G_Q, the gain the calibration identifies) and
+    through one pair beyond (Q = G_Q (|x_S| + u), physics.md section 3), so the law is fed
+    x_eq = x_S for |x_S| <= u and sign(x_S) (|x_S| + u) / 2 beyond (x_u = 0: x_eq = x_S)."""
+    x_s = np.asarray(x_s, float)
+    if x_u <= 0.0:
+        return x_s
+    return np.where(np.abs(x_s) <= x_u, x_s, np.sign(x_s) * 0.5 * (np.abs(x_s) + x_u))
 
 
 def reduced_params(p: EHAParams | None = None, law: str = "C5", **overrides) -> ReducedParams:
@@ -102,6 +116,7 @@ def reduced_params(p: EHAParams | None = None, law: str = "C5", **overrides) -> 
         zeta=p.zeta,
         k_p=p.k_p,
         i_max=p.i_max,
+        x_u=abs(p.u1),
     )
     return rp._replace(**overrides)
 
@@ -129,7 +144,9 @@ def spool_step(x_s: NDArray, v_s: NDArray, i: NDArray, h: NDArray | float, rp: R
 def p12_state(x_s, v_j, p_sr, c_lk, rp: ReducedParams) -> NDArray:
     """Load pressure P12 = law(x_S, A v_J, P_SR) with the effective valve parameters."""
     g_pq = g_pq_at(p_sr, rp)
-    return LAWS[rp.law](x_s, rp.area * v_j, p_sr, g_pq, rp.x_ss, c_lk, rp.p_vap)
+    return LAWS[rp.law](
+        x_eq(np.asarray(x_s) - rp.x_0, rp.x_u), rp.area * v_j, p_sr, g_pq, rp.x_ss, c_lk, rp.p_vap
+    )
 
 
 def g_pq_at(p_sr, rp: ReducedParams):
@@ -208,8 +225,10 @@ def measure(x: NDArray, rp: ReducedParams) -> NDArray:
     K_LAW,
     K_P_SR_RATED,
     K_G_PQ_EXP,
+    K_X_U,
+    K_X_0,
     N_PRM,
-) = range(20)
+) = range(22)
 
 
 def param_vector(rp: ReducedParams) -> NDArray:
@@ -223,6 +242,7 @@ def param_vector(rp: ReducedParams) -> NDArray:
     a[K_K_P], a[K_I_MAX], a[K_H_MAX] = rp.k_p, rp.i_max, rp.h_max
     a[K_LAW] = MODEL_IDS[rp.law]
     a[K_P_SR_RATED], a[K_G_PQ_EXP] = rp.p_sr_rated, rp.g_pq_exp
+    a[K_X_U], a[K_X_0] = rp.x_u, rp.x_0
     return a
 
 
@@ -244,6 +264,14 @@ def _g_pq_nb(p_sr, prm):
 
 
 @njit(**_NB, inline="always")
+def _x_eq_nb(x_s, x_u):
+    """Scalar ``x_eq``."""
+    if x_u <= 0.0 or abs(x_s) <= x_u:
+        return x_s
+    return math.copysign(0.5 * (abs(x_s) + x_u), x_s)
+
+
+@njit(**_NB, inline="always")
 def _friction_nb(v_j, f_d, v_f):
     """Coulomb friction F_d tanh(v_J / v_f)."""
     return f_d * math.tanh(v_j / v_f)
@@ -251,7 +279,8 @@ def _friction_nb(v_j, f_d, v_f):
 
 @njit(**_NB, inline="always")
 def _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fric):
-    """dv_J/dt with the friction term ``fric`` = _friction_nb(v_j, ...)."""
+    """dv_J/dt with the friction term ``fric`` = _friction_nb(v_j, ...); x_s is the
+    equivalent opening (``_x_eq_nb``)."""
     p12 = law_p12(law, x_s, area * v_j, p_sr, g_pq, x_ss, c_lk, p_vap)
     f = area * p12 - f_r - c_v * v_j - fric
     return f / mass
@@ -303,12 +332,14 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
     dv = _DV
     law, area, x_ss, p_vap = int(prm[K_LAW]), prm[K_AREA], prm[K_X_SS], prm[K_P_VAP]
     c_v, f_d, v_f, mass = prm[K_C_V], prm[K_F_D], prm[K_V_F], prm[K_MASS]
+    x_u, x_0 = prm[K_X_U], prm[K_X_0]
     for _ in range(n_sub):
         x_s, v_s = _spool_nb(x_s, v_s, x_ref, x_sm, coef)
         v1 = v_j + dv
         fr0, fr1 = _friction_nb(v_j, f_d, v_f), _friction_nb(v1, f_d, v_f)
-        a0 = _accel_nb(x_s, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fr0)
-        a1 = _accel_nb(x_s, v1, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fr1)
+        x_e = _x_eq_nb(x_s - x_0, x_u)
+        a0 = _accel_nb(x_e, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fr0)
+        a1 = _accel_nb(x_e, v1, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, fr1)
         v_j = _jack_nb(v_j, a0, a1, h, dv)
         x_j = x_j + h * v_j
     out[0], out[1], out[2], out[3] = x_s, v_s, x_j, v_j
@@ -328,6 +359,7 @@ def step_points_nb(X, i, h, n_sub, prm, coef, out, w):
     dv = _DV
     law, area, x_ss = int(prm[K_LAW]), prm[K_AREA], prm[K_X_SS]
     c_v, f_d, v_f, mass = prm[K_C_V], prm[K_F_D], prm[K_V_F], prm[K_MASS]
+    x_u, x_0 = prm[K_X_U], prm[K_X_0]
     for k in range(K):
         for r in range(8):
             out[k, r] = X[k, r]
@@ -348,7 +380,7 @@ def step_points_nb(X, i, h, n_sub, prm, coef, out, w):
                 w[k, 4] = _friction_nb(v_j, f_d, v_f)
                 w[k, 5] = _friction_nb(v_j + dv, f_d, v_f)
         for k in range(K):
-            x_s, v_j, f_r = out[k, 0], out[k, 3], out[k, 4]
+            x_s, v_j, f_r = _x_eq_nb(out[k, 0] - x_0, x_u), out[k, 3], out[k, 4]
             p_sr, c_lk, g_pq = w[k, 0], w[k, 1], w[k, 2]
             a0 = _accel_nb(
                 x_s, v_j, f_r, p_sr, c_lk, g_pq, law, area, x_ss, p_vap, c_v, mass, w[k, 4]
@@ -378,7 +410,7 @@ def measure_nb(x, prm, out):
     p_ev = max(p_sr, prm[K_P_VAP])
     p12 = law_p12(
         int(prm[K_LAW]),
-        x[0],
+        _x_eq_nb(x[0] - prm[K_X_0], prm[K_X_U]),
         prm[K_AREA] * x[3],
         p_ev,
         _g_pq_nb(p_ev, prm),

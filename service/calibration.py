@@ -29,9 +29,16 @@ from scipy.signal import savgol_filter
 
 from models.eha import SimResult, simulate
 from models.scenario import Scenario
-from service.monitor import Baseline, MonitorConfig
+from service.monitor import Baseline, MeasurementNoise, MonitorConfig
 
-__all__ = ["measured_run", "identify_baseline", "calibrate", "run_monitor", "SAMPLE_KEYS"]
+__all__ = [
+    "measured_run",
+    "identify_baseline",
+    "identify_noise",
+    "calibrate",
+    "run_monitor",
+    "SAMPLE_KEYS",
+]
 
 SAMPLE_KEYS: tuple[str, ...] = ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2")
 
@@ -71,6 +78,10 @@ def measured_run(
     return sim, meas
 
 
+NULL_FIT_SPREAD = 0.1  # fit x_0 when P12 at rest spans more than this share of P_SR (5-95 %)
+NULL_FIT_V = 0.5e-3  # "at rest": smoothed |v_J| below this [m/s]
+
+
 def identify_baseline(
     meas: dict[str, NDArray], law: str = "C5", p_sr_rated: float | None = None
 ) -> Baseline:
@@ -88,13 +99,50 @@ def identify_baseline(
     keep = np.abs(x_s) < 0.7 * nom.x_ss
     keep[: win * 2] = False  # start-up transient
     keep[-win:] = False
-    A = np.stack([p_sr * x_s, -(nom.area * v_j + nom.c_lk * p12)], axis=1)[keep]
+    # the hydraulic null x_0: at rest (v_J ~ 0) the null relation is the line
+    # x_S = x_0 + P12 (1/G_PQ + C_Lk) / K_q, whose offset is seen only if the run holds P12
+    # at different levels (two loads); otherwise x_0 = 0
+    rest = keep & (np.abs(v_j) < NULL_FIT_V)
+    x_0 = 0.0
+    if rest.sum() > 100 and np.ptp(np.percentile(p12[rest], [5, 95])) > NULL_FIT_SPREAD * p_sr:
+        x_0 = float(np.polyfit(p12[rest], x_s[rest], 1)[1])
+    A = np.stack([p_sr * (x_s - x_0), -(nom.area * v_j + nom.c_lk * p12)], axis=1)[keep]
     coef, *_ = np.linalg.lstsq(A, p12[keep], rcond=None)
     a, g_pq = float(coef[0]), float(coef[1])
     if not (a > 0 and g_pq > 0):
-        raise ValueError("calibration failed: the healthy run does not excite the valve near null")
+        raise ValueError(
+            f"calibration failed: the healthy run does not excite the valve near null ({coef})"
+        )
     return nom.model_copy(
-        update={"x_ss": 1.0 / a, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "source": "lsq"}
+        update={"x_ss": 1.0 / a, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "x_0": x_0,
+                "source": "lsq"}
+    )  # fmt: skip
+
+
+def noise_sigma(y: NDArray) -> float:
+    """1-sigma of the white noise on a signal sampled much faster than it moves: the second
+    difference of white noise has variance 6 sigma^2; median absolute deviation (robust to
+    the few samples where the signal itself bends sharply)."""
+    d2 = np.diff(np.asarray(y, float), 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+# model mismatch the filter's default chamber-pressure noise carries above the bundled 50 kPa
+# transducers (55 kPa assumed: sqrt(55^2 - 50^2) = 23 kPa)
+_P_MISMATCH_PA = float(np.sqrt(55e3**2 - 50e3**2))
+
+
+def identify_noise(meas: dict[str, NDArray]) -> MeasurementNoise:
+    """The filter's measurement noise from a healthy run: each sensor's white noise
+    (``noise_sigma``), plus the default model-mismatch share on the chamber pressures."""
+    d = MeasurementNoise()
+    p = float(np.hypot(noise_sigma(np.concatenate([meas["p1"], meas["p2"]])), _P_MISMATCH_PA))
+    p_sr = float(np.hypot(noise_sigma(meas["p_sr"]), _P_MISMATCH_PA)) if "p_sr" in meas else p
+    return MeasurementNoise(
+        x_s_m=max(noise_sigma(meas["x_s"]), 1e-3 * d.x_s_m),
+        x_j_m=max(noise_sigma(meas["x_j"]), 1e-3 * d.x_j_m),
+        p_pa=p,
+        p_sr_pa=p_sr,
     )
 
 

@@ -40,6 +40,8 @@ from service.monitor.kernels import (
     S_F_R,
     S_I_B,
     S_P_SR,
+    S_V_J,
+    S_X_S,
     STEP_BROKEN,
     STEP_COUNTERS,
     STEP_DIVERGED,
@@ -171,6 +173,9 @@ class MonitorBank:
             hold=a.hold_s,
             leak_max_sigma=a.leak_max_sigma,
             supply_max_sigma=a.supply_max_sigma,
+            gate_v=c.c_lk_gate_v / self.scale[S_V_J],
+            gate_x_s=(self.rp.x_u if self.rp.x_u > 0 else math.inf) / self.scale[S_X_S],
+            gate_nis=c.c_lk_gate_nis,
         )
         self._ws = workspace(_NX, N_CHANNELS)
         self.ids: dict[str, int] = {}

@@ -91,6 +91,17 @@ class MonitorConfig(_Cfg):
     nis_reinit: float = Field(30.0, gt=1, description="re-init when mean NIS/dof exceeds this")
     c_lk_max: float = Field(1e-10, gt=0, description="upper clip of C_Lk [m^3/s/Pa]")
     arm_s: float = Field(0.5, ge=0, description="alarms armed this long after a (re)init [s]")
+    c_lk_gate_v: float = Field(
+        0.01,
+        gt=0,
+        description="C_Lk is learnt only while |v_J| is below this [m/s] and the spool within "
+        "its underlap (docs/estimation.md, observability gate)",
+    )
+    c_lk_gate_nis: float = Field(
+        5.0,
+        gt=0,
+        description="... and while the NIS/dof average is below this (the model explains the data)",
+    )
     reduced_param_q: float = Field(
         0.01,
         ge=0,
@@ -127,6 +138,12 @@ class Baseline(_Cfg):
     zeta: float = 0.7
     k_p: float = 2.0
     i_max: float = 0.01
+    x_u: float = Field(
+        1e-4, ge=0, description="land underlap [m]; the flow gain halves beyond it (0 = off)"
+    )
+    x_0: float = Field(
+        0.0, description="hydraulic null of the spool [m] (land mismatch), from calibration"
+    )
     source: str = "nominal"
 
     @classmethod

@@ -77,6 +77,9 @@ CST_FIELDS: tuple[str, ...] = (
     "hold",  # alarm persistence [s]
     "leak_max_sigma",
     "supply_max_sigma",
+    "gate_v",  # C_Lk learnt only below this |v_J| (filter units) ...
+    "gate_x_s",  # ... with the spool within its underlap (filter units) ...
+    "gate_nis",  # ... and the NIS/dof average below this
 )
 (
     C_H_MAX,
@@ -95,6 +98,9 @@ CST_FIELDS: tuple[str, ...] = (
     C_HOLD,
     C_LEAK_SIG,
     C_SUP_SIG,
+    C_GATE_V,
+    C_GATE_XS,
+    C_GATE_NIS,
 ) = range(len(CST_FIELDS))
 
 # counter columns: prepare_inputs' cnt (n_act, 2) and block_steps' cnt (n_act, 3)
@@ -131,10 +137,17 @@ def step_one(
         i_f = I_LAST[k]
     i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, S_X_J]), -i_max), i_max)
     I_LAST[k] = i_f
+    # observability gate: C_Lk only from the valve's linear region at low speed
+    gate = abs(X[k, S_V_J]) > cst[C_GATE_V] or abs(X[k, S_X_S]) > cst[C_GATE_XS]
+    gate = gate or NIS_AVG[k] > cst[C_GATE_NIS]
+    c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
     nis_j, st = ukf_one(
         X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
         y[j], ws,
     )  # fmt: skip
+    if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
+        X[k, S_C_LK] = c_prior
+        PP[k, S_C_LK, S_C_LK] = p_prior + q[S_C_LK] * dt
     nis[j] = nis_j
     # the parallel (open-loop) model, driven by the command, with the estimated load
     OL[k, S_F_R] = X[k, S_F_R] * scale[S_F_R]

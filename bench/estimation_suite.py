@@ -1,0 +1,254 @@
+"""Randomized estimation suite (issue 10, deliverable 3): seeded duty cycles
+(``models.dutycycle``), each plant calibrated on its own healthy segment, then judged.
+
+    .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --workers 2
+    .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --json suite.json
+    .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --only 3,7   # a few members
+
+Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
+(``service.monitor.MonitorBank``, full channel set, C5) runs with the baseline calibrated on
+the healthy segment (``service.calibration.calibrate``) and, unless ``--fixed-noise``, the
+sensor noise identified there (``service.calibration.identify_noise``). Figures (targets of
+issue 10 in brackets):
+
+- ``inc%``: C_Lk increase error once settled, mean estimate over the last second against the
+  true increase [|.| <= 10 %];
+- ``psr%``: worst |P_SR error| from 0.2 s to 1 s after the end of each supply change [<= 5 %];
+  ``psr_all%`` (no target): the same up to the next change or the end, through every later
+  step and load change;
+- ``delay``: leak alarm time after the true crossing of the raise level [<= 1 s];
+- ``false``: alarms raised while the truth is on the healthy side of the clear level [0];
+- ``nis%``: share of samples (after the arming time) whose NIS is in its 95 % band [>= 90 %];
+- ``reinit``: divergence re-initialisations [0 on a healthy plant];
+- ``bias%``: C_Lk reading over the last second against nominal where the plant has no leak.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from models.dutycycle import DutyCycle, duty_cycle  # noqa: E402
+
+TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "reinit": 0}
+
+
+def run_one(dc: DutyCycle, fixed_noise: bool = False) -> dict:
+    """Calibrate on the healthy segment, run the monitor on the test scenario, score it."""
+    from scipy.stats import chi2
+
+    from service.calibration import calibrate, identify_noise, measured_run
+    from service.messages import CHANNELS
+    from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, MonitorBank, MonitorConfig
+
+    w0 = time.perf_counter()
+    _, meas_c = measured_run(dc.calibration)
+    cfg = MonitorConfig()
+    if not fixed_noise:
+        cfg = cfg.model_copy(update={"noise": identify_noise(meas_c)})
+    base = calibrate(meas_c, config=cfg)
+    sim, meas = measured_run(dc.test)
+    bank = MonitorBank(cfg, base)
+    k = bank.index_of("a")
+    n = len(meas["t"])
+    ch = np.full((n, len(CHANNELS)), np.nan)
+    for c, name in enumerate(CHANNELS):
+        if name in meas:
+            ch[:, c] = meas[name]
+    rows = bank.update_arrays(np.full(n, k), np.asarray(meas["t"]), ch)
+    t = rows.t
+    est = {key: rows.est[:, j] for j, key in enumerate(EST_KEYS)}
+    res = {key: rows.res[:, j] for j, key in enumerate(RES_KEYS)}
+    _ = HEALTH_KEYS
+    c_true = np.interp(t, sim.t, sim.c_lk)
+    p_true = np.interp(t, sim.t, sim.p_sr)
+    c0, p0 = float(sim.c_lk[0]), float(sim.p_sr[0])
+    acfg = cfg.alarms
+    events = [e for evs in rows.events for e in evs]
+    out: dict = {
+        "name": dc.test.name,
+        "kind": dc.kind + (f"/{dc.leak_shape}" if dc.leak_shape else ""),
+        "leak_ratio": dc.leak_ratio,
+        "noise_scale": dc.noise_scale,
+    }
+    last = t >= t[-1] - 1.0
+    c_mean = float(np.mean(est["c_lk"][last]))
+    inc_true = float(c_true[-1] - c0)
+    if dc.leak_shape is not None:
+        out["inc%"] = 100.0 * ((c_mean - base.c_lk) - inc_true) / inc_true
+        out["bias%"] = None
+    else:
+        out["inc%"] = None
+        out["bias%"] = 100.0 * (c_mean - base.c_lk) / base.c_lk
+    worst = None
+    ends = [c[1] for c in dc.supply_changes]
+    starts = [c[0] for c in dc.supply_changes[1:]] + [float(t[-1]) + 1.0] * bool(ends)
+    worst_all = None
+    for te, tn in zip(ends, starts, strict=True):
+        for lo, hi, kind in ((te + 0.2, min(tn, te + 1.0), "settle"), (te + 0.2, tn, "all")):
+            sel = (t >= lo) & (t < hi)
+            if not sel.any():
+                continue
+            e = 100.0 * (est["p_sr"][sel] - p_true[sel]) / p_true[sel]
+            v = float(e[int(np.argmax(np.abs(e)))])
+            if kind == "settle" and (worst is None or abs(v) > abs(worst)):
+                worst = v
+            if kind == "all" and (worst_all is None or abs(v) > abs(worst_all)):
+                worst_all = v
+    out["psr%"] = worst
+    out["psr_all%"] = worst_all
+    lr_true = c_true / c0
+    cross = np.flatnonzero(lr_true >= acfg.leak_raise)
+    delay = None
+    if len(cross):
+        tc = float(t[cross[0]])
+        raised = [e.t for e in events if e.kind == "leak" and e.state == "raised" and e.t >= tc - 1]
+        delay = (raised[0] - tc) if raised else float("inf")
+    out["delay"] = delay
+    false = 0
+    for e in events:
+        if e.state != "raised":
+            continue
+        j = min(int(np.searchsorted(t, e.t)), len(t) - 1)
+        if e.kind == "leak" and lr_true[j] < acfg.leak_clear:
+            false += 1
+        if e.kind == "supply" and p_true[j] / p0 > acfg.supply_clear:
+            false += 1
+    out["false"] = false
+    dof = res["nis_dof"]
+    sel = (t >= t[0] + cfg.arm_s) & (dof > 0)
+    lo, hi = chi2.ppf(0.025, dof[sel]), chi2.ppf(0.975, dof[sel])
+    nis = res["nis"][sel]
+    out["nis%"] = float(100.0 * np.mean((nis >= lo) & (nis <= hi)))
+    out["reinit"] = int(bank.counters_of("a")["reinit"])
+    out["reinit_t"] = [round(e.t, 3) for e in events if e.kind == "reinit"]
+    out["alarms"] = [(round(e.t, 3), e.kind, e.state) for e in events if e.kind != "reinit"]
+    out["wall_s"] = time.perf_counter() - w0
+    return out
+
+
+def _job(args: tuple[int, int, bool]) -> dict:
+    seed, index, fixed = args
+    return run_one(duty_cycle(seed, index), fixed_noise=fixed)
+
+
+def failures(r: dict) -> list[str]:
+    """The targets scenario ``r`` misses (names of the figures)."""
+    bad = []
+    if r["inc%"] is not None and abs(r["inc%"]) > TARGETS["inc%"]:
+        bad.append("inc%")
+    if r["psr%"] is not None and abs(r["psr%"]) > TARGETS["psr%"]:
+        bad.append("psr%")
+    if r["delay"] is not None and not (r["delay"] <= TARGETS["delay"]):
+        bad.append("delay")
+    if r["false"] > 0:
+        bad.append("false")
+    if r["nis%"] < TARGETS["nis%"]:
+        bad.append("nis%")
+    if r["reinit"] > 0 and r["kind"] == "healthy":
+        bad.append("reinit")
+    return bad
+
+
+def _f(v, spec: str, width: int) -> str:
+    if v is None:
+        return "-".rjust(width)
+    if v == float("inf"):
+        return "never".rjust(width)
+    return format(v, spec).rjust(width)
+
+
+def print_table(rows: list[dict]) -> None:
+    hdr = (f"{'scenario':<11}{'kind':<19}{'leak x':>7}{'noise':>6}{'inc%':>7}{'bias%':>7}"
+           f"{'psr%':>7}{'psr_all':>8}{'delay':>7}{'false':>6}{'nis%':>6}{'reinit':>7}  fails")  # fmt: skip
+    print(hdr)
+    print("-" * len(hdr))
+    for r in rows:
+        print(
+            f"{r['name']:<11}{r['kind']:<19}{r['leak_ratio']:>7.2f}{r['noise_scale']:>6.2f}"
+            f"{_f(r['inc%'], '+.1f', 7)}{_f(r['bias%'], '+.1f', 7)}{_f(r['psr%'], '+.2f', 7)}"
+            f"{_f(r.get('psr_all%'), '+.2f', 8)}"
+            f"{_f(r['delay'], '.3f', 7)}{r['false']:>6d}{r['nis%']:>6.1f}{r['reinit']:>7d}  "
+            f"{','.join(failures(r)) or 'ok'}"
+        )
+
+
+def summary(rows: list[dict]) -> dict:
+    """Median and worst of every figure over the scenarios where it is defined."""
+    out = {}
+    for key, worst_of in (
+        ("inc%", lambda a: a[np.argmax(np.abs(a))]),
+        ("bias%", lambda a: a[np.argmax(np.abs(a))]),
+        ("psr%", lambda a: a[np.argmax(np.abs(a))]),
+        ("psr_all%", lambda a: a[np.argmax(np.abs(a))]),
+        ("delay", np.max),
+        ("false", np.max),
+        ("nis%", np.min),
+        ("reinit", np.max),
+    ):
+        v = np.array([r[key] for r in rows if r[key] is not None], float)
+        if len(v) == 0:
+            continue
+        med = (
+            float(np.median(np.abs(v)))
+            if key in ("inc%", "bias%", "psr%", "psr_all%")
+            else float(np.median(v))
+        )
+        out[key] = {"n": len(v), "median": med, "worst": float(worst_of(v))}
+    healthy = [r["reinit"] for r in rows if r["kind"] == "healthy"]
+    out["reinit_healthy"] = {"n": len(healthy), "worst": max(healthy, default=0)}
+    out["failing"] = {r["name"]: failures(r) for r in rows if failures(r)}
+    return out
+
+
+def print_summary(s: dict) -> None:
+    print("\nfigure   n   median    worst   target")
+    tgt = {"inc%": "|.|<=10", "psr%": "|.|<=5", "delay": "<=1 s", "false": "0", "nis%": ">=90",
+           "reinit": "0 healthy", "bias%": "-", "psr_all%": "-"}  # fmt: skip
+    for key in ("inc%", "bias%", "psr%", "psr_all%", "delay", "false", "nis%", "reinit"):
+        if key in s:
+            d = s[key]
+            print(f"{key:<7}{d['n']:>4}{d['median']:>9.3f}{d['worst']:>9.3f}   {tgt[key]}")
+    print(f"reinit on healthy plants (worst): {s['reinit_healthy']['worst']}")
+    print(f"scenarios missing a target: {len(s['failing'])}")
+    for name, bad in s["failing"].items():
+        print(f"  {name}: {', '.join(bad)}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--suite", type=int, default=30, help="number of duty cycles")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--only", default=None, help="comma-separated indices to run")
+    ap.add_argument("--fixed-noise", action="store_true", help="default R, not identified")
+    ap.add_argument("--json", default=None, help="write rows and summary to this file")
+    a = ap.parse_args(argv)
+    idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
+    jobs = [(a.seed, i, a.fixed_noise) for i in idx]
+    w0 = time.perf_counter()
+    if a.workers > 1:
+        with ProcessPoolExecutor(max_workers=a.workers) as ex:
+            rows = list(ex.map(_job, jobs))
+    else:
+        rows = [_job(j) for j in jobs]
+    print(f"suite seed {a.seed}, {len(rows)} duty cycles, {time.perf_counter() - w0:.0f} s wall")
+    print_table(rows)
+    s = summary(rows)
+    print_summary(s)
+    if a.json:
+        Path(a.json).write_text(json.dumps({"rows": rows, "summary": s}, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

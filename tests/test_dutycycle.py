@@ -1,0 +1,71 @@
+"""Seeded random duty cycles (models/dutycycle.py): determinism, bounds, validation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.dutycycle import MAX_LOAD_N, SETTLE_S, STROKE_FRACTION, duty_cycle, suite
+from models.params import EHAParams
+from models.scenario import Scenario
+
+P = EHAParams()
+SUITE = suite(12, seed=7)
+
+
+def test_same_seed_and_index_give_the_same_scenarios():
+    a, b = duty_cycle(7, 5), duty_cycle(7, 5)
+    assert a.test == b.test and a.calibration == b.calibration and a.params == b.params
+    assert a.test.model_dump() == SUITE[5].test.model_dump()
+    assert duty_cycle(8, 5).test != a.test  # another seed, another duty cycle
+    assert duty_cycle(7, 6).test != a.test
+
+
+def test_every_scenario_validates_and_round_trips():
+    for dc in SUITE:
+        for sc in (dc.calibration, dc.test):
+            assert Scenario.model_validate(sc.model_dump()) == sc
+            sc.eha_params()  # the plant overrides validate as EHAParams
+
+
+def test_kinds_cycle_with_the_index():
+    assert [dc.kind for dc in SUITE[:4]] == ["healthy", "leak", "supply", "leak+supply"]
+    assert all(dc.leak_shape is None for dc in SUITE if dc.kind in ("healthy", "supply"))
+    assert all(dc.leak_shape in ("step", "ramp", "growth") for dc in SUITE if "leak" in dc.kind)
+
+
+def test_command_load_and_faults_stay_in_bounds():
+    lim = STROKE_FRACTION * P.stroke
+    big = 0.0
+    for dc in SUITE:
+        sc = dc.test
+        t = np.arange(0.0, sc.duration_s, 1e-3)
+        u = sc.inputs(t)
+        assert np.abs(u["x_cmd"]).max() <= lim + 1e-12
+        assert np.abs(u["f_r"]).max() <= MAX_LOAD_N + 1e-6
+        big = max(big, np.abs(u["x_cmd"]).max())
+        r = u["p_sr"] / P.p_sr
+        assert r.min() >= 0.55 - 1e-12 and r.max() <= 1.0 + 1e-12
+        c = u["c_lk"] / P.c_lk
+        assert c.min() == pytest.approx(1.0) and c[-1] == pytest.approx(dc.leak_ratio)
+        assert 1.5 <= dc.leak_ratio <= 5.0 or dc.leak_ratio == 1.0
+        assert not (1.9 < dc.leak_ratio < 2.75)  # clear of the alarm levels 2.0 / 2.5
+        # no leak or supply change in the settle window at the end
+        late = t >= sc.duration_s - SETTLE_S
+        assert np.ptp(u["c_lk"][late]) == 0.0 and np.ptp(u["p_sr"][late]) == 0.0
+    assert big > 0.5 * lim  # the suite does reach large positions
+
+
+def test_plant_tolerances():
+    for dc in SUITE:
+        p = dc.params
+        assert 0.8 * P.mass <= p["mass"] <= 1.2 * P.mass
+        assert 0.8 * P.c_v <= p["c_v"] <= 1.2 * P.c_v
+        assert 0.7 * P.f_d <= p["f_d"] <= 1.5 * P.f_d and p["f_s"] >= p["f_d"]
+        for land in ("u1", "u2", "u3", "u4"):
+            assert 0.9 * 0.97 * P.u1 <= p[land] <= 1.1 * 1.03 * P.u1
+        assert 0.7 * P.beta_l <= p["beta_l"] <= 1.15 * P.beta_l
+        assert 0.7 <= dc.noise_scale <= 1.5
+        assert dc.test.sensors.x_j_m == pytest.approx(50e-6 * dc.noise_scale)
+        assert dc.calibration.params == dc.test.params  # calibrated on the same plant
+        assert dc.calibration.leak is None  # the calibration segment is healthy
