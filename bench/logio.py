@@ -1,5 +1,5 @@
 """MCAP log I/O speed: per-message ``McapLogger.log`` vs ``log_block``, ``read_log`` vs
-``read_blocks`` (numba kernels of service.logcodec; timed warm, after one call compiled them
+``read_blocks`` (numba kernels of service.log.codec; timed warm, after one call compiled them
 or loaded their cache).
 
 Writes a 1 kHz meas log (9 fields: seq, t, x_cmd, i, x_s, x_j, p1, p2, p_sr; about 5 % nulls)
@@ -32,7 +32,7 @@ from mcap.stream_reader import StreamReader
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from service import mcaplog  # noqa: E402
-from service.mcaplog import McapLogger, read_blocks, read_log  # noqa: E402
+from service.log import McapLogger, read_blocks, read_log  # noqa: E402
 
 MEAS = "/fleet/AC001/elevator_L/meas"
 EST = "/fleet/AC001/elevator_L/est"

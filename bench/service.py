@@ -196,7 +196,7 @@ def run_one(
     """One benchmark run; returns the row of the table."""
     import zenoh
 
-    from service.mcaplog import read_log
+    from service.log import read_log
     from service.zenoh_util import free_port, loopback, make_config
 
     ep = loopback(free_port())

@@ -452,7 +452,7 @@ class Daemon:
             baseline = _load_baseline(getattr(config, "baseline", None))
         self.monitors = _Monitors(getattr(config, "monitor", None), baseline, monitor_factory)
         if logger is None:
-            from service.mcaplog import McapLogger
+            from service.log import McapLogger
 
             if log_path is None:
                 log_path = default_log_path(

@@ -45,7 +45,7 @@ def _log_process_main(conn, path: str, kwargs: dict) -> None:
     """Child process of :class:`ProcessLogger`: decode forwarded messages, write the MCAP."""
     import signal as _signal
 
-    from service.mcaplog import McapLogger
+    from service.log import McapLogger
 
     # the parent decides when to stop (systemd and terminals signal the whole group): the
     # child ends on the parent's close or when the pipe closes because the parent died
@@ -106,7 +106,7 @@ class ProcessLogger:
         from multiprocessing.connection import Connection
 
         # a plain child interpreter (not multiprocessing's spawn, which re-imports __main__)
-        # talking over a socket pair; the child needs only service.mcaplog
+        # talking over a socket pair; the child needs only service.log
         a, b = socket.socketpair()
         arg = json.dumps({"fd": b.fileno(), "path": str(path), "kwargs": kwargs})
         self._proc = subprocess.Popen(

@@ -1,7 +1,7 @@
 """Offline replay: logged samples through the same monitor code, as fast as possible or paced.
 
 The logged ``/fleet/{aircraft}/{actuator}/meas`` messages are read as column blocks
-(``service.mcaplog.read_blocks``: per chunk and topic, no per-message dicts; it survives a
+(``service.log.read_blocks``: per chunk and topic, no per-message dicts; it survives a
 truncated file) and fed to one ``service.monitor.MonitorBank`` keyed by actuator, in batches
 of consecutive samples (``MonitorBank.update_arrays``; as fast as possible, its two halves
 ``step_arrays`` and ``rows_of`` run pipelined in two threads). The bank
@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from service import messages as m
 from service.jsonutil import event_dict, flat, jsonable
-from service.mcaplog import (
+from service.log import (
     LogBlock,
     LogReadStats,
     McapLogger,

@@ -234,7 +234,7 @@ def test_stop_drains_the_queue_and_closes_the_log():
 
 def test_real_monitor_and_mcap_log_round_trip(tmp_path):
     """The default path: MonitorBank + McapLogger; the log holds every sample and output."""
-    from service.mcaplog import read_log
+    from service.log import read_log
 
     cfg = ServiceConfig(rotate_bytes=None, rotate_s=None)
     path = tmp_path / "d.mcap"
@@ -301,7 +301,7 @@ def test_decimated_logging_keeps_counting_and_status_shows_the_latest_output(tmp
     """log_every=7, publish_every=5: every sample is logged and processed, est/residual for
     1 output in 7, health for 1 in 5; the status holds the last output, equal to a Monitor
     fed the same samples one by one."""
-    from service.mcaplog import read_log
+    from service.log import read_log
     from service.monitor import Monitor
 
     cfg = ServiceConfig(rotate_bytes=None, rotate_s=None, publish_every=5)

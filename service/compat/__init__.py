@@ -1,0 +1,1 @@
+"""Fences around private APIs of dependencies: one module per library, each with check tests (tests/test_compat_*.py)."""
