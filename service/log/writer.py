@@ -13,11 +13,14 @@ bytes as one :meth:`McapLogger.log` per row, formatted and packed by the compile
 
 The first failure to write or flush (disk full, a closed stream) is kept in
 :attr:`McapLogger.failure`, logged at ERROR and raised to the caller; the background thread,
-which has no caller, stops flushing after it.
+which has no caller, stops flushing after it. Messages logged after a failure are counted in
+:attr:`McapLogger.dropped` and not written (the writer's state is unknown after a failed
+write, and buffering them would only grow the memory).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -128,6 +131,7 @@ class McapLogger:
         self.message_count = 0
         self.flush_count = 0
         self.failure: str | None = None
+        self.dropped = 0  # messages not written because of the failure
         self._lock = threading.RLock()
         self._closed = False
         self._counter = 0
@@ -232,6 +236,9 @@ class McapLogger:
         with self._lock:
             if self._closed:
                 raise ValueError("log() on a closed McapLogger")
+            if self.failure is not None:
+                self.dropped += 1
+                return
             try:
                 cid = self._channels.get(topic)
                 if cid is None:
@@ -294,6 +301,9 @@ class McapLogger:
         with self._lock:
             if self._closed:
                 raise ValueError("log_block() on a closed McapLogger")
+            if self.failure is not None:
+                self.dropped += n
+                return
             try:
                 cid = self._channels.get(topic)
                 if cid is None:
@@ -326,7 +336,7 @@ class McapLogger:
         """Nothing to do in-process (``ProcessLogger.commit`` sends its queue)."""
 
     def _flush_locked(self) -> None:
-        if self._writer is not None and self._dirty:
+        if self._writer is not None and self._dirty and self.failure is None:
             try:
                 self._writer.flush()  # ends the chunk in progress and flushes the stream
             except Exception as e:
@@ -367,11 +377,16 @@ class McapLogger:
                 return
             self._closed = True
             self._stop.set()
-            try:
-                self._finish_current()
-            except Exception as e:
-                self._failed("close", e)
-                raise
+            if self.failure is not None:  # the writer's state is unknown: just close the file
+                self._writer = None
+                with contextlib.suppress(Exception):
+                    self._finish_current()
+            else:
+                try:
+                    self._finish_current()
+                except Exception as e:
+                    self._failed("close", e)
+                    raise
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
 
