@@ -141,7 +141,9 @@ def test_bad_messages_are_counted_and_good_ones_kept():
     d.submit(KEY, m.encode_meas([sample(2), sample(3)]))
     d.submit("fleet/AC001/bad key/meas", m.encode_meas([sample(0)]))
     d.submit("fleet/AC001/elevator_L/est", m.encode_meas([sample(0)]))
+    d.submit(KEY2, b"\x00garbage only")  # an actuator that never reaches the monitor
     d.process_pending()
+    assert d.status()["actuators"][KEY2]["monitor"] is None
     a = d.status()["actuators"][KEY]
     assert a["samples"] == 4
     assert bank.seen(KEY) == [1000.0, 1000.001, 1000.002, 1000.003]

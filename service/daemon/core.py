@@ -421,7 +421,7 @@ class Daemon:
                 with self._lock:
                     acts = {k: st.snapshot(now) for k, st in list(self.actuators.items())}
                 for k, a in acts.items():
-                    a["monitor"] = self.bank.counters_of(k)
+                    a["monitor"] = self._counters(k)
                 lat, age = list(self.latency), list(self.age)
                 break
             except RuntimeError:  # "changed size during iteration"
@@ -474,6 +474,13 @@ class Daemon:
                 ],
             }
         )
+
+    def _counters(self, key: str) -> dict[str, int] | None:
+        """The monitor's own sample counters of ``key`` (None before its first sample)."""
+        try:
+            return dict(self.bank.counters_of(key))
+        except KeyError:
+            return None
 
     def _on_alive(self, sample) -> None:
         """Liveliness token of an actuator appeared (PUT) or vanished (DELETE)."""
