@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 import threading
 import time
 from collections import deque
@@ -40,10 +39,10 @@ from service import messages as m
 from service.config import ServiceConfig
 from service.daemon.intake import MAX_ACTUATORS, ActuatorState, accept, reason_of
 from service.daemon.ratelimit import RateLimitedLog
-from service.daemon.status import percentiles, service_state
+from service.daemon.status import snapshot
 from service.daemon.systemd import sd_notify, watchdog_interval
 from service.fanout import FanOut
-from service.jsonutil import flat, jsonable
+from service.jsonutil import flat
 from service.monitor import Baseline, MonitorBank
 from service.proclog import MEAS_LOG_FIELDS, ProcessLogger, meas_log_values
 
@@ -414,68 +413,17 @@ class Daemon:
 
     # -- status -------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
-        """A JSON-ready snapshot: actuators, counters, latency, alarms, silent actuators."""
-        now = time.monotonic()
-        for attempt in range(5):  # the worker mutates counters meanwhile: retry a torn read
-            try:
-                with self._lock:
-                    acts = {k: st.snapshot(now) for k, st in list(self.actuators.items())}
-                for k, a in acts.items():
-                    a["monitor"] = self._counters(k)
-                lat, age = list(self.latency), list(self.age)
-                break
-            except RuntimeError:  # "changed size during iteration"
-                if attempt == 4:
-                    raise
-                time.sleep(0.001)
-        p50, p99 = percentiles(lat)
-        a50, a99 = percentiles(age)
-        up = time.time() - self.started
+        """A JSON-ready snapshot: actuators, counters, latency, alarms, silent actuators, the
+        log's failure and the service state (``service.daemon.status.snapshot``)."""
         self._check_log()
-        return jsonable(
-            {
-                "state": service_state(self.log_failure),
-                "log_failure": self.log_failure,
-                "station": self.station,
-                "shard": self.shard,
-                "key_expr": self.key_expr,
-                "pid": os.getpid(),
-                "uptime_s": up,
-                "log": [str(p) for p in self.logger.paths],
-                "queue": len(self._queue),
-                "queue_high": self.queue_high,
-                "queue_size": self.queue_size,
-                "samples": sum(a["samples"] for a in acts.values()),
-                "dropped": sum(a["dropped"] for a in acts.values())
-                + self.unknown.get("dropped", 0),
-                "bad": sum(a["bad_total"] for a in acts.values()),
-                "unknown": dict(self.unknown),
-                "errors": self.errors,
-                "latency_ms": {
-                    "p50": None if p50 is None else 1e3 * p50,
-                    "p99": None if p99 is None else 1e3 * p99,
-                    "n": len(self.latency),
-                },
-                "age_ms": {
-                    "p50": None if a50 is None else 1e3 * a50,
-                    "p99": None if a99 is None else 1e3 * a99,
-                },
-                "busy_fraction": self.busy_s / up if up > 0 else 0.0,
-                "actuators": acts,
-                "alarms": [
-                    {"actuator": a["aircraft"] + "/" + a["actuator"], **al}
-                    for a in acts.values()
-                    for al in a["alarms"]
-                ],
-                "alive_tokens": sorted(k for k, v in self.alive_tokens.items() if v),
-                "lost_tokens": sorted(k for k, v in self.alive_tokens.items() if not v),
-                "silent": [
-                    a["aircraft"] + "/" + a["actuator"] for a in acts.values() if a["silent"]
-                ],
-            }
-        )
+        return snapshot(self)
 
-    def _counters(self, key: str) -> dict[str, int] | None:
+    @property
+    def queued(self) -> int:
+        """Messages waiting in the receive queue."""
+        return len(self._queue)
+
+    def monitor_counters(self, key: str) -> dict[str, int] | None:
         """The monitor's own sample counters of ``key`` (None before its first sample)."""
         try:
             return dict(self.bank.counters_of(key))
