@@ -1,5 +1,5 @@
 """MCAP log I/O speed: per-message ``McapLogger.log`` vs ``log_block``, ``read_log`` vs
-``read_blocks`` (numba kernels of service.logcodec; timed warm, after one call compiled them
+``read_blocks`` (numba kernels of service.log.codec; timed warm, after one call compiled them
 or loaded their cache).
 
 Writes a 1 kHz meas log (9 fields: seq, t, x_cmd, i, x_s, x_j, p1, p2, p_sr; about 5 % nulls)
@@ -9,6 +9,14 @@ the values are bit-identical. Prints microseconds per message (best of ``--repea
 (logger open, writes, close). The zstd compression of the chunks (level 3, as the mcap writer
 does) is the same work for both write paths; it is timed on its own and the writes are also
 timed with ``compression="none"`` to show the rest.
+
+Beside the compiled codec (``service.log.codec``), the libraries one would take instead (the
+``bench`` extra installs them): msgspec and orjson encoding the same rows (from dicts; neither
+writes ``float.__repr__`` text exactly, e.g. ``1e16`` for Python's ``1e+16``, so their files
+would not be byte-identical with ``log``) and parsing the same messages (to dicts; the codec
+parses to the (N, F) array the replay uses), and a whole log path built from msgspec and the
+stock ``mcap.writer.Writer`` (arrays -> dicts -> msgspec -> ``add_message``) beside
+``log_block``.
 
     .venv/bin/python bench/logio.py [--samples 4000] [--repeat 5] [--json]
 """
@@ -31,8 +39,8 @@ from mcap.stream_reader import StreamReader
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from service import mcaplog  # noqa: E402
-from service.mcaplog import McapLogger, read_blocks, read_log  # noqa: E402
+import service.log.reader as log_reader  # noqa: E402
+from service.log import McapLogger, codec, read_blocks, read_log  # noqa: E402
 
 MEAS = "/fleet/AC001/elevator_L/meas"
 EST = "/fleet/AC001/elevator_L/est"
@@ -129,14 +137,14 @@ def main(argv: list[str] | None = None) -> int:
         res["read_blocks_us_per_sample"] = best(lambda: list(read_blocks(p)), args.repeat) / n * 1e6
         res["read_speedup"] = res["read_log_us_per_sample"] / res["read_blocks_us_per_sample"]
         # read_log as it was before read_blocks: mcap's StreamReader parses every MessageIndex
-        fast_reader = mcaplog._StreamReader
-        mcaplog._StreamReader = StreamReader  # type: ignore[misc]
+        fast_reader = log_reader.SkipIndexStreamReader
+        log_reader.SkipIndexStreamReader = StreamReader  # type: ignore[misc]
         try:
             res["read_log_before_us_per_sample"] = (
                 best(lambda: sum(1 for _ in read_log(p)), args.repeat) / n * 1e6
             )
         finally:
-            mcaplog._StreamReader = fast_reader  # type: ignore[misc]
+            log_reader.SkipIndexStreamReader = fast_reader  # type: ignore[misc]
         res["read_speedup_vs_before"] = (
             res["read_log_before_us_per_sample"] / res["read_blocks_us_per_sample"]
         )
@@ -157,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
             )
         )
         res["read_values_bit_identical"] = float(same)
+        res.update(libraries(dd, n, args.repeat))
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -185,7 +194,95 @@ def main(argv: list[str] | None = None) -> int:
         f"{res['read_log_before_us_per_sample']:6.2f} us/sample -> "
         f"x{res['read_speedup_vs_before']:.1f}"
     )
+    if "msgspec_encode_us_per_msg" in res:
+        print(
+            f"codec vs libraries, est18 rows: encode codec {res['codec_encode_us_per_msg']:.2f}"
+            f"   msgspec {res['msgspec_encode_us_per_msg']:.2f}"
+            f"   orjson {res['orjson_encode_us_per_msg']:.2f} us/msg"
+            f" (codec from the array into records; the libraries from dicts, text only)"
+        )
+        print(
+            f"      parse meas9 messages: codec {res['codec_parse_us_per_msg']:.2f} (to the array)"
+            f"   msgspec {res['msgspec_parse_us_per_msg']:.2f}"
+            f"   orjson {res['orjson_parse_us_per_msg']:.2f} us/msg (to dicts)"
+        )
+        print(
+            f"      est18 log path: log_block {res['path_log_block_us_per_msg']:.2f}   msgspec + "
+            f"stock mcap Writer {res['path_msgspec_stock_us_per_msg']:.2f} us/msg"
+            f"   x{res['path_ratio']:.2f} (both zstd at their default level, 1 and 3;"
+            f" compression none: {res['path_nozstd_log_block_us_per_msg']:.2f} vs "
+            f"{res['path_nozstd_msgspec_stock_us_per_msg']:.2f})"
+        )
+    else:
+        print("msgspec/orjson not installed (pip install -e '.[bench]'): library rows skipped")
     return 0
+
+
+def libraries(dd: Path, n: int, repeat: int) -> dict[str, float]:
+    """The codec against msgspec and orjson (encode, parse) and a log path built from msgspec
+    and the stock mcap Writer against ``log_block``; {} without the libraries."""
+    try:
+        import msgspec
+        import orjson
+    except ImportError:
+        return {}
+    from mcap.writer import CompressionType, Writer
+
+    res: dict[str, float] = {}
+    t, v = signals(n, EST_NAMES, seed=len(EST_NAMES))
+    rows = _dicts(EST_NAMES, v)
+    fmt = codec.row_format(EST_NAMES, frozenset({"seq"}))
+    lts = np.rint(t * 1e9).astype(np.int64)
+    codec.encode_records(fmt, v, 1, 0, lts)  # warm
+    enc = msgspec.json.Encoder()
+    res["codec_encode_us_per_msg"] = (
+        best(lambda: codec.encode_records(fmt, v, 1, 0, lts), repeat) / n * 1e6
+    )
+    res["msgspec_encode_us_per_msg"] = best(lambda: [enc.encode(r) for r in rows], repeat) / n * 1e6
+    res["orjson_encode_us_per_msg"] = (
+        best(lambda: [orjson.dumps(r) for r in rows], repeat) / n * 1e6
+    )
+    # parsing: the messages of the meas log's chunks
+    text = b"".join(_chunk_texts(dd / "meas9-none-block.mcap"))
+    buf = np.frombuffer(text, np.uint8)
+    ops, starts, lens, _cids, _lts = codec.scan_records(buf)
+    sel = ops == codec.MSG_OPCODE
+    offs, ln = starts[sel] + 22, lens[sel] - 22
+    datas = [text[o : o + k] for o, k in zip(offs.tolist(), ln.tolist(), strict=True)]
+    m = len(datas)
+    codec.parse_objects(buf, offs, ln)  # warm
+    dec = msgspec.json.Decoder()
+    res["codec_parse_us_per_msg"] = (
+        best(lambda: codec.parse_objects(buf, offs, ln), repeat) / m * 1e6
+    )
+    res["msgspec_parse_us_per_msg"] = best(lambda: [dec.decode(x) for x in datas], repeat) / m * 1e6
+    res["orjson_parse_us_per_msg"] = (
+        best(lambda: [orjson.loads(x) for x in datas], repeat) / m * 1e6
+    )
+
+    # a log path from msgspec and stock parts: arrays -> dicts -> msgspec -> Writer.add_message
+    for comp, key in (("zstd", "path"), ("none", "path_nozstd")):
+        pb, ps = dd / f"path-{comp}-block.mcap", dd / f"path-{comp}-stock.mcap"
+        ctype = CompressionType.ZSTD if comp == "zstd" else CompressionType.NONE
+
+        def block(pb=pb, comp=comp):
+            with McapLogger(pb, background_flush=False, flush_s=1e9, compression=comp) as lg:
+                lg.log_block(EST, t, EST_NAMES, v, int_fields=("seq",))
+
+        def stock(ps=ps, ctype=ctype):
+            with open(ps, "wb") as fh:
+                w = Writer(fh, chunk_size=1 << 20, compression=ctype)
+                w.start()
+                sid = w.register_schema("est", "jsonschema", b"{}")
+                cid = w.register_channel(EST, "json", sid)
+                for k, (lt, row) in enumerate(zip(lts.tolist(), _dicts(EST_NAMES, v), strict=True)):
+                    w.add_message(cid, lt, enc.encode(row), lt, k)
+                w.finish()
+
+        res[f"{key}_log_block_us_per_msg"] = best(block, repeat) / n * 1e6
+        res[f"{key}_msgspec_stock_us_per_msg"] = best(stock, repeat) / n * 1e6
+    res["path_ratio"] = res["path_msgspec_stock_us_per_msg"] / res["path_log_block_us_per_msg"]
+    return res
 
 
 def _chunk_texts(path: Path) -> list[bytes]:

@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from models.eha import simulate  # noqa: E402
-from service.mcaplog import McapLogger, read_blocks, read_log  # noqa: E402
+from service.log import McapLogger, read_blocks, read_log  # noqa: E402
 from service.messages import CHANNELS, mcap_topic  # noqa: E402
 from service.monitor import Baseline, MonitorBank, MonitorConfig  # noqa: E402
 from service.proclog import MEAS_LOG_FIELDS  # noqa: E402

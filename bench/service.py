@@ -104,23 +104,34 @@ def _generator(args: argparse.Namespace) -> int:
     return 0
 
 
-class _NullMonitor:
-    """Returns a small output per sample without estimating anything."""
+class _NullBank:
+    """The ``MonitorBank`` interface the daemon uses, estimating nothing: one output row of
+    zeros per sample (the outputs are logged and published as the real bank's)."""
 
-    def __init__(self, aid):
-        self.n = 0
+    def __init__(self):
+        from service.monitor import Baseline, MonitorConfig
 
-    def update(self, s):
-        from service.monitor import MonitorOutput
+        self.config = MonitorConfig()
+        self.baseline = Baseline.default(self.config.model)
+        self.ids: dict[str, int] = {}
 
-        self.n += 1
-        return MonitorOutput(
-            t=s["t"],
-            est={"x_j": s["x_j"] or 0.0},
-            res={"r": 0.0},
-            health={"leak_ratio": 1.0},
-            events=[],
-        )
+    def index_of(self, key: str) -> int:
+        return self.ids.setdefault(key, len(self.ids))
+
+    def counters_of(self, key: str) -> dict[str, int]:
+        return {}
+
+    def update_arrays(self, ks, t, channels):
+        import numpy as np
+
+        from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, BankRows, RowEvents
+
+        n = len(t)
+        z = np.zeros
+        return BankRows(
+            np.arange(n), np.asarray(t, float), z((n, len(EST_KEYS))), z((n, len(RES_KEYS))),
+            z((n, len(HEALTH_KEYS))), RowEvents(n),
+        )  # fmt: skip
 
 
 def _daemon(args: argparse.Namespace) -> int:
@@ -137,16 +148,16 @@ def _daemon(args: argparse.Namespace) -> int:
         rotate_bytes=None,
         rotate_s=None,
         publish_every=args.publish_every,
+        log_every=args.log_every,
         silence_s=30.0,
         zenoh=ZenohSettings(mode="client", connect=[args.connect]),
     )
-    factory = _NullMonitor if args.monitor == "null" else None
+    bank = _NullBank() if args.monitor == "null" else None
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     with zenoh.open(cfg.zenoh.to_zenoh()) as session:
         d = Daemon(
-            cfg, log_path=args.log, monitor_factory=factory, log_every=args.log_every,
-            gather_s=args.gather,
+            cfg, log_path=args.log, bank=bank, gather_s=args.gather,
         )  # fmt: skip
         prof = None
         if args.profile:
@@ -196,7 +207,7 @@ def run_one(
     """One benchmark run; returns the row of the table."""
     import zenoh
 
-    from service.mcaplog import read_log
+    from service.log import read_log
     from service.zenoh_util import free_port, loopback, make_config
 
     ep = loopback(free_port())

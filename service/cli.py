@@ -36,18 +36,12 @@ COMMANDS: tuple[str, ...] = (
 
 
 def _load(name: str):
-    modname = f"service.commands.{name.replace('-', '_')}"
-    try:
-        return importlib.import_module(modname)
-    except ModuleNotFoundError as e:
-        if e.name == modname:  # command not built yet
-            return None
-        raise
+    return importlib.import_module(f"service.commands.{name.replace('-', '_')}")
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The top-level parser with every available subcommand (or just ``only``: a command
-    module is imported only when needed, which keeps start-up fast)."""
+    """The top-level parser with every subcommand (or just ``only``: a command module is
+    imported only when needed, which keeps start-up fast)."""
     parser = argparse.ArgumentParser(
         prog="servowatch",
         description="Prognostics and health monitoring for electro-hydraulic actuators.",
@@ -55,8 +49,6 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS if only is None else (only,):
         mod = _load(name)
-        if mod is None:
-            continue
         p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import socket
 import threading
 import time
@@ -45,7 +46,7 @@ def _log_process_main(conn, path: str, kwargs: dict) -> None:
     """Child process of :class:`ProcessLogger`: decode forwarded messages, write the MCAP."""
     import signal as _signal
 
-    from service.mcaplog import McapLogger
+    from service.log import McapLogger
 
     # the parent decides when to stop (systemd and terminals signal the whole group): the
     # child ends on the parent's close or when the pipe closes because the parent died
@@ -58,35 +59,52 @@ def _log_process_main(conn, path: str, kwargs: dict) -> None:
         return
     conn.send(("paths", [str(p) for p in lg.paths]))
     n_paths = len(lg.paths)
+    sent_failure = False
     try:
         while True:
             try:
-                batch = conn.recv()
+                # wake now and then to report a failure of the background flush
+                batch = conn.recv() if conn.poll(0.5) else ()
             except EOFError:  # the daemon died: finish the file with what we have
                 break
             if batch is None:
                 break
-            for rec in batch:
-                kind = rec[0]
-                if kind == "m":  # (m, topic, payload, indices or None)
-                    _, topic, payload, idx = rec
-                    a = m.decode_meas_arrays(payload, max(len(payload), m.MAX_BYTES))
-                    vals = meas_log_values(a)
-                    t = a.t
-                    if idx is not None:
-                        vals, t = vals[idx], t[idx]
-                    lg.log_block(topic, t, MEAS_LOG_FIELDS, vals, int_fields=("seq",))
-                elif kind == "b":  # (b, topic, t, names, values, int_fields)
-                    lg.log_block(rec[1], rec[2], rec[3], rec[4], int_fields=rec[5])
-                else:  # (l, topic, t, msg)
-                    lg.log(rec[1], rec[2], rec[3])
+            try:
+                _write_batch(lg, batch)
+            except Exception:  # a write failure is kept in lg.failure (logged there)
+                if lg.failure is None:
+                    logging.getLogger("servowatch.log").exception("log process: bad batch")
+            if lg.failure is not None and not sent_failure:
+                conn.send(("failure", lg.failure))
+                sent_failure = True
             if len(lg.paths) != n_paths:
                 n_paths = len(lg.paths)
                 conn.send(("paths", [str(p) for p in lg.paths]))
     finally:
-        lg.close()
+        with contextlib.suppress(Exception):  # a failure is kept in lg.failure
+            lg.close()
         with contextlib.suppress(OSError, ValueError):
+            if lg.failure is not None and not sent_failure:
+                conn.send(("failure", lg.failure))
             conn.send(("closed", [str(p) for p in lg.paths], lg.message_count))
+
+
+def _write_batch(lg: Any, batch: Sequence[tuple]) -> None:
+    """Write one batch of queued records (see :class:`ProcessLogger`)."""
+    for rec in batch:
+        kind = rec[0]
+        if kind == "m":  # (m, topic, payload, indices or None)
+            _, topic, payload, idx = rec
+            a = m.decode_meas_arrays(payload, max(len(payload), m.MAX_BYTES))
+            vals = meas_log_values(a)
+            t = a.t
+            if idx is not None:
+                vals, t = vals[idx], t[idx]
+            lg.log_block(topic, t, MEAS_LOG_FIELDS, vals, int_fields=("seq",))
+        elif kind == "b":  # (b, topic, t, names, values, int_fields)
+            lg.log_block(rec[1], rec[2], rec[3], rec[4], int_fields=rec[5])
+        else:  # (l, topic, t, msg)
+            lg.log(rec[1], rec[2], rec[3])
 
 
 class ProcessLogger:
@@ -106,7 +124,7 @@ class ProcessLogger:
         from multiprocessing.connection import Connection
 
         # a plain child interpreter (not multiprocessing's spawn, which re-imports __main__)
-        # talking over a socket pair; the child needs only service.mcaplog
+        # talking over a socket pair; the child needs only service.log
         a, b = socket.socketpair()
         arg = json.dumps({"fd": b.fileno(), "path": str(path), "kwargs": kwargs})
         self._proc = subprocess.Popen(
@@ -122,6 +140,7 @@ class ProcessLogger:
         self._closed = False
         self.paths: list[Path] = []
         self.message_count = 0
+        self.failure: str | None = None  # the log process's first write/flush failure
         kind, *rest = self._conn.recv()
         if kind == "error":
             self._proc.wait(5)
@@ -142,23 +161,42 @@ class ProcessLogger:
         """Queue N messages of one topic as arrays (``McapLogger.log_block``)."""
         self._buf.append(("b", topic, t, tuple(names), values, tuple(int_fields)))
 
+    def _handle(self, kind: str, rest: list) -> None:
+        if kind in ("paths", "closed"):
+            self.paths = [Path(p) for p in rest[0]]
+        if kind == "closed":
+            self.message_count = rest[1]
+        if kind == "failure" and self.failure is None:
+            self.failure = str(rest[0])
+
+    def _lost(self, why: str) -> None:
+        if self.failure is None:
+            self.failure = why
+            logging.getLogger("servowatch.log").error("log process: %s", why)
+
     def _poll(self) -> None:
         while self._conn.poll():
-            kind, *rest = self._conn.recv()
-            if kind in ("paths", "closed"):
-                self.paths = [Path(p) for p in rest[0]]
-            if kind == "closed":
-                self.message_count = rest[1]
+            self._handle(*self._recv())
+        code = self._proc.poll()
+        if code is not None and not self._closed:
+            self._lost(f"the log process exited with code {code}")
+
+    def _recv(self) -> tuple[str, list]:
+        kind, *rest = self._conn.recv()
+        return kind, rest
 
     def commit(self) -> None:
         """Send the queued messages to the log process."""
         with self._lock:
             if self._closed:
                 return
-            if self._buf:
-                buf, self._buf = self._buf, []
-                self._conn.send(buf)
-            self._poll()
+            buf, self._buf = self._buf, []
+            try:
+                if buf and self.failure is None:
+                    self._conn.send(buf)
+                self._poll()
+            except (OSError, EOFError) as e:  # the log process is gone
+                self._lost(f"the log process is gone: {type(e).__name__}: {e}")
 
     def close(self, timeout: float = 60.0) -> None:
         """Send the rest, finish the file, wait for the log process. Idempotent."""
@@ -172,12 +210,12 @@ class ProcessLogger:
                 deadline = time.monotonic() + timeout
                 while time.monotonic() < deadline and self._proc.poll() is None:
                     if self._conn.poll(0.1):
-                        kind, *rest = self._conn.recv()
-                        if kind in ("paths", "closed"):
-                            self.paths = [Path(p) for p in rest[0]]
+                        kind, rest = self._recv()
+                        self._handle(kind, rest)
                         if kind == "closed":
-                            self.message_count = rest[1]
                             break
+                while self._conn.poll():  # what came before the process ended
+                    self._handle(*self._recv())
             except (EOFError, OSError):
                 pass
             try:

@@ -1,7 +1,7 @@
 """Offline replay: logged samples through the same monitor code, as fast as possible or paced.
 
 The logged ``/fleet/{aircraft}/{actuator}/meas`` messages are read as column blocks
-(``service.mcaplog.read_blocks``: per chunk and topic, no per-message dicts; it survives a
+(``service.log.read_blocks``: per chunk and topic, no per-message dicts; it survives a
 truncated file) and fed to one ``service.monitor.MonitorBank`` keyed by actuator, in batches
 of consecutive samples (``MonitorBank.update_arrays``; as fast as possible, its two halves
 ``step_arrays`` and ``rows_of`` run pipelined in two threads). The bank
@@ -28,8 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from service import messages as m
-from service.jsonutil import event_dict, flat, jsonable
-from service.mcaplog import (
+from service.fanout import FanOut
+from service.jsonutil import jsonable
+from service.log import (
     LogBlock,
     LogReadStats,
     McapLogger,
@@ -37,7 +38,16 @@ from service.mcaplog import (
     read_blocks,
     rotated_files,
 )
-from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, Baseline, MonitorBank, MonitorConfig
+from service.monitor import (
+    EST_KEYS,
+    HEALTH_KEYS,
+    RES_KEYS,
+    BankRows,
+    Baseline,
+    MonitorBank,
+    MonitorConfig,
+    RowEvents,
+)
 
 __all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
 
@@ -141,6 +151,149 @@ def _parse_topic(topic: str) -> tuple[str, str] | None:
     return parts[2], parts[3]
 
 
+def _no_rows() -> BankRows:
+    """The output rows of a block that gave none."""
+    e = np.empty
+    return BankRows(
+        e(0, np.int64), e(0), e((0, len(EST_KEYS))), e((0, len(RES_KEYS))),
+        e((0, len(HEALTH_KEYS))), RowEvents(0),
+    )  # fmt: skip
+
+
+@dataclass
+class _Input:
+    """Accepted samples of one logged meas block: ``row`` is the actuator's bank row (set by
+    the monitor stage); ``meas`` the block's values to copy to the output log."""
+
+    name: str
+    at: tuple[str, str]
+    topic: str
+    t: NDArray
+    ch: NDArray
+    names: tuple[str, ...]
+    meas: NDArray
+    row: int = -1
+
+
+def _read_stage(files: list[Path], stats: LogReadStats, summary: ReplaySummary) -> Iterator[_Input]:
+    """Stage 1: the logged meas blocks as accepted samples per actuator (time order)."""
+    last_t: dict[str, float] = {}
+    names: dict[str, tuple[str, str] | None] = {}
+    for blk in _read_files(files, stats):
+        if blk.topic not in names:
+            names[blk.topic] = _parse_topic(blk.topic)
+        at = names[blk.topic]
+        if at is None:
+            continue
+        name = f"{at[0]}/{at[1]}"
+        if name not in last_t:
+            last_t[name] = -math.inf
+            summary.actuators.append(name)
+        t, ch, keep = _block_inputs(blk, last_t[name])
+        n_keep = int(keep.sum())
+        summary.skipped += len(keep) - n_keep
+        if n_keep == 0:
+            continue
+        vals = blk.values
+        if n_keep < len(keep):
+            t, ch, vals = t[keep], ch[keep], vals[keep]
+        last_t[name] = float(t[-1])
+        summary.samples += n_keep
+        if summary.t_start is None:
+            summary.t_start = float(t[0])
+        summary.t_end = float(t[-1])
+        yield _Input(name, at, blk.topic, t, ch, blk.names, vals)
+
+
+def _monitor_stage(
+    inputs: Iterator[_Input], bank: MonitorBank, speed: float | None, t0: Callable[[], float]
+) -> Iterator[tuple[list[_Input], NDArray, BankRows]]:
+    """Stage 2: the samples through the bank; yields (inputs, bank rows of the samples,
+    output rows) in input order.
+
+    As fast as possible, batches of about ``_BATCH`` samples are stepped in a worker thread
+    (``MonitorBank.step_arrays``, compiled, releases the GIL) while this thread reads the
+    next blocks and makes the output rows of the stepped ones (``rows_of``), up to
+    ``_IN_FLIGHT`` batches ahead. Paced (``speed``), slices of ``_PACED_SLICE`` samples run
+    when due: ``t0()`` is the wall time of the first sample."""
+    ids: dict[str, int] = {}
+    if speed is not None:
+        wall0 = time.perf_counter()
+        for inp in inputs:
+            if inp.name not in ids:
+                ids[inp.name] = bank.index_of(inp.name)
+            inp.row = ids[inp.name]
+            ks = np.full(len(inp.t), inp.row, np.int64)
+            for a in range(0, len(inp.t), _PACED_SLICE):
+                sl = slice(a, a + _PACED_SLICE)
+                yield (
+                    ([inp] if a == 0 else []),
+                    ks[sl],
+                    bank.update_arrays(ks[sl], inp.t[sl], inp.ch[sl]),
+                )
+                due = wall0 + (float(inp.t[sl][-1]) - t0()) / speed
+                time.sleep(max(0.0, due - time.perf_counter()))
+        return
+    running: deque[tuple[Future, list[_Input], NDArray]] = deque()
+    pending: list[_Input] = []
+    n_pending = 0
+    with ThreadPoolExecutor(1, thread_name_prefix="replay-monitor") as pool:
+
+        def submit() -> None:
+            nonlocal n_pending
+            ks = np.concatenate([np.full(len(i.t), i.row, np.int64) for i in pending])
+            t = np.concatenate([i.t for i in pending])
+            ch = np.concatenate([i.ch for i in pending])
+            running.append((pool.submit(bank.step_arrays, ks, t, ch), list(pending), ks))
+            pending.clear()
+            n_pending = 0
+
+        def done(wait: bool) -> Iterator[tuple[list[_Input], NDArray, BankRows]]:
+            while running and (wait or len(running) > _IN_FLIGHT or running[0][0].done()):
+                fut, inps, ks = running.popleft()
+                sb = fut.result()
+                yield inps, ks, (bank.rows_of(sb) if sb is not None else _no_rows())
+
+        for inp in inputs:
+            if inp.name not in ids:
+                yield from done(True)  # index_of may grow the bank's arrays: not while it runs
+                ids[inp.name] = bank.index_of(inp.name)
+            inp.row = ids[inp.name]
+            pending.append(inp)
+            n_pending += len(inp.t)
+            if n_pending >= _BATCH:
+                submit()
+                yield from done(False)
+        if pending:
+            submit()
+        yield from done(True)
+
+
+def _write_stage(
+    batches: Iterator[tuple[list[_Input], NDArray, BankRows]],
+    writer: McapLogger | None,
+    fanout: FanOut,
+    summary: ReplaySummary,
+    progress: Callable[[ReplaySummary], None] | None,
+) -> None:
+    """Stage 3: the meas samples copied to the output log, the outputs through the fan-out
+    (log blocks, events, publishing), the summary."""
+    for inps, ks, rows in batches:
+        for inp in inps:
+            fanout.track(inp.row, *inp.at)
+            if writer is not None:
+                ints = ("seq",) if "seq" in inp.names else ()
+                writer.log_block(inp.topic, inp.t, inp.names, inp.meas, int_fields=ints)
+        summary.outputs += len(rows.index)
+        for em in fanout.emit(rows, ks):
+            summary.alarms.extend({"actuator": em.name, **d} for d in em.events)
+            summary.published += em.published
+            o = rows.output(em.last)
+            summary.final[em.name] = {"t": o.t, "est": o.est, "health": o.health}
+        if progress is not None:
+            progress(summary)
+
+
 def replay(
     log_path: str | Path,
     *,
@@ -156,7 +309,9 @@ def replay(
     """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
 
     ``log_path`` is a file or, when no such file exists, the base name of a rotation set
-    (``{stem}-NNNN-*.mcap`` beside it, replayed in order).
+    (``{stem}-NNNN-*.mcap`` beside it, replayed in order). A pipeline of three stages, each
+    passed once: read (``_read_stage``) -> monitor (``_monitor_stage``) -> fan-out and write
+    (``_write_stage``, ``service.fanout.FanOut`` as in the daemon).
 
     Parameters
     ----------
@@ -200,152 +355,18 @@ def replay(
             "baseline": base.model_dump_json(),
         },
     ) if out is not None else None  # fmt: skip
-    pubs: dict[tuple[str, str], Any] = {}
-    n_out: dict[str, int] = {}
-    last_t: dict[str, float] = {}
-    names: dict[str, tuple[str, str]] = {}
-    prefix: dict[str, str] = {}
-    row_name: dict[int, str] = {}  # bank row -> actuator name
-    topics: dict[str, str | None] = {}
-    pending: list[tuple[NDArray, NDArray, NDArray]] = []  # (ks, t, channels) not yet run
-    n_pending = 0
+    fanout = FanOut(writer, log_every=log_every, publish_every=publish_every, session=publish)
     stats = LogReadStats()
     wall0 = time.perf_counter()
-    t_first: float | None = None
-
-    # as fast as possible: the filter steps run in a worker thread (MonitorBank.step_arrays, a
-    # compiled loop that releases the GIL) while this thread reads the next blocks, makes
-    # the output rows of the stepped ones (rows_of, also compiled) and logs them
-    pool = ThreadPoolExecutor(1, thread_name_prefix="replay-monitor") if speed is None else None
-    # step_arrays calls queued on the one worker (run in order: the bank is sequential), so
-    # it runs back to back while this thread reads ahead; their outputs handled in order
-    running: deque[tuple[Future, NDArray]] = deque()
-
-    def finish(fut: Future, ks: NDArray) -> None:
-        sb = fut.result()
-        if sb is not None:
-            handle(bank.rows_of(sb), ks)
-
-    def collect(wait: bool) -> None:
-        while running and (wait or running[0][0].done()):
-            finish(*running.popleft())
-
-    def drain() -> None:
-        collect(True)
-
-    def flush_batch() -> None:
-        # one update_arrays call for what is pending; outputs stay numpy rows and are logged
-        # as blocks; dicts only for what is published or kept in the summary
-        nonlocal n_pending
-        if not pending:
-            return
-        if len(pending) == 1:
-            ks, t, ch = pending[0]
-        else:
-            ks, t, ch = (np.concatenate(c) for c in zip(*pending, strict=True))
-        pending.clear()
-        n_pending = 0
-        if pool is None:
-            handle(bank.update_arrays(ks, t, ch), ks)
-            return
-        # the worker steps the filters; this thread makes the rows (alarms, outputs) of the
-        # blocks it has stepped, in order, while it steps the next ones
-        running.append((pool.submit(bank.step_arrays, ks, t, ch), ks))
-        while len(running) > _IN_FLIGHT:  # bounded read-ahead
-            finish(*running.popleft())
-        collect(False)
-
-    def handle(rows: Any, ks: NDArray) -> None:
-        idx = rows.index
-        if len(idx) == 0:
-            return
-        summary.outputs += len(idx)
-        owner = ks[idx]
-        has_ev = rows.events.flags()
-        order = np.argsort(owner, kind="stable")
-        for g in np.split(order, np.flatnonzero(np.diff(owner[order])) + 1):
-            name = row_name[int(owner[g[0]])]
-            n0 = n_out.get(name, 0)
-            num = n0 + 1 + np.arange(len(g))
-            n_out[name] = n0 + len(g)
-            ev = has_ev[g]
-            b = prefix[name]
-            if writer is not None:
-                sel = g[(num % log_every == 0) | ev]
-                if len(sel):
-                    ts = rows.t[sel]
-                    writer.log_block(b + "est", ts, EST_KEYS, rows.est[sel])
-                    writer.log_block(b + "residual", ts, RES_KEYS, rows.res[sel])
-                    writer.log_block(b + "health", ts, HEALTH_KEYS, rows.health[sel])
-            for r in g[ev].tolist():
-                t_r = float(rows.t[r])
-                for e in rows.events[r]:
-                    d = event_dict(e)
-                    summary.alarms.append({"actuator": name, **d})
-                    if writer is not None:
-                        writer.log(b + "events", float(d.get("t") or t_r), flat(d))
-            if publish is not None:
-                ac, act = names[name]
-                for r in g[num % publish_every == 0].tolist():
-                    _publish(publish, pubs, ac, act, rows.output(r))
-                    summary.published += 1
-            o = rows.output(int(g[-1]))
-            summary.final[name] = {"t": o.t, "est": o.est, "health": o.health}
-
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TruncatedLogWarning)
+        inputs = _read_stage(files, stats, summary)
+        batches = _monitor_stage(inputs, bank, speed, lambda: summary.t_start or 0.0)
         try:
-            for blk in _read_files(files, stats):
-                name = topics.get(blk.topic, "")
-                if name == "":
-                    at = _parse_topic(blk.topic)
-                    name = topics[blk.topic] = None if at is None else f"{at[0]}/{at[1]}"
-                    if name is not None and name not in names:
-                        drain()  # index_of may grow the bank's arrays: not while it runs
-                        names[name] = at  # type: ignore[assignment]
-                        prefix[name] = f"/fleet/{at[0]}/{at[1]}/"  # type: ignore[index]
-                        summary.actuators.append(name)
-                        row_name[bank.index_of(name)] = name
-                if name is None:
-                    continue
-                t, ch, keep = _block_inputs(blk, last_t.get(name, -math.inf))
-                n_keep = int(keep.sum())
-                summary.skipped += len(keep) - n_keep
-                if n_keep == 0:
-                    continue
-                if n_keep < len(keep):
-                    t, ch = t[keep], ch[keep]
-                last_t[name] = float(t[-1])
-                summary.samples += n_keep
-                if t_first is None:
-                    t_first = float(t[0])
-                    summary.t_start = t_first
-                summary.t_end = float(t[-1])
-                if writer is not None:
-                    vals = blk.values if n_keep == len(keep) else blk.values[keep]
-                    ints = ("seq",) if "seq" in blk.names else ()
-                    writer.log_block(blk.topic, t, blk.names, vals, int_fields=ints)
-                ks = np.full(n_keep, bank.index_of(name), np.int64)
-                if speed is None:
-                    pending.append((ks, t, ch))
-                    n_pending += n_keep
-                    if n_pending >= _BATCH:
-                        flush_batch()
-                        if progress is not None:
-                            progress(summary)
-                    continue
-                # paced: run what is due in slices of about 10 ms of data, then wait
-                for a in range(0, n_keep, _PACED_SLICE):
-                    sl = slice(a, a + _PACED_SLICE)
-                    pending.append((ks[sl], t[sl], ch[sl]))
-                    flush_batch()
-                    due = wall0 + (float(t[sl][-1]) - t_first) / speed
-                    time.sleep(max(0.0, due - time.perf_counter()))
-            flush_batch()
-            drain()
+            _write_stage(batches, writer, fanout, summary, progress)
         finally:
-            if pool is not None:
-                pool.shutdown(wait=True)
+            batches.close()  # stops the monitor stage's worker thread
+            fanout.close()
             if writer is not None:
                 writer.close()
     summary.wall_s = time.perf_counter() - wall0
@@ -363,17 +384,3 @@ def replay(
     if summary.samples == 0:
         summary.warnings.append(f"{log_path}: no /fleet/*/*/meas samples")
     return summary
-
-
-def _publish(session: Any, pubs: dict, ac: str, act: str, o: Any) -> None:
-    for tmpl, leaf, d in (
-        (m.KEY_EST, "est", o.est),
-        (m.KEY_RES, "res", o.res),
-        (m.KEY_HEALTH, "health", o.health),
-    ):
-        p = pubs.get((ac, act, leaf))
-        if p is None:
-            p = pubs[(ac, act, leaf)] = session.declare_publisher(
-                tmpl.format(aircraft=ac, actuator=act)
-            )
-        p.put(m.encode_json({"t": o.t, **jsonable(d)}))

@@ -39,7 +39,7 @@ def warm_up() -> float:
         bank.update_rows([("a", s)])
     arr = decode_meas_arrays(encode_meas([{**s, "seq": k} for k, s in enumerate(samples)]))
     bank.update_arrays([bank.index_of("b")] * len(arr.t), arr.t, arr.values)
-    from service import logcodec
+    from service.log import codec as logcodec
 
     logcodec.warm_up()
     return time.perf_counter() - t0

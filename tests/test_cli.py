@@ -45,3 +45,25 @@ def test_unreachable_router_exits_3_naming_the_endpoint(cmd, capsys):
     assert main([*cmd, "--connect", ep, "--mode", "client"]) == 3
     err = capsys.readouterr().err
     assert "cannot open a Zenoh session" in err and ep in err
+
+
+@pytest.mark.slow
+def test_run_exits_4_when_the_log_fails(tmp_path):
+    """``servowatch run`` with a log that cannot be written (/dev/full: ENOSPC) keeps
+    monitoring, then exits with EXIT_LOG_FAILURE and the failure in its final status."""
+    import json
+
+    from service.daemon import EXIT_LOG_FAILURE
+    from service.zenoh_util import free_port
+
+    cfg = tmp_path / "svc.toml"
+    cfg.write_text(f'[zenoh]\nmode = "peer"\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n')
+    r = subprocess.run(
+        [sys.executable, "-m", "service.cli", "run", "--config", str(cfg), "--log", "/dev/full",
+         "--no-rotate", "--duration", "1", "--json"],
+        capture_output=True, text=True, timeout=240,
+    )  # fmt: skip
+    assert r.returncode == EXIT_LOG_FAILURE == 4, r.stderr[-2000:]
+    final = json.loads(r.stdout)
+    assert final["state"] == "degraded" and "No space left" in final["log_failure"]
+    assert "the MCAP log failed" in r.stderr

@@ -96,7 +96,7 @@ def test_borrowed_all_refuses_non_arrays() -> None:
 def test_nrt_option_is_accepted() -> None:
     assert cn.HAS_NRT_OPTION, (
         "numba's private target option _nrt (numba.core.cpu.CPUTargetOptions._nrt) is gone: "
-        "service.logcodec's leaf kernels now keep reference counting (slower); "
+        "service.log.codec's leaf kernels now keep reference counting (slower); "
         "see service/compat/numba.py"
     )
     assert cn.NO_NRT == {"_nrt": False}

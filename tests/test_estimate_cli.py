@@ -48,7 +48,7 @@ def test_png_and_mcap_outputs(tmp_path, capsys):
                "--png", str(png), "--out", str(mcap)])  # fmt: skip
     assert rc == 0
     assert png.stat().st_size > 10_000
-    from service.mcaplog import read_log
+    from service.log import read_log
 
     topics = {}
     for topic, _t, msg in read_log(mcap):

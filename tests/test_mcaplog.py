@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from service.mcaplog import (
+from service.log import (
     LogReadStats,
     McapLogger,
     TruncatedLogWarning,
@@ -208,7 +208,7 @@ def test_corrupt_chunk_stops_with_warning(tmp_path):
 _WRITER = """
 import sys, time
 sys.path.insert(0, {root!r})
-from service.mcaplog import McapLogger
+from service.log import McapLogger
 lg = McapLogger({path!r}, flush_s=0.5)
 k = 0
 t0 = time.time()
@@ -260,13 +260,13 @@ def test_kill_9_loses_at_most_about_one_flush_period(tmp_path):
     assert lost_s <= 0.5 + 1.0  # flush_s plus scheduling slack
 
 
-def test_fast_writer_writes_the_same_bytes_as_mcap_writer():
+def test_block_writer_writes_the_same_bytes_as_mcap_writer():
     import io
     import random
 
     from mcap.writer import CompressionType, Writer
 
-    from service.mcaplog import _FastWriter
+    from service.compat.mcap import BlockWriter
 
     def run(cls) -> bytes:
         b = io.BytesIO()
@@ -283,9 +283,7 @@ def test_fast_writer_writes_the_same_bytes_as_mcap_writer():
         w.finish()
         return b.getvalue()
 
-    fast = _FastWriter(io.BytesIO())
-    assert fast._fast  # the fast path is active with the installed mcap
-    assert run(_FastWriter) == run(Writer)
+    assert run(BlockWriter) == run(Writer)
 
 
 def test_log_many_equals_log(tmp_path):

@@ -13,7 +13,7 @@ import zenoh
 
 from models.eha import simulate
 from service.cli import main
-from service.mcaplog import McapLogger, TruncatedLogWarning, read_log
+from service.log import McapLogger, TruncatedLogWarning, read_log
 from service.messages import decode_json, mcap_topic
 from service.monitor import Monitor, MonitorConfig
 from service.replay import INPUT_KEYS, read_metadata, replay

@@ -103,7 +103,7 @@ def start_daemon(net: Net, log: Path, env: dict | None = None) -> subprocess.Pop
 
 
 def read(path: Path, topics=None):
-    from service.mcaplog import read_log
+    from service.log import read_log
 
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")

@@ -16,7 +16,7 @@ HELP = "Run a virtual actuator (HF bench paced by the wall clock) publishing on 
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.daemon import add_zenoh_arguments
+    from service.cliargs import add_zenoh_arguments
 
     p.add_argument("--scenario", default="demo", help="scenario TOML file or bundled name")
     p.add_argument("--aircraft", default="AC001")
@@ -46,8 +46,8 @@ def run(args: argparse.Namespace) -> int:
 
     from service import messages as msgs
     from service.actuator import VirtualActuator
+    from service.cliargs import service_config_from_args
     from service.config import ConfigError, SessionError
-    from service.daemon import service_config_from_args
     from service.scenarios import ScenarioError, load_scenario
 
     logging.basicConfig(

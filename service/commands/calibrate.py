@@ -46,7 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def meas_from_log(path: str) -> dict[str, np.ndarray]:
     """Measured arrays from the first ``.../meas`` topic of an MCAP log."""
-    from service.mcaplog import read_log
+    from service.log import read_log
 
     rows: list[dict] = []
     topic0 = None

@@ -146,7 +146,7 @@ def plot_demo(log_path: Path, png: Path, t_inject: float | None, c_true: float |
     import numpy as np
 
     from models.params import EHAParams
-    from service.mcaplog import read_log
+    from service.log import read_log
 
     base = f"/fleet/{AIRCRAFT}/{ACTUATOR}/"
     est, health, meas, events = [], [], [], []
@@ -452,7 +452,7 @@ def run(args: argparse.Namespace) -> int:
 
 def final_events(path: Path) -> list[tuple[float, str, str]]:
     """(t, kind, state) of every alarm event in a daemon log."""
-    from service.mcaplog import read_log
+    from service.log import read_log
 
     out = []
     for topic, t, msg in read_log(path):

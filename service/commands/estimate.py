@@ -225,7 +225,7 @@ def plot(res: dict, path: str | Path, baseline) -> None:
 
 def write_mcap(res: dict, path: str | Path) -> None:
     """Measurements, truth and monitor outputs, one JSON message per sample and topic."""
-    from service.mcaplog import McapLogger
+    from service.log import McapLogger
 
     sim, meas, outs = res["_sim"], res["_meas"], res["_outs"]
     base = f"/estimate/{res['scenario']}"

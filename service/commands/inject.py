@@ -12,7 +12,7 @@ HELP = "Inject a fault into a virtual actuator (leak, supply, sensor_bias, dropo
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.daemon import add_zenoh_arguments
+    from service.cliargs import add_zenoh_arguments
 
     p.add_argument("--aircraft", default="AC001")
     p.add_argument("--actuator", default="elevator_L")
@@ -52,8 +52,8 @@ def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
     from service import messages as msgs
+    from service.cliargs import service_config_from_args
     from service.config import ConfigError, SessionError
-    from service.daemon import service_config_from_args
 
     try:
         cmd = msgs.FaultCommand(

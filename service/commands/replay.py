@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from service.replay import replay
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    from service.mcaplog import rotated_files
+    from service.log import rotated_files
 
     if not rotated_files(args.log):
         return fail(f"{args.log}: no such log (nor a rotation set {Path(args.log).stem}-*)")

@@ -45,7 +45,7 @@ def setup_logging(level: str, structured: bool) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.daemon import add_zenoh_arguments
+    from service.cliargs import add_zenoh_arguments
 
     add_zenoh_arguments(p)
     p.add_argument("--log", default=None, help="MCAP file to write (default: log_dir/...)")
@@ -64,8 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
+    from service.cliargs import service_config_from_args
     from service.config import ConfigError, SessionError
-    from service.daemon import Daemon, service_config_from_args
+    from service.daemon import EXIT_LOG_FAILURE, Daemon
 
     try:
         cfg = service_config_from_args(args)
@@ -108,4 +109,7 @@ def run(args: argparse.Namespace) -> int:
             f"{final['bad']} bad, log {', '.join(final['log'])}",
             file=sys.stderr,
         )
+    if final["log_failure"]:
+        print(f"servowatch run: the MCAP log failed: {final['log_failure']}", file=sys.stderr)
+        return EXIT_LOG_FAILURE
     return 0

@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def write_mcap(res, path: str | Path, scenario_name: str) -> Path:
     """Every sample of ``res`` as one JSON message on ``/bench/{valve}/state`` (log_time = t)."""
-    from service.mcaplog import McapLogger
+    from service.log import McapLogger
 
     topic = f"/bench/{res.valve}/state"
     cols = {k: np.asarray(getattr(res, k), float) for k in SIGNALS}

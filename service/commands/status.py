@@ -14,7 +14,7 @@ STATUS_SELECTOR = "monitor/*/*/status"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.daemon import add_zenoh_arguments
+    from service.cliargs import add_zenoh_arguments
 
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--timeout", type=float, default=2.0, help="reply timeout [s]")
@@ -48,6 +48,8 @@ def format_status(daemons: dict) -> str:
             f"{st.get('samples')} samples, {st.get('dropped')} dropped, {st.get('bad')} bad, "
             f"latency p50 {_fmt(lat.get('p50'))} ms p99 {_fmt(lat.get('p99'))} ms"
         )
+        if st.get("log_failure"):
+            lines.append(f"  DEGRADED: the MCAP log failed: {st['log_failure']}")
         for _name, a in sorted(st.get("actuators", {}).items()):
             est = ", ".join(
                 f"{k}={_fmt(v)}"
@@ -69,8 +71,8 @@ def format_status(daemons: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
 
+    from service.cliargs import service_config_from_args
     from service.config import ConfigError, SessionError
-    from service.daemon import service_config_from_args
 
     try:
         cfg = service_config_from_args(args)

@@ -9,7 +9,7 @@
   loop (``service.monitor.kernels``).
 * ``NO_NRT``: the private ``_nrt`` target option (``numba.core.cpu.CPUTargetOptions``), which
   compiles a kernel without the runtime's reference counting at all; for kernels that
-  allocate nothing (``service.logcodec``). Empty when the option is gone (the kernels still
+  allocate nothing (``service.log.codec``). Empty when the option is gone (the kernels still
   work, slower), which the check tests report.
 
 Every other module imports these from here, never from numba's private packages.

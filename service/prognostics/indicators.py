@@ -2,7 +2,7 @@
 periods (ISO 13374 "health assessment" input), one ``service.store.Period`` each.
 
 A period closes when the actuator goes silent (no sample for ``silence_s``) or after
-``window_s`` of sample time. Per period (docs/prognostics.md, "Indicators"):
+``window_s`` of sample time. Per period (docs/prognostics.md section 1):
 
 - operating time: the sum of the sample intervals no longer than ``max_dt_s``; samples;
 - C_Lk over the *observable* samples only: the filter's own 1-sigma of C_Lk below

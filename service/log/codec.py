@@ -1,4 +1,4 @@
-"""Numba kernels for block MCAP I/O of flat JSON messages (used by :mod:`service.mcaplog`).
+"""Numba kernels for block MCAP I/O of flat JSON messages (used by :mod:`service.log`).
 
 Writing (:func:`encode_records`): rows of a float64 array formatted exactly like
 ``json.JSONEncoder(separators=(",", ":"))`` formats ``{name: float_or_int_or_None}`` (floats as
@@ -11,6 +11,22 @@ float64 array. Numbers are converted with Clinger's fast path or the Eisel-Lemir
 which are correctly rounded (the result equals ``float(text)``); anything else (more than 19
 significant digits, nested values, escapes, NaN/Infinity literals, differing keys) makes
 :func:`parse_objects` report failure so the caller can fall back to ``json.loads``.
+
+Algorithms (implemented here from the papers; the tables are computed at import):
+
+* Ryu: Ulf Adams, "Ryu: fast float-to-string conversion", Proceedings of the 39th ACM
+  SIGPLAN Conference on Programming Language Design and Implementation (PLDI 2018),
+  pp. 270-282, doi:10.1145/3192366.3192369. The shortest digits that round-trip; the layout
+  around them (fixed or exponent form, ``1e+16``, ``-0.0``) is CPython's ``float.__repr__``.
+* Eisel-Lemire: Daniel Lemire, "Number parsing at a gigabyte per second", Software: Practice
+  and Experience 51(8), 2021, pp. 1700-1727, doi:10.1002/spe.2984 (the algorithm of Michael
+  Eisel); with William D. Clinger's exact fast path, "How to read floating point numbers
+  accurately", PLDI 1990.
+
+Why byte-identical with ``json.dumps``: see docs/messages.md ("MCAP log"). In short, one
+message logged per row by :meth:`McapLogger.log_block` and by :meth:`McapLogger.log` must give
+the same file, so the tests can hold the compiled encoder to the standard library byte for
+byte, and a replay's log compares with the daemon's by bytes or hash.
 
 All kernels are ``@njit(cache=True)``: the first call compiles (or loads the cache; a cold
 compile takes some seconds, :func:`warm_up` does it ahead). The kernels that allocate nothing are

@@ -1,0 +1,64 @@
+"""Command-line arguments shared by the service commands: Zenoh endpoints and the config."""
+
+from __future__ import annotations
+
+import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the config pulls in the monitor (numba): imported when used
+    from service.config import ServiceConfig
+
+__all__ = ["add_zenoh_arguments", "service_config_from_args"]
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--config``, ``--connect``, ``--listen``, ``--mode`` shared by the service commands."""
+    parser.add_argument("--config", help="service TOML file (SERVOWATCH_* env overrides apply)")
+    parser.add_argument(
+        "--connect",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable; "
+        "replaces the config's)",
+    )
+    parser.add_argument(
+        "--listen",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="Zenoh endpoint to listen on (repeatable; replaces the config's)",
+    )
+    parser.add_argument(
+        "--mode",
+        choices=("peer", "client", "router"),
+        default=None,
+        help="Zenoh mode (default: the config's; a peer with nothing to "
+        "listen on runs as a client)",
+    )
+
+
+def service_config_from_args(args: argparse.Namespace) -> ServiceConfig:
+    """``load_config(args.config)`` with the command line's Zenoh overrides applied."""
+    from service.config import ConfigError, ZenohSettings, load_config
+
+    cfg = load_config(getattr(args, "config", None))
+    z = cfg.zenoh.model_dump()
+    if getattr(args, "connect", None):
+        z["connect"] = list(args.connect)
+    if getattr(args, "listen", None):
+        z["listen"] = list(args.listen)
+    if getattr(args, "mode", None):
+        z["mode"] = args.mode
+    elif z["mode"] == "peer" and not z["listen"] and z["connect"]:
+        z["mode"] = "client"
+    try:
+        zs = ZenohSettings.model_validate(z)
+    except ValueError as e:  # pydantic.ValidationError: name the field, skip the URL
+        errs = getattr(e, "errors", None)
+        if errs is None:
+            raise
+        err = errs()[0]
+        loc = ".".join(str(x) for x in err["loc"])
+        raise ConfigError(err["msg"], f"zenoh.{loc}", "command line") from None
+    return cfg.model_copy(update={"zenoh": zs})

@@ -1,0 +1,334 @@
+"""Every use of a private API of the ``mcap`` package, in one place.
+
+The MCAP log writes and reads far more messages per second than the library's public API
+allows (one ``Message`` object and five stream writes per message; a parsed ``MessageIndex``
+per message when reading), so three pieces reach into its internals:
+
+* :class:`BlockWriter` (``mcap.writer.Writer`` subclass): packs Message records straight into
+  the chunk builder's buffer, one record (``add_message``) or many of one channel at once
+  (``add_records``), and keeps the writer's statistics, chunk times and message indexes as
+  the base class does. It uses the name-mangled ``_Writer__chunk_builder``,
+  ``_Writer__statistics``, ``_Writer__chunk_size``, ``_Writer__maybe_finalize_chunk`` and
+  the chunk builder's ``record_writer._buffer`` (an ``io.BytesIO``).
+* the zstd level per writer: ``Writer._Writer__finalize_chunk`` compresses with the module
+  global ``zstandard.compress(data)`` (zstd's default level 3). :func:`finalize_chunk_at`
+  makes a copy of that function whose globals name a compressor at the wanted level, bound
+  to one writer; the ``mcap.writer`` module itself is left alone.
+* :class:`SkipIndexStreamReader` (``mcap.stream_reader.StreamReader`` subclass): overrides
+  ``_read_record`` to skip MessageIndex records instead of parsing them (about 2 us per
+  message).
+
+:func:`check` tells whether the installed mcap still has all of it; ``tests/test_compat_mcap.py``
+runs it and fails with a message that names the private API that changed. The bytes written
+are those of the stock ``Writer`` (the tests compare files).
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+import itertools
+import struct
+import types
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import EndOfFile
+from mcap.opcode import Opcode
+from mcap.records import MessageIndex
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+__all__ = [
+    "McapCompatError",
+    "BlockWriter",
+    "SkipIndexStreamReader",
+    "finalize_chunk_at",
+    "check",
+    "MESSAGE_HEADER_BYTES",
+]
+
+_MSG_RECORD = struct.Struct("<BQHIQQ")  # opcode, length, channel_id, sequence, log/publish time
+#: bytes of a Message record before its data: opcode, length, channel, sequence, two times
+MESSAGE_HEADER_BYTES = _MSG_RECORD.size  # 31
+_MSG_HEAD_DTYPE = np.dtype(
+    [("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"), ("lt", "<u8"), ("pt", "<u8")]
+)  # packed: 31 bytes
+
+
+class McapCompatError(RuntimeError):
+    """The installed mcap release no longer has a private API that service/compat/mcap.py
+    relies on."""
+
+
+# ------------------------------------------------------------------------ zstd level
+
+
+class _ZstdAtLevel:
+    """Stands in for the ``zstandard`` module in a copy of ``Writer.__finalize_chunk``:
+    ``compress`` at a fixed level, everything else from the real module."""
+
+    def __init__(self, mod: Any, level: int):
+        self._mod = mod
+        self._level = level
+
+    def compress(self, data: bytes) -> bytes:
+        return self._mod.compress(data, self._level)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._mod, name)
+
+
+@functools.lru_cache(maxsize=8)
+def _finalize_function(level: int) -> types.FunctionType:
+    import mcap.writer as mw
+
+    base = Writer.__dict__.get("_Writer__finalize_chunk")
+    if not isinstance(base, types.FunctionType) or "zstandard" not in base.__code__.co_names:
+        raise McapCompatError(
+            "mcap.writer.Writer._Writer__finalize_chunk is gone or no longer compresses with "
+            "the module global 'zstandard': service/compat/mcap.py finalize_chunk_at needs "
+            "updating"
+        )
+    zstd = getattr(mw, "zstandard", None)
+    if zstd is None or not callable(getattr(zstd, "compress", None)):
+        raise McapCompatError("mcap.writer.zstandard (the zstandard module) is missing")
+    glb = dict(base.__globals__)
+    glb["zstandard"] = _ZstdAtLevel(zstd, level)
+    return types.FunctionType(
+        base.__code__, glb, base.__name__, base.__defaults__, base.__closure__
+    )
+
+
+def finalize_chunk_at(writer: Writer, level: int) -> None:
+    """Make ``writer`` compress its zstd chunks at ``level`` (only this writer)."""
+    fn = _finalize_function(int(level))
+    writer._Writer__finalize_chunk = types.MethodType(fn, writer)  # type: ignore[attr-defined]
+
+
+# ------------------------------------------------------------------------ writer
+
+
+class _PackedMessageIndex(MessageIndex):
+    """``MessageIndex`` that packs its entries in one call when written, and takes entries
+    already packed (``add_packed``, from blocks) besides the ``records`` tuples."""
+
+    def __init__(self, channel_id: int, records: list[tuple[int, int]]):
+        super().__init__(channel_id, records)
+        self.packed: list[tuple[int, bytes]] = []  # (insert before records[i], "<u8" pairs)
+
+    def add_packed(self, log_times: np.ndarray, offsets: np.ndarray) -> None:
+        pairs = np.empty((log_times.size, 2), "<u8")
+        pairs[:, 0] = log_times
+        pairs[:, 1] = offsets
+        self.packed.append((len(self.records), pairs.tobytes()))
+
+    def write(self, stream: Any) -> None:
+        recs = self.records
+        n = len(recs) + sum(len(b) for _, b in self.packed) // 16
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write2(self.channel_id)
+        stream.write4(n * 16)
+        prev = 0
+        for at, b in [*self.packed, (len(recs), b"")]:
+            if at > prev:
+                part = recs[prev:at]
+                stream.write(
+                    struct.pack(f"<{2 * len(part)}Q", *itertools.chain.from_iterable(part))
+                )
+            stream.write(b)
+            prev = at
+        stream.finish_record()
+
+
+def _writer_problems(w: Writer) -> list[str]:
+    """The private parts of ``w`` that :class:`BlockWriter` needs and did not find."""
+    cb = getattr(w, "_Writer__chunk_builder", None)
+    out = []
+    if cb is None:
+        out.append("Writer._Writer__chunk_builder (chunking is on)")
+    else:
+        if not isinstance(getattr(getattr(cb, "record_writer", None), "_buffer", None), io.BytesIO):
+            out.append("ChunkBuilder.record_writer._buffer (an io.BytesIO)")
+        if not isinstance(getattr(cb, "message_indices", None), dict):
+            out.append("ChunkBuilder.message_indices (a dict)")
+        for a in ("num_messages", "message_start_time", "message_end_time"):
+            if not isinstance(getattr(cb, a, None), int):
+                out.append(f"ChunkBuilder.{a} (an int)")
+    st = getattr(w, "_Writer__statistics", None)
+    for a in ("channel_message_counts", "message_count", "message_start_time", "message_end_time"):
+        if not hasattr(st, a):
+            out.append(f"Writer._Writer__statistics.{a}")
+    if not isinstance(getattr(w, "_Writer__chunk_size", None), int):
+        out.append("Writer._Writer__chunk_size (an int)")
+    if not callable(getattr(w, "_Writer__maybe_finalize_chunk", None)):
+        out.append("Writer._Writer__maybe_finalize_chunk()")
+    return out
+
+
+class BlockWriter(Writer):
+    """``mcap.writer.Writer`` that packs Message records itself: one (``add_message``) or
+    many of one channel (``add_records``), the same bytes as the base class's
+    ``add_message`` (chunked writers only). ``zstd_level`` sets this writer's zstd level
+    (None: zstd's default, as the base class)."""
+
+    def __init__(self, *args: Any, zstd_level: int | None = None, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        missing = _writer_problems(self)
+        if missing:
+            raise McapCompatError(
+                "the installed mcap lacks private writer state that service/compat/mcap.py "
+                "uses: " + "; ".join(missing)
+            )
+        if zstd_level is not None and kwargs.get("compression", CompressionType.ZSTD) == (
+            CompressionType.ZSTD
+        ):
+            finalize_chunk_at(self, zstd_level)
+        self._cb = self._Writer__chunk_builder  # type: ignore[attr-defined]
+        self._st = self._Writer__statistics  # type: ignore[attr-defined]
+        self._csize: int = self._Writer__chunk_size  # type: ignore[attr-defined]
+        self._finalize = self._Writer__maybe_finalize_chunk  # type: ignore[attr-defined]
+
+    def add_message(
+        self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0
+    ) -> None:
+        st = self._st
+        if st.message_count == 0 or log_time < st.message_start_time:
+            st.message_start_time = log_time
+        if log_time > st.message_end_time:
+            st.message_end_time = log_time
+        st.channel_message_counts[channel_id] += 1
+        st.message_count += 1
+        cb = self._cb
+        if cb.num_messages == 0 or log_time < cb.message_start_time:
+            cb.message_start_time = log_time
+        if log_time > cb.message_end_time:
+            cb.message_end_time = log_time
+        idx = cb.message_indices.get(channel_id)
+        if idx is None:
+            idx = cb.message_indices[channel_id] = _PackedMessageIndex(channel_id, [])
+        buf = cb.record_writer._buffer
+        idx.records.append((log_time, buf.tell()))
+        cb.num_messages += 1
+        buf.write(
+            _MSG_RECORD.pack(
+                Opcode.MESSAGE, 22 + len(data), channel_id, sequence, log_time, publish_time
+            )
+        )
+        buf.write(data)
+        if buf.tell() > self._csize:
+            self._finalize()
+
+    def add_records(
+        self, channel_id: int, log_times: np.ndarray, recs: Any, ends: np.ndarray
+    ) -> None:
+        """Append packed Message records ``recs`` (record k ends at ``ends[k]``) of one
+        channel: statistics, chunk times and message index as :meth:`add_message` keeps them,
+        and the chunk ends after the same record as with one :meth:`add_message` per record."""
+        n = len(ends)
+        if n == 0:
+            return
+        st = self._st
+        lo, hi = int(log_times.min()), int(log_times.max())
+        if st.message_count == 0 or lo < st.message_start_time:
+            st.message_start_time = lo
+        if hi > st.message_end_time:
+            st.message_end_time = hi
+        st.channel_message_counts[channel_id] += n
+        st.message_count += n
+        starts = np.empty(n, np.int64)
+        starts[0] = 0
+        starts[1:] = ends[:-1]
+        mv = memoryview(recs)
+        k = 0
+        while k < n:
+            cb = self._cb
+            buf = cb.record_writer._buffer
+            base = buf.tell()
+            # add_message ends the chunk after the first record that takes it past chunk_size
+            j = k + int(np.searchsorted(ends[k:], self._csize - base + starts[k], "right")) + 1
+            j = min(j, n)
+            part = log_times[k:j]
+            lo, hi = int(part.min()), int(part.max())
+            if cb.num_messages == 0 or lo < cb.message_start_time:
+                cb.message_start_time = lo
+            if hi > cb.message_end_time:
+                cb.message_end_time = hi
+            idx = cb.message_indices.get(channel_id)
+            if idx is None:
+                idx = cb.message_indices[channel_id] = _PackedMessageIndex(channel_id, [])
+            idx.add_packed(part, starts[k:j] + (base - starts[k]))
+            cb.num_messages += j - k
+            buf.write(mv[starts[k] : ends[j - 1]])
+            if buf.tell() > self._csize:
+                self._finalize()
+            k = j
+
+
+def pack_records(
+    channel_id: int, log_times: np.ndarray, datas: list[bytes], sequences: np.ndarray
+) -> tuple[bytes, np.ndarray]:
+    """Message records (``publish_time`` = ``log_time``) of ``datas`` packed for
+    :meth:`BlockWriter.add_records`: (records, end offset of each)."""
+    n = len(datas)
+    lens = np.fromiter(map(len, datas), np.int64, n)
+    head = np.empty(n, _MSG_HEAD_DTYPE)
+    head["op"] = Opcode.MESSAGE
+    head["len"] = lens + 22
+    head["cid"] = channel_id
+    head["seq"] = sequences
+    head["lt"] = log_times
+    head["pt"] = log_times
+    hb = head.tobytes()
+    h = MESSAGE_HEADER_BYTES
+    parts: list[bytes] = [b""] * (2 * n)
+    parts[0::2] = [hb[i : i + h] for i in range(0, h * n, h)]
+    parts[1::2] = datas
+    return b"".join(parts), np.cumsum(lens + h)
+
+
+# ------------------------------------------------------------------------ reader
+
+
+class SkipIndexStreamReader(StreamReader):
+    """``StreamReader`` that skips MessageIndex records instead of parsing them (the readers
+    here do not use them; parsing costs about 2 us per message)."""
+
+    def _read_record(self, opcode: int, length: int) -> Any:
+        if opcode == Opcode.MESSAGE_INDEX:
+            if len(self._stream.read(length)) < length:
+                raise EndOfFile()
+            return None
+        return super()._read_record(opcode, length)
+
+
+# ------------------------------------------------------------------------ check
+
+
+def check() -> list[str]:
+    """What service/compat/mcap.py needs from the installed mcap and did not find: [] if
+    all is there."""
+    import inspect
+
+    out: list[str] = []
+    if not callable(getattr(Writer, "flush", None)):
+        out.append("Writer.flush() (public from mcap 1.5)")
+    try:
+        _finalize_function(1)
+    except McapCompatError as e:
+        out.append(str(e))
+    try:
+        w = Writer(io.BytesIO(), compression=CompressionType.NONE)
+        out.extend(_writer_problems(w))
+    except Exception as e:  # pragma: no cover - a different constructor
+        out.append(f"Writer(stream, compression=...) failed: {e}")
+    rr = getattr(StreamReader, "_read_record", None)
+    if rr is None:
+        out.append("StreamReader._read_record(opcode, length)")
+    else:
+        params = list(inspect.signature(rr).parameters)
+        if params[1:3] != ["opcode", "length"]:
+            out.append(f"StreamReader._read_record(opcode, length) has parameters {params}")
+    if not hasattr(StreamReader(io.BytesIO(b"")), "_stream"):
+        out.append("StreamReader._stream")
+    return out

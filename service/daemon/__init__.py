@@ -1,0 +1,22 @@
+"""The monitoring daemon: ``core`` (the :class:`Daemon`), ``intake`` (per-actuator state and
+the acceptance checks), ``status`` (the snapshot's percentiles and state), ``systemd``
+(sd_notify, watchdog), ``ratelimit``. The output fan-out is ``service.fanout`` (shared with
+the replay); the command-line helpers are ``service.cliargs``."""
+
+from service.daemon.core import EXIT_LOG_FAILURE, Daemon, default_log_path
+from service.daemon.intake import MAX_ACTUATORS, ActuatorState
+from service.daemon.ratelimit import RateLimitedLog
+from service.daemon.status import percentiles
+from service.daemon.systemd import sd_notify, watchdog_interval
+
+__all__ = [
+    "ActuatorState",
+    "Daemon",
+    "EXIT_LOG_FAILURE",
+    "MAX_ACTUATORS",
+    "RateLimitedLog",
+    "default_log_path",
+    "percentiles",
+    "sd_notify",
+    "watchdog_interval",
+]

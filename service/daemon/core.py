@@ -1,0 +1,536 @@
+"""The monitoring daemon: Zenoh samples in, one monitor bank for all actuators, estimates out,
+MCAP log.
+
+Data path (docs/design.md, "Data flow" and "Backpressure"):
+
+* the Zenoh subscriber callback only appends ``(key, payload, t_recv)`` to a bounded queue
+  (a full queue drops the new message and counts it against its actuator);
+* one worker thread drains the queue every tick, decodes and validates each message into
+  arrays (``service.messages.decode_meas_arrays``), checks sequence numbers and sample times
+  per actuator (``service.daemon.intake``), logs every accepted sample, feeds the whole tick's
+  samples to the monitors in one ``MonitorBank.update_arrays`` call, and hands the output rows
+  to ``service.fanout.FanOut`` (the replay's fan-out too): est, residual and health logged
+  every ``log_every``-th output and at every alarm event, events logged, est/res/health
+  published every ``publish_every``-th output per actuator;
+* the status queryable ``monitor/{station}/{shard}/status`` answers a JSON snapshot.
+
+Bad input (malformed payload, wrong schema, NaN/inf, duplicate or out-of-order samples,
+oversize messages, unparseable keys) is counted per actuator and logged at a limited rate;
+it never stops the worker and never discards a good sample of the same message stream.
+
+A failure of the MCAP log (disk full, the log process gone) is kept as ``log_failure``: the
+status shows it and reports the service ``degraded``, systemd gets a STATUS line, and
+``servowatch run`` exits with ``EXIT_LOG_FAILURE``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service import messages as m
+from service.config import ServiceConfig
+from service.daemon.intake import MAX_ACTUATORS, ActuatorState, accept, reason_of
+from service.daemon.ratelimit import RateLimitedLog
+from service.daemon.status import snapshot
+from service.daemon.systemd import sd_notify, watchdog_interval
+from service.fanout import FanOut
+from service.jsonutil import flat
+from service.monitor import Baseline, MonitorBank
+from service.proclog import MEAS_LOG_FIELDS, ProcessLogger, meas_log_values
+
+__all__ = ["Daemon", "default_log_path", "EXIT_LOG_FAILURE"]
+
+log = logging.getLogger("servowatch.daemon")
+
+#: exit code of ``servowatch run`` when the MCAP log failed (README, "Commands")
+EXIT_LOG_FAILURE = 4
+
+
+def default_log_path(log_dir: Path, station: str, shard: str, prefix: str = "servowatch") -> Path:
+    """``{log_dir}/{prefix}-{station}-{shard}-{UTC time}.mcap``."""
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    return Path(log_dir) / f"{prefix}-{station}-{shard}-{stamp}.mcap"
+
+
+def _warm_up(bank: MonitorBank) -> float:
+    """Run a throwaway bank of the same configuration on a few synthetic samples, so that JIT
+    compilation happens before the first real sample (and before READY). Seconds taken."""
+    t0 = time.perf_counter()
+    try:
+        b = MonitorBank(bank.config, bank.baseline)
+        k = b.index_of("_warm")
+        ch = np.tile([0.0, 0.0, 0.0, 0.0, 10e6, 10e6, 20e6], (5, 1))
+        b.update_arrays(np.full(5, k, np.int64), np.arange(5) * 1e-3, ch)
+    except Exception as e:  # warming up is an optimisation only
+        log.warning("monitor warm-up failed: %s", e)
+    return time.perf_counter() - t0
+
+
+class Daemon:
+    """The monitoring daemon (see the module docstring).
+
+    Usable without Zenoh: ``submit(key, payload)`` then ``process_pending()`` (tests). With
+    Zenoh: ``start(session)`` declares the subscriber, queryable and liveliness token and
+    starts the worker; ``stop()`` stops the inflow, drains the queue, finishes the log.
+
+    ``logger`` (default: a ``ProcessLogger``, or an in-process ``McapLogger`` when
+    ``log_process`` is False) needs ``log``, ``log_block``, ``commit``, ``close``, ``paths``
+    and ``failure``; a ``log_payload`` method, when it has one, takes the received
+    measurement payloads instead of decoded blocks. ``bank`` replaces the ``MonitorBank``
+    built from the config (benchmarks: a bank that does nothing).
+    """
+
+    def __init__(
+        self,
+        config: ServiceConfig | None = None,
+        *,
+        log_path: str | Path | None = None,
+        logger: Any = None,
+        bank: Any = None,
+        tick_s: float = 0.05,
+        gather_s: float = 0.005,
+        max_batch: int = 500,
+        bad_log_interval_s: float = 5.0,
+        log_process: bool = True,
+    ) -> None:
+        config = config if config is not None else ServiceConfig()
+        self.config = config
+        self.station = config.station
+        self.shard = config.shard
+        self.key_expr = config.key_expr
+        self.publish_every = config.publish_every
+        self.log_every = config.log_every
+        self.silence_s = config.silence_s
+        self.queue_size = config.queue_size
+        self.max_bytes = config.max_bytes
+        self.tick_s = tick_s
+        self.gather_s = gather_s
+        self.max_batch = max_batch
+        if bank is None:
+            baseline = Baseline.load(config.baseline) if config.baseline else None
+            bank = MonitorBank(config.monitor, baseline)
+        self.bank = bank
+        if logger is None:
+            from service.log import McapLogger
+
+            if log_path is None:
+                log_path = default_log_path(
+                    config.log_dir, self.station, self.shard, config.log_name
+                )
+            Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+            kw = {
+                "rotate_bytes": config.rotate_bytes,
+                "rotate_s": config.rotate_s,
+                "flush_s": config.flush_s,
+                "metadata": {
+                    "source": "daemon",
+                    "station": self.station,
+                    "shard": self.shard,
+                    "monitor_config": bank.config.model_dump_json(),
+                    "baseline": bank.baseline.model_dump_json(),
+                },
+            }
+            logger = ProcessLogger(log_path, **kw) if log_process else McapLogger(log_path, **kw)
+        self.logger = logger
+        self._log_payload = getattr(logger, "log_payload", None)
+        self.log_path = Path(log_path) if log_path is not None else None
+        self.log_failure: str | None = None
+        self.actuators: dict[str, ActuatorState] = {}
+        self._rows: dict[int, ActuatorState] = {}  # bank row -> actuator
+        self.unknown: dict[str, int] = {}  # reason -> count, for keys that name no actuator
+        self._queue: deque = deque()
+        self._arrival: dict[str, float] = {}  # key -> time.monotonic() of the last message
+        self.first_arrival: dict[str, float] = {}  # key -> time.monotonic() of the first one
+        self.alive_tokens: dict[str, bool] = {}  # fleet/{ac}/{act}/alive -> token present
+        self._wake = threading.Event()
+        self._lock = threading.Lock()  # guards self.actuators structure + status snapshot
+        self._stop = threading.Event()
+        self._notify_lock = threading.Lock()
+        self._worker: threading.Thread | None = None
+        self._session = None
+        self._decl: list[Any] = []
+        self.latency = deque(maxlen=50000)  # receipt -> health output [s]
+        self.age = deque(maxlen=50000)  # sample time t -> health output [s] (Unix-time t)
+        self.bad_log = RateLimitedLog(log, bad_log_interval_s)
+        self.fanout = FanOut(
+            logger,
+            log_every=self.log_every,
+            publish_every=self.publish_every,
+            on_publish_error=self._publish_failed,
+        )
+        self.started = time.time()
+        self.ticks = 0
+        self.busy_s = 0.0
+        self.queue_high = 0
+        self.errors = 0
+        self._closed = False
+        self._last_silence_check = 0.0
+        self._wd_interval = watchdog_interval()
+        self._wd_last = 0.0
+
+    # -- inflow -------------------------------------------------------------------------
+    def submit(self, key: str, payload: bytes, t_recv: float | None = None) -> bool:
+        """Queue one message (never blocks); False if the queue was full (drop counted)."""
+        if len(self._queue) >= self.queue_size:
+            self._count_drop(key)
+            return False
+        t_recv = time.monotonic() if t_recv is None else t_recv
+        self._arrival[key] = t_recv  # for silence detection, even while the worker lags
+        if key not in self.first_arrival:
+            self.first_arrival[key] = t_recv
+        self._queue.append((key, payload, t_recv))
+        n = len(self._queue)
+        if n > self.queue_high:
+            self.queue_high = n
+        if n == 1 or n % 64 == 0:
+            self._wake.set()
+        return True
+
+    def _on_zenoh_sample(self, sample) -> None:
+        try:
+            self.submit(str(sample.key_expr), sample.payload.to_bytes())
+        except Exception:  # never let a callback raise into zenoh
+            self.errors += 1
+
+    def _count_drop(self, key: str) -> None:
+        st = self._state_for_key(key)
+        if st is not None:
+            st.dropped += 1
+        else:
+            self.unknown["dropped"] = self.unknown.get("dropped", 0) + 1
+
+    # -- per-actuator state --------------------------------------------------------------
+    def _state_for_key(self, key: str) -> ActuatorState | None:
+        st = self.actuators.get(key)
+        if st is not None:
+            return st
+        try:
+            aircraft, actuator = m.parse_meas_key(key)
+        except m.MessageError:
+            return None
+        with self._lock:
+            st = self.actuators.get(key)
+            if st is None:
+                if len(self.actuators) >= MAX_ACTUATORS:
+                    return None
+                st = ActuatorState(aircraft, actuator)
+                self.actuators[key] = st
+                log.info("new actuator %s", st.name)
+        return st
+
+    # -- per-actuator state --------------------------------------------------------------
+    def _state_for_key(self, key: str) -> ActuatorState | None:
+        st = self.actuators.get(key)
+        if st is not None:
+            return st
+        try:
+            aircraft, actuator = m.parse_meas_key(key)
+        except m.MessageError:
+            return None
+        with self._lock:
+            st = self.actuators.get(key)
+            if st is None:
+                if len(self.actuators) >= MAX_ACTUATORS:
+                    return None
+                st = ActuatorState(aircraft, actuator)
+                self.actuators[key] = st
+                log.info("new actuator %s", st.name)
+        return st
+
+    # -- worker -------------------------------------------------------------------------
+    def process_pending(self) -> int:
+        """Drain the queue once: validate, log, update the monitors, publish. Returns the
+        number of samples fed to the monitors."""
+        q = self._queue
+        if not q:
+            return 0
+        t0 = time.perf_counter()
+        msgs = []
+        while q and len(msgs) < self.max_batch:
+            msgs.append(q.popleft())
+        parts: list[tuple[ActuatorState, str, m.MeasArrays, int, float]] = []
+        for key, payload, t_recv in msgs:
+            st = self._state_for_key(key)
+            if st is None:
+                reason = "unknown_actuator" if key.endswith("/meas") else "invalid_key"
+                try:
+                    m.parse_meas_key(key)
+                except m.MessageError:
+                    reason = "invalid_key"
+                self.unknown[reason] = self.unknown.get(reason, 0) + 1
+                self.bad_log.warning("key:" + reason, "%s: %s", reason, key[:200])
+                continue
+            st.messages += 1
+            st.last_recv = t_recv
+            if st.silent:
+                st.silent = False
+                self._service_event(st, "resumed", st.last_t)
+            try:
+                a = m.decode_meas_arrays(payload, self.max_bytes)
+            except m.MessageError as e:
+                reason = reason_of(e)
+                st.count_bad(reason)
+                self.bad_log.warning(st.name, "bad message from %s: %s (%s)", st.name, e, reason)
+                continue
+            j0 = accept(st, a, self.bad_log, self._on_restart)
+            if j0 >= len(a.t):
+                continue
+            self._log_meas(st, payload, a, j0)
+            parts.append((st, key, a, j0, t_recv))
+        n_fed = sum(len(p[2].t) - p[3] for p in parts)
+        if parts:
+            try:
+                self._update(parts)
+            except Exception as e:  # a monitor failure must not kill the daemon
+                self.errors += 1
+                log.exception("monitor update failed: %s", e)
+        self.logger.commit()
+        self._check_log()
+        self.ticks += 1
+        self.busy_s += time.perf_counter() - t0
+        return n_fed
+
+    def _log_meas(self, st: ActuatorState, payload: bytes, a: m.MeasArrays, j0: int) -> None:
+        """The accepted samples j0.. of a message on the actuator's ``meas`` topic."""
+        topic = m.mcap_topic(st.aircraft, st.actuator, "meas")
+        n = len(a.t)
+        try:
+            if self._log_payload is not None:  # the log process decodes the payload again
+                self._log_payload(topic, payload, None if j0 == 0 else list(range(j0, n)))
+            else:
+                self.logger.log_block(
+                    topic, a.t[j0:], MEAS_LOG_FIELDS, meas_log_values(a, j0), int_fields=("seq",)
+                )
+        except Exception:  # kept in logger.failure and logged there; monitoring goes on
+            self.errors += 1
+
+    def _update(self, parts: list) -> None:
+        """The tick's samples in one ``MonitorBank.update_arrays`` call; the output rows
+        through the fan-out (log blocks, events, publishing)."""
+        sizes = [len(a.t) - j0 for _, _, a, j0, _ in parts]
+        rows_of = []
+        for st, key, _, _, _ in parts:
+            row = self.bank.index_of(key)  # in the worker: it may grow the bank's arrays
+            if row not in self._rows:
+                self._rows[row] = st
+                self.fanout.track(row, st.aircraft, st.actuator)
+            rows_of.append(row)
+        ks = np.repeat(np.array(rows_of, np.int64), sizes)
+        t = np.concatenate([a.t[j0:] for _, _, a, j0, _ in parts])
+        ch = np.concatenate([a.values[j0:] for _, _, a, j0, _ in parts])
+        recv = np.repeat(np.array([p[4] for p in parts]), sizes)
+        rows = self.bank.update_arrays(ks, t, ch)
+        idx = rows.index
+        if len(idx) == 0:
+            return
+        now_m, now_w = time.monotonic(), time.time()
+        self.latency.extend((now_m - recv[idx]).tolist())
+        old = rows.t > 1e9  # Unix-time sample clock: end-to-end age is meaningful
+        if old.any():
+            self.age.extend((now_w - rows.t[old]).tolist())
+        for em in self.fanout.emit(rows, ks):
+            st = self._rows[em.row]
+            st.outputs += em.outputs
+            st.published += em.published
+            st.latest = (rows, em.last)
+            for d in em.events:
+                kind = str(d.get("kind"))
+                if _is_active(d.get("state")):
+                    st.alarms[kind] = d
+                else:
+                    st.alarms.pop(kind, None)
+                st.events.append(d)
+                log.info("alarm %s %s: %s", st.name, kind, d)
+
+    def _publish_failed(self, e: Exception) -> None:
+        self.errors += 1
+        self.bad_log.warning("publish", "publish failed: %s", e)
+
+    def _check_log(self) -> None:
+        """Take up the logger's first failure: status, health, systemd."""
+        if self.log_failure is None and self.logger.failure is not None:
+            self.log_failure = str(self.logger.failure)
+            log.error("MCAP log failed, service degraded: %s", self.log_failure)
+            sd_notify(f"STATUS=degraded: MCAP log failed: {self.log_failure[:200]}")
+
+    def _on_restart(self, st: ActuatorState, t: float, seq: int) -> None:
+        self._service_event(st, "restart", t, value=seq)
+
+    def _service_event(
+        self, st: ActuatorState, kind: str, t: float | None, value: Any = None
+    ) -> None:
+        """A daemon-side event (silent, resumed, restart) in the log and the status."""
+        t = float(t) if t is not None else time.time()
+        d = {"t": t, "kind": kind, "value": value, "wall": time.time()}
+        st.events.append(d)
+        self.logger.log(f"/fleet/{st.aircraft}/{st.actuator}/service", t, flat(d))
+        log.info("%s %s", st.name, kind)
+
+    def check_silence(self, now: float | None = None) -> list[str]:
+        """Mark actuators silent after ``silence_s`` without a message; return new ones."""
+        now = time.monotonic() if now is None else now
+        out = []
+        for key, st in list(self.actuators.items()):
+            last = self._arrival.get(key, st.last_recv)
+            if not st.silent and last is not None and now - last > self.silence_s:
+                st.silent = True
+                out.append(st.name)
+                self._service_event(st, "silent", st.last_t, value=now - last)
+        return out
+
+    def _run_worker(self) -> None:
+        while True:
+            stopping = self._stop.is_set()
+            self._wake.wait(self.tick_s)
+            self._wake.clear()
+            try:
+                self.process_pending()
+                now = time.monotonic()
+                if now - self._last_silence_check > 0.2:
+                    self._last_silence_check = now
+                    if self.check_silence(now):
+                        self.logger.commit()
+                if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
+                    self._wd_last = now
+                    with self._notify_lock:  # never a WATCHDOG after STOPPING
+                        if not self._stop.is_set():
+                            sd_notify("WATCHDOG=1")
+            except Exception:
+                self.errors += 1
+                log.exception("worker tick failed")
+            if stopping and not self._queue:
+                return
+            if self.gather_s > 0:
+                time.sleep(self.gather_s)  # let the next tick's samples gather into one batch
+
+    # -- status -------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        """A JSON-ready snapshot: actuators, counters, latency, alarms, silent actuators, the
+        log's failure and the service state (``service.daemon.status.snapshot``)."""
+        self._check_log()
+        return snapshot(self)
+
+    @property
+    def queued(self) -> int:
+        """Messages waiting in the receive queue."""
+        return len(self._queue)
+
+    def monitor_counters(self, key: str) -> dict[str, int] | None:
+        """The monitor's own sample counters of ``key`` (None before its first sample)."""
+        try:
+            return dict(self.bank.counters_of(key))
+        except KeyError:
+            return None
+
+    def _on_alive(self, sample) -> None:
+        """Liveliness token of an actuator appeared (PUT) or vanished (DELETE)."""
+        try:
+            import zenoh
+
+            key = str(sample.key_expr)
+            self.alive_tokens[key] = sample.kind == zenoh.SampleKind.PUT
+        except Exception:
+            self.errors += 1
+
+    def _on_status_query(self, query) -> None:
+        try:
+            key = m.KEY_STATUS.format(station=self.station, shard=self.shard)
+            query.reply(key, m.encode_json(self.status()))
+        except Exception as e:
+            self.errors += 1
+            log.warning("status query failed: %s", e)
+
+    # -- lifecycle ----------------------------------------------------------------------
+    def start(self, session=None) -> None:
+        """Declare Zenoh entities on ``session`` (if given) and start the worker thread."""
+        if session is not None:
+            self._session = session
+            self.fanout.session = session
+            self._decl.append(session.declare_subscriber(self.key_expr, self._on_zenoh_sample))
+            skey = m.KEY_STATUS.format(station=self.station, shard=self.shard)
+            self._decl.append(session.declare_queryable(skey, self._on_status_query))
+            self._decl.append(
+                session.liveliness().declare_token(f"monitor/{self.station}/{self.shard}/alive")
+            )
+            try:  # actuators' liveliness tokens (virtual actuators hold one)
+                self._decl.append(
+                    session.liveliness().declare_subscriber(
+                        m.KEY_ALIVE.format(aircraft="*", actuator="*"), self._on_alive, history=True
+                    )
+                )
+            except Exception as e:  # an older zenoh without history: data silence still works
+                log.warning("no liveliness subscriber: %s", e)
+        warm = _warm_up(self.bank) if isinstance(self.bank, MonitorBank) else 0.0
+        if warm > 0.05:
+            log.info("monitor warm-up (JIT) took %.2f s", warm)
+        self._worker = threading.Thread(
+            target=self._run_worker, name="servowatch-worker", daemon=True
+        )
+        self._worker.start()
+        sd_notify("READY=1")
+        log.info(
+            "daemon %s/%s started on %s, logging to %s",
+            self.station,
+            self.shard,
+            self.key_expr,
+            self.log_path,
+        )
+
+    def stop(self, timeout: float = 30.0) -> dict[str, Any]:
+        """Stop the inflow, process what is queued, finish the log. Idempotent.
+
+        Returns the final status."""
+        if self._closed:
+            return self.status()
+        with self._notify_lock:
+            self._stop.set()
+            sd_notify("STOPPING=1")
+        # stop the inflow first: the subscriber goes, queued messages are still processed
+        for d in self._decl[:1]:
+            with contextlib.suppress(Exception):
+                d.undeclare()
+        self._wake.set()
+        if self._worker is not None:
+            self._worker.join(timeout)
+        while self._queue:  # no worker (tests) or it gave up: drain here
+            self.process_pending()
+        for d in self._decl[1:]:
+            with contextlib.suppress(Exception):
+                d.undeclare()
+        self.fanout.close()
+        try:
+            self.logger.close()
+        except Exception as e:  # kept in logger.failure
+            log.error("closing the MCAP log failed: %s", e)
+        self._closed = True
+        final = self.status()
+        log.info(
+            "daemon stopped: %s samples, %s dropped, %s bad",
+            final["samples"],
+            final["dropped"],
+            final["bad"],
+        )
+        return final
+
+    def __enter__(self) -> Daemon:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+_OFF_STATES = {"off", "clear", "cleared", "ok", "normal", "none", "false", "0", "inactive"}
+
+
+def _is_active(state: Any) -> bool:
+    if isinstance(state, bool):
+        return state
+    return str(state).lower() not in _OFF_STATES

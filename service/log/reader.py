@@ -1,0 +1,266 @@
+"""The streaming MCAP reader: every message of every complete chunk, in file order.
+
+:func:`read_log` makes one pass over the records (MessageIndex records skipped) and stops
+with one :class:`TruncatedLogWarning` at the first incomplete or corrupt record: a file whose
+writer was killed has no footer and may end inside a chunk. Each chunk is decompressed and
+CRC-checked one ahead in a helper thread (zstd and zlib release the GIL).
+:func:`service.log.blocks.read_blocks` reads the same chunks as column blocks.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import struct
+import warnings
+import zlib
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Footer, Schema
+from mcap.writer import MCAP0_MAGIC
+
+from service.compat.mcap import SkipIndexStreamReader
+
+try:
+    import zstandard
+except ImportError:  # pragma: no cover
+    zstandard = None
+try:
+    import lz4.frame as lz4_frame
+except ImportError:  # pragma: no cover
+    lz4_frame = None
+
+__all__ = [
+    "LogReadStats",
+    "TruncatedLogWarning",
+    "read_log",
+    "read_log_files",
+    "rotated_files",
+]
+
+log = logging.getLogger("servowatch.log")
+
+_MSG_HEAD = struct.Struct("<HIQQ")  # channel_id, sequence, log_time, publish_time
+_REC_HEAD = struct.Struct("<BQ")  # opcode, length
+
+
+class TruncatedLogWarning(UserWarning):
+    """An MCAP file that ends early or holds a corrupt record (its writer was killed)."""
+
+
+class LogReadStats:
+    """What :func:`read_log` found: chunks read, messages, truncation (filled while iterating)."""
+
+    def __init__(self) -> None:
+        self.chunks = 0
+        self.messages = 0
+        self.truncated = False
+        self.reason = ""
+        self.footer = False
+
+
+def _decompress(chunk: Chunk) -> bytes:
+    if chunk.compression == "":
+        data = chunk.data
+    elif chunk.compression == "zstd":
+        if zstandard is None:  # pragma: no cover
+            raise RuntimeError("zstd chunk but the zstandard package is missing")
+        data = zstandard.ZstdDecompressor().decompress(
+            chunk.data, max_output_size=chunk.uncompressed_size
+        )
+    elif chunk.compression == "lz4":
+        if lz4_frame is None:  # pragma: no cover
+            raise RuntimeError("lz4 chunk but the lz4 package is missing")
+        data = lz4_frame.decompress(chunk.data)
+    else:
+        raise ValueError(f"unknown chunk compression {chunk.compression!r}")
+    if len(data) != chunk.uncompressed_size:
+        raise ValueError("chunk size mismatch")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError("chunk CRC mismatch")
+    return data
+
+
+def _iter_chunk(data: bytes) -> Iterator[tuple[int, Any]]:
+    """Records inside a decompressed chunk: (opcode, parsed) with messages as tuples."""
+    from io import BytesIO
+
+    from mcap.data_stream import ReadDataStream
+
+    pos, end = 0, len(data)
+    mv = memoryview(data)
+    while pos < end:
+        op, length = _REC_HEAD.unpack_from(data, pos)
+        body = pos + 9
+        if body + length > end:
+            raise ValueError("record overruns its chunk")
+        if op == Opcode.MESSAGE:
+            cid, seq, lt, pt = _MSG_HEAD.unpack_from(data, body)
+            yield op, (cid, seq, lt, bytes(mv[body + 22 : body + length]))
+        elif op in (Opcode.SCHEMA, Opcode.CHANNEL):
+            rs = ReadDataStream(BytesIO(bytes(mv[body : body + length])))
+            yield op, (Schema.read(rs) if op == Opcode.SCHEMA else Channel.read(rs))
+        pos = body + length
+
+
+def iter_stream(
+    path: Path, stats: LogReadStats, channels: dict[int, str]
+) -> Iterator[bytes | tuple[int, int, bytes]]:
+    """Decompressed chunks (``bytes``) and un-chunked messages ``(channel_id, log_time, data)``
+    in file order. Channel records outside chunks go into ``channels``; ``stats`` gets the
+    footer and the truncation (the caller counts chunks). Each chunk is decompressed and
+    CRC-checked in a helper thread (zstd and zlib release the GIL) while the next record is
+    read and the previous chunk is used."""
+    ahead: deque = deque()  # in file order: futures of chunks, un-chunked messages
+    pool: ThreadPoolExecutor | None = None
+
+    def resolved(item):
+        if not isinstance(item, Future):
+            return item
+        try:
+            return item.result()
+        except Exception as e:
+            stats.truncated = True
+            stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
+            return None
+
+    try:
+        with open(path, "rb") as fh:
+            reader = SkipIndexStreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
+            records = reader.records
+            while True:
+                try:
+                    rec = next(records)
+                except StopIteration:
+                    break
+                except Exception as e:  # EndOfFile, struct.error, InvalidMagic, ...
+                    stats.truncated = True
+                    stats.reason = f"{type(e).__name__} {e}".strip()
+                    break
+                if isinstance(rec, Chunk):
+                    if pool is None:
+                        pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-read")
+                    ahead.append(pool.submit(_decompress, rec))
+                    while len(ahead) > 1:  # one chunk decompressing ahead
+                        item = resolved(ahead.popleft())
+                        if item is None:
+                            return
+                        yield item
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec.topic
+                elif isinstance(rec, Footer):
+                    stats.footer = True
+                    if fh.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+                        stats.truncated = True
+                        stats.reason = "trailing magic missing"
+                    break
+                elif getattr(rec, "channel_id", None) is not None and hasattr(rec, "data"):
+                    ahead.append((rec.channel_id, rec.log_time, rec.data))  # un-chunked
+        while ahead:
+            item = resolved(ahead.popleft())
+            if item is None:
+                return
+            yield item
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _iter_raw(
+    path: Path, stats: LogReadStats
+) -> Iterator[tuple[str, int, bytes]]:  # (topic, log_time_ns, data)
+    channels: dict[int, str] = {}
+    for item in iter_stream(path, stats, channels):
+        if isinstance(item, tuple):
+            topic = channels.get(item[0])
+            if topic is not None:
+                yield topic, item[1], item[2]
+            continue
+        try:
+            parsed = list(_iter_chunk(item))
+        except Exception as e:
+            stats.truncated = True
+            stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
+            return
+        stats.chunks += 1
+        for op, r in parsed:
+            if op == Opcode.CHANNEL:
+                channels[r.id] = r.topic
+            elif op == Opcode.MESSAGE:
+                topic = channels.get(r[0])
+                if topic is not None:
+                    yield topic, r[2], r[3]
+
+
+def truncation_text(p: Path, st: LogReadStats) -> str | None:
+    if not (st.truncated or not st.footer):
+        return None
+    if not st.truncated:
+        st.truncated = True
+        st.reason = "no footer"
+    return (
+        f"{p}: truncated MCAP log ({st.reason}); read {st.chunks} complete chunks, "
+        f"{st.messages} messages"
+    )
+
+
+def read_log(
+    path: str | Path,
+    topics: Iterable[str] | None = None,
+    *,
+    stats: LogReadStats | None = None,
+    match: Callable[[str], bool] | None = None,
+) -> Iterator[tuple[str, float, dict]]:
+    """Yield ``(topic, t_s, msg)`` for every message of every complete chunk, in file order.
+
+    ``t_s`` is ``log_time`` in seconds; ``msg`` the decoded JSON object. ``topics`` keeps only
+    those topics, ``match`` only the topics it accepts (messages of other topics are not
+    decoded). A file that ends early or holds a corrupt chunk yields everything before
+    it and then warns once with :class:`TruncatedLogWarning` (also logged). ``stats``, if
+    given, is filled as the iteration proceeds.
+    """
+    p = Path(path)
+    st = stats if stats is not None else LogReadStats()
+    want = None if topics is None else set(topics)
+    decided: dict[str, bool] = {}
+    loads = json.loads
+    for topic, lt, data in _iter_raw(p, st):
+        keep = decided.get(topic)
+        if keep is None:
+            keep = decided[topic] = (want is None or topic in want) and (
+                match is None or bool(match(topic))
+            )
+        if not keep:
+            continue
+        try:
+            msg = loads(data)
+        except ValueError:
+            continue
+        st.messages += 1
+        yield topic, lt * 1e-9, msg
+    text = truncation_text(p, st)
+    if text is not None:
+        log.warning(text)
+        warnings.warn(text, TruncatedLogWarning, stacklevel=2)
+
+
+def rotated_files(path: str | Path) -> list[Path]:
+    """``path`` itself if it exists, else the rotation set ``{stem}-NNNN-*{suffix}`` in order."""
+    p = Path(path)
+    if p.exists():
+        return [p]
+    return sorted(p.parent.glob(f"{p.stem}-[0-9][0-9][0-9][0-9]-*{p.suffix}"))
+
+
+def read_log_files(
+    paths: Iterable[str | Path], topics: Iterable[str] | None = None
+) -> Iterator[tuple[str, float, dict]]:
+    """:func:`read_log` over several files in turn (a rotation set)."""
+    tl = None if topics is None else list(topics)
+    for p in paths:
+        yield from read_log(p, tl)

@@ -1,0 +1,401 @@
+"""The MCAP writer: :class:`McapLogger` (JSON messages, schemas, flush thread, rotation).
+
+One JSON message per sample with flat fields and a jsonschema per topic (Foxglove's Plot panel
+shows the fields directly), ``log_time`` = ``publish_time`` = sample time in ns, topics like
+``/fleet/AC001/elevator_L/residual``. The chunk in progress is ended and written at least every
+``flush_s`` seconds (by the writing calls and by a background thread), so a writer killed with
+``kill -9`` loses at most about ``flush_s`` of data; files rotate by size or age; ``close``
+finishes the file (summary, footer). All methods are thread-safe.
+
+:meth:`McapLogger.log_block` writes many samples of one topic from a float array: the same
+bytes as one :meth:`McapLogger.log` per row, formatted and packed by the compiled kernels of
+:mod:`service.log.codec` and appended with one call (``BlockWriter.add_records``).
+
+The first failure to write or flush (disk full, a closed stream) is kept in
+:attr:`McapLogger.failure`, logged at ERROR and raised to the caller; the background thread,
+which has no caller, stops flushing after it. Messages logged after a failure are counted in
+:attr:`McapLogger.dropped` and not written (the writer's state is unknown after a failed
+write, and buffering them would only grow the memory).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import threading
+import time
+from collections.abc import Iterable, Mapping
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from mcap.writer import CompressionType
+
+from service.compat.mcap import BlockWriter, pack_records
+from service.jsonutil import flat
+
+try:
+    import zstandard
+except ImportError:  # pragma: no cover
+    zstandard = None
+try:
+    import lz4.frame as lz4_frame
+except ImportError:  # pragma: no cover
+    lz4_frame = None
+
+__all__ = ["McapLogger", "json_schema_for"]
+
+log = logging.getLogger("servowatch.log")
+
+_LIBRARY = "servowatch"
+_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
+
+def json_schema_for(topic: str, msg: Mapping[str, Any]) -> dict[str, Any]:
+    """A flat jsonschema for messages like ``msg`` (numbers may be null; extra keys allowed)."""
+    props: dict[str, Any] = {}
+    for k, v in msg.items():
+        if isinstance(v, bool):
+            props[k] = {"type": "boolean"}
+        elif isinstance(v, int):
+            props[k] = {"type": "integer"}
+        elif isinstance(v, float) or v is None:
+            props[k] = {"type": ["number", "null"]}
+        elif isinstance(v, str):
+            props[k] = {"type": "string"}
+        else:
+            props[k] = {}
+    return {"title": topic, "type": "object", "properties": props}
+
+
+def _row_dicts(names: tuple[str, ...], isint: np.ndarray, vals: np.ndarray) -> list[dict]:
+    """The message dicts :meth:`McapLogger.log_block` writes for the rows of ``vals``."""
+    kinds = isint.tolist()
+    isfinite = math.isfinite
+    return [
+        {
+            k: (None if not isfinite(v) else int(v) if ii else v)
+            for k, ii, v in zip(names, kinds, row, strict=True)
+        }
+        for row in vals.tolist()
+    ]
+
+
+class McapLogger:
+    """Thread-safe MCAP writer: JSON messages, one jsonschema per topic, periodic flush,
+    rotation by size (``rotate_bytes``) and/or age (``rotate_s``).
+
+    Without rotation the file is ``path`` itself; with rotation the files are
+    ``{stem}-{counter:04d}-{UTC timestamp}{suffix}`` beside ``path``. ``paths`` lists the
+    files written so far; ``failure`` is None or the first write/flush error (text). Use as a
+    context manager or call :meth:`close`.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        rotate_bytes: int | None = None,
+        rotate_s: float | None = None,
+        flush_s: float = 1.0,
+        chunk_size: int = 1 << 20,
+        compression: str = "zstd",
+        zstd_level: int = 1,
+        background_flush: bool = True,
+        metadata: Mapping[str, str] | None = None,
+    ):
+        if flush_s <= 0:
+            raise ValueError("flush_s must be > 0")
+        if rotate_bytes is not None and rotate_bytes <= 0:
+            raise ValueError("rotate_bytes must be > 0 or None")
+        if rotate_s is not None and rotate_s <= 0:
+            raise ValueError("rotate_s must be > 0 or None")
+        if compression not in ("zstd", "lz4", "none"):
+            raise ValueError(f"compression must be zstd, lz4 or none, not {compression!r}")
+        self.path = Path(path)
+        self.rotate_bytes = rotate_bytes
+        self.rotate_s = rotate_s
+        self.flush_s = float(flush_s)
+        self.chunk_size = int(chunk_size)
+        self._compression = {
+            "zstd": CompressionType.ZSTD if zstandard is not None else CompressionType.NONE,
+            "lz4": CompressionType.LZ4 if lz4_frame is not None else CompressionType.NONE,
+            "none": CompressionType.NONE,
+        }[compression]
+        self.zstd_level = int(zstd_level)
+        self._metadata = dict(metadata or {})
+        self.paths: list[Path] = []
+        self.message_count = 0
+        self.flush_count = 0
+        self.failure: str | None = None
+        self.dropped = 0  # messages not written because of the failure
+        self._lock = threading.RLock()
+        self._closed = False
+        self._counter = 0
+        self._fh: IO[bytes] | None = None
+        self._writer: BlockWriter | None = None
+        self._channels: dict[str, int] = {}
+        self._seq: dict[int, int] = {}
+        self._dirty = False
+        self._since_check = 0
+        self._open_next()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        if background_flush:
+            self._thread = threading.Thread(target=self._flush_loop, name="mcap-flush", daemon=True)
+            self._thread.start()
+
+    # ----------------------------------------------------------------- files
+    def _next_path(self) -> Path:
+        if self.rotate_bytes is None and self.rotate_s is None:
+            return self.path
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+        p = self.path.with_name(f"{self.path.stem}-{self._counter:04d}-{stamp}{self.path.suffix}")
+        self._counter += 1
+        return p
+
+    def _open_next(self) -> None:
+        p = self._next_path()
+        p.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(p, "wb")  # noqa: SIM115 - closed in _finish_current
+        self._writer = BlockWriter(
+            self._fh,
+            chunk_size=self.chunk_size,
+            compression=self._compression,
+            zstd_level=self.zstd_level,
+        )
+        self._writer.start(profile="", library=_LIBRARY)
+        if self._metadata:
+            self._writer.add_metadata("servowatch", self._metadata)
+        self._channels.clear()
+        self._seq.clear()
+        self._opened_at = time.monotonic()
+        self._last_flush = self._opened_at
+        self.paths.append(p)
+        log.debug("mcap: writing %s", p)
+
+    def _finish_current(self) -> None:
+        try:
+            if self._writer is not None:
+                self._writer.finish()
+        finally:
+            self._writer = None
+            if self._fh is not None:
+                self._fh.close()
+                self._fh = None
+
+    def _maybe_rotate(self) -> None:
+        fh = self._fh
+        if fh is None:
+            return
+        too_big = self.rotate_bytes is not None and fh.tell() >= self.rotate_bytes
+        too_old = self.rotate_s is not None and time.monotonic() - self._opened_at >= self.rotate_s
+        if too_big or too_old:
+            self._finish_current()
+            self._open_next()
+
+    def _failed(self, what: str, e: BaseException) -> None:
+        """Keep and log the first failure (the caller re-raises)."""
+        if self.failure is None:
+            self.failure = f"{what} {self.paths[-1] if self.paths else self.path}: " + (
+                f"{type(e).__name__}: {e}"
+            )
+            log.error("mcap: %s", self.failure)
+
+    # ----------------------------------------------------------------- writing
+    def _channel(self, topic: str, msg: Mapping[str, Any]) -> int:
+        w = self._writer
+        assert w is not None
+        schema = json_schema_for(topic, msg)
+        sid = w.register_schema(
+            name=topic.rsplit("/", 1)[-1] or topic,
+            encoding="jsonschema",
+            data=json.dumps(schema).encode(),
+        )
+        cid = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        self._channels[topic] = cid
+        self._seq[cid] = 0
+        return cid
+
+    def log(self, topic: str, t: float, msg: Mapping[str, Any]) -> None:
+        """Append ``msg`` (flat JSON-serialisable mapping) on ``topic`` at sample time ``t`` [s].
+
+        Non-finite floats are written as ``null`` (JSON has no NaN), numpy scalars as numbers,
+        nested lists or mappings as JSON text (the fields stay flat), other objects as text
+        (``service.jsonutil.flat``).
+        """
+        try:
+            data = _ENCODE(msg).encode()
+        except (ValueError, TypeError):
+            msg = flat(dict(msg))
+            data = _ENCODE(msg).encode()
+        t_ns = max(0, int(round(t * 1e9)))
+        with self._lock:
+            if self._closed:
+                raise ValueError("log() on a closed McapLogger")
+            if self.failure is not None:
+                self.dropped += 1
+                return
+            try:
+                cid = self._channels.get(topic)
+                if cid is None:
+                    cid = self._channel(topic, msg)
+                seq = self._seq[cid]
+                self._seq[cid] = (seq + 1) & 0xFFFFFFFF
+                self._writer.add_message(cid, t_ns, data, t_ns, seq)  # type: ignore[union-attr]
+                self.message_count += 1
+                self._dirty = True
+                self._since_check += 1
+                if self._since_check >= 64:
+                    self._since_check = 0
+                    if time.monotonic() - self._last_flush >= self.flush_s:
+                        self._flush_locked()
+                    self._maybe_rotate()
+            except Exception as e:
+                self._failed("write", e)
+                raise
+
+    def log_block(
+        self,
+        topic: str,
+        t: np.ndarray,
+        names: Iterable[str],
+        values: np.ndarray,
+        *,
+        int_fields: Iterable[str] = (),
+    ) -> None:
+        """Append one message per row of ``values`` (N, F) on ``topic`` at times ``t`` (N,) [s].
+
+        Row k is written exactly as ``log(topic, t[k], {names[f]: values[k, f]})`` writes it
+        (floats as ``float.__repr__``, fields named in ``int_fields`` as integers, truncated;
+        non-finite values as ``null``); the schema comes from the first row if the topic is
+        new. Same flush and rotation as :meth:`log` (checked once per block).
+        """
+        names_t = tuple(str(n) for n in names)
+        tt = np.asarray(t, dtype=np.float64).reshape(-1)
+        vals = np.ascontiguousarray(values, dtype=np.float64)
+        if vals.ndim != 2 or vals.shape != (tt.size, len(names_t)):
+            raise ValueError(
+                f"values must be (len(t), len(names)) = ({tt.size}, {len(names_t)}), "
+                f"got {vals.shape}"
+            )
+        if len(set(names_t)) != len(names_t):
+            raise ValueError(f"duplicate field names in {names_t}")
+        n = tt.size
+        if n == 0:
+            return
+        tns = tt * 1e9
+        if not (np.isfinite(tns).all() and tns.max() < 2.0**63):
+            raise ValueError("log_block: t must be finite and < 2**63 ns")
+        lts = np.maximum(np.rint(tns), 0.0).astype(np.int64)  # = max(0, int(round(t * 1e9)))
+        from service.log.codec import encode_records, row_format  # numba: imported on use
+
+        fmt = row_format(names_t, frozenset(int_fields))
+        compiled = True  # integer fields beyond int64 are formatted by json instead
+        if fmt.isint.any():
+            iv = vals[:, fmt.isint]
+            compiled = not bool((np.abs(iv[np.isfinite(iv)]) >= 2.0**63).any())
+        with self._lock:
+            if self._closed:
+                raise ValueError("log_block() on a closed McapLogger")
+            if self.failure is not None:
+                self.dropped += n
+                return
+            try:
+                cid = self._channels.get(topic)
+                if cid is None:
+                    cid = self._channel(topic, _row_dicts(names_t, fmt.isint, vals[:1])[0])
+                seq0 = self._seq[cid]
+                self._seq[cid] = (seq0 + n) & 0xFFFFFFFF
+                if compiled:
+                    recs, ends = encode_records(fmt, vals, cid, seq0, lts)
+                else:
+                    datas = [_ENCODE(d).encode() for d in _row_dicts(names_t, fmt.isint, vals)]
+                    seqs = (seq0 + np.arange(n, dtype=np.int64)) & 0xFFFFFFFF
+                    recs, ends = pack_records(cid, lts, datas, seqs)
+                self._writer.add_records(cid, lts, recs, ends)  # type: ignore[union-attr]
+                self.message_count += n
+                self._dirty = True
+                if time.monotonic() - self._last_flush >= self.flush_s:
+                    self._flush_locked()
+                self._maybe_rotate()
+            except Exception as e:
+                self._failed("write", e)
+                raise
+
+    def log_many(self, records: Iterable[tuple[str, float, Mapping[str, Any]]]) -> None:
+        """:meth:`log` for each ``(topic, t, msg)``, taking the lock once (fewer switches)."""
+        with self._lock:
+            for topic, t, msg in records:
+                self.log(topic, t, msg)
+
+    def commit(self) -> None:
+        """Nothing to do in-process (``ProcessLogger.commit`` sends its queue)."""
+
+    def _flush_locked(self) -> None:
+        if self._writer is not None and self._dirty and self.failure is None:
+            try:
+                self._writer.flush()  # ends the chunk in progress and flushes the stream
+            except Exception as e:
+                self._failed("flush", e)
+                raise
+            self.flush_count += 1
+            self._dirty = False
+        self._last_flush = time.monotonic()
+
+    def flush(self) -> None:
+        """End the chunk in progress and write it out now (also rotates if due)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._flush_locked()
+            self._maybe_rotate()
+
+    def _flush_loop(self) -> None:
+        # wake 5 times per period and flush once the oldest unflushed data could be older
+        # than flush_s by the next wake-up: nothing stays unwritten for more than flush_s
+        period = self.flush_s / 5
+        while not self._stop.wait(period):
+            with self._lock:
+                if self._closed or self.failure is not None:
+                    return
+                if time.monotonic() - self._last_flush >= self.flush_s - period:
+                    try:
+                        self._flush_locked()
+                        self._maybe_rotate()
+                    except Exception as e:  # disk full etc.: kept in self.failure
+                        self._failed("flush", e)
+                        return
+
+    def close(self) -> None:
+        """Finish the current file (summary and footer) and stop the flusher; idempotent."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._stop.set()
+            if self.failure is not None:  # the writer's state is unknown: just close the file
+                self._writer = None
+                with contextlib.suppress(Exception):
+                    self._finish_current()
+            else:
+                try:
+                    self._finish_current()
+                except Exception as e:
+                    self._failed("close", e)
+                    raise
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=5)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> McapLogger:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
