@@ -308,10 +308,6 @@ def load_config(
             raise ConfigError(f"cannot read: {e.strerror or e}", None, source) from None
         except tomllib.TOMLDecodeError as e:
             raise ConfigError(f"invalid TOML: {e}", None, source) from None
-        try:
-            ServiceConfig.model_validate(data)
-        except ValidationError as e:
-            _raise_validation(e, source)
     try:
         overrides = _Environment(environ)()
     except SettingsError as e:  # a JSON value that does not parse
