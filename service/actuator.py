@@ -406,7 +406,8 @@ class VirtualActuator:
         """Publish samples paced by the wall clock until ``stop`` is set or ``duration_s``.
 
         Serves fault commands on the ``@fault`` queryable (answered with a ``FaultAck``)
-        and holds a liveliness token on ``.../alive``. Returns counters.
+        and holds liveliness tokens on ``.../alive`` and ``.../@virtual`` (the latter tells
+        ``servowatch inject`` that this key is a virtual actuator's). Returns counters.
         """
         import zenoh
 
@@ -437,6 +438,9 @@ class VirtualActuator:
         )
         qbl = session.declare_queryable(fkey, on_query)
         token = session.liveliness().declare_token(akey)
+        vtoken = session.liveliness().declare_token(
+            m.KEY_VIRTUAL.format(aircraft=aircraft, actuator=actuator)
+        )
         enc_kw = {} if fmt is None else {"fmt": fmt}
         spm = max(1, int(samples_per_msg))
         total = None if duration_s is None else int(round(duration_s * self.rate_hz))
@@ -470,6 +474,7 @@ class VirtualActuator:
                 if on_batch is not None:
                     on_batch(samples)
         finally:
+            vtoken.undeclare()
             token.undeclare()
             qbl.undeclare()
             pub.undeclare()

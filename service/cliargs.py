@@ -36,11 +36,14 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
         help="Zenoh mode (default: the config's; a peer with nothing to "
         "listen on runs as a client)",
     )
+    from service.config import add_tls_arguments  # --tls-root-ca/--tls-cert/--tls-key paths
+
+    add_tls_arguments(parser)
 
 
 def service_config_from_args(args: argparse.Namespace) -> ServiceConfig:
     """``load_config(args.config)`` with the command line's Zenoh overrides applied."""
-    from service.config import ConfigError, ZenohSettings, load_config
+    from service.config import ConfigError, ZenohSettings, load_config, tls_overrides
 
     cfg = load_config(getattr(args, "config", None))
     z = cfg.zenoh.model_dump()
@@ -52,6 +55,7 @@ def service_config_from_args(args: argparse.Namespace) -> ServiceConfig:
         z["mode"] = args.mode
     elif z["mode"] == "peer" and not z["listen"] and z["connect"]:
         z["mode"] = "client"
+    z = tls_overrides(args, z)
     try:
         zs = ZenohSettings.model_validate(z)
     except ValueError as e:  # pydantic.ValidationError: name the field, skip the URL

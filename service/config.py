@@ -3,21 +3,24 @@
 Every field has a default that makes the demo run with no file. Precedence (lowest first):
 defaults, the TOML file, environment variables ``SERVOWATCH_<FIELD>`` with ``__`` between
 nested names (``SERVOWATCH_STATION=ground2``, ``SERVOWATCH_ZENOH__CONNECT=tcp/127.0.0.1:7447``,
-``SERVOWATCH_MONITOR__...``). An environment value is parsed as JSON when it parses
-(numbers, booleans, lists, ``null``), else taken as a string; a list field also accepts a
-comma-separated string. Errors raise :class:`ConfigError` naming the field and the file or
-variable.
+``SERVOWATCH_ZENOH__TLS__ROOT_CA=/etc/servowatch/pki/ca.pem``, ``SERVOWATCH_MONITOR__...``).
+The environment is read by pydantic-settings (``EnvSettingsSource``): a list, table or
+model value is JSON, ``null`` is None, and the endpoint lists also accept a comma-separated
+string. Errors raise :class:`ConfigError` naming the field and the file or variable.
+
+TLS (docs/security.md): ``[zenoh.tls]`` holds paths only (``root_ca``, ``cert``, ``key``);
+no secret is ever a setting value, so none can reach a command line or a log.
 """
 
 from __future__ import annotations
 
-import json
+import argparse
 import os
 import tomllib
 import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import (
     BaseModel,
@@ -28,22 +31,34 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic_settings import NoDecode
+from pydantic_settings.exceptions import SettingsError
 
-from service.zenoh_util import EndpointError, check_endpoint, make_config
+from service.compat.pydantic_settings import MappingEnvSource
+from service.monitor import MonitorConfig
+from service.zenoh_util import EndpointError, check_endpoint, diagnose_link, make_config
 
-try:  # the issue-3 monitor owns its settings
-    from service.monitor import MonitorConfig
-except ImportError:  # pragma: no cover - until service.monitor lands
-
-    class MonitorConfig(BaseModel):  # type: ignore[no-redef]
-        """Placeholder for ``service.monitor.MonitorConfig`` (accepts any keys)."""
-
-        model_config = ConfigDict(extra="allow")
-
-
-__all__ = ["ConfigError", "ZenohSettings", "ServiceConfig", "load_config", "ENV_PREFIX"]
+__all__ = [
+    "ConfigError",
+    "TlsSettings",
+    "ZenohSettings",
+    "ServiceConfig",
+    "SessionError",
+    "AuthError",
+    "load_config",
+    "add_tls_arguments",
+    "tls_overrides",
+    "ENV_PREFIX",
+    "EXIT_UNREACHABLE",
+    "EXIT_REFUSED",
+]
 
 ENV_PREFIX = "SERVOWATCH_"
+#: exit code of a command whose Zenoh session could not be opened (nobody listening, ...)
+EXIT_UNREACHABLE = 3
+#: exit code of a command whose connection was refused by the router's TLS (certificate
+#: missing, not signed by the station CA, expired) or whose router certificate is not trusted
+EXIT_REFUSED = 4
 
 
 class ConfigError(ValueError):
@@ -56,19 +71,82 @@ class ConfigError(ValueError):
         self.source = source
 
 
+class TlsSettings(BaseModel):
+    """TLS files of a Zenoh client (paths only; PEM). Used by every ``tls/`` endpoint.
+
+    ``root_ca`` is the CA certificate that signed the router's certificate (the station CA);
+    ``cert`` and ``key`` are this identity's certificate and private key for mutual TLS: the
+    router's access-control rules know the identity by the certificate's common name.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    root_ca: Path | None = Field(None, description="CA certificate (PEM) trusted for the router")
+    cert: Path | None = Field(None, description="this identity's certificate (PEM), mutual TLS")
+    key: Path | None = Field(None, description="private key (PEM) of cert; mode 0600")
+
+    @field_validator("root_ca", "cert", "key")
+    @classmethod
+    def _readable(cls, v: Path | None) -> Path | None:
+        if v is not None:
+            v = v.expanduser()
+            if not v.is_file():
+                raise ValueError(f"no such file: {v}")
+            if not os.access(v, os.R_OK):
+                raise ValueError(f"not readable by this user: {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _pair(self) -> TlsSettings:
+        if (self.cert is None) != (self.key is None):
+            raise ValueError("cert and key go together (both or neither)")
+        return self
+
+    def to_zenoh(self, listen: bool = False) -> dict[str, Any]:
+        """Zenoh config paths (``transport/link/tls/...``) for these files."""
+        out: dict[str, Any] = {}
+        base = "transport/link/tls/"
+        if self.root_ca is not None:
+            out[base + "root_ca_certificate"] = str(self.root_ca)
+        if self.cert is not None and self.key is not None:
+            out[base + "connect_certificate"] = str(self.cert)
+            out[base + "connect_private_key"] = str(self.key)
+            out[base + "enable_mtls"] = True
+            if listen:
+                out[base + "listen_certificate"] = str(self.cert)
+                out[base + "listen_private_key"] = str(self.key)
+        return out
+
+
+_Endpoints = Annotated[list[str], NoDecode]
+
+
 class ZenohSettings(BaseModel):
     """How the daemon joins Zenoh (multicast scouting is always off)."""
 
     model_config = ConfigDict(extra="forbid")
 
     allow_remote: bool = Field(
-        False, description="accept endpoints other than tcp/127.0.0.1 and unix sockets"
+        False, description="accept endpoints other than tcp|tls/127.0.0.1 and unix sockets"
     )
     mode: Literal["peer", "client", "router"] = "peer"
-    listen: list[str] = Field(default_factory=list, description="endpoints to listen on")
-    connect: list[str] = Field(
+    listen: _Endpoints = Field(default_factory=list, description="endpoints to listen on")
+    connect: _Endpoints = Field(
         default_factory=lambda: ["tcp/127.0.0.1:7447"], description="endpoints to connect to"
     )
+    tls: TlsSettings = Field(default_factory=TlsSettings)
+
+    @field_validator("listen", "connect", mode="before")
+    @classmethod
+    def _split(cls, v: Any) -> Any:
+        """An environment value: a JSON list, or endpoints separated by commas."""
+        if isinstance(v, str):
+            import json
+
+            if v.lstrip().startswith("["):
+                return json.loads(v)
+            return [e.strip() for e in v.split(",") if e.strip()]
+        return v
 
     @field_validator("listen", "connect")
     @classmethod
@@ -83,26 +161,55 @@ class ZenohSettings(BaseModel):
     def _client_connects(self) -> ZenohSettings:
         if self.mode == "client" and not self.connect:
             raise ValueError("a client needs at least one connect endpoint")
+        if any(e.startswith("tls/") for e in self.connect) and self.tls.root_ca is None:
+            raise ValueError("tls.root_ca: a tls/ connect endpoint needs the CA certificate")
+        if any(e.startswith("tls/") for e in self.listen) and self.tls.cert is None:
+            raise ValueError("tls.cert: a tls/ listen endpoint needs a certificate and key")
         return self
 
     def to_zenoh(self):
         """The :class:`zenoh.Config` for these settings (``service.zenoh_util.make_config``)."""
-        return make_config(self.mode, self.listen, self.connect, allow_remote=self.allow_remote)
+        return make_config(
+            self.mode,
+            self.listen,
+            self.connect,
+            allow_remote=self.allow_remote,
+            extra=self.tls.to_zenoh(listen=bool(self.listen)),
+        )
 
     def open_session(self):
-        """``zenoh.open`` on these settings; SessionError (naming mode and endpoints) if it fails."""
+        """``zenoh.open`` on these settings.
+
+        Raises :class:`AuthError` (exit code :data:`EXIT_REFUSED`) when a connect endpoint
+        refused the TLS handshake or its certificate is not trusted, else :class:`SessionError`
+        (:data:`EXIT_UNREACHABLE`); both name the endpoint and the reason. Zenoh's own error
+        does not say why, so each connect endpoint is probed once (``diagnose_link``).
+        """
         import zenoh
 
         try:
             return zenoh.open(self.to_zenoh())
         except zenoh.ZError as e:
-            raise SessionError(
-                f"cannot open a Zenoh session ({self.mode}, connect {self.connect}): {e}"
-            ) from e
+            reasons = []
+            for ep in self.connect:
+                kind, why = diagnose_link(ep, self.tls.root_ca, self.tls.cert, self.tls.key)
+                if kind == "refused":
+                    raise AuthError(f"connection to {ep} refused: {why}") from e
+                reasons.append(f"{ep}: {why}")
+            detail = "; ".join(reasons) if reasons else str(e)
+            raise SessionError(f"cannot open a Zenoh session ({self.mode}): {detail}") from e
 
 
 class SessionError(ConnectionError):
-    """A Zenoh session that could not be opened."""
+    """A Zenoh session that could not be opened (the router is not reachable)."""
+
+    exit_code = EXIT_UNREACHABLE
+
+
+class AuthError(SessionError):
+    """A connection the router refused at the TLS handshake, or a router not trusted."""
+
+    exit_code = EXIT_REFUSED
 
 
 class ServiceConfig(BaseModel):
@@ -141,48 +248,37 @@ def _raise_validation(e: ValidationError, source: str | None) -> typing.NoReturn
     raise ConfigError(first["msg"] + more, _loc(first), source) from None
 
 
-def _is_list_field(model: type[BaseModel], path: list[str]) -> bool:
-    ann: Any = model
-    for name in path:
-        if not (isinstance(ann, type) and issubclass(ann, BaseModel)):
-            return False
-        f = ann.model_fields.get(name)
-        if f is None:
-            return False
-        ann = f.annotation
-        args = [a for a in typing.get_args(ann) if a is not type(None)]
-        if typing.get_origin(ann) in (typing.Union, __import__("types").UnionType):
-            ann = args[0] if len(args) == 1 else ann
-    return typing.get_origin(ann) in (list, tuple)
+def _environment(environ: Mapping[str, str] | None) -> MappingEnvSource:
+    """pydantic-settings' environment source over ``environ`` (tests) or ``os.environ``."""
+    return MappingEnvSource(
+        ServiceConfig,  # a BaseModel: only its fields are read
+        environ,
+        case_sensitive=False,
+        env_prefix=ENV_PREFIX,
+        env_nested_delimiter="__",
+        env_parse_none_str="null",
+    )
 
 
-def _env_overrides(environ: Mapping[str, str]) -> dict[str, tuple[list[str], Any, str]]:
-    out = {}
-    for var, raw in sorted(environ.items()):
-        if not var.startswith(ENV_PREFIX) or var == ENV_PREFIX:
-            continue
-        path = [p.lower() for p in var[len(ENV_PREFIX) :].split("__")]
-        if not all(path):
-            raise ConfigError("empty name segment", var, "environment")
-        if path[0] not in ServiceConfig.model_fields:
-            continue  # other SERVOWATCH_* variables (e.g. for tests) are not settings
-        try:
-            value: Any = json.loads(raw)
-        except ValueError:
-            value = raw
-        if _is_list_field(ServiceConfig, path) and isinstance(value, str):
-            value = [s.strip() for s in value.split(",") if s.strip()]
-        out[var] = (path, value, raw)
+def _merge(base: dict[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``over`` laid on top, tables merged key by key."""
+    out = dict(base)
+    for k, v in over.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = v
     return out
 
 
-def _set(d: dict[str, Any], path: list[str], value: Any, var: str) -> None:
-    for name in path[:-1]:
-        nxt = d.setdefault(name, {})
-        if not isinstance(nxt, dict):
-            raise ConfigError(f"cannot set below a non-table value via {var}", name, "environment")
-        d = nxt
-    d[path[-1]] = value
+def _variable(environ: Mapping[str, str], loc: list[str]) -> tuple[str, str] | None:
+    """The ``SERVOWATCH_*`` variable (and its value) that set the field at ``loc``, if any."""
+    upper = {k.upper(): v for k, v in environ.items()}
+    for n in range(len(loc), 0, -1):
+        var = ENV_PREFIX + "__".join(loc[:n]).upper()
+        if var in upper:
+            return var, upper[var]
+    return None
 
 
 def load_config(
@@ -203,21 +299,38 @@ def load_config(
             raise ConfigError(f"cannot read: {e.strerror or e}", None, source) from None
         except tomllib.TOMLDecodeError as e:
             raise ConfigError(f"invalid TOML: {e}", None, source) from None
-        try:
-            ServiceConfig.model_validate(data)
-        except ValidationError as e:
-            _raise_validation(e, source)
-    overrides = _env_overrides(env)
-    for var, (p, value, _raw) in overrides.items():
-        _set(data, p, value, var)
     try:
-        return ServiceConfig.model_validate(data)
+        overrides = _environment(environ)()
+    except SettingsError as e:  # a JSON value that does not parse
+        field = str(e).split('"')[1] if '"' in str(e) else None
+        hit = _variable(env, [field]) if field else None
+        raise ConfigError(f"invalid value: {e}", field, hit[0] if hit else "environment") from None
+    try:
+        return ServiceConfig.model_validate(_merge(data, overrides))
     except ValidationError as e:
         # name the variable when the failing field came from the environment
         first = e.errors()[0]
-        loc = [str(x) for x in first.get("loc", ())]
-        for var, (p, _v, raw) in overrides.items():
-            n = min(len(p), len(loc))
-            if loc[:n] == p[:n]:
-                raise ConfigError(f"{first['msg']} (got {raw!r})", _loc(first), var) from None
+        hit = _variable(env, [str(x) for x in first.get("loc", ())])
+        if hit is not None:
+            raise ConfigError(f"{first['msg']} (got {hit[1]!r})", _loc(first), hit[0]) from None
         _raise_validation(e, source)
+
+
+def add_tls_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--tls-root-ca``, ``--tls-cert``, ``--tls-key``: file paths (never a secret itself)."""
+    g = parser.add_argument_group("TLS (paths; override [zenoh.tls] and SERVOWATCH_ZENOH__TLS__*)")
+    g.add_argument("--tls-root-ca", metavar="FILE.pem", default=None, help="station CA certificate")
+    g.add_argument(
+        "--tls-cert", metavar="FILE.pem", default=None, help="this identity's certificate"
+    )
+    g.add_argument("--tls-key", metavar="FILE.pem", default=None, help="its private key (a path)")
+
+
+def tls_overrides(args: argparse.Namespace, zenoh: dict[str, Any]) -> dict[str, Any]:
+    """``zenoh`` (a ``ZenohSettings.model_dump()``) with the ``--tls-*`` flags applied."""
+    tls = dict(zenoh.get("tls") or {})
+    for name in ("root_ca", "cert", "key"):
+        v = getattr(args, f"tls_{name}", None)
+        if v is not None:
+            tls[name] = v
+    return {**zenoh, "tls": tls}

@@ -53,6 +53,7 @@ __all__ = [
     "KEY_HEALTH",
     "KEY_FAULT",
     "KEY_ALIVE",
+    "KEY_VIRTUAL",
     "KEY_STATUS",
     "key",
     "parse_meas_key",
@@ -72,6 +73,8 @@ KEY_RES = "fleet/{aircraft}/{actuator}/res"
 KEY_HEALTH = "fleet/{aircraft}/{actuator}/health"
 KEY_FAULT = "fleet/{aircraft}/{actuator}/@fault"
 KEY_ALIVE = "fleet/{aircraft}/{actuator}/alive"
+#: liveliness token held by a virtual actuator only: fault commands go to no other key
+KEY_VIRTUAL = "fleet/{aircraft}/{actuator}/@virtual"
 KEY_STATUS = "monitor/{station}/{shard}/status"
 
 _MAGIC = b"SW"

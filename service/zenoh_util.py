@@ -1,8 +1,8 @@
 """Zenoh helpers: loopback-only session configs, free ports, a bounded drop-counting queue.
 
 Every config built here disables multicast scouting and, unless ``allow_remote=True`` is
-passed explicitly (deployment configs), accepts only ``tcp/127.0.0.1:<port>`` or unix-socket
-endpoints (design.md, "Conventions"). A slow subscriber callback stalls the whole session, so
+passed explicitly (deployment configs), accepts only ``tcp/127.0.0.1:<port>``,
+``tls/127.0.0.1:<port>`` or unix-socket endpoints (design.md, "Conventions"). A slow subscriber callback stalls the whole session, so
 subscribers hand samples to a :class:`BoundedQueue` and count what it drops.
 """
 
@@ -15,6 +15,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any, Generic, Literal, TypeVar
 
 import zenoh
@@ -27,9 +28,10 @@ __all__ = [
     "loopback",
     "BoundedQueue",
     "wait_until",
+    "diagnose_link",
 ]
 
-_LOOPBACK_RE = re.compile(r"^tcp/127\.0\.0\.1:(\d{1,5})$")
+_LOOPBACK_RE = re.compile(r"^(?:tcp|tls)/127\.0\.0\.1:(\d{1,5})$")
 _UNIX_RE = re.compile(r"^(unixsock-stream|unix)/.+$")
 
 T = TypeVar("T")
@@ -42,7 +44,7 @@ class EndpointError(ValueError):
 def check_endpoint(endpoint: str, *, allow_remote: bool = False, field: str = "endpoint") -> str:
     """Return ``endpoint`` if allowed, normalised (``unix/P`` -> ``unixsock-stream/P``).
 
-    Allowed: ``tcp/127.0.0.1:<port>`` (port 0..65535) and unix sockets; anything of the form
+    Allowed: ``tcp/127.0.0.1:<port>``, ``tls/127.0.0.1:<port>`` (port 0..65535) and unix sockets; anything of the form
     ``<proto>/<address>`` when ``allow_remote`` is true. Raises :class:`EndpointError`.
     """
     if not isinstance(endpoint, str) or "/" not in endpoint:
@@ -57,7 +59,8 @@ def check_endpoint(endpoint: str, *, allow_remote: bool = False, field: str = "e
     if _UNIX_RE.match(endpoint) or allow_remote:
         return endpoint
     raise EndpointError(
-        f"{field}: {endpoint!r} refused: only tcp/127.0.0.1:<port> or unix sockets "
+        f"{field}: {endpoint!r} refused: only tcp/127.0.0.1:<port>, tls/127.0.0.1:<port> "
+        "or unix sockets "
         "(pass allow_remote=True for a deployment config)"
     )
 
@@ -160,3 +163,70 @@ def wait_until(pred: Callable[[], bool], timeout: float = 5.0, interval: float =
         if time.monotonic() >= deadline:
             return bool(pred())
         time.sleep(interval)
+
+
+#: TLS alerts and verification failures -> what they mean for a servowatch operator
+_TLS_REASONS = {
+    "CERTIFICATE_REQUIRED": "the router requires a client certificate and none was presented "
+    "(set [zenoh.tls] cert and key)",
+    "DECRYPT_ERROR": "the router rejected the client certificate (not signed by the station CA)",
+    "BAD_CERTIFICATE": "the router rejected the client certificate",
+    "UNKNOWN_CA": "the router rejected the client certificate (unknown CA)",
+    "CERTIFICATE_EXPIRED": "a certificate has expired",
+    "CERTIFICATE_REVOKED": "the client certificate is revoked",
+    "CERTIFICATE_VERIFY_FAILED": "the router's certificate is not trusted by tls.root_ca",
+    "WRONG_VERSION_NUMBER": "the endpoint does not speak TLS (a tcp/ listener?)",
+}
+
+
+def diagnose_link(
+    endpoint: str,
+    root_ca: str | Path | None = None,
+    cert: str | Path | None = None,
+    key: str | Path | None = None,
+    timeout: float = 2.0,
+) -> tuple[Literal["ok", "refused", "unreachable"], str]:
+    """Why a Zenoh link to ``endpoint`` fails: one TCP (and for ``tls/``, TLS) handshake.
+
+    Zenoh reports only "unable to connect"; this probe tells an absent router
+    (``unreachable``: connection refused, timeout, bad address) from a refusal at the TLS
+    handshake (``refused``: no client certificate, a certificate from another CA, a router
+    certificate that ``root_ca`` does not trust). The probe sends no Zenoh message, holds no
+    secret beyond what the Zenoh link itself loads, and is used only after a failed open.
+    """
+    import ssl
+
+    proto, _, addr = endpoint.partition("/")
+    if proto not in ("tcp", "tls"):
+        return "unreachable", f"cannot probe a {proto}/ endpoint"
+    host, _, port = addr.rpartition(":")
+    host = host.strip("[]")
+    try:
+        sock = socket.create_connection((host, int(port)), timeout=timeout)
+    except (OSError, ValueError) as e:
+        return "unreachable", f"no router there ({getattr(e, 'strerror', None) or e})"
+    with sock:
+        if proto == "tcp":
+            return "ok", "TCP connection accepted"
+        try:
+            ctx = ssl.create_default_context(cafile=None if root_ca is None else str(root_ca))
+            if cert is not None and key is not None:
+                ctx.load_cert_chain(str(cert), str(key))
+        except (OSError, ssl.SSLError) as e:
+            return "refused", f"cannot load the TLS files: {e}"
+        try:
+            with ctx.wrap_socket(sock, server_hostname=host) as ts:
+                ts.settimeout(min(timeout, 0.5))
+                try:  # TLS 1.3: a rejected client certificate shows at the first read
+                    ts.recv(1)
+                except TimeoutError:
+                    return "ok", "TLS handshake accepted"
+                return "ok", "TLS handshake accepted"
+        except ssl.SSLError as e:
+            reason = str(getattr(e, "reason", "") or "")
+            for k, text in _TLS_REASONS.items():
+                if k in reason:
+                    return "refused", f"{text} [{reason}]"
+            return "refused", f"TLS handshake failed: {reason or e}"
+        except OSError as e:
+            return "unreachable", f"connection lost during the TLS handshake ({e})"

@@ -63,7 +63,7 @@ def test_run_exits_4_when_the_log_fails(tmp_path):
          "--no-rotate", "--duration", "1", "--json"],
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
-    assert r.returncode == EXIT_LOG_FAILURE == 4, r.stderr[-2000:]
+    assert r.returncode == EXIT_LOG_FAILURE == 5, r.stderr[-2000:]
     final = json.loads(r.stdout)
     assert final["state"] == "degraded" and "No space left" in final["log_failure"]
     assert "the MCAP log failed" in r.stderr

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -109,3 +110,63 @@ def test_unreadable_or_invalid_toml(tmp_path: Path):
     with pytest.raises(ConfigError) as ei:
         load_config(p, environ={})
     assert "broken.toml" in str(ei.value) and "TOML" in str(ei.value)
+
+
+# --------------------------------------------------------------------------- TLS settings
+
+
+def _pem(tmp_path: Path, *names: str) -> dict[str, str]:
+    out = {}
+    for n in names:
+        (tmp_path / f"{n}.pem").write_text("not checked here\n")
+        out[n] = str(tmp_path / f"{n}.pem")
+    return out
+
+
+def test_tls_paths_from_file_env_and_into_zenoh(tmp_path: Path):
+    f = _pem(tmp_path, "ca", "cert", "key")
+    p = tmp_path / "s.toml"
+    p.write_text(
+        "[zenoh]\nmode = 'client'\nconnect = ['tls/127.0.0.1:7447']\n"
+        f"[zenoh.tls]\nroot_ca = '{f['ca']}'\ncert = '{f['cert']}'\nkey = '{f['key']}'\n"
+    )
+    c = load_config(p, environ={})
+    assert c.zenoh.tls.root_ca == Path(f["ca"]) and c.zenoh.connect == ["tls/127.0.0.1:7447"]
+    zc = c.zenoh.to_zenoh()
+    assert json.loads(zc.get_json("transport/link/tls/root_ca_certificate")) == f["ca"]
+    assert json.loads(zc.get_json("transport/link/tls/connect_certificate")) == f["cert"]
+    assert json.loads(zc.get_json("transport/link/tls/connect_private_key")) == f["key"]
+    assert zc.get_json("transport/link/tls/enable_mtls") == "true"
+    g = _pem(tmp_path / "..", "other")
+    env = {"SERVOWATCH_ZENOH__TLS__CERT": g["other"], "SERVOWATCH_ZENOH__TLS__KEY": g["other"]}
+    c = load_config(p, environ=env)
+    assert c.zenoh.tls.cert == Path(g["other"]) and c.zenoh.tls.root_ca == Path(f["ca"])
+
+
+def test_tls_errors_name_the_field(tmp_path: Path):
+    f = _pem(tmp_path, "ca", "cert")
+    with pytest.raises(ConfigError) as ei:  # a tls/ endpoint without the CA
+        load_config(None, environ={"SERVOWATCH_ZENOH__CONNECT": "tls/127.0.0.1:7447"})
+    assert "tls.root_ca" in str(ei.value)
+    with pytest.raises(ConfigError) as ei:
+        load_config(None, environ={"SERVOWATCH_ZENOH__TLS__ROOT_CA": str(tmp_path / "no.pem")})
+    assert ei.value.field == "zenoh.tls.root_ca"
+    assert ei.value.source == "SERVOWATCH_ZENOH__TLS__ROOT_CA" and "no such file" in str(ei.value)
+    p = tmp_path / "s.toml"
+    p.write_text(f"[zenoh.tls]\nroot_ca = '{f['ca']}'\ncert = '{f['cert']}'\n")
+    with pytest.raises(ConfigError) as ei:  # cert without key
+        load_config(p, environ={})
+    assert ei.value.field == "zenoh.tls" and "together" in str(ei.value)
+
+
+def test_tls_flags_override(tmp_path: Path):
+    import argparse
+
+    from service.config import add_tls_arguments, tls_overrides
+
+    f = _pem(tmp_path, "ca", "cert", "key")
+    ap = argparse.ArgumentParser()
+    add_tls_arguments(ap)
+    args = ap.parse_args(["--tls-root-ca", f["ca"], "--tls-cert", f["cert"], "--tls-key", f["key"]])
+    z = tls_overrides(args, load_config(None, environ={}).zenoh.model_dump())
+    assert z["tls"] == {"root_ca": f["ca"], "cert": f["cert"], "key": f["key"]}

@@ -14,6 +14,7 @@ from service.zenoh_util import (
     BoundedQueue,
     EndpointError,
     check_endpoint,
+    diagnose_link,
     free_port,
     loopback,
     make_config,
@@ -22,7 +23,8 @@ from service.zenoh_util import (
 
 
 @pytest.mark.parametrize(
-    "ep", ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:0", "unixsock-stream//tmp/sw.sock"]
+    "ep",
+    ["tcp/127.0.0.1:7447", "tcp/127.0.0.1:0", "tls/127.0.0.1:7447", "unixsock-stream//tmp/sw.sock"],
 )
 def test_allowed_endpoints(ep):
     assert check_endpoint(ep) == ep
@@ -193,3 +195,41 @@ def test_router_command_refuses_remote_listen():
     from service.cli import main
 
     assert main(["router", "--listen", "tcp/0.0.0.0:7447"]) == 2
+
+
+@pytest.mark.parametrize("ep", ["tls/10.0.0.1:7447", "tls/0.0.0.0:7447", "tls/127.0.0.1:70000"])
+def test_tls_endpoints_loopback_only(ep):
+    with pytest.raises(EndpointError):
+        check_endpoint(ep)
+
+
+def test_diagnose_link_tells_an_absent_router():
+    kind, why = diagnose_link(f"tls/127.0.0.1:{free_port()}")
+    assert kind == "unreachable" and "no router there" in why
+    kind, _why = diagnose_link(f"tcp/127.0.0.1:{free_port()}")
+    assert kind == "unreachable"
+
+
+def test_diagnose_link_tells_a_plain_tcp_listener_from_tls():
+
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+        ep = f"127.0.0.1:{srv.getsockname()[1]}"
+        srv.settimeout(5)
+
+        def answer() -> None:  # a non-TLS server: replies with plain bytes, closes
+            c, _ = srv.accept()
+            with c:
+                c.recv(1024)
+                c.sendall(b"HTTP/1.0 400 nope\r\n\r\n")
+
+        t = threading.Thread(target=answer)
+        t.start()
+        kind, why = diagnose_link("tls/" + ep, timeout=5)
+        t.join(5)
+    assert kind == "refused" and "TLS" in why
+    with socket.socket() as srv:
+        srv.bind(("127.0.0.1", 0))
+        srv.listen(1)
+        assert diagnose_link(f"tcp/127.0.0.1:{srv.getsockname()[1]}")[0] == "ok"

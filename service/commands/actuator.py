@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         session = cfg.zenoh.open_session()
     except SessionError as e:
-        return fail(str(e), 3)
+        return fail(str(e), e.exit_code)
     with session:
         logging.getLogger("servowatch.actuator").info(
             "actuator %s/%s publishing %s at %g Hz",

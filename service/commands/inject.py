@@ -37,11 +37,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(p)
 
 
+def is_virtual(session, aircraft: str, actuator: str, timeout: float = 3.0) -> bool:
+    """True if a virtual actuator holds its ``fleet/{ac}/{act}/@virtual`` liveliness token."""
+    from service import messages as msgs
+
+    vkey = msgs.key(msgs.KEY_VIRTUAL, aircraft=aircraft, actuator=actuator)
+    return any(r.ok is not None for r in session.liveliness().get(vkey, timeout=timeout))
+
+
 def send_fault(session, aircraft: str, actuator: str, command, timeout: float = 3.0):
-    """Send a ``FaultCommand``; return the ``FaultAck`` or None if nobody answered."""
+    """Send a ``FaultCommand``; return the ``FaultAck`` or None if nobody answered.
+
+    Fault commands go to virtual actuators only: a key whose ``@virtual`` liveliness token is
+    not visible (a real aircraft's acquisition, an absent actuator, or an identity the router
+    does not let see it) gets a refusal without any command being sent.
+    """
     from service import messages as msgs
 
     key = msgs.key(msgs.KEY_FAULT, aircraft=aircraft, actuator=actuator)
+    if not is_virtual(session, aircraft, actuator, timeout):
+        vkey = msgs.key(msgs.KEY_VIRTUAL, aircraft=aircraft, actuator=actuator)
+        return msgs.FaultAck(
+            ok=False,
+            message=f"refused: {aircraft}/{actuator} is not a virtual actuator reachable by "
+            f"this identity (no {vkey} token); no command sent",
+            active=[],
+        )
     for reply in session.get(key, payload=command.model_dump_json().encode(), timeout=timeout):
         if reply.ok is not None:
             return msgs.FaultAck.model_validate_json(reply.ok.payload.to_bytes())
@@ -73,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         session = cfg.zenoh.open_session()
     except SessionError as e:
-        return fail(str(e), 3)
+        return fail(str(e), e.exit_code)
     with session:
         ack = send_fault(session, args.aircraft, args.actuator, cmd, args.timeout)
     if ack is None:

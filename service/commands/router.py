@@ -2,6 +2,11 @@
 
 There is no zenohd on PyPI; ``zenoh.open`` with ``mode: router`` routes between the peers and
 clients that connect to it. Multicast scouting is off; by default it listens on loopback only.
+A secure station (docs/security.md) starts it with ``--config deploy/secure/router.json5``:
+mutual TLS on every link and access-control rules keyed on certificate common names; the
+``--tls-*`` flags give the file paths (never a secret itself). ``RUST_LOG`` set in the
+environment turns Zenoh's own log on (``zenoh::net::routing::interceptor::access_control=trace``
+logs every access decision, refusals included; costly, for an audit).
 """
 
 from __future__ import annotations
@@ -30,6 +35,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--config", default=None, metavar="FILE.json5",
         help="a Zenoh JSON5 config (e.g. deploy/router.json5); --listen/--connect override it",
     )  # fmt: skip
+    from service.config import add_tls_arguments
+
+    add_tls_arguments(p)
+
+
+def _tls(cfg, args: argparse.Namespace) -> None:
+    """The ``--tls-*`` paths into ``cfg`` (listen and router-to-router connect identity)."""
+    base = "transport/link/tls/"
+    for flag, keys in (
+        ("tls_root_ca", ("root_ca_certificate",)),
+        ("tls_cert", ("listen_certificate", "connect_certificate")),
+        ("tls_key", ("listen_private_key", "connect_private_key")),
+    ):
+        v = getattr(args, flag, None)
+        if v is not None:
+            from pathlib import Path
+
+            if not Path(v).is_file():
+                raise ValueError(f"--{flag.replace('_', '-')}: no such file: {v}")
+            for k in keys:
+                cfg.insert_json5(base + k, json.dumps(str(v)))
+    if getattr(args, "tls_cert", None) is not None:
+        cfg.insert_json5(base + "enable_mtls", "true")
 
 
 def _config(args: argparse.Namespace):
@@ -38,9 +66,10 @@ def _config(args: argparse.Namespace):
     from service.zenoh_util import make_config
 
     if args.config is None:
-        return make_config(
-            "router", args.listen or ["tcp/127.0.0.1:7447"], args.connect
-        ), args.listen or ["tcp/127.0.0.1:7447"]
+        listen = args.listen or ["tcp/127.0.0.1:7447"]
+        cfg = make_config("router", listen, args.connect)
+        _tls(cfg, args)
+        return cfg, listen
     cfg = zenoh.Config.from_file(args.config)
     cfg.insert_json5("mode", '"router"')
     cfg.insert_json5("scouting/multicast/enabled", "false")
@@ -48,14 +77,20 @@ def _config(args: argparse.Namespace):
         cfg.insert_json5("listen/endpoints", json.dumps(args.listen))
     if args.connect:
         cfg.insert_json5("connect/endpoints", json.dumps(args.connect))
+    _tls(cfg, args)
     listen = json.loads(cfg.get_json("listen/endpoints"))
     return cfg, listen
 
 
 def run(args: argparse.Namespace) -> int:
+    import os
+
     import zenoh
 
     from service.zenoh_util import EndpointError
+
+    if os.environ.get("RUST_LOG"):
+        zenoh.init_log_from_env_or("error")
 
     try:
         cfg, listen = _config(args)

@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         session = cfg.zenoh.open_session()
     except SessionError as e:
-        return fail(str(e), 3)
+        return fail(str(e), e.exit_code)
     try:
         daemon = Daemon(cfg, log_path=args.log)
     except Exception as e:  # bad baseline, unwritable log directory, ...

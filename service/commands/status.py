@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         session = cfg.zenoh.open_session()
     except SessionError as e:
-        return fail(str(e), 3)
+        return fail(str(e), e.exit_code)
     with session:
         daemons = query_status(session, args.timeout)
     if args.json:

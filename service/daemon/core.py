@@ -51,7 +51,7 @@ __all__ = ["Daemon", "default_log_path", "EXIT_LOG_FAILURE"]
 log = logging.getLogger("servowatch.daemon")
 
 #: exit code of ``servowatch run`` when the MCAP log failed (README, "Commands")
-EXIT_LOG_FAILURE = 4
+EXIT_LOG_FAILURE = 5  # 3 and 4 are the Zenoh session's (service.config)
 
 
 def default_log_path(log_dir: Path, station: str, shard: str, prefix: str = "servowatch") -> Path:
