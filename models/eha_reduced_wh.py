@@ -265,4 +265,3 @@ def measure_nb(x, prm, out):
     out[2] = max(x[8], p_vap)
     out[3] = max(x[9], p_vap)
     out[4] = x[5]
-

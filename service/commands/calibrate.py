@@ -31,7 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--scenario", help="healthy scenario TOML (or a bundled name)")
     src.add_argument("--log", help="recorded MCAP log with a .../meas topic")
-    p.add_argument("--model", default="C5", help="process model of the monitor (A, B, C1, C3, C5, WH)")
+    p.add_argument(
+        "--model", default="C5", help="process model of the monitor (A, B, C1, C3, C5, WH)"
+    )
     p.add_argument("--out", default=None, help="write the baseline JSON here")
     p.add_argument(
         "--actuator",
