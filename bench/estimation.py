@@ -6,6 +6,7 @@ NASA ProgPy 1.9's UnscentedKalmanFilter on the same model as a PrognosticsModel)
     .venv/bin/python bench/estimation.py --healthy-s 60  # shorter false-alarm run
     .venv/bin/python bench/estimation.py --skip-accuracy # speed only
     .venv/bin/python bench/estimation.py --json out.json # also write the figures as JSON
+    .venv/bin/python bench/estimation.py --model C5,WH   # process models side by side
 
 The truth is the HF bench with the scenarios' seeded sensor noise. ProgPy is optional
 (``pip install 'progpy==1.9.*'``, the ``bench`` extra); without it that column reads
@@ -34,11 +35,13 @@ from service.scenarios import load_scenario  # noqa: E402
 from service.ukf import ukf_step_batch  # noqa: E402
 
 SCENARIOS = ("healthy_noise", "leak_ramp", "leak_step", "supply_drop", "combined")
+# outside the C-types' domain (docs/models.md section 4; full channel set only)
+SCENARIOS_WH = ("est_overload", "est_large_steps", "est_load_reversal")
 
 
 # -- accuracy ------------------------------------------------------------------------------
 def _one(args) -> dict:
-    name, channels, duration, *leak = args
+    model, name, channels, duration, *leak = args
     from models.scenario import Event, Profile
     from service.commands.estimate import evaluate
 
@@ -48,16 +51,19 @@ def _one(args) -> dict:
     if leak:  # a leak step to leak[0] at 1.5 s (e.g. 2x nominal = an increase of 1x)
         prof = Profile(initial=2e-13, events=[Event(t=1.5, value=leak[0])])
         sc = sc.model_copy(update={"leak": prof, "name": f"{name}_{leak[0] / 2e-13:g}x"})
-    r = evaluate(sc, MonitorConfig(channels=channels))
+    r = evaluate(sc, MonitorConfig(model=model, channels=channels))
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
-def accuracy(healthy_s: float, workers: int) -> list[dict]:
+def accuracy(healthy_s: float, workers: int, models: tuple[str, ...] = ("C5",)) -> list[dict]:
+    """Every scenario for every model; the rows of one scenario are adjacent (models side by
+    side)."""
     jobs = [(n, ch, None) for ch in ("full", "reduced") for n in SCENARIOS]
     jobs.insert(0, ("healthy_noise", "full", healthy_s))
     jobs.insert(4, ("leak_step", "full", None, 4e-13))  # the smallest target: +1x nominal
+    jobs[7:7] = [(n, "full", None) for n in SCENARIOS_WH]
     with ProcessPoolExecutor(max_workers=workers) as ex:
-        return list(ex.map(_one, jobs))
+        return list(ex.map(_one, [(m, *j) for j in jobs for m in models]))
 
 
 def _fmt(v, spec: str) -> str:
@@ -68,7 +74,7 @@ def _fmt(v, spec: str) -> str:
 def print_accuracy(rows: list[dict]) -> None:
     print("\nAccuracy (truth: HF bench + sensor noise; values at the end of each run)")
     hdr = (
-        f"{'scenario':<22}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'incr err%':>10}{'1s-mean%':>9}"
+        f"{'scenario':<22}{'model':<6}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'incr err%':>10}{'1s-mean%':>9}"
         f"{'P_SR err%':>10}{'P_SR 5% s':>10}{'delay s':>8}{'false':>6}{'NIS in%':>8}"
         f"{'reinit':>7}"
     )
@@ -76,7 +82,7 @@ def print_accuracy(rows: list[dict]) -> None:
     print("-" * len(hdr))
     for r in rows:
         print(
-            f"{r['scenario']:<22}{r['channels']:<8}{r['duration_s']:>6.0f}"
+            f"{r['scenario']:<22}{r['model']:<6}{r['channels']:<8}{r['duration_s']:>6.0f}"
             f"{_fmt(r['c_lk_error_pct'], '+10.1f')}{_fmt(r['c_lk_increase_error_pct'], '+10.1f')}"
             f"{_fmt(r['c_lk_increase_error_settled_pct'], '+9.1f')}"
             f"{_fmt(r['p_sr_error_pct'], '+10.2f')}{_fmt(r['p_sr_settle_s'], '10.3f')}"
@@ -94,8 +100,8 @@ def _samples(n: int) -> list[dict]:
     return [dict(zip(keys, row, strict=True)) for row in zip(*cols, strict=True)][:n]
 
 
-def speed_monitor(samples: list[dict]) -> float:
-    mon = Monitor()
+def speed_monitor(samples: list[dict], model: str = "C5") -> float:
+    mon = Monitor(MonitorConfig(model=model))
     dts = []
     pc = time.perf_counter
     for s in samples:
@@ -105,9 +111,9 @@ def speed_monitor(samples: list[dict]) -> float:
     return float(np.median(dts[50:]) * 1e6)
 
 
-def speed_bank(samples: list[dict], n_act: int, rows: bool = False) -> float:
+def speed_bank(samples: list[dict], n_act: int, rows: bool = False, model: str = "C5") -> float:
     """MonitorBank.update_many (dict outputs) or update_rows (array outputs), per actuator."""
-    bank = MonitorBank()
+    bank = MonitorBank(MonitorConfig(model=model))
     ids = [f"act{k:03d}" for k in range(n_act)]
     dts = []
     pc = time.perf_counter
@@ -120,13 +126,13 @@ def speed_bank(samples: list[dict], n_act: int, rows: bool = False) -> float:
     return float(np.median(dts[20:]) * 1e6 / n_act)
 
 
-def speed_arrays(samples: list[dict], n_act: int, per_call: int = 10) -> float:
+def speed_arrays(samples: list[dict], n_act: int, per_call: int = 10, model: str = "C5") -> float:
     """MonitorBank.update_arrays (the daemon's path: samples decoded straight into arrays,
     ``per_call`` consecutive samples of every actuator per call, as a 10-sample message per
     actuator and tick), per actuator and sample."""
     from service.messages import CHANNELS
 
-    bank = MonitorBank()
+    bank = MonitorBank(MonitorConfig(model=model))
     rows = [bank.index_of(f"act{k:03d}") for k in range(n_act)]
     t_all = np.array([s["t"] for s in samples])
     ch_all = np.array([[s.get(c, np.nan) for c in CHANNELS] for s in samples], float)
@@ -142,9 +148,9 @@ def speed_arrays(samples: list[dict], n_act: int, per_call: int = 10) -> float:
     return float(np.median(dts[5:]) * 1e6 / (n_act * per_call))
 
 
-def speed_kernel(samples: list[dict], n_act: int) -> float:
+def speed_kernel(samples: list[dict], n_act: int, model: str = "C5") -> float:
     """The compiled UKF step alone (no sample parsing, no output dicts), per actuator."""
-    bank = MonitorBank()
+    bank = MonitorBank(MonitorConfig(model=model))
     ids = [f"act{k:03d}" for k in range(n_act)]
     for s in samples[:2]:
         bank.update_many([(a, s) for a in ids])
@@ -153,7 +159,8 @@ def speed_kernel(samples: list[dict], n_act: int) -> float:
     w = bank.ukf.w
     z = np.tile(np.array([[1.1e-5 / bank._zscale[0], 0.0, 12.4, 8.4, 0.0]]), (n_act, 1))
     mask = np.tile(np.array([[True, True, True, True, False]]), (n_act, 1))
-    i_in, dt, n_sub = np.full(n_act, 2e-4), np.full(n_act, 1e-3), np.ones(n_act, np.int64)
+    n_s = max(1, int(np.ceil(1e-3 / bank._cst[0] - 1e-9)))  # substeps at 1 ms (h_max)
+    i_in, dt, n_sub = np.full(n_act, 2e-4), np.full(n_act, 1e-3), np.full(n_act, n_s, np.int64)
     y, nis, st = np.zeros((n_act, 5)), np.zeros(n_act), np.zeros(n_act, np.int64)
     dts = []
     for _ in range(300):
@@ -264,6 +271,43 @@ def speed_progpy(samples: list[dict]) -> float | None:
     return float(np.median(dts) * 1e6)
 
 
+def speed_models(n: int, fleet: int, models: tuple[str, ...], repeats: int = 3) -> dict:
+    """The monitor's own paths for each process model, side by side: each repeat times every
+    model in turn (interleaved, so that load on the shared machine hits them alike); the
+    best of ``repeats``, per model and path [us per actuator and sample]."""
+    samples = _samples(n)
+    paths = {
+        "monitor_single_us": lambda m: speed_monitor(samples, m),
+        f"monitor_bank{fleet}_rows_us_per_actuator": lambda m: speed_bank(
+            samples, fleet, rows=True, model=m
+        ),
+        f"monitor_bank{fleet}_arrays_us_per_actuator": lambda m: speed_arrays(
+            samples, fleet, model=m
+        ),
+        f"kernel{fleet}_us_per_actuator": lambda m: speed_kernel(samples, fleet, m),
+    }
+    vals: dict = {m: {k: [] for k in paths} for m in models}
+    for _ in range(repeats):
+        for k, fn in paths.items():
+            for m in models:
+                vals[m][k].append(fn(m))
+    return {m: {k: min(v) for k, v in d.items()} for m, d in vals.items()}
+
+
+def print_speed_models(sp: dict, fleet: int) -> None:
+    models = list(sp)
+    print("\nSpeed per process model (median wall time per actuator and sample, best of runs)")
+    print(f"  {'path':<52}" + "".join(f"{m:>10}" for m in models) + (
+        f"{models[-1] + ' / ' + models[0]:>12}" if len(models) > 1 else ""))  # fmt: skip
+    for k in sp[models[0]]:
+        v = [sp[m][k] for m in models]
+        ratio = f"{v[-1] / v[0]:11.2f}x" if len(models) > 1 else ""
+        print(f"  {k:<52}" + "".join(f"{x:10.1f}" for x in v) + ratio)
+    arr = f"monitor_bank{fleet}_arrays_us_per_actuator"
+    print("  actuators per core at 1 kHz, update_arrays: " + ", ".join(
+        f"{m} {1e3 / sp[m][arr]:.1f}" for m in models))  # fmt: skip
+
+
 def speed(n: int, fleet: int, repeats: int = 3) -> dict:
     """Median time per update, best of ``repeats`` runs for each contender (the machine is
     shared; the best run is the least disturbed one, as ``timeit`` does)."""
@@ -330,15 +374,26 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=2000, help="samples for the speed runs")
     ap.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)))
     ap.add_argument("--json", default=None, help="write every figure to this JSON file")
+    ap.add_argument(
+        "--model",
+        default="C5",
+        help="process model(s) of the monitor, comma-separated (e.g. C5,WH: side by side)",
+    )
     args = ap.parse_args()
-    print(f"baseline: {Baseline.default().source}")
+    models = tuple(m.strip() for m in args.model.split(",") if m.strip())
+    for m in models:
+        print(f"baseline {m}: {Baseline.default(m).source}")
     out: dict = {}
     if not args.skip_speed:  # first, while nothing else runs
-        out["speed"] = speed(args.n, args.fleet)
-        print_speed(out["speed"], args.fleet)
+        if models == ("C5",):
+            out["speed"] = speed(args.n, args.fleet)
+            print_speed(out["speed"], args.fleet)
+        else:
+            out["speed_models"] = speed_models(args.n, args.fleet, models)
+            print_speed_models(out["speed_models"], args.fleet)
     if not args.skip_accuracy:
         t0 = time.perf_counter()
-        out["accuracy"] = accuracy(args.healthy_s, args.workers)
+        out["accuracy"] = accuracy(args.healthy_s, args.workers, models)
         print_accuracy(out["accuracy"])
         print(f"(accuracy runs: {time.perf_counter() - t0:.0f} s wall)")
     if args.json:

@@ -10,6 +10,10 @@ that mismatch as a fault, so its effective parameters are identified first on he
    (physics.md section 2), linear in a = 1 / x_SS and G_PQ once C_Lk is fixed at nominal:
    P12 = a P_SR x_S - G_PQ (A v_J + C_Lk P12). Least squares on smoothed x_S, P12 and the
    smoothed derivative of x_J gives the effective pressure gain and G_PQ.
+   WH (docs/models.md eq. 7, linearised at null with all four lands open by x_SS) reads the
+   same form with twice the pressure gain, P12 (1 + G_PQ C_Lk) = (2 P_SR / x_SS) x_S -
+   G_PQ A v_J (the tangent gain of the real valve), so its x_SS is 2 / a; G_PQ and x_SS
+   then give its land coefficient K_o = sqrt(2 P_SR) / (x_SS G_PQ) = a sqrt(P_SR / 2).
 3. Only 1/G_PQ + C_Lk is identifiable at null, so C_Lk stays at nominal and the residual bias
    of the monitor's C_Lk estimate on the same healthy data is moved into 1/G_PQ, keeping the
    flow gain P_SR / (x_SS G_PQ) fixed (a few fixed passes), so that a healthy plant reads
@@ -113,8 +117,9 @@ def identify_baseline(
         raise ValueError(
             f"calibration failed: the healthy run does not excite the valve near null ({coef})"
         )
+    x_ss = (2.0 if law == "WH" else 1.0) / a  # WH: the tangent null gain 2 P_SR / x_SS
     return nom.model_copy(
-        update={"x_ss": 1.0 / a, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "x_0": x_0,
+        update={"x_ss": x_ss, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "x_0": x_0,
                 "source": "lsq"}
     )  # fmt: skip
 

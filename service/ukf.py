@@ -24,6 +24,9 @@ from numba import njit
 from numpy.typing import NDArray
 
 from models.eha_reduced import MEAS_NAMES, N_STATES, measure_nb, spool_coef_nb, step_points_nb
+from models.eha_reduced_wh import N_STATES as N_STATES_WH
+from models.eha_reduced_wh import measure_nb as measure_wh_nb
+from models.eha_reduced_wh import step_points_nb as step_points_wh_nb
 from service.compat.numba import borrowed_all
 
 __all__ = [
@@ -34,6 +37,7 @@ __all__ = [
     "nearest_spd",
     "ukf_step_batch",
     "ukf_one",
+    "ukf_one_wh",
     "workspace",
 ]
 
@@ -172,6 +176,7 @@ class BatchUKF:
 # contraction), so the step is bitwise the same in every caller; NaN fails the "s > 0" test
 # of the Cholesky factors (status 2).
 _N = N_STATES
+_N_WH = N_STATES_WH  # the WH process model (ukf_one_wh)
 _M = len(MEAS_NAMES)
 _KERNEL = {"cache": True, "error_model": "numpy", "boundscheck": False}
 
@@ -271,7 +276,29 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
     with mask mb); ``ws`` is the workspace of ``workspace(n, m)``. Returns (NIS, status)."""
     if xb.shape[0] != _N or zb.shape[0] != _M:
         raise ValueError("ukf_one: the model has 8 states and 5 measurement channels")
-    n, m = _N, _M
+    return _ukf_core(
+        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N, False
+    )
+
+
+@njit(**_KERNEL)
+def ukf_one_wh(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
+    """``ukf_one`` on the WH process model (``models.eha_reduced_wh``: 10 states, 21 sigma
+    points; prm from its ``param_vector``)."""
+    if xb.shape[0] != _N_WH or zb.shape[0] != _M:
+        raise ValueError("ukf_one_wh: the model has 10 states and 5 measurement channels")
+    return _ukf_core(
+        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N_WH, True
+    )
+
+
+@njit(**_KERNEL, inline="always")
+def _ukf_core(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, n, wh):
+    """The step of ``ukf_one`` for n states (a constant of each caller): the C-type model
+    (``models.eha_reduced``, wh False) or WH (``models.eha_reduced_wh``, wh True: its plant
+    states are 0..3 and the chamber states 8..9; the parameter states 4..7 are copied
+    through by both models)."""
+    m = _M
     # every array through borrowed_all: no atomic reference counting in the step
     xb, Pb, zb, mb, yb, q, R, scale, zscale, Wm, Wc, prm = borrowed_all(
         (xb, Pb, zb, mb, yb, q, R, scale, zscale, Wm, Wc, prm)
@@ -287,16 +314,28 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
         for k in range(K):
             for r in range(n):
                 D[k, r] = sig[k, r] * scale[r]
-        step_points_nb(D, i_in, h, n_sub, prm, coef, Dw, W6)  # D, Dw: scratch here
+        if wh:
+            step_points_wh_nb(D, i_in, h, n_sub, prm, coef, Dw, W6)
+        else:
+            step_points_nb(D, i_in, h, n_sub, prm, coef, Dw, W6)  # D, Dw: scratch here
         # back to filter units; the parameter states (4..7), which the model copies through,
         # are taken from the points themselves (exact: no (x scale) / scale round trip)
         for r in range(4):
             xs[r] = 1.0 / scale[r]
+        if wh:
+            for r in range(_N, n):  # WH chamber states
+                xs[r] = 1.0 / scale[r]
         for k in range(K):
             for r in range(4):
                 sig_f[k, r] = Dw[k, r] * xs[r]
-            for r in range(4, n):
-                sig_f[k, r] = sig[k, r]
+            if wh:
+                for r in range(4, _N):
+                    sig_f[k, r] = sig[k, r]
+                for r in range(_N, n):
+                    sig_f[k, r] = Dw[k, r] * xs[r]
+            else:
+                for r in range(4, n):
+                    sig_f[k, r] = sig[k, r]
         # unscented transform: P = sum_k Wc[k] D[k] D[k]^T + Q
         _mean(sig_f, Wm, xm, K, n)
         _dev(sig_f, xm, Wc, D, Dw, K, n)
@@ -311,7 +350,10 @@ def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm
         for k in range(K):
             for r in range(n):
                 xs[r] = sig_f[k, r] * scale[r]
-            measure_nb(xs, prm, zo)
+            if wh:
+                measure_wh_nb(xs, prm, zo)
+            else:
+                measure_nb(xs, prm, zo)
             for r in range(m):
                 zs[k, r] = zo[r] * zm[r]
         _mean(zs, Wm, zm, K, m)
@@ -418,14 +460,21 @@ def ukf_step_batch(
     """Advance B filters in place. Scaled state x (B, n), P (B, n, n); measurements z (B, m)
     in scaled units with mask (B, m); inputs i_in (B,), dt (B,); process noise intensities
     q (n,) (Q = diag(q) dt); R (m, m). Writes innovations y_out (B, m), NIS nis_out (B,) and
-    status (B,): 0 ok, 1 covariance repaired with jitter, 2 failed (caller re-initialises)."""
+    status (B,): 0 ok, 1 covariance repaired with jitter, 2 failed (caller re-initialises).
+    n = 10 runs the WH process model (``ukf_one_wh``), else the C-type one (``ukf_one``)."""
     B, n = x.shape
     m = z.shape[1]
     ws = workspace(n, m)
     for b in range(B):
-        nis, st = ukf_one(
-            x[b], P[b], z[b], mask[b], i_in[b], dt[b], n_sub[b], q, R, scale, zscale, Wm, Wc,
-            c, prm, y_out[b], ws,
-        )  # fmt: skip
+        if n == _N_WH:  # the WH process model
+            nis, st = ukf_one_wh(
+                x[b], P[b], z[b], mask[b], i_in[b], dt[b], n_sub[b], q, R, scale, zscale, Wm,
+                Wc, c, prm, y_out[b], ws,
+            )  # fmt: skip
+        else:
+            nis, st = ukf_one(
+                x[b], P[b], z[b], mask[b], i_in[b], dt[b], n_sub[b], q, R, scale, zscale, Wm, Wc,
+                c, prm, y_out[b], ws,
+            )  # fmt: skip
         nis_out[b] = nis
         status[b] = st

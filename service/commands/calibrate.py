@@ -31,7 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--scenario", help="healthy scenario TOML (or a bundled name)")
     src.add_argument("--log", help="recorded MCAP log with a .../meas topic")
-    p.add_argument("--model", default="C5", help="valve law of the monitor (A, B, C1, C3, C5)")
+    p.add_argument(
+        "--model", default="C5", help="process model of the monitor (A, B, C1, C3, C5, WH)"
+    )
     p.add_argument("--out", default=None, help="write the baseline JSON here")
     p.add_argument(
         "--actuator",
@@ -65,10 +67,10 @@ def meas_from_log(path: str) -> dict[str, np.ndarray]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from models.valve_laws import LAW_NAMES
+    from service.monitor.config import MONITOR_MODELS
 
-    if args.model not in LAW_NAMES:
-        return fail(f"unknown model {args.model!r}; expected one of {', '.join(LAW_NAMES)}")
+    if args.model not in MONITOR_MODELS:
+        return fail(f"unknown model {args.model!r}; expected one of {', '.join(MONITOR_MODELS)}")
     if args.passes < 0:
         return fail("--passes must be >= 0")
     if args.store is not None and args.actuator is None:

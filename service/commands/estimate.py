@@ -27,7 +27,9 @@ __all__ = ["NAME", "HELP", "add_arguments", "run", "evaluate"]
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", required=True, help="scenario TOML file (or a bundled name)")
-    p.add_argument("--model", default="C5", help="valve law of the monitor (A, B, C1, C3, C5)")
+    p.add_argument(
+        "--model", default="C5", help="process model of the monitor (A, B, C1, C3, C5, WH)"
+    )
     p.add_argument("--channels", default="full", choices=("full", "reduced"))
     p.add_argument("--baseline", default=None, help="baseline JSON from `servowatch calibrate`")
     p.add_argument("--duration", type=float, default=None, help="override duration_s [s]")
@@ -251,11 +253,11 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as e:
         return fail(str(e))
-    from models.valve_laws import LAW_NAMES
     from service.monitor import Baseline, MonitorConfig
+    from service.monitor.config import MONITOR_MODELS
 
-    if args.model not in LAW_NAMES:
-        return fail(f"unknown model {args.model!r}; expected one of {', '.join(LAW_NAMES)}")
+    if args.model not in MONITOR_MODELS:
+        return fail(f"unknown model {args.model!r}; expected one of {', '.join(MONITOR_MODELS)}")
     if args.duration is not None:
         if args.duration <= 0:
             return fail("--duration must be positive")

@@ -24,9 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from models import eha_reduced as er
-from models.valve_laws import LAW_NAMES
+from models import eha_reduced_wh as erw
 from service.messages import CHANNELS as WIRE
-from service.monitor.config import Baseline, MonitorConfig
+from service.monitor.config import MONITOR_MODELS, Baseline, MonitorConfig
 from service.monitor.kernels import (
     CST_FIELDS,
     IN_I,
@@ -80,11 +80,10 @@ __all__ = ["MonitorBank", "Monitor"]
 
 log = logging.getLogger(__name__)
 
-_NX = er.N_STATES
 _PLAIN = {float, int, type(None), np.float64}
 
 
-_PARAMS = slice(S_F_R, _NX)  # the random-walk parameter states f_r, p_sr, c_lk, i_b
+_PARAMS = slice(S_F_R, S_I_B + 1)  # the random-walk parameter states f_r, p_sr, c_lk, i_b
 # columns of update_arrays' channels (the wire order, service.messages.CHANNELS)
 _WIRE_X_CMD, _WIRE_I, _WIRE_Z = WIRE.index("x_cmd"), WIRE.index("i"), WIRE.index(MEAS_CHANNELS[0])
 assert WIRE[_WIRE_Z : _WIRE_Z + N_CHANNELS] == MEAS_CHANNELS
@@ -118,18 +117,28 @@ class MonitorBank:
         capacity: int = 8,
     ):
         self.config = config or MonitorConfig()
-        if self.config.model not in LAW_NAMES:
-            raise ValueError(f"unknown model {self.config.model!r}; expected one of {LAW_NAMES}")
+        if self.config.model not in MONITOR_MODELS:
+            raise ValueError(
+                f"unknown model {self.config.model!r}; expected one of {MONITOR_MODELS}"
+            )
         self.baseline = baseline or Baseline.default(self.config.model)
         if self.baseline.law != self.config.model:
             self.baseline = self.baseline.model_copy(update={"law": self.config.model})
         self.rp = self.baseline.reduced_params()
         b, c = self.baseline, self.config
+        # WH: models.eha_reduced_wh, the C-type states plus the chamber states p~1, p~2
+        self.wh = c.model == "WH"
+        names = erw.STATE_NAMES if self.wh else er.STATE_NAMES
+        self.nx = len(names)
+        self._names = names
+        wh_sc = {"pt1": 1e6, "pt2": 1e6} if self.wh else {}
         # filter units: one scale per state (x_scaled = x_SI / scale) and per channel
-        self.scale = _by_name(er.STATE_NAMES, x_s=b.x_ss, v_s=b.x_ss * b.omega_n, x_j=1e-3,
-                              v_j=1e-2, f_r=1e3, p_sr=1e6, c_lk=1e-13, i_b=1e-4)  # fmt: skip
+        self.scale = _by_name(names, x_s=b.x_ss, v_s=b.x_ss * b.omega_n, x_j=1e-3,
+                              v_j=1e-2, f_r=1e3, p_sr=1e6, c_lk=1e-13, i_b=1e-4,
+                              **wh_sc)  # fmt: skip
         pn = c.process
-        q = _by_name(er.STATE_NAMES, **{n: getattr(pn, n) for n in er.STATE_NAMES})
+        q_wh = {"pt1": pn.p_ch, "pt2": pn.p_ch} if self.wh else {}
+        q = _by_name(names, **{n: getattr(pn, n) for n in er.STATE_NAMES}, **q_wh)
         if c.channels == "reduced":  # parameters not observable from x_J alone
             q[[S_P_SR, S_C_LK, S_I_B]] *= c.reduced_param_q
         self._q = (q / self.scale) ** 2
@@ -149,15 +158,21 @@ class MonitorBank:
             for c, name in enumerate(MEAS_CHANNELS)
             if self._use[c]
         ]
-        self._p0 = _by_name(er.STATE_NAMES, x_s=2e-6, v_s=1e-3, x_j=1e-4, v_j=5e-3,
+        p0_wh = {"pt1": c.init_sigma_p_ch, "pt2": c.init_sigma_p_ch} if self.wh else {}
+        self._p0 = _by_name(names, x_s=2e-6, v_s=1e-3, x_j=1e-4, v_j=5e-3,
                             f_r=c.init_sigma_f_r, p_sr=c.init_sigma_p_sr,
-                            c_lk=c.init_sigma_c_lk, i_b=c.init_sigma_i_b)  # fmt: skip
-        self.ukf = BatchUKF(_NX, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
-        self._prm = er.param_vector(self.rp)
+                            c_lk=c.init_sigma_c_lk, i_b=c.init_sigma_i_b, **p0_wh)  # fmt: skip
+        self.ukf = BatchUKF(self.nx, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
+        if self.wh:
+            self._prm = erw.param_vector(self.rp, b.v_c, b.beta)
+            h_max = min(self.rp.h_max, erw.H_MAX)
+        else:
+            self._prm = er.param_vector(self.rp)
+            h_max = self.rp.h_max
         a = c.alarms
         self._cst = _by_name(
             CST_FIELDS,
-            h_max=self.rp.h_max,
+            h_max=h_max,
             c_lk_max=c.c_lk_max / self.scale[S_C_LK],
             p_vap=self.rp.p_vap / self.scale[S_P_SR],
             p_sr_max=b.p_sr_rated / self.scale[S_P_SR],
@@ -177,14 +192,14 @@ class MonitorBank:
             gate_x_s=(self.rp.x_u if self.rp.x_u > 0 else math.inf) / self.scale[S_X_S],
             gate_nis=c.c_lk_gate_nis,
         )
-        self._ws = workspace(_NX, N_CHANNELS)
+        self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}
         self._rows: list | None = None
         self._alloc(capacity)
 
     # -- storage -------------------------------------------------------------------------
     def _alloc(self, cap: int) -> None:
-        n = _NX
+        n = self.nx
         self.x = np.zeros((cap, n))  # scaled filter state
         self.P = np.zeros((cap, n, n))
         self.ol = np.zeros((cap, n))  # SI open-loop (parallel) model state
@@ -402,7 +417,7 @@ class MonitorBank:
 
     def _steps(self, ks, t, z, mask, cand, i_m, x_c) -> StepBlock:
         n = len(ks)
-        nx = _NX
+        nx = self.nx
         y = np.zeros((n, N_CHANNELS))
         nis = np.zeros(n)
         nis_avg = np.zeros(n)
@@ -566,8 +581,15 @@ class MonitorBank:
         f_r = 0.0
         if both_p:
             f_r = (z[Z_P1] - z[Z_P2]) * sc[Z_P1] * b.area
-        xs = _by_name(er.STATE_NAMES, x_s=x_s, v_s=0.0, x_j=x_j, v_j=0.0, f_r=f_r, p_sr=p_sr,
-                      c_lk=b.c_lk, i_b=0.0)  # fmt: skip
+        wh0 = {}
+        if self.wh:  # chamber states: the measured pressures, else the symmetric split
+            p12 = f_r / b.area
+            wh0 = {
+                "pt1": z[Z_P1] * sc[Z_P1] if mask[Z_P1] else b.p_r + 0.5 * (p_sr + p12),
+                "pt2": z[Z_P2] * sc[Z_P2] if mask[Z_P2] else b.p_r + 0.5 * (p_sr - p12),
+            }
+        xs = _by_name(self._names, x_s=x_s, v_s=0.0, x_j=x_j, v_j=0.0, f_r=f_r, p_sr=p_sr,
+                      c_lk=b.c_lk, i_b=0.0, **wh0)  # fmt: skip
         self.x[k] = xs / self.scale
         self.P[k] = np.diag((self._p0 / self.scale) ** 2)
         self.ol[k] = xs

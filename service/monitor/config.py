@@ -18,7 +18,12 @@ from models import eha_reduced as er
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
 
+MONITOR_MODELS: tuple[str, ...] = (*LAW_NAMES, "WH")
+"""Process models of the monitor: the C-type laws (models.eha_reduced) and WH
+(models.eha_reduced_wh, docs/estimation.md)."""
+
 __all__ = [
+    "MONITOR_MODELS",
     "MeasurementNoise",
     "ProcessNoise",
     "AlarmConfig",
@@ -51,6 +56,9 @@ class ProcessNoise(_Cfg):
     p_sr: float = Field(2e6, gt=0, description="supply [Pa/sqrt(s)]")
     c_lk: float = Field(1e-13, gt=0, description="leakage [m^3/s/Pa/sqrt(s)]")
     i_b: float = Field(2e-6, gt=0, description="servovalve null bias [A/sqrt(s)]")
+    p_ch: float = Field(
+        1e6, gt=0, description="WH model only: chamber states p~1, p~2 [Pa/sqrt(s)]"
+    )
 
 
 class AlarmConfig(_Cfg):
@@ -72,7 +80,7 @@ class AlarmConfig(_Cfg):
 class MonitorConfig(_Cfg):
     """Monitor settings; every default works on the bundled scenarios without tuning."""
 
-    model: str = Field("C5", description=f"valve law, one of {LAW_NAMES}")
+    model: str = Field("C5", description=f"process model, one of {MONITOR_MODELS}")
     channels: Literal["full", "reduced"] = Field(
         "full", description="full: use every channel present; reduced: x_J only (+ i, x_cmd)"
     )
@@ -86,6 +94,9 @@ class MonitorConfig(_Cfg):
     init_sigma_p_sr: float = Field(2e6, gt=0, description="initial supply 1-sigma [Pa]")
     init_sigma_c_lk: float = Field(2e-13, gt=0, description="initial leakage 1-sigma")
     init_sigma_i_b: float = Field(2e-4, gt=0, description="initial null bias 1-sigma [A]")
+    init_sigma_p_ch: float = Field(
+        1e5, gt=0, description="WH model only: initial chamber-state 1-sigma [Pa]"
+    )
     max_gap_s: float = Field(0.05, gt=0, description="longer sample gaps re-initialise [s]")
     nis_tau_s: float = Field(0.2, gt=0, description="time constant of the NIS average [s]")
     nis_reinit: float = Field(30.0, gt=1, description="re-init when mean NIS/dof exceeds this")
@@ -144,14 +155,18 @@ class Baseline(_Cfg):
     x_0: float = Field(
         0.0, description="hydraulic null of the spool [m] (land mismatch), from calibration"
     )
+    v_c: float = Field(7e-5, gt=0, description="WH model only: lumped chamber volume V [m^3]")
+    beta: float = Field(1.4e9, gt=0, description="WH model only: lumped bulk modulus [Pa]")
     source: str = "nominal"
 
     @classmethod
     def nominal(cls, law: str = "C5", params: EHAParams | None = None) -> Baseline:
         """Uncalibrated values derived from the HF parameter set (physics.md section 3)."""
+        p = params or EHAParams()
         rp = er.reduced_params(params, law)._asdict()
         fields = {k: v for k, v in rp.items() if k in cls.model_fields}
-        return cls(**fields, c_lk=(params or EHAParams()).c_lk, source="nominal")
+        # WH: V = V0 (mid-stroke chamber) and beta_l, as models.params.wh_params
+        return cls(**fields, c_lk=p.c_lk, v_c=p.v0, beta=p.beta_l, source="nominal")
 
     @classmethod
     def default(cls, law: str = "C5") -> Baseline:
@@ -192,3 +207,10 @@ _CAL_HEALTHY_NOISE = {
 }
 # near null every C-law reduces to the same linear form, so one calibration serves them all
 _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CAL_HEALTHY_NOISE)
+# WH (models.eha_reduced_wh): its own calibration, ``servowatch calibrate --scenario
+# healthy_noise --model WH`` (x_SS near the geometric underlap: WH has the tangent null gain)
+_DEFAULT_CALIBRATION["WH"] = {
+    "g_pq": 709107655252.9532,
+    "x_ss": 0.00010445522171828818,
+    "p_r": 452633.0785282906,
+}

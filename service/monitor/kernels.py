@@ -19,7 +19,10 @@ import numpy as np
 from numba import njit
 
 from models import eha_reduced as er
+from models import eha_reduced_wh as erw
 from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
+from models.eha_reduced_wh import measure_nb as measure_wh_nb
+from models.eha_reduced_wh import step_core_nb as step_core_wh_nb
 from service.compat.numba import borrowed_all
 from service.monitor.outputs import (
     ALARM_LEAK,
@@ -40,13 +43,14 @@ from service.monitor.outputs import (
     RES_NIS_DOF,
     RES_OL,
 )
-from service.ukf import ukf_one
+from service.ukf import ukf_one, ukf_one_wh
 
 # filter state columns (X, P, OL rows)
 S_X_S, S_V_S, S_X_J, S_V_J, S_F_R, S_P_SR, S_C_LK, S_I_B = (
     er.IX[n] for n in ("x_s", "v_s", "x_j", "v_j", "f_r", "p_sr", "c_lk", "i_b")
 )
-N_STATES = er.N_STATES
+N_STATES = er.N_STATES  # C-type filter state; also the state columns of the output rows
+N_STATES_WH = erw.N_STATES  # WH filter state: the C-type's, then the chamber states p~1, p~2
 # measurement channels (z, mask, y columns)
 Z_X_S, Z_X_J, Z_P1, Z_P2, Z_P_SR = (
     er.MEAS_NAMES.index(n) for n in ("x_s", "x_j", "p1", "p2", "p_sr")
@@ -141,10 +145,16 @@ def step_one(
     gate = abs(X[k, S_V_J]) > cst[C_GATE_V] or abs(X[k, S_X_S]) > cst[C_GATE_XS]
     gate = gate or NIS_AVG[k] > cst[C_GATE_NIS]
     c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
-    nis_j, st = ukf_one(
-        X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
-        y[j], ws,
-    )  # fmt: skip
+    if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
+        nis_j, st = ukf_one_wh(
+            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
+            y[j], ws,
+        )  # fmt: skip
+    else:
+        nis_j, st = ukf_one(
+            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
+            y[j], ws,
+        )  # fmt: skip
     if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
         X[k, S_C_LK] = c_prior
         PP[k, S_C_LK, S_C_LK] = p_prior + q[S_C_LK] * dt
@@ -153,7 +163,10 @@ def step_one(
     OL[k, S_F_R] = X[k, S_F_R] * scale[S_F_R]
     h = dt / n_sub
     spool_coef_nb(h, prm, coef)
-    step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
+    if n == N_STATES_WH:
+        step_core_wh_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
+    else:
+        step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
     for r in range(n):
         OL[k, r] = tmp[r]
     # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
@@ -195,14 +208,23 @@ def row_one(
     n = X.shape[1]
     m = z.shape[1]
     c_lk0, p_rated = cst[C_C_LK0], cst[C_P_RATED]
-    for r in range(n):
+    wh = n == N_STATES_WH
+    for r in range(N_STATES):
         xs[r] = X[kk, r] * scale[r]
         est[j, EST_STATE + 2 * r] = xs[r]
         est[j, EST_STATE + 2 * r + 1] = math.sqrt(max(PD[kk, r], 0.0)) * scale[r]
-    measure_nb(xs, prm, zo)
+    if wh:  # WH chamber states: not output columns, P1 and P2 come through the measurement
+        for r in range(N_STATES, n):
+            xs[r] = X[kk, r] * scale[r]
+        measure_wh_nb(xs, prm, zo)
+    else:
+        measure_nb(xs, prm, zo)
     est[j, EST_P12] = zo[Z_P1] - zo[Z_P2]
     est[j, EST_C_LK_INCREASE] = xs[S_C_LK] - c_lk0
-    measure_nb(OL[kk], prm, zo)
+    if wh:
+        measure_wh_nb(OL[kk], prm, zo)
+    else:
+        measure_nb(OL[kk], prm, zo)
     dof = 0.0
     for r in range(m):
         res[j, RES_INNOV + r] = y[j, r] * zscale[r]

@@ -1,0 +1,267 @@
+"""WH process model of the estimator: the C-types' eight filter states plus the two WH chamber
+states (docs/models.md sections 2 and 7; docs/estimation.md, "WH process model").
+
+States, in this order (SI)::
+
+    x_s, v_s, x_j, v_j, f_r, p_sr, c_lk, i_b   (as models.eha_reduced)
+    pt1, pt2 [Pa]                              (p~1, p~2: liquid-volume balances, eq. 5)
+
+The spool is the exact zero-order-hold step of ``models.eha_reduced``; x_J, v_J, p~1 and p~2
+advance by classic RK4 with the spool held over each substep. The chamber flows are the
+four-land orifice law of docs/models.md eqs. 1-4 (K_o = sqrt(2 P_SR,rated) / (x_SS G_PQ)),
+the chambers eq. 5 with the lumped beta / V, the pressures P_k = max(p~_k, P_vap) (eq. 6),
+the jack m dv_J/dt = A (P1 - P2) - F_R - c_v v_J - F_d tanh(v_J / v_f). The measurement is
+direct: x_S, x_J, P1 = max(p~1, P_vap), P2 = max(p~2, P_vap), P_SR.
+
+Stiff modes (docs/models.md section 7; ``stiff_modes``): the chamber mode
+beta/V (2 K_o (x_SS + x_SM) / sqrt(dp_lam) + C_Lk) and the hydraulic mode
+w_h = sqrt(2 beta A^2 / (V m)) (eq. 10). RK4 is stable for |lambda h| up to 2.78 on the real
+axis, so the longest substep is ``H_MAX`` = 1/3 ms: 3 substeps at the 1 ms sample step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from models import eha_reduced as er
+from models.compiled import wh_orifice
+from models.eha_reduced import (
+    K_AREA,
+    K_C_V,
+    K_F_D,
+    K_K_SV,
+    K_MASS,
+    K_P_R,
+    K_P_VAP,
+    K_V_F,
+    K_X_SM,
+    K_X_SS,
+    N_PRM,
+    ReducedParams,
+    _spool_nb,
+)
+from models.params import WH_DP_LAM_FRACTION
+
+__all__ = [
+    "STATE_NAMES",
+    "N_STATES",
+    "IX",
+    "H_MAX",
+    "RK4_REAL_LIMIT",
+    "K_WH_K",
+    "K_WH_DP_LAM",
+    "K_WH_ISQ_LAM",
+    "K_WH_BV",
+    "N_PRM_WH",
+    "param_vector",
+    "stiff_modes",
+    "step",
+    "measure",
+    "step_core_nb",
+    "step_points_nb",
+    "measure_nb",
+    "rhs_nb",
+]
+
+STATE_NAMES: tuple[str, ...] = (*er.STATE_NAMES, "pt1", "pt2")
+N_STATES = len(STATE_NAMES)
+IX = {n: k for k, n in enumerate(STATE_NAMES)}
+S_PT1, S_PT2 = IX["pt1"], IX["pt2"]
+H_MAX = 1e-3 / 3.0  # longest RK4 substep [s]: 3 substeps at the 1 ms sample step
+RK4_REAL_LIMIT = 2.785  # classic RK4 is stable for real lambda h in [-2.785, 0]
+
+# parameter vector: models.eha_reduced's layout, then the WH constants (docs/models.md eq. 2, 3, 5)
+K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV = range(N_PRM, N_PRM + 4)
+N_PRM_WH = N_PRM + 4
+
+
+def k_orifice(rp: ReducedParams) -> float:
+    """K_o = sqrt(2 P_SR,rated) / (x_SS G_PQ) [m^2/(s Pa^0.5)] (docs/models.md eq. 2)."""
+    return math.sqrt(2.0 * rp.p_sr_rated) / (rp.x_ss * rp.g_pq)
+
+
+def param_vector(rp: ReducedParams, v_c: float, beta: float) -> NDArray:
+    """Float64 vector of the compiled WH kernels: ``models.eha_reduced.param_vector`` (law
+    WH, longest substep ``H_MAX``) followed by K_o, dp_lam, 1/sqrt(dp_lam) and beta / V."""
+    a = np.empty(N_PRM_WH)
+    a[:N_PRM] = er.param_vector(rp._replace(law="WH", h_max=min(rp.h_max, H_MAX)))
+    dp_lam = WH_DP_LAM_FRACTION * rp.p_sr_rated
+    a[K_WH_K] = k_orifice(rp)
+    a[K_WH_DP_LAM] = dp_lam
+    a[K_WH_ISQ_LAM] = 1.0 / math.sqrt(dp_lam)
+    a[K_WH_BV] = beta / v_c
+    return a
+
+
+def stiff_modes(rp: ReducedParams, v_c: float, beta: float, c_lk: float) -> dict[str, float]:
+    """The fastest modes of the WH filter model (docs/models.md sections 3 and 7) and
+    |lambda| H_MAX for each: chamber (laminar band, spool at full stroke) [1/s], hydraulic
+    w_h (eq. 10) [rad/s], friction F_d / (v_f m) [1/s]."""
+    dp_lam = WH_DP_LAM_FRACTION * rp.p_sr_rated
+    lam_c = beta / v_c * (2.0 * k_orifice(rp) * (rp.x_ss + rp.x_sm) / math.sqrt(dp_lam) + c_lk)
+    w_h = math.sqrt(2.0 * beta * rp.area**2 / (v_c * rp.mass))
+    lam_f = rp.f_d / (rp.v_f * rp.mass)
+    return {
+        "chamber": lam_c,
+        "hydraulic": w_h,
+        "friction": lam_f,
+        "chamber_h": lam_c * H_MAX,
+        "hydraulic_h": w_h * H_MAX,
+        "friction_h": lam_f * H_MAX,
+    }
+
+
+# -- numpy reference (vectorised over leading axes), held to the compiled kernels by tests ---
+def _orifice(a, dp, k_o, dp_lam):
+    r = np.where(np.abs(dp) >= dp_lam, np.sign(dp) * np.sqrt(np.abs(dp)), dp / math.sqrt(dp_lam))
+    return k_o * np.maximum(a, 0.0) * r
+
+
+def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, k_o, dp_lam, bv):
+    p1, p2 = np.maximum(pt1, rp.p_vap), np.maximum(pt2, rp.p_vap)
+    p_s = rp.p_r + p_sr
+    a_p, a_m = rp.x_ss + x_s, rp.x_ss - x_s
+    q1 = _orifice(a_p, p_s - p1, k_o, dp_lam)
+    q2 = _orifice(a_m, p1 - rp.p_r, k_o, dp_lam)
+    q3 = _orifice(a_m, p_s - p2, k_o, dp_lam)
+    q4 = _orifice(a_p, p2 - rp.p_r, k_o, dp_lam)
+    p12 = p1 - p2
+    q_lk = c_lk * p12
+    q_j = rp.area * v_j
+    acc = (rp.area * p12 - f_r - rp.c_v * v_j - rp.f_d * np.tanh(v_j / rp.v_f)) / rp.mass
+    return v_j, acc, bv * (q1 - q2 - q_lk - q_j), bv * (q3 - q4 + q_lk + q_j)
+
+
+def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: float) -> NDArray:
+    """Advance WH states ``x`` (..., 10) by ``dt`` with current ``i`` held: per substep the
+    exact spool step, then one RK4 step of (x_J, v_J, p~1, p~2) with the spool held.
+    Parameters (f_r, p_sr, c_lk, i_b) are copied through; evaluated with C_Lk >= 0,
+    P_SR >= P_vap."""
+    k_o = k_orifice(rp)
+    dp_lam = WH_DP_LAM_FRACTION * rp.p_sr_rated
+    bv = beta / v_c
+    x_s, v_s, x_j, v_j = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
+    f_r, p_sr, c_lk, i_b = x[..., 4], x[..., 5], x[..., 6], x[..., 7]
+    pt1, pt2 = x[..., 8], x[..., 9]
+    p_ev, c_ev = np.maximum(p_sr, rp.p_vap), np.maximum(c_lk, 0.0)
+    h = np.asarray(dt, float) / n_sub
+    for _ in range(n_sub):
+        x_s, v_s = er.spool_step(x_s, v_s, i + i_b, h, rp)
+
+        def f(y, x_s=x_s):
+            return _rhs(x_s, *y, f_r, p_ev, c_ev, rp, k_o, dp_lam, bv)
+
+        y = (x_j, v_j, pt1, pt2)
+        ka = f(y)
+        kb = f(tuple(u + 0.5 * h * d for u, d in zip(y, ka, strict=True)))
+        kc = f(tuple(u + 0.5 * h * d for u, d in zip(y, kb, strict=True)))
+        kd = f(tuple(u + h * d for u, d in zip(y, kc, strict=True)))
+        x_j, v_j, pt1, pt2 = (
+            u + h / 6.0 * (a + 2.0 * b + 2.0 * c + d)
+            for u, a, b, c, d in zip(y, ka, kb, kc, kd, strict=True)
+        )
+    return np.stack([x_s, v_s, x_j, v_j, f_r, p_sr, c_lk, i_b, pt1, pt2], axis=-1)
+
+
+def measure(x: NDArray, rp: ReducedParams) -> NDArray:
+    """Measurement model (..., 5): x_S, x_J, max(p~1, P_vap), max(p~2, P_vap), P_SR (eq. 6)."""
+    return np.stack(
+        [
+            x[..., 0],
+            x[..., 2],
+            np.maximum(x[..., 8], rp.p_vap),
+            np.maximum(x[..., 9], rp.p_vap),
+            x[..., 5],
+        ],
+        axis=-1,
+    )
+
+
+# -- compiled scalar versions (numba) --------------------------------------------------------
+_NB = {"cache": True, "error_model": "numpy"}
+
+
+@njit(**_NB, inline="always")
+def rhs_nb(x_s, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
+    """(dv_J/dt, dp~1/dt, dp~2/dt) of docs/models.md eqs. 1-6 with the jack equation;
+    p_s = P_R + P_SR (absolute supply)."""
+    p_vap, p_r, x_ss = prm[K_P_VAP], prm[K_P_R], prm[K_X_SS]
+    k_o, dp_lam, isq, bv = prm[K_WH_K], prm[K_WH_DP_LAM], prm[K_WH_ISQ_LAM], prm[K_WH_BV]
+    area = prm[K_AREA]
+    p1 = max(pt1, p_vap)
+    p2 = max(pt2, p_vap)
+    a_p = x_ss + x_s
+    a_m = x_ss - x_s
+    q1 = wh_orifice(a_p, p_s - p1, k_o, dp_lam, isq)
+    q2 = wh_orifice(a_m, p1 - p_r, k_o, dp_lam, isq)
+    q3 = wh_orifice(a_m, p_s - p2, k_o, dp_lam, isq)
+    q4 = wh_orifice(a_p, p2 - p_r, k_o, dp_lam, isq)
+    p12 = p1 - p2
+    q_lk = c_lk * p12
+    q_j = area * v_j
+    fric = prm[K_F_D] * math.tanh(v_j / prm[K_V_F])
+    acc = (area * p12 - f_r - prm[K_C_V] * v_j - fric) / prm[K_MASS]
+    return acc, bv * (q1 - q2 - q_lk - q_j), bv * (q3 - q4 + q_lk + q_j)
+
+
+@njit(**_NB, inline="always")
+def step_core_nb(x, i, h, n_sub, prm, coef, out):
+    """Scalar ``step`` with the spool transition ``coef`` of the substep h precomputed:
+    x (10,) -> out (10,)."""
+    x_s, v_s, x_j, v_j, pt1, pt2 = x[0], x[1], x[2], x[3], x[8], x[9]
+    f_r = x[4]
+    p_s = prm[K_P_R] + max(x[5], prm[K_P_VAP])
+    c_lk = max(x[6], 0.0)
+    x_sm = prm[K_X_SM]
+    x_ref = min(max(prm[K_K_SV] * (i + x[7]), -x_sm), x_sm)
+    hh = 0.5 * h
+    h6 = h / 6.0
+    for _ in range(n_sub):
+        x_s, v_s = _spool_nb(x_s, v_s, x_ref, x_sm, coef)
+        a1, a2, a3 = rhs_nb(x_s, v_j, pt1, pt2, f_r, p_s, c_lk, prm)
+        a0 = v_j
+        b0 = v_j + hh * a1
+        b1, b2, b3 = rhs_nb(x_s, b0, pt1 + hh * a2, pt2 + hh * a3, f_r, p_s, c_lk, prm)
+        c0 = v_j + hh * b1
+        c1, c2, c3 = rhs_nb(x_s, c0, pt1 + hh * b2, pt2 + hh * b3, f_r, p_s, c_lk, prm)
+        d0 = v_j + h * c1
+        d1, d2, d3 = rhs_nb(x_s, d0, pt1 + h * c2, pt2 + h * c3, f_r, p_s, c_lk, prm)
+        x_j += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
+        v_j += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+        pt1 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
+        pt2 += h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+    out[0], out[1], out[2], out[3] = x_s, v_s, x_j, v_j
+    out[4], out[5], out[6], out[7] = x[4], x[5], x[6], x[7]
+    out[8], out[9] = pt1, pt2
+
+
+@njit(**_NB)
+def step_points_nb(X, i, h, n_sub, prm, coef, out, w):
+    """``step_core_nb`` for every row of X (K, 10) into out (K, 10) (the sigma points of a
+    filter step); w: unused scratch (the signature of ``models.eha_reduced.step_points_nb``)."""
+    for k in range(X.shape[0]):
+        step_core_nb(X[k], i, h, n_sub, prm, coef, out[k])
+
+
+@njit(**_NB)
+def step_nb(x, i, dt, n_sub, prm, out):
+    """Scalar ``step``: x (10,) -> out (10,)."""
+    coef = np.empty(4)
+    h = dt / n_sub
+    er.spool_coef_nb(h, prm, coef)
+    step_core_nb(x, i, h, n_sub, prm, coef, out)
+
+
+@njit(**_NB, inline="always")
+def measure_nb(x, prm, out):
+    """Scalar ``measure``: x (10,) -> out (5,) = x_S, x_J, P1, P2, P_SR."""
+    p_vap = prm[K_P_VAP]
+    out[0] = x[0]
+    out[1] = x[2]
+    out[2] = max(x[8], p_vap)
+    out[3] = max(x[9], p_vap)
+    out[4] = x[5]
