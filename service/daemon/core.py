@@ -226,25 +226,6 @@ class Daemon:
                 log.info("new actuator %s", st.name)
         return st
 
-    # -- per-actuator state --------------------------------------------------------------
-    def _state_for_key(self, key: str) -> ActuatorState | None:
-        st = self.actuators.get(key)
-        if st is not None:
-            return st
-        try:
-            aircraft, actuator = m.parse_meas_key(key)
-        except m.MessageError:
-            return None
-        with self._lock:
-            st = self.actuators.get(key)
-            if st is None:
-                if len(self.actuators) >= MAX_ACTUATORS:
-                    return None
-                st = ActuatorState(aircraft, actuator)
-                self.actuators[key] = st
-                log.info("new actuator %s", st.name)
-        return st
-
     # -- worker -------------------------------------------------------------------------
     def process_pending(self) -> int:
         """Drain the queue once: validate, log, update the monitors, publish. Returns the
