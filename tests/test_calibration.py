@@ -92,3 +92,17 @@ def test_cli_calibrate_errors(tmp_path, capsys):
     bad.write_bytes(b"not mcap")
     assert main(["calibrate", "--log", str(bad), "--out", str(tmp_path / "x")]) == 2
     assert "error" in capsys.readouterr().err
+
+
+def test_bank_rows_are_the_per_sample_monitors_numbers():
+    """calibrate() runs the monitor through one update_arrays call: the same estimates, bit
+    for bit, as Monitor.update sample by sample (run_monitor)."""
+    from service.calibration import bank_rows
+    from service.monitor import EST_KEYS, MonitorConfig
+
+    _, meas = measured_run(load_scenario("healthy_noise").model_copy(update={"duration_s": 1.0}))
+    outs, _ = run_monitor(meas)
+    rows = bank_rows(meas, MonitorConfig(), None)
+    per_sample = np.array([[o.est[k] for k in EST_KEYS] for o in outs if o is not None])
+    assert rows.est.shape == per_sample.shape and rows.est.shape[0] > 900
+    assert np.array_equal(rows.est, per_sample)

@@ -1,5 +1,4 @@
-"""Fleet simulator: the fast calibration equals service.calibration's, the hidden truth is
-consistent, and a small fleet runs end to end through the real SQLite store and the CLI."""
+"""Fleet simulator: the hidden truth is consistent, and a small fleet runs end to end through the real SQLite store and the CLI."""
 
 from __future__ import annotations
 
@@ -9,22 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from service.calibration import calibrate
 from service.cli import main
 from service.prognostics.fleetsim import (
     FleetSimConfig,
-    _segment,
-    calibrate_fast,
     draw_units,
 )
 from service.store import open_store
-
-
-def test_calibrate_fast_equals_calibrate():
-    cfg = FleetSimConfig(actuators=2, flights=2, seed=4)
-    unit = draw_units(cfg)[1]
-    meas = _segment(unit, 0, 1.0, cfg)
-    assert calibrate_fast(meas) == calibrate(meas)
 
 
 def test_truth_end_of_life_crosses_the_threshold():

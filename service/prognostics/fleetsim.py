@@ -186,45 +186,10 @@ def _segment(unit: UnitTruth, flight: int, ratio: float, cfg: FleetSimConfig):
     return measured_run(sc)[1]
 
 
-def _channels(meas: dict) -> np.ndarray:
-    n = len(meas["t"])
-    ch = np.full((n, 7), np.nan)
-    for j, c in enumerate(("x_cmd", "i", "x_s", "x_j", "p1", "p2")):
-        ch[:, j] = meas[c]
-    return ch
-
-
-def calibrate_fast(meas: dict, passes: int = 2, settle_s: float = 1.0):
-    """``service.calibration.calibrate`` (law C5, default config) with each pass's monitor run
-    through ``MonitorBank.update_arrays`` instead of one ``Monitor.update`` per sample: the
-    same numbers (the bank paths are bit-identical, ``tests/test_monitor_block.py``), about
-    10x faster. ``tests/test_fleetsim.py`` holds the two equal."""
-    from service.calibration import identify_baseline
-    from service.monitor import EST_KEYS, MonitorBank, MonitorConfig
-
-    cfg = MonitorConfig()
-    base = identify_baseline(meas, cfg.model)
-    t = np.asarray(meas["t"], float)
-    ch = _channels(meas)
-    i_c, i_p = EST_KEYS.index("c_lk"), EST_KEYS.index("p_sr")
-    for _ in range(passes):
-        bank = MonitorBank(cfg, base, capacity=1)
-        k = bank.index_of("cal/unit")
-        rows = bank.update_arrays(np.full(len(t), k, np.int64), t, ch)
-        sel = rows.t >= t[0] + settle_s
-        c_est = float(np.mean(rows.est[sel, i_c]))
-        p_sr_est = float(np.mean(rows.est[sel, i_p]))
-        inv_g = 1.0 / base.g_pq + (c_est - base.c_lk)
-        p_r = base.p_r + 0.5 * min(p_sr_est - base.p_sr_rated, 0.0)
-        g_new = 1.0 / max(inv_g, 1e-14)
-        x_ss = base.x_ss * base.g_pq / g_new
-        base = base.model_copy(update={"g_pq": g_new, "x_ss": x_ss, "p_r": p_r})
-    return base.model_copy(update={"source": "calibrated"})
-
-
 def simulate_unit(unit: UnitTruth, cfg: FleetSimConfig) -> dict:
     """All flights of one unit (stops after the flight in which it reaches its end of life):
     periods (dicts), alarm events (dicts), the baseline, the truth, counts and wall time."""
+    from service.calibration import calibrate, meas_channels
     from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, MonitorBank, MonitorConfig
     from service.prognostics.indicators import PeriodAccumulator
 
@@ -244,12 +209,12 @@ def simulate_unit(unit: UnitTruth, cfg: FleetSimConfig) -> dict:
         truth_ratio.append(ratio)
         meas = _segment(unit, k, ratio, cfg)
         if baseline is None:
-            baseline = calibrate_fast(meas)
+            baseline = calibrate(meas)
             bank = MonitorBank(MonitorConfig(), baseline, capacity=1)
             row = bank.index_of(key)
             acc = PeriodAccumulator(key, baseline.c_lk, source, EST_KEYS, HEALTH_KEYS, RES_KEYS)
         n = len(meas["t"])
-        ch = _channels(meas)
+        ch = meas_channels(meas)
         t = meas["t"] + k * (cfg.calibration_s + FLIGHT_GAP_S)
         rows = bank.update_arrays(np.full(n, row, np.int64), t, ch)
         acc.add_rows(
