@@ -42,6 +42,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
                 acts = {k: st.snapshot(now) for k, st in list(d.actuators.items())}
             for k, a in acts.items():
                 a["monitor"] = d.monitor_counters(k)
+                a.update(d.prognostics_of(k))
             lat, age = list(d.latency), list(d.age)
             break
         except RuntimeError:  # "changed size during iteration"
