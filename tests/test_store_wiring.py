@@ -4,6 +4,7 @@ commissioning flags, operating periods written idempotently, SIGTERM flush."""
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -191,3 +192,48 @@ def test_daemon_commissioned_flags_periods_and_flush_on_stop(odd, tmp_path):
         assert s.check() == []
         assert {p.source for p in s.periods(ODD)} == {"live:ground1/0"}
     assert final["actuators"]["fleet/AC1/odd/meas"]["periods"] == 3
+
+
+def test_auto_commissioning_from_healthy_looking_data(tmp_path):
+    """A nominal unit is commissioned from its first 2 s; the off-nominal one, whose default
+    baseline raises leak alarms, is not (each alarm restarts its collection)."""
+    store = tmp_path / "a.sqlite"
+    cfg = ServiceConfig(
+        store=str(store),
+        prognostics=PrognosticsSettings(auto_commission_s=2.0, period_window_s=1.0),
+    )
+    d = Daemon(cfg, log_path=tmp_path / "a.mcap", log_process=False, gather_s=0)
+    runs = {
+        "fleet/AC1/new/meas": measured_run(load_scenario("healthy_noise"))[1],
+        "fleet/AC1/odd/meas": _run(1.0, seed=14, duration_s=4.0),
+    }
+    pays = {k: _payloads(v, 0, len(v["t"])) for k, v in runs.items()}
+    half = {k: len(v) * 3 // 4 for k, v in pays.items()}
+    for k, v in pays.items():
+        for p in v[: half[k]]:
+            d.submit(k, p)
+    while d.queued:
+        d.process_pending()
+    for _ in range(600):  # the calibration runs in a background thread
+        if d.commissioner._ready:
+            break
+        time.sleep(0.05)
+    for k, v in pays.items():
+        for p in v[half[k] :]:
+            d.submit(k, p)
+    while d.queued:
+        d.process_pending()
+    st = d.status()["actuators"]
+    assert st["fleet/AC1/new/meas"]["commissioned"] is True
+    assert st["fleet/AC1/new/meas"]["baseline_version"] == 1
+    assert st["fleet/AC1/odd/meas"]["commissioned"] is False
+    assert d.commissioner.rejected.get("fleet/AC1/odd/meas", 0) > 0
+    d.stop()
+    with open_store(store) as s:
+        rec = s.latest_baseline("AC1/new")
+        assert rec.source == "auto-commissioning" and rec.figures["duration_s"] >= 2.0
+        assert s.latest_baseline("AC1/odd") is None
+        ratios = [p.c_lk_ratio for p in s.periods("AC1/new") if np.isfinite(p.c_lk_ratio)]
+        # the last period is judged against the unit's own baseline: a healthy ratio
+        assert abs(ratios[-1] - 1.0) < 0.3, ratios
+        assert s.check() == []
