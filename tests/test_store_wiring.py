@@ -192,6 +192,12 @@ def test_daemon_commissioned_flags_periods_and_flush_on_stop(odd, tmp_path):
         assert s.check() == []
         assert {p.source for p in s.periods(ODD)} == {"live:ground1/0"}
     assert final["actuators"]["fleet/AC1/odd/meas"]["periods"] == 3
+    assert final["store"]["written"] == 6 and final["store"]["failure"] is None
+    from service.commands.status import format_status
+
+    text = format_status({"monitor/ground1/0/status": final})
+    assert "AC1/odd" in text and "baseline v1" in text and "3 periods, RUL - h" in text
+    assert "commissioned: false" in text
 
 
 def test_auto_commissioning_from_healthy_looking_data(tmp_path):

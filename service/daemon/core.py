@@ -424,6 +424,16 @@ class Daemon:
             out.update(self.store.info(st.name) if st is not None else {})
         return out
 
+    def store_status(self) -> dict[str, Any] | None:
+        """The store writer's state for the status (None without a store)."""
+        w = self.store
+        if w is None:
+            return None
+        from service.store import describe_url
+
+        return {"where": describe_url(w.url), "pending": w.pending, "written": w.written,
+                "errors": w.errors, "failure": w.failure}  # fmt: skip
+
     def _publish_failed(self, e: Exception) -> None:
         self.errors += 1
         self.bad_log.warning("publish", "publish failed: %s", e)

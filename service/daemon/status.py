@@ -86,6 +86,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
                 for a in acts.values()
                 for al in a["alarms"]
             ],
+            "store": d.store_status() if hasattr(d, "store_status") else None,
             "alive_tokens": sorted(k for k, v in d.alive_tokens.items() if v),
             "lost_tokens": sorted(k for k, v in d.alive_tokens.items() if not v),
             "silent": [a["aircraft"] + "/" + a["actuator"] for a in acts.values() if a["silent"]],
