@@ -312,7 +312,7 @@ def _write_stage(
                 v = fleet.versions.get(inp.name)
                 summary.commissioned[inp.name] = v
                 info = {"commissioned": v is not None, "baseline_version": v}
-                kw = {"c_lk0": fleet.baselines[inp.name].c_lk, "info": info}
+                kw = {"c_lk0": fleet.bank.baseline_of(inp.name).c_lk, "info": info}
             fanout.track(inp.row, *inp.at, **kw)
             if writer is not None:
                 ints = ("seq",) if "seq" in inp.names else ()

@@ -84,12 +84,12 @@ def test_fleet_of_one_baseline_is_the_bank_bit_for_bit():
         for f in ("index", "t", "est", "res", "health"):
             assert np.array_equal(getattr(r0, f), getattr(r1, f))
         assert r0.events == r1.events
-    assert len(fleet.banks) == 1
+    assert fleet.bank.baseline_of("a") == fleet.baseline
 
 
-def test_two_baselines_in_one_fleet_equal_separate_banks(odd):
-    """Rows of actuators on different baselines merge back in input order, each with the
-    numbers of its own bank."""
+def test_two_baselines_in_one_bank_equal_separate_banks(odd):
+    """Actuators on different baselines in one bank (one batched update): each gets the
+    numbers of a bank of its own baseline, bit for bit."""
     base = odd["base"]
     fleet = MonitorFleet(resolve=lambda k: (base, 1) if k == "own" else (fleet.baseline, None))
     meas = _run(1.0, seed=5, duration_s=0.6)
@@ -97,13 +97,14 @@ def test_two_baselines_in_one_fleet_equal_separate_banks(odd):
     ch = np.column_stack([meas.get(c, np.full(n, np.nan)) for c in CH])
     ks = np.tile([fleet.index_of("own"), fleet.index_of("dflt")], n)
     rows = fleet.update_arrays(ks, np.repeat(meas["t"], 2), np.repeat(ch, 2, axis=0))
-    assert len(fleet.banks) == 2 and fleet.commissioned("own") and not fleet.commissioned("dflt")
+    assert fleet.commissioned("own") and not fleet.commissioned("dflt")
+    assert fleet.bank.baseline_of("own") == base
     for key, b in (("own", base), ("dflt", None)):
         rb = MonitorBank(baseline=b)
         ref = rb.update_arrays(np.full(n, rb.index_of(key)), meas["t"], ch)
         sel = ks[rows.index] == fleet.ids[key]
-        assert np.array_equal(rows.est[sel], ref.est)
-        assert np.array_equal(rows.t[sel], ref.t)
+        for f in ("t", "est", "res", "health"):
+            assert np.array_equal(getattr(rows, f)[sel], getattr(ref, f))
 
 
 def test_own_baseline_reads_the_leak_the_default_misreads_and_periods_are_idempotent(odd):

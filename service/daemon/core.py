@@ -406,7 +406,7 @@ class Daemon:
             return {}
         v = b.versions.get(key)
         info = {"commissioned": v is not None, "baseline_version": v}
-        return {"c_lk0": b.baselines[key].c_lk, "info": info}
+        return {"c_lk0": b.bank.baseline_of(key).c_lk, "info": info}
 
     def _on_periods(self, periods: list, alarms: list) -> None:
         if self.store is not None:
