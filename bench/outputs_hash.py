@@ -4,6 +4,9 @@
     .venv/bin/python bench/outputs_hash.py            # about 1 min (the HF runs)
     .venv/bin/python bench/outputs_hash.py --json     # the hashes as one JSON object
 
+``--fleet`` feeds the same blocks through a ``MonitorFleet`` (one bank per distinct baseline;
+every actuator on the default here), which must give the same hashes as the plain bank.
+
 Run it before and after a refactor that must not change behaviour: the hashes must be equal.
 Each scenario's measured run (HF bench, seeded sensor noise, supply sensor on) is fed as three
 actuators of one bank, in blocks of varying size: the run as measured; the run with the
@@ -30,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from service.calibration import measured_run  # noqa: E402
 from service.messages import CHANNELS  # noqa: E402
-from service.monitor import MonitorBank  # noqa: E402
+from service.monitor import MonitorBank, MonitorFleet  # noqa: E402
 from service.scenarios import load_scenario  # noqa: E402
 
 SCENARIOS = ("leak_step", "supply_drop", "combined", "healthy_noise")
@@ -54,10 +57,12 @@ def _streams(name: str, duration_s: float | None) -> list[tuple[np.ndarray, np.n
     return [(t, ch), (t[keep], holey[keep]), (t + 1e-4, ch)]
 
 
-def scenario_hash(name: str, duration_s: float | None = None) -> tuple[str, int]:
+def scenario_hash(
+    name: str, duration_s: float | None = None, fleet: bool = False
+) -> tuple[str, int]:
     """sha256 of the bank's outputs on scenario ``name``; also the number of blocks fed."""
     streams = _streams(name, duration_s)
-    bank = MonitorBank()
+    bank = MonitorFleet() if fleet else MonitorBank()
     ids = [bank.index_of(f"act{a}") for a in range(len(streams))]
     # interleave the actuators sample by sample, as a fleet's intake does
     ks = np.concatenate(
@@ -80,8 +85,8 @@ def scenario_hash(name: str, duration_s: float | None = None) -> tuple[str, int]
                 h.update(f"{r}|{ev.t.hex()}|{ev.kind}|{ev.state}|{float(ev.value).hex()}".encode())
         n_blocks += 1
         a = b
-    for k in ids:
-        h.update(json.dumps(bank.counters[k], sort_keys=True).encode())
+    for a in range(len(streams)):
+        h.update(json.dumps(bank.counters_of(f"act{a}"), sort_keys=True).encode())
     return h.hexdigest(), n_blocks
 
 
@@ -89,10 +94,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--duration-s", type=float, default=None, help="cut every scenario to this")
+    ap.add_argument("--fleet", action="store_true", help="through a MonitorFleet")
     args = ap.parse_args()
     out = {}
     for name in SCENARIOS:
-        digest, n_blocks = scenario_hash(name, args.duration_s)
+        digest, n_blocks = scenario_hash(name, args.duration_s, args.fleet)
         out[name] = digest
         if not args.json:
             print(f"{name:<14} {digest}  ({n_blocks} blocks)", flush=True)

@@ -43,6 +43,7 @@ __all__ = [
     "TlsSettings",
     "ZenohSettings",
     "ServiceConfig",
+    "PrognosticsSettings",
     "SessionError",
     "AuthError",
     "load_config",
@@ -212,6 +213,26 @@ class AuthError(SessionError):
     exit_code = EXIT_REFUSED
 
 
+class PrognosticsSettings(BaseModel):
+    """Operating periods and auto-commissioning of the daemon (docs/prognostics.md)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    period_window_s: float = Field(600.0, gt=0, description="close a period after this long [s]")
+    period_silence_s: float = Field(
+        5.0, gt=0, description="a sample gap longer than this closes a period [s]"
+    )
+    auto_commission_s: float | None = Field(
+        None,
+        gt=0,
+        description="commission an actuator without a baseline from its first this-many "
+        "seconds of healthy-looking data (None = off; docs/prognostics.md, the risk)",
+    )
+    auto_commission_min_in_band: float = Field(
+        0.8, gt=0, le=1, description="... healthy-looking: no alarm and this share of NIS in band"
+    )
+
+
 class ServiceConfig(BaseModel):
     """Settings of ``servowatch run`` (and defaults for demo and replay)."""
 
@@ -234,6 +255,13 @@ class ServiceConfig(BaseModel):
     queue_size: int = Field(200_000, ge=1, description="receive queue length (messages)")
     max_bytes: int = Field(65536, ge=64, description="largest accepted message [bytes]")
     baseline: Path | None = Field(None, description="calibration baseline file (None=default)")
+    store: str | None = Field(
+        None,
+        min_length=1,
+        description="health store: SQLite path or postgresql:// URL; None: `servowatch run` "
+        "uses $SERVOWATCH_STORE or servowatch-data/health.sqlite; 'off': none",
+    )
+    prognostics: PrognosticsSettings = Field(default_factory=PrognosticsSettings)
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
     monitor: MonitorConfig = Field(default_factory=MonitorConfig)
 

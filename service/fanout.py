@@ -8,6 +8,11 @@ Per actuator, counting its outputs 1, 2, ...:
 * every alarm event is logged on ``.../events``;
 * est, res and health are published every ``publish_every``-th output.
 
+With ``on_periods``, each tracked actuator's rows also go into a
+``service.prognostics.PeriodAccumulator`` (docs/prognostics.md section 1); the periods it
+closes and its alarm raises are handed to ``on_periods(periods, alarms)``, so the daemon and
+the replay cut the same periods from the same rows.
+
 Health follows ``log_every`` (as est and residual), not ``publish_every``: the log is the
 record of the monitor, decimated by one setting, and each logged est row then has the health
 row of the same sample; what is published is a transport choice of its own.
@@ -16,7 +21,7 @@ row of the same sample; what is published is a transport choice of its own.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,6 +31,8 @@ from numpy.typing import NDArray
 from service import messages as m
 from service.jsonutil import event_dict, flat, jsonable
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, BankRows
+from service.prognostics import PeriodAccumulator, PeriodConfig
+from service.store import AlarmEvent, Period
 
 __all__ = ["FanOut", "Emitted"]
 
@@ -51,6 +58,8 @@ class _Target:
     prefix: str  # "/fleet/{aircraft}/{actuator}/"
     outputs: int = 0
     publishers: dict[str, Any] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)  # added to each published health
+    acc: PeriodAccumulator | None = None
 
 
 class FanOut:
@@ -58,6 +67,9 @@ class FanOut:
     Zenoh puts on ``fleet/{ac}/{act}/{est,res,health}`` (``session``; None: no publishing).
 
     ``on_publish_error(exc)`` is called when a put fails (None: the error propagates).
+    ``on_periods(periods, alarms)`` receives closed operating periods and alarm raises
+    (None: no periods); ``source`` names them in the store (a log's identity, or
+    ``live:{station}``); ``counters(row)`` gives the monitor's counters of a bank row.
     """
 
     def __init__(
@@ -68,6 +80,10 @@ class FanOut:
         publish_every: int = 10,
         session: Any | None = None,
         on_publish_error: Callable[[Exception], None] | None = None,
+        on_periods: Callable[[list[Period], list[AlarmEvent]], None] | None = None,
+        source: str = "live",
+        period_config: PeriodConfig | None = None,
+        counters: Callable[[int], Mapping[str, int]] | None = None,
     ) -> None:
         if int(log_every) < 1 or int(publish_every) < 1:
             raise ValueError("log_every and publish_every must be >= 1")
@@ -77,11 +93,59 @@ class FanOut:
         self.session = session
         self.on_publish_error = on_publish_error
         self._targets: dict[int, _Target] = {}
+        self.on_periods = on_periods
+        self.source = source
+        self.period_config = period_config or PeriodConfig()
+        self.counters = counters
 
-    def track(self, row: int, aircraft: str, actuator: str) -> None:
-        """Name the actuator of bank row ``row`` (before its first output)."""
+    def track(
+        self,
+        row: int,
+        aircraft: str,
+        actuator: str,
+        *,
+        c_lk0: float | None = None,
+        info: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Name the actuator of bank row ``row`` (before its first output); ``c_lk0`` is the
+        C_Lk of its baseline (for its periods), ``info`` goes into its published health."""
         if row not in self._targets:
-            self._targets[row] = _Target(aircraft, actuator, f"/fleet/{aircraft}/{actuator}/")
+            tg = _Target(aircraft, actuator, f"/fleet/{aircraft}/{actuator}/")
+            self._targets[row] = tg
+            self._set(tg, c_lk0, info)
+
+    def retrack(
+        self, row: int, *, c_lk0: float | None, info: Mapping[str, Any] | None = None
+    ) -> None:
+        """A new baseline for bank row ``row``: its open period is closed, the next opens
+        against ``c_lk0``."""
+        tg = self._targets[row]
+        self._deliver(self._flush(tg))
+        self._set(tg, c_lk0, info)
+
+    def _set(self, tg: _Target, c_lk0: float | None, info: Mapping[str, Any] | None) -> None:
+        tg.info = dict(info or {})
+        if self.on_periods is not None and c_lk0 is not None and c_lk0 > 0:
+            tg.acc = PeriodAccumulator(
+                f"{tg.aircraft}/{tg.actuator}", c_lk0, self.source, EST_KEYS, HEALTH_KEYS,
+                RES_KEYS, self.period_config,
+            )  # fmt: skip
+
+    def _flush(self, tg: _Target) -> list[Period]:
+        return [] if tg.acc is None else tg.acc.flush()
+
+    def _deliver(self, periods: list[Period], accs: list[PeriodAccumulator] = ()) -> None:
+        alarms = [e for a in accs for e in a.alarm_events()]
+        if (periods or alarms) and self.on_periods is not None:
+            self.on_periods(periods, alarms)
+
+    def flush(self, row: int | None = None) -> int:
+        """Close the open period of bank row ``row`` (None: of every actuator: end of a log,
+        shutdown) and hand it over; returns the number of periods closed."""
+        tgs = list(self._targets.values()) if row is None else [self._targets[row]]
+        closed = [p for tg in tgs for p in self._flush(tg)]
+        self._deliver(closed, [tg.acc for tg in tgs if tg.acc is not None])
+        return len(closed)
 
     def outputs_of(self, row: int) -> int:
         """Outputs of bank row ``row`` so far."""
@@ -106,6 +170,12 @@ class FanOut:
             tg.outputs += len(g)
             ev = has_ev[g]
             em = Emitted(row, f"{tg.aircraft}/{tg.actuator}", len(g), int(g[-1]))
+            if tg.acc is not None:
+                cnt = self.counters(row) if self.counters is not None else None
+                closed = tg.acc.add_rows(
+                    rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt
+                )
+                self._deliver(closed, [tg.acc])
             if lg is not None:
                 sel = g[(num % self.log_every == 0) | ev]
                 if len(sel):
@@ -123,7 +193,8 @@ class FanOut:
             if self.session is not None:
                 for r in g[num % self.publish_every == 0].tolist():
                     o = rows.output(r)
-                    self._publish(tg, o.t, {"est": o.est, "res": o.res, "health": o.health})
+                    health = {**o.health, **tg.info} if tg.info else o.health
+                    self._publish(tg, o.t, {"est": o.est, "res": o.res, "health": health})
                     em.published += 1
             out.append(em)
         return out

@@ -9,10 +9,16 @@ gives results that do not depend on the batch composition (``tests/test_monitor.
 replay reproduces the live daemon's estimates when it uses the same monitor configuration and
 baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` copied, ``est``,
 ``residual``, ``health``, ``events``) and, optionally, are republished on Zenoh.
+
+With a health store (``store``), each actuator runs on its latest baseline from the store
+(``service.monitor.MonitorFleet``; none: the default, ``commissioned: false``), and the
+fan-out's operating periods and alarm raises are written to the store at the end, named by
+the log's identity (``log_source``), so replaying the same log again adds nothing.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import time
@@ -46,10 +52,12 @@ from service.monitor import (
     Baseline,
     MonitorBank,
     MonitorConfig,
+    MonitorFleet,
     RowEvents,
 )
+from service.prognostics import PeriodConfig
 
-__all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata"]
+__all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata", "log_source"]
 
 log = logging.getLogger("servowatch.replay")
 
@@ -81,6 +89,10 @@ class ReplaySummary:
     published: int = 0
     warnings: list[str] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
+    source: str | None = None  # the periods' source in the store
+    periods: int = 0  # periods closed
+    periods_new: int = 0  # of which new in the store
+    commissioned: dict[str, int | None] = field(default_factory=dict)  # baseline versions
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types (non-finite floats as None)."""
@@ -111,6 +123,17 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     except Exception:
         return {}
     return {}
+
+
+def log_source(files: list[Path]) -> str:
+    """A log's identity for the store: ``log:{first file name}:{hash}``, the hash over the
+    files' sizes and first MiB (stable for the same log, whatever its path)."""
+    h = hashlib.sha256()
+    for f in files:
+        h.update(f"{f.name}:{f.stat().st_size};".encode())
+        with open(f, "rb") as fh:
+            h.update(fh.read(1 << 20))
+    return f"log:{files[0].name}:{h.hexdigest()[:16]}"
 
 
 def _read_files(files: list[Path], stats: LogReadStats) -> Iterator[LogBlock]:
@@ -206,7 +229,10 @@ def _read_stage(files: list[Path], stats: LogReadStats, summary: ReplaySummary) 
 
 
 def _monitor_stage(
-    inputs: Iterator[_Input], bank: MonitorBank, speed: float | None, t0: Callable[[], float]
+    inputs: Iterator[_Input],
+    bank: MonitorBank | MonitorFleet,
+    speed: float | None,
+    t0: Callable[[], float],
 ) -> Iterator[tuple[list[_Input], NDArray, BankRows]]:
     """Stage 2: the samples through the bank; yields (inputs, bank rows of the samples,
     output rows) in input order.
@@ -275,12 +301,19 @@ def _write_stage(
     fanout: FanOut,
     summary: ReplaySummary,
     progress: Callable[[ReplaySummary], None] | None,
+    fleet: MonitorFleet | None = None,
 ) -> None:
     """Stage 3: the meas samples copied to the output log, the outputs through the fan-out
     (log blocks, events, publishing), the summary."""
     for inps, ks, rows in batches:
         for inp in inps:
-            fanout.track(inp.row, *inp.at)
+            kw = {}
+            if fleet is not None:
+                v = fleet.versions.get(inp.name)
+                summary.commissioned[inp.name] = v
+                info = {"commissioned": v is not None, "baseline_version": v}
+                kw = {"c_lk0": fleet.bank.baseline_of(inp.name).c_lk, "info": info}
+            fanout.track(inp.row, *inp.at, **kw)
             if writer is not None:
                 ints = ("seq",) if "seq" in inp.names else ()
                 writer.log_block(inp.topic, inp.t, inp.names, inp.meas, int_fields=ints)
@@ -305,6 +338,8 @@ def replay(
     publish_every: int = 10,
     log_every: int = 1,
     progress: Callable[[ReplaySummary], None] | None = None,
+    store: str | Path | None = None,
+    period_config: PeriodConfig | None = None,
 ) -> ReplaySummary:
     """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
 
@@ -324,6 +359,9 @@ def replay(
     monitor_config, baseline : None takes the log's ``servowatch`` metadata (``monitor_config``,
         ``baseline`` JSON) when present, else ``MonitorConfig()`` and ``Baseline.default()``.
 
+    store : a health store (path or URL): per-actuator baselines from it, and the operating
+        periods and alarm raises written to it (``period_config`` cuts the periods).
+
     A truncated log is replayed up to its last complete chunk; the summary says so in
     ``truncated`` and ``warnings``.
     """
@@ -342,9 +380,38 @@ def replay(
         baseline = Baseline.model_validate_json(meta["baseline"])
     cfg = monitor_config or MonitorConfig()
     base = baseline or Baseline.default(cfg.model)
-    bank = MonitorBank(cfg, base)
     summary = ReplaySummary(log=str(log_path), out=str(out) if out is not None else None)
     summary.files = [str(f) for f in files]
+    hs = None
+    if store is not None:
+        from service.store import open_store
+
+        hs = open_store(store)
+    try:
+        return _replay(files, log_path, summary, cfg, base, hs, speed, out, publish,
+                       publish_every, log_every, progress, period_config)  # fmt: skip
+    finally:
+        if hs is not None:
+            hs.close()
+
+
+def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publish_every,
+            log_every, progress, period_config) -> ReplaySummary:  # fmt: skip
+    """``replay`` once the log, the configuration and the store (``hs``) are resolved."""
+    closed: list = []
+    alarms: list = []
+    if hs is None:
+        bank: MonitorBank | MonitorFleet = MonitorBank(cfg, base)
+    else:
+
+        def resolve(name: str) -> tuple[Baseline, int | None]:
+            rec = hs.latest_baseline(name)
+            if rec is None:
+                return base, None
+            return Baseline.model_validate(rec.baseline), rec.version
+
+        bank = MonitorFleet(cfg, base, resolve)
+        summary.source = log_source(files)
     writer = McapLogger(
         out,
         flush_s=1.0,
@@ -355,7 +422,11 @@ def replay(
             "baseline": base.model_dump_json(),
         },
     ) if out is not None else None  # fmt: skip
-    fanout = FanOut(writer, log_every=log_every, publish_every=publish_every, session=publish)
+    fanout = FanOut(
+        writer, log_every=log_every, publish_every=publish_every, session=publish,
+        on_periods=None if hs is None else (lambda p, a: (closed.extend(p), alarms.extend(a))),
+        source=summary.source or "replay", period_config=period_config,
+    )  # fmt: skip
     stats = LogReadStats()
     wall0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
@@ -363,12 +434,18 @@ def replay(
         inputs = _read_stage(files, stats, summary)
         batches = _monitor_stage(inputs, bank, speed, lambda: summary.t_start or 0.0)
         try:
-            _write_stage(batches, writer, fanout, summary, progress)
+            fleet = bank if isinstance(bank, MonitorFleet) else None
+            _write_stage(batches, writer, fanout, summary, progress, fleet)
+            fanout.flush()
         finally:
             batches.close()  # stops the monitor stage's worker thread
             fanout.close()
             if writer is not None:
                 writer.close()
+    if hs is not None:
+        summary.periods = len(closed)
+        summary.periods_new = hs.add_periods(closed)
+        hs.add_alarms(alarms)
     summary.wall_s = time.perf_counter() - wall0
     for w in caught:
         if issubclass(w.category, TruncatedLogWarning):

@@ -17,6 +17,19 @@ import pytest
 _PG: dict[str, Any] = {"cluster": None, "reason": None, "skipped": 0, "used": 0}
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _default_store(tmp_path_factory):
+    """``servowatch run`` writes a health store by default: keep it out of the work tree."""
+    if "SERVOWATCH_STORE" in os.environ:
+        yield
+        return
+    os.environ["SERVOWATCH_STORE"] = str(tmp_path_factory.mktemp("store") / "health.sqlite")
+    try:
+        yield
+    finally:
+        os.environ.pop("SERVOWATCH_STORE", None)
+
+
 @pytest.fixture(scope="session")
 def pg_cluster():
     """The session's throwaway PostgreSQL cluster, or None when it cannot be started

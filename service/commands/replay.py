@@ -43,6 +43,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --out: log est/residual/health every N outputs (default 1 = all)",
     )  # fmt: skip
     p.add_argument("--config", default=None, help="service TOML (its [monitor] and baseline)")
+    p.add_argument(
+        "--store", default=None, metavar="PATH|URL",
+        help="health store (SQLite path or postgresql:// URL; default: the config's store, "
+        "else none): per-actuator baselines from it, operating periods written to it",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
 
@@ -61,6 +66,10 @@ def _print_summary(s) -> None:
     for a in s.alarms[:20]:
         print(f"    t={a.get('t')}: {a.get('actuator')} {a.get('kind')} {a.get('state')} "
               f"({a.get('value')})")  # fmt: skip
+    if s.source is not None:
+        print(f"  periods: {s.periods} closed, {s.periods_new} new in the store ({s.source})")
+        for name, v in s.commissioned.items():
+            print(f"  {name}: " + (f"baseline version {v}" if v else "commissioned: false"))
     if s.out:
         print(f"  wrote {s.out}")
     for w in s.warnings:
@@ -91,6 +100,21 @@ def run(args: argparse.Namespace) -> int:
             baseline = Baseline.load(cfg.baseline)
         except (OSError, ValueError) as e:
             return fail(f"{cfg.baseline}: cannot read baseline: {e}")
+    from service.daemon.core import store_target
+    from service.prognostics import PeriodConfig
+
+    store = store_target(args.store or (cfg.store if cfg is not None else None))
+    pc = None
+    if cfg is not None:
+        pr = cfg.prognostics
+        pc = PeriodConfig(silence_s=pr.period_silence_s, window_s=pr.period_window_s)
+    if store is not None:
+        from service.store import StoreError, open_store
+
+        try:
+            open_store(store).close()  # fail fast, naming --store
+        except StoreError as e:
+            return fail(f"--store: {e}")
     session = None
     if args.publish:
         import zenoh
@@ -109,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
         s = replay(
             args.log, speed=args.speed, out=args.out, publish=session,
             monitor_config=monitor_config, baseline=baseline, log_every=args.log_every,
-            publish_every=cfg.publish_every if cfg is not None else 10,
+            publish_every=cfg.publish_every if cfg is not None else 10, store=store,
+            period_config=pc,
         )  # fmt: skip
     except (OSError, ValueError) as e:
         return fail(str(e))

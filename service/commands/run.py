@@ -58,6 +58,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-rotate", action="store_true", help="write exactly --log (no size/time rotation)"
     )
+    p.add_argument(
+        "--store", default=None, metavar="PATH|URL",
+        help="health store (SQLite path or postgresql:// URL; 'off': none); default: the "
+        "config's store, else $SERVOWATCH_STORE or servowatch-data/health.sqlite",
+    )  # fmt: skip
     p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
 
@@ -72,6 +77,10 @@ def run(args: argparse.Namespace) -> int:
         cfg = service_config_from_args(args)
     except (ConfigError, ValueError) as e:
         return fail(str(e))
+    from service.store import default_store
+
+    store = args.store or cfg.store or default_store()
+    cfg = cfg.model_copy(update={"store": store})
     if args.no_rotate:
         cfg = cfg.model_copy(update={"rotate_bytes": None, "rotate_s": None})
     setup_logging(cfg.log_level, not args.plain_logs)

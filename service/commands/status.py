@@ -61,6 +61,13 @@ def format_status(daemons: dict) -> str:
                 flags.append("SILENT")
             if a.get("alarms"):
                 flags.append("ALARM " + ",".join(str(x.get("kind")) for x in a["alarms"]))
+            if a.get("commissioned") is False:
+                flags.append("commissioned: false")
+            elif a.get("commissioned"):
+                flags.append(f"baseline v{a.get('baseline_version')}")
+            if "periods" in a:
+                rul = (a.get("rul") or {}).get("median_h")
+                flags.append(f"{a['periods']} periods, RUL {_fmt(rul, '.0f')} h")
             lines.append(
                 f"  {a['aircraft']}/{a['actuator']}: {a['samples']} samples, "
                 f"dropped {a['dropped']}, gaps {a['gaps']}, bad {a['bad']}, {est} "

@@ -12,7 +12,12 @@ Data path (docs/design.md, "Data flow" and "Backpressure"):
   to ``service.fanout.FanOut`` (the replay's fan-out too): est, residual and health logged
   every ``log_every``-th output and at every alarm event, events logged, est/res/health
   published every ``publish_every``-th output per actuator;
-* the status queryable ``monitor/{station}/{shard}/status`` answers a JSON snapshot.
+* the status queryable ``monitor/{station}/{shard}/status`` answers a JSON snapshot;
+* with a health store (``store`` in the TOML, docs/store.md): each actuator runs on its
+  latest baseline from the store (``service.monitor.MonitorFleet``; none: the default,
+  ``commissioned: false``), the fan-out cuts operating periods, and a background thread
+  (``service.store.StoreWriter``) writes each closed period in its own transaction; open
+  periods are flushed when an actuator goes silent and at ``stop()`` (SIGTERM).
 
 Bad input (malformed payload, wrong schema, NaN/inf, duplicate or out-of-order samples,
 oversize messages, unparseable keys) is counted per actuator and logged at a limited rate;
@@ -37,14 +42,16 @@ import numpy as np
 
 from service import messages as m
 from service.config import ServiceConfig
+from service.daemon.commission import Commissioner
 from service.daemon.intake import MAX_ACTUATORS, ActuatorState, accept, reason_of
 from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.status import snapshot
 from service.daemon.systemd import sd_notify, watchdog_interval
 from service.fanout import FanOut
 from service.jsonutil import flat
-from service.monitor import Baseline, MonitorBank
+from service.monitor import Baseline, MonitorBank, MonitorFleet
 from service.proclog import MEAS_LOG_FIELDS, ProcessLogger, meas_log_values
+from service.prognostics import PeriodConfig
 
 __all__ = ["Daemon", "default_log_path", "EXIT_LOG_FAILURE"]
 
@@ -60,7 +67,12 @@ def default_log_path(log_dir: Path, station: str, shard: str, prefix: str = "ser
     return Path(log_dir) / f"{prefix}-{station}-{shard}-{stamp}.mcap"
 
 
-def _warm_up(bank: MonitorBank) -> float:
+def store_target(store: str | None) -> str | None:
+    """The store a daemon writes to: None for None/"off"/"none", else the path or URL."""
+    return None if store is None or store.strip().lower() in ("off", "none") else store
+
+
+def _warm_up(bank: MonitorBank | MonitorFleet) -> float:
     """Run a throwaway bank of the same configuration on a few synthetic samples, so that JIT
     compilation happens before the first real sample (and before READY). Seconds taken."""
     t0 = time.perf_counter()
@@ -114,10 +126,24 @@ class Daemon:
         self.tick_s = tick_s
         self.gather_s = gather_s
         self.max_batch = max_batch
+        self.store_url = store_target(config.store)
+        self.store = None  # StoreWriter
+        if self.store_url is not None:
+            from service.store.writer import StoreWriter
+
+            self.store = StoreWriter(self.store_url)
         if bank is None:
             baseline = Baseline.load(config.baseline) if config.baseline else None
-            bank = MonitorBank(config.monitor, baseline)
+            resolve = self._resolve if self.store_url is not None else None
+            bank = MonitorFleet(config.monitor, baseline, resolve)
         self.bank = bank
+        self._row_key: dict[int, str] = {}
+        pc = config.prognostics
+        self.commissioner = (
+            Commissioner(self, pc.auto_commission_s, pc.auto_commission_min_in_band)
+            if self.store is not None and pc.auto_commission_s is not None
+            else None
+        )
         if logger is None:
             from service.log import McapLogger
 
@@ -165,6 +191,10 @@ class Daemon:
             log_every=self.log_every,
             publish_every=self.publish_every,
             on_publish_error=self._publish_failed,
+            on_periods=None if self.store is None else self._on_periods,
+            source=f"live:{self.station}/{self.shard}",
+            period_config=PeriodConfig(silence_s=pc.period_silence_s, window_s=pc.period_window_s),
+            counters=lambda row: self.bank.counters_of(self._row_key[row]),
         )
         self.started = time.time()
         self.ticks = 0
@@ -302,7 +332,8 @@ class Daemon:
             row = self.bank.index_of(key)  # in the worker: it may grow the bank's arrays
             if row not in self._rows:
                 self._rows[row] = st
-                self.fanout.track(row, st.aircraft, st.actuator)
+                self._row_key[row] = key
+                self.fanout.track(row, st.aircraft, st.actuator, **self._track_info(key))
             rows_of.append(row)
         ks = np.repeat(np.array(rows_of, np.int64), sizes)
         t = np.concatenate([a.t[j0:] for _, _, a, j0, _ in parts])
@@ -317,6 +348,8 @@ class Daemon:
         old = rows.t > 1e9  # Unix-time sample clock: end-to-end age is meaningful
         if old.any():
             self.age.extend((now_w - rows.t[old]).tolist())
+        if self.commissioner is not None:
+            self.commissioner.feed(parts, rows, ks)
         for em in self.fanout.emit(rows, ks):
             st = self._rows[em.row]
             st.outputs += em.outputs
@@ -330,6 +363,57 @@ class Daemon:
                     st.alarms.pop(kind, None)
                 st.events.append(d)
                 log.info("alarm %s %s: %s", st.name, kind, d)
+
+    # -- health store -------------------------------------------------------------------
+    def _resolve(self, key: str) -> tuple[Baseline, int | None]:
+        """The latest baseline of the actuator of meas key ``key`` in the store."""
+        from service.store import open_store
+
+        name = "/".join(m.parse_meas_key(key))
+        try:
+            with open_store(self.store_url) as s:
+                rec = s.latest_baseline(name)
+        except Exception as e:  # the store is unreachable: monitor on the default
+            log.error("baseline of %s from the store: %s", name, e)
+            rec = None
+        if rec is None:
+            return self.bank.baseline, None
+        return Baseline.model_validate(rec.baseline), rec.version
+
+    def _track_info(self, key: str) -> dict[str, Any]:
+        """``track`` arguments of a meas key: its baseline's C_Lk and commissioning."""
+        b = self.bank
+        if not isinstance(b, MonitorFleet):
+            return {}
+        v = b.versions.get(key)
+        info = {"commissioned": v is not None, "baseline_version": v}
+        return {"c_lk0": b.bank.baseline_of(key).c_lk, "info": info}
+
+    def _on_periods(self, periods: list, alarms: list) -> None:
+        if self.store is not None:
+            self.store.submit(periods, alarms)
+
+    def prognostics_of(self, key: str) -> dict[str, Any]:
+        """Status fields of meas key ``key``: commissioning, stored periods, last RUL."""
+        b = self.bank
+        if not isinstance(b, MonitorFleet):
+            return {}
+        v = b.versions.get(key)
+        out: dict[str, Any] = {"commissioned": v is not None, "baseline_version": v}
+        if self.store is not None:
+            st = self.actuators.get(key)
+            out.update(self.store.info(st.name) if st is not None else {})
+        return out
+
+    def store_status(self) -> dict[str, Any] | None:
+        """The store writer's state for the status (None without a store)."""
+        w = self.store
+        if w is None:
+            return None
+        from service.store import describe_url
+
+        return {"where": describe_url(w.url), "pending": w.pending, "written": w.written,
+                "errors": w.errors, "failure": w.failure}  # fmt: skip
 
     def _publish_failed(self, e: Exception) -> None:
         self.errors += 1
@@ -364,6 +448,9 @@ class Daemon:
             if not st.silent and last is not None and now - last > self.silence_s:
                 st.silent = True
                 out.append(st.name)
+                row = self.bank.ids.get(key) if hasattr(self.bank, "ids") else None
+                if row in self._rows:  # the actuator's operating period ends
+                    self.fanout.flush(row)
                 self._service_event(st, "silent", st.last_t, value=now - last)
         return out
 
@@ -449,7 +536,7 @@ class Daemon:
                 )
             except Exception as e:  # an older zenoh without history: data silence still works
                 log.warning("no liveliness subscriber: %s", e)
-        warm = _warm_up(self.bank) if isinstance(self.bank, MonitorBank) else 0.0
+        warm = _warm_up(self.bank) if isinstance(self.bank, MonitorBank | MonitorFleet) else 0.0
         if warm > 0.05:
             log.info("monitor warm-up (JIT) took %.2f s", warm)
         self._worker = threading.Thread(
@@ -486,7 +573,10 @@ class Daemon:
         for d in self._decl[1:]:
             with contextlib.suppress(Exception):
                 d.undeclare()
+        self.fanout.flush()  # open periods of every actuator to the store
         self.fanout.close()
+        if self.store is not None:
+            self.store.close()
         try:
             self.logger.close()
         except Exception as e:  # kept in logger.failure

@@ -42,6 +42,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
                 acts = {k: st.snapshot(now) for k, st in list(d.actuators.items())}
             for k, a in acts.items():
                 a["monitor"] = d.monitor_counters(k)
+                a.update(d.prognostics_of(k))
             lat, age = list(d.latency), list(d.age)
             break
         except RuntimeError:  # "changed size during iteration"
@@ -85,6 +86,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
                 for a in acts.values()
                 for al in a["alarms"]
             ],
+            "store": d.store_status() if hasattr(d, "store_status") else None,
             "alive_tokens": sorted(k for k, v in d.alive_tokens.items() if v),
             "lost_tokens": sorted(k for k, v in d.alive_tokens.items() if not v),
             "silent": [a["aircraft"] + "/" + a["actuator"] for a in acts.values() if a["silent"]],

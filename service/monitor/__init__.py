@@ -13,6 +13,7 @@ from service.monitor.config import (
     MonitorConfig,
     ProcessNoise,
 )
+from service.monitor.fleet import MonitorFleet
 from service.monitor.outputs import (
     ALARM_KINDS,
     COUNTERS,
@@ -37,6 +38,7 @@ __all__ = [
     "MonitorOutput",
     "Monitor",
     "MonitorBank",
+    "MonitorFleet",
     "BankRows",
     "RowEvents",
     "StepBlock",

@@ -108,7 +108,13 @@ def _f(v) -> float | None:
 
 
 class MonitorBank:
-    """Monitors for many actuators advanced together in one vectorised UKF update."""
+    """Monitors for many actuators advanced together in one vectorised UKF update.
+
+    ``baseline`` is the default of every actuator; ``index_of(key, baseline)`` or
+    ``set_baseline`` gives one its own. The baseline-dependent vectors (state and channel
+    scales, Q, R, the model's parameter vector and the constants) are kept as one row per
+    actuator, which the compiled kernels index by actuator, so actuators with different
+    baselines still run in one batched update."""
 
     def __init__(
         self,
@@ -195,7 +201,26 @@ class MonitorBank:
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}
         self._rows: list | None = None
+        self._vec_cache: dict[str, tuple] = {}
         self._alloc(capacity)
+
+    _ROW_VECTORS = ("scale", "_zscale", "_q", "R", "_prm", "_cst")
+
+    def _vectors(self, baseline: Baseline) -> tuple:
+        """(baseline, its reduced parameters, and the rows of ``_ROW_VECTORS``): computed by
+        the constructor of a bank on that baseline, so a row equals a bank's own vectors."""
+        if baseline.law != self.config.model:
+            baseline = baseline.model_copy(update={"law": self.config.model})
+        sig = baseline.model_dump_json()
+        v = self._vec_cache.get(sig)
+        if v is None:
+            if sig == self.baseline.model_dump_json():
+                src = self
+            else:
+                src = MonitorBank(self.config, baseline, capacity=1)
+            v = (src.baseline, src.rp, *(getattr(src, a) for a in self._ROW_VECTORS))
+            self._vec_cache[sig] = v
+        return v
 
     # -- storage -------------------------------------------------------------------------
     def _alloc(self, cap: int) -> None:
@@ -211,19 +236,30 @@ class MonitorBank:
         self.pending = np.full((cap, len(ALARM_KINDS)), np.nan)  # since when a change is due
         self.counters: list[dict[str, int]] = [dict.fromkeys(COUNTERS, 0) for _ in range(cap)]
         self.events_log: list[list[AlarmEvent]] = [[] for _ in range(cap)]
+        # per-actuator baseline rows (the default's until set_baseline)
+        self.r_scale = np.tile(self.scale, (cap, 1))
+        self.r_zscale = np.tile(self._zscale, (cap, 1))
+        self.r_q = np.tile(self._q, (cap, 1))
+        self.r_R = np.tile(self.R, (cap, 1, 1))
+        self.r_prm = np.tile(self._prm, (cap, 1))
+        self.r_cst = np.tile(self._cst, (cap, 1))
+        self.r_base: list[tuple[Baseline, er.ReducedParams]] = [(self.baseline, self.rp)] * cap
 
-    _ARRAYS = ("x", "P", "ol", "t_last", "i_last", "nis_avg", "t_init", "alarm", "pending")
+    _ARRAYS = ("x", "P", "ol", "t_last", "i_last", "nis_avg", "t_init", "alarm", "pending",
+               "r_scale", "r_zscale", "r_q", "r_R", "r_prm", "r_cst")  # fmt: skip
 
     def _grow(self) -> None:
         n_old = len(self.x)
         old = {a: getattr(self, a) for a in self._ARRAYS}
         counters = self.counters
         events = self.events_log
+        bases = self.r_base
         self._alloc(2 * n_old)
         for a, v in old.items():
             getattr(self, a)[:n_old] = v
         self.counters[:n_old] = counters
         self.events_log[:n_old] = events
+        self.r_base[:n_old] = bases
 
     def _key_of(self, k: int) -> str:
         for key, v in self.ids.items():
@@ -278,9 +314,31 @@ class MonitorBank:
             return self.update_rows_rounds(samples)
         return self._run_block(samples)
 
-    def index_of(self, key: str) -> int:
-        """Row of actuator ``key`` in the bank (created on first use); for ``update_arrays``."""
-        return self._index(key)
+    def index_of(self, key: str, baseline: Baseline | None = None) -> int:
+        """Row of actuator ``key`` in the bank (created on first use); for ``update_arrays``.
+        ``baseline``: the actuator's own, set when the row is created (see ``set_baseline``)."""
+        new = key not in self.ids
+        k = self._index(key)
+        if new and baseline is not None:
+            self.set_baseline(key, baseline)
+        return k
+
+    def baseline_of(self, key: str) -> Baseline:
+        """The baseline actuator ``key`` runs on."""
+        return self.r_base[self.ids[key]][0]
+
+    def set_baseline(self, key: str, baseline: Baseline) -> None:
+        """Run actuator ``key`` on ``baseline``: its filter starts again from its next sample
+        (alarms cleared; counters kept)."""
+        k = self._index(key)
+        base, rp, *rows = self._vectors(baseline)
+        for a, v in zip(self._ROW_VECTORS, rows, strict=True):
+            getattr(self, "r_" + a.lstrip("_"))[k] = v
+        self.r_base[k] = (base, rp)
+        self.t_last[k] = -np.inf
+        self.alarm[k] = False
+        self.pending[k] = np.nan
+        self.nis_avg[k] = 0.0
 
     def update_arrays(self, ks: NDArray, t: NDArray, channels: NDArray) -> BankRows:
         """``update_rows`` for samples already in arrays (no dicts): actuator rows ``ks`` (n,)
@@ -399,7 +457,7 @@ class MonitorBank:
         cnt = np.zeros((len(self.x), len(PREP_COUNTERS)), np.int64)
         t, z, mask, cand, i_m, x_c = prepare_inputs(
             ks, np.ascontiguousarray(vals), np.ascontiguousarray(present), self._use,
-            self._zscale, cnt,
+            self.r_zscale, cnt,
         )  # fmt: skip
         for k in np.flatnonzero(cnt.any(1)).tolist():
             c = self.counters[k]
@@ -430,8 +488,8 @@ class MonitorBank:
         while True:
             j, code = block_steps(
                 j, emit, ks, t, z, mask, cand, i_m, x_c, self.x, self.P, self.ol, self.t_last,
-                self.i_last, self.nis_avg, self.t_init, self._q, self.R, self.scale,
-                self._zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c, self._prm, self._cst,
+                self.i_last, self.nis_avg, self.t_init, self.r_q, self.r_R, self.r_scale,
+                self.r_zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst,
                 self.config.max_gap_s, self._expect, self._ws, y, nis, nis_avg, acc, *snap, cnt,
             )  # fmt: skip
             if code == STEP_OK:
@@ -479,8 +537,8 @@ class MonitorBank:
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
         block_rows(
-            ks, sb.acc, *sb.snap, self.scale, self._zscale, self._prm, sb.z, sb.mask, sb.y,
-            sb.nis, t, self.alarm, self.pending, self._cst, est, res, health, fire,
+            ks, sb.acc, *sb.snap, self.r_scale, self.r_zscale, self.r_prm, sb.z, sb.mask, sb.y,
+            sb.nis, t, self.alarm, self.pending, self.r_cst, est, res, health, fire,
         )  # fmt: skip
         extra = sb.extra
         sel = np.flatnonzero(sb.acc)
@@ -532,7 +590,9 @@ class MonitorBank:
         z = [0.0] * N_CHANNELS
         mask = [False] * N_CHANNELS
         bad = 0
-        for c, name, zs in self._chan:
+        zsk = self.r_zscale[k]
+        for c, name, _ in self._chan:
+            zs = zsk[c]
             v = get(name)
             if v is None:
                 continue
@@ -567,8 +627,8 @@ class MonitorBank:
         return t, z, mask, i, x_cmd
 
     def _init_state(self, k: int, z: NDArray, mask: NDArray, i, x_cmd) -> None:
-        b, rp = self.baseline, self.rp
-        sc = self._zscale
+        b, rp = self.r_base[k]
+        sc = self.r_zscale[k]
         x_s = z[Z_X_S] * sc[Z_X_S] if mask[Z_X_S] else (b.k_sv * i if i is not None else 0.0)
         x_j = z[Z_X_J] * sc[Z_X_J] if mask[Z_X_J] else (x_cmd if x_cmd is not None else 0.0)
         p_sr = b.p_sr_rated
@@ -590,8 +650,8 @@ class MonitorBank:
             }
         xs = _by_name(self._names, x_s=x_s, v_s=0.0, x_j=x_j, v_j=0.0, f_r=f_r, p_sr=p_sr,
                       c_lk=b.c_lk, i_b=0.0, **wh0)  # fmt: skip
-        self.x[k] = xs / self.scale
-        self.P[k] = np.diag((self._p0 / self.scale) ** 2)
+        self.x[k] = xs / self.r_scale[k]
+        self.P[k] = np.diag((self._p0 / self.r_scale[k]) ** 2)
         self.ol[k] = xs
         self.ol[k, S_P_SR], self.ol[k, S_C_LK] = b.p_sr_rated, b.c_lk
         self.nis_avg[k] = 0.0
@@ -638,8 +698,8 @@ class MonitorBank:
         flag = np.zeros(B, np.int64)
         bank_step(
             ks, t, z, mask, i_m, x_c, self.x, self.P, self.ol, self.t_last, self.i_last,
-            self.nis_avg, self._q, self.R, self.scale, self._zscale, self.ukf.w.Wm,
-            self.ukf.w.Wc, self.ukf.w.c, self._prm, self._cst, self._ws, y, nis, nis_avg, flag,
+            self.nis_avg, self.r_q, self.r_R, self.r_scale, self.r_zscale, self.ukf.w.Wm,
+            self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst, self._ws, y, nis, nis_avg, flag,
         )  # fmt: skip
         bad, diverged = flag == STEP_BROKEN, flag == STEP_DIVERGED
         evs: list[list[AlarmEvent]] = [[] for _ in range(B)]
@@ -673,8 +733,8 @@ class MonitorBank:
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
         output_rows(
-            self.x, np.diagonal(self.P, axis1=1, axis2=2).copy(), self.ol, ks, self.scale, self._zscale, self._prm, z, mask, y, nis,
-            t, self.t_init, self.nis_avg, self.alarm, self.pending, self._cst, est, res,
+            self.x, np.diagonal(self.P, axis1=1, axis2=2).copy(), self.ol, ks, self.r_scale, self.r_zscale, self.r_prm, z, mask, y, nis,
+            t, self.t_init, self.nis_avg, self.alarm, self.pending, self.r_cst, est, res,
             health, fire,
         )  # fmt: skip
         for j, a in zip(*np.nonzero(fire), strict=True):

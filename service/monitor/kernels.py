@@ -128,55 +128,57 @@ def step_one(
 ):  # fmt: skip
     """Sample j of actuator k (in place on the bank arrays): inputs (measured current, else
     the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average. Returns
-    STEP_OK, STEP_BROKEN (non-finite / not positive definite) or STEP_DIVERGED (NIS average)."""
+    STEP_OK, STEP_BROKEN (non-finite / not positive definite) or STEP_DIVERGED (NIS average).
+    q, R, scale, zscale, prm, cst hold one row per actuator (its baseline)."""
+    q_k, R_k, sc_k, zs_k, prm_k, cst_k = q[k], R[k], scale[k], zscale[k], prm[k], cst[k]
     n = X.shape[1]
-    k_p, i_max = prm[er.K_K_P], prm[er.K_I_MAX]
+    k_p, i_max = prm_k[er.K_K_P], prm_k[er.K_I_MAX]
     dt = t[j] - T_LAST[k]
-    n_sub = max(1, int(math.ceil(dt / cst[C_H_MAX] - 1e-9)))
+    n_sub = max(1, int(math.ceil(dt / cst_k[C_H_MAX] - 1e-9)))
     if not math.isnan(i_m[j]):
         i_f = i_m[j]
     elif not math.isnan(x_c[j]):
-        i_f = min(max(k_p * (x_c[j] - X[k, S_X_J] * scale[S_X_J]), -i_max), i_max)
+        i_f = min(max(k_p * (x_c[j] - X[k, S_X_J] * sc_k[S_X_J]), -i_max), i_max)
     else:
         i_f = I_LAST[k]
     i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, S_X_J]), -i_max), i_max)
     I_LAST[k] = i_f
     # observability gate: C_Lk only from the valve's linear region at low speed
-    gate = abs(X[k, S_V_J]) > cst[C_GATE_V] or abs(X[k, S_X_S]) > cst[C_GATE_XS]
-    gate = gate or NIS_AVG[k] > cst[C_GATE_NIS]
+    gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
+    gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
     c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
     if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
         nis_j, st = ukf_one_wh(
-            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
+            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc, c, prm_k,
             y[j], ws,
         )  # fmt: skip
     else:
         nis_j, st = ukf_one(
-            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm,
+            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc, c, prm_k,
             y[j], ws,
         )  # fmt: skip
     if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
         X[k, S_C_LK] = c_prior
-        PP[k, S_C_LK, S_C_LK] = p_prior + q[S_C_LK] * dt
+        PP[k, S_C_LK, S_C_LK] = p_prior + q_k[S_C_LK] * dt
     nis[j] = nis_j
     # the parallel (open-loop) model, driven by the command, with the estimated load
-    OL[k, S_F_R] = X[k, S_F_R] * scale[S_F_R]
+    OL[k, S_F_R] = X[k, S_F_R] * sc_k[S_F_R]
     h = dt / n_sub
-    spool_coef_nb(h, prm, coef)
+    spool_coef_nb(h, prm_k, coef)
     if n == N_STATES_WH:
-        step_core_wh_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
+        step_core_wh_nb(OL[k], i_ol, h, n_sub, prm_k, coef, tmp)
     else:
-        step_core_nb(OL[k], i_ol, h, n_sub, prm, coef, tmp)
+        step_core_nb(OL[k], i_ol, h, n_sub, prm_k, coef, tmp)
     for r in range(n):
         OL[k, r] = tmp[r]
     # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
-    X[k, S_C_LK] = min(max(X[k, S_C_LK], 0.0), cst[C_C_LK_MAX])
-    X[k, S_P_SR] = min(max(X[k, S_P_SR], cst[C_P_VAP]), cst[C_P_SR_MAX])
+    X[k, S_C_LK] = min(max(X[k, S_C_LK], 0.0), cst_k[C_C_LK_MAX])
+    X[k, S_P_SR] = min(max(X[k, S_P_SR], cst_k[C_P_VAP]), cst_k[C_P_SR_MAX])
     dof = 0.0
     for r in range(mask.shape[1]):
         if mask[j, r]:
             dof += 1.0
-    a = 1.0 - math.exp(-dt / cst[C_NIS_TAU])
+    a = 1.0 - math.exp(-dt / cst_k[C_NIS_TAU])
     avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
     nis_avg[j] = avg
     ok = st != UKF_FAILED and math.isfinite(avg)
@@ -189,7 +191,7 @@ def step_one(
     T_LAST[k] = t[j]
     if ok:
         NIS_AVG[k] = avg
-        return STEP_DIVERGED if avg > cst[C_NIS_REINIT] else STEP_OK
+        return STEP_DIVERGED if avg > cst_k[C_NIS_REINIT] else STEP_OK
     NIS_AVG[k] = 0.0
     return STEP_BROKEN
 
@@ -204,33 +206,35 @@ def row_one(
     and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence
     and the sigma gate (fire: FIRE_RAISED or FIRE_CLEARED this sample, else 0). The filter state is row kk of
     X, PD (the diagonal of P), OL, T_INIT and NIS_AVG: the bank's row k, or the snapshot of
-    sample j taken by ``block_steps``; the alarm state is the bank's row k."""
+    sample j taken by ``block_steps``; the alarm state is the bank's row k. scale, zscale,
+    prm, cst hold one row per actuator (its baseline): row k."""
+    sc_k, zs_k, prm_k, cst_k = scale[k], zscale[k], prm[k], cst[k]
     n = X.shape[1]
     m = z.shape[1]
-    c_lk0, p_rated = cst[C_C_LK0], cst[C_P_RATED]
+    c_lk0, p_rated = cst_k[C_C_LK0], cst_k[C_P_RATED]
     wh = n == N_STATES_WH
     for r in range(N_STATES):
-        xs[r] = X[kk, r] * scale[r]
+        xs[r] = X[kk, r] * sc_k[r]
         est[j, EST_STATE + 2 * r] = xs[r]
-        est[j, EST_STATE + 2 * r + 1] = math.sqrt(max(PD[kk, r], 0.0)) * scale[r]
+        est[j, EST_STATE + 2 * r + 1] = math.sqrt(max(PD[kk, r], 0.0)) * sc_k[r]
     if wh:  # WH chamber states: not output columns, P1 and P2 come through the measurement
         for r in range(N_STATES, n):
-            xs[r] = X[kk, r] * scale[r]
-        measure_wh_nb(xs, prm, zo)
+            xs[r] = X[kk, r] * sc_k[r]
+        measure_wh_nb(xs, prm_k, zo)
     else:
-        measure_nb(xs, prm, zo)
+        measure_nb(xs, prm_k, zo)
     est[j, EST_P12] = zo[Z_P1] - zo[Z_P2]
     est[j, EST_C_LK_INCREASE] = xs[S_C_LK] - c_lk0
     if wh:
-        measure_wh_nb(OL[kk], prm, zo)
+        measure_wh_nb(OL[kk], prm_k, zo)
     else:
-        measure_nb(OL[kk], prm, zo)
+        measure_nb(OL[kk], prm_k, zo)
     dof = 0.0
     for r in range(m):
-        res[j, RES_INNOV + r] = y[j, r] * zscale[r]
+        res[j, RES_INNOV + r] = y[j, r] * zs_k[r]
         if mask[j, r]:
             dof += 1.0
-            res[j, RES_OL + r] = z[j, r] * zscale[r] - zo[r]
+            res[j, RES_OL + r] = z[j, r] * zs_k[r] - zo[r]
         else:
             res[j, RES_OL + r] = 0.0
     res[j, RES_NIS] = nis[j]
@@ -239,24 +243,26 @@ def row_one(
     sr = xs[S_P_SR] / p_rated
     sd_l = est[j, EST_C_LK_SIGMA] / c_lk0 if c_lk0 > 0 else 0.0
     sd_s = est[j, EST_P_SR_SIGMA] / p_rated
-    armed = t[j] - T_INIT[kk] >= cst[C_ARM]
+    armed = t[j] - T_INIT[kk] >= cst_k[C_ARM]
     for a in range(N_ALARMS):
         on = ALARM[k, a]
         if a == ALARM_LEAK:
             want = (
-                lr <= cst[C_LEAK_CLEAR]
+                lr <= cst_k[C_LEAK_CLEAR]
                 if on
-                else (lr >= cst[C_LEAK_RAISE] and sd_l < cst[C_LEAK_SIG])
+                else (lr >= cst_k[C_LEAK_RAISE] and sd_l < cst_k[C_LEAK_SIG])
             )
         else:
             want = (
-                sr >= cst[C_SUP_CLEAR] if on else (sr <= cst[C_SUP_RAISE] and sd_s < cst[C_SUP_SIG])
+                sr >= cst_k[C_SUP_CLEAR]
+                if on
+                else (sr <= cst_k[C_SUP_RAISE] and sd_s < cst_k[C_SUP_SIG])
             )
         fire[j, a] = 0
         if want and armed:
             if math.isnan(PENDING[k, a]):
                 PENDING[k, a] = t[j]
-            if t[j] - PENDING[k, a] >= cst[C_HOLD] - 1e-12:
+            if t[j] - PENDING[k, a] >= cst_k[C_HOLD] - 1e-12:
                 ALARM[k, a] = not on
                 PENDING[k, a] = math.nan
                 fire[j, a] = FIRE_CLEARED if on else FIRE_RAISED
@@ -321,7 +327,7 @@ def prepare_inputs(ks, vals, present, use, zscale, cnt):
     usable)); cnt[k] += bad_channel (present and not finite, in a sample with a usable time),
     skipped_nan (no usable value)."""
     n = ks.shape[0]
-    m = zscale.shape[0]
+    m = zscale.shape[1]
     t_out = np.empty(n)
     z = np.empty((n, m))
     mask = np.empty((n, m), np.bool_)
@@ -337,7 +343,7 @@ def prepare_inputs(ks, vals, present, use, zscale, cnt):
             fin = math.isfinite(v)
             ok = present[j, IN_Z + r] and fin and use[r]
             mask[j, r] = ok
-            z[j, r] = v / zscale[r] if ok else 0.0
+            z[j, r] = v / zscale[ks[j], r] if ok else 0.0
             any_m = any_m or ok
             if present[j, IN_Z + r] and not fin and use[r]:
                 n_bad += 1
