@@ -158,6 +158,7 @@ class Daemon:
         self._worker: threading.Thread | None = None
         self._session = None
         self._decl: list[Any] = []
+        self._sources: dict[str, str] = {}  # advanced publisher id -> key
         self.latency = deque(maxlen=50000)  # receipt -> health output [s]
         self.age = deque(maxlen=50000)  # sample time t -> health output [s] (Unix-time t)
         self.bad_log = RateLimitedLog(log, bad_log_interval_s)
@@ -197,8 +198,24 @@ class Daemon:
 
     def _on_zenoh_sample(self, sample) -> None:
         try:
-            self.submit(str(sample.key_expr), sample.payload.to_bytes())
+            key = str(sample.key_expr)
+            self.submit(key, sample.payload.to_bytes())
+            si = sample.source_info
+            if si is not None and si.source_id is not None:
+                self._sources[str(si.source_id)] = key
         except Exception:  # never let a callback raise into zenoh
+            self.errors += 1
+
+    def _on_miss(self, miss) -> None:
+        """Samples that the advanced subscriber could not recover, counted per actuator."""
+        try:
+            st = self._state_for_key(self._sources.get(str(miss.source), ""))
+            if st is not None:
+                st.missed += int(miss.nb)
+            else:
+                self.unknown["missed"] = self.unknown.get("missed", 0) + int(miss.nb)
+            log.warning("missed %d messages from %s", miss.nb, st.name if st else miss.source)
+        except Exception:
             self.errors += 1
 
     def _count_drop(self, key: str) -> None:
@@ -466,7 +483,20 @@ class Daemon:
         if session is not None:
             self._session = session
             self.fanout.session = session
-            self._decl.append(session.declare_subscriber(self.key_expr, self._on_zenoh_sample))
+            from zenoh import ext as zx
+
+            # advanced subscriber: recovers from the publishers' caches what a router restart
+            # or a disconnect lost; what it cannot recover is counted as ``missed``
+            sub = zx.declare_advanced_subscriber(
+                session,
+                self.key_expr,
+                self._on_zenoh_sample,
+                history=zx.HistoryConfig(detect_late_publishers=True),
+                recovery=zx.RecoveryConfig(heartbeat=True),
+                subscriber_detection=True,
+            )
+            self._decl.append(sub)
+            self._decl.append(sub.sample_miss_listener(self._on_miss))
             skey = m.KEY_STATUS.format(station=self.station, shard=self.shard)
             self._decl.append(session.declare_queryable(skey, self._on_status_query))
             self._decl.append(
