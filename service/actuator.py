@@ -257,6 +257,28 @@ class FaultState:
         return out
 
 
+def advanced_publisher(session, key: str, cache_messages: float, heartbeat_s: float = 0.5):
+    """A ``zenoh.ext`` advanced publisher on ``key`` for measurements: reliable, blocking,
+    a cache of the last ``cache_messages`` messages (answered to subscribers that detect a
+    miss), sequence numbers with a heartbeat every ``heartbeat_s`` [s] (so a lost last message
+    is detected too) and publisher detection (late-joining subscribers query the cache)."""
+    import zenoh
+    from zenoh import ext as zx
+
+    n = int(cache_messages)
+    if not (1 <= n <= 10_000_000):
+        raise ValueError(f"cache_s: gives {n} cached messages, need 1..10000000")
+    return zx.declare_advanced_publisher(
+        session,
+        key,
+        congestion_control=zenoh.CongestionControl.BLOCK,
+        reliability=zenoh.Reliability.RELIABLE,
+        cache=zx.CacheConfig(max_samples=n),
+        sample_miss_detection=zx.MissDetectionConfig(heartbeat=heartbeat_s),
+        publisher_detection=True,
+    )
+
+
 def _default_stepper_factory(params, step_s: float):
     from models.eha import EHAStepper
 
@@ -402,14 +424,18 @@ class VirtualActuator:
         samples_per_msg: int = 10,
         fmt: str | None = None,
         on_batch: Callable[[list[dict]], None] | None = None,
+        cache_s: float = 10.0,
     ) -> dict[str, int]:
         """Publish samples paced by the wall clock until ``stop`` is set or ``duration_s``.
 
         Serves fault commands on the ``@fault`` queryable (answered with a ``FaultAck``)
         and holds liveliness tokens on ``.../alive`` and ``.../@virtual`` (the latter tells
         ``servowatch inject`` that this key is a virtual actuator's). Returns counters.
+
+        Publishes through a ``zenoh.ext`` advanced publisher (``advanced_publisher``) whose
+        cache holds the last ``cache_s`` seconds of messages, so a subscriber recovers what a
+        router restart or a short disconnect lost (docs/messages.md, "Publishing").
         """
-        import zenoh
 
         from service import messages as m
 
@@ -431,18 +457,14 @@ class VirtualActuator:
             log.info("fault command on %s: %s", fkey, ack.message)
             query.reply(query.key_expr, ack.model_dump_json().encode())
 
-        pub = session.declare_publisher(
-            key,
-            congestion_control=zenoh.CongestionControl.BLOCK,
-            reliability=zenoh.Reliability.RELIABLE,
-        )
+        spm = max(1, int(samples_per_msg))
+        pub = advanced_publisher(session, key, cache_s * self.rate_hz / spm)
         qbl = session.declare_queryable(fkey, on_query)
         token = session.liveliness().declare_token(akey)
         vtoken = session.liveliness().declare_token(
             m.KEY_VIRTUAL.format(aircraft=aircraft, actuator=actuator)
         )
         enc_kw = {} if fmt is None else {"fmt": fmt}
-        spm = max(1, int(samples_per_msg))
         total = None if duration_s is None else int(round(duration_s * self.rate_hz))
         cap = max(spm, int(self.rate_hz * 0.1) // spm * spm)  # at most 0.1 s per burst
         w0 = time.monotonic()

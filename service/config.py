@@ -44,6 +44,7 @@ __all__ = [
     "ZenohSettings",
     "ServiceConfig",
     "PrognosticsSettings",
+    "ClockSettings",
     "SessionError",
     "AuthError",
     "load_config",
@@ -233,6 +234,23 @@ class PrognosticsSettings(BaseModel):
     )
 
 
+class ClockSettings(BaseModel):
+    """Time plausibility of each stream's samples (``service.daemon.intake.ClockCheck``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    factor: float = Field(
+        2.0, ge=1, le=1e3, description="a sample may lead by factor x seq gap x period"
+    )
+    tol_s: float = Field(0.5, gt=0, le=3600, description="plus this tolerance [s]")
+    future_s: float = Field(
+        5.0, gt=0, le=86400, description="live data: max lead on the receiving clock [s]"
+    )
+    resync_n: int = Field(
+        5, ge=1, le=10000, description="consistent samples that re-synchronise a jumped clock"
+    )
+
+
 class ServiceConfig(BaseModel):
     """Settings of ``servowatch run`` (and defaults for demo and replay)."""
 
@@ -264,6 +282,7 @@ class ServiceConfig(BaseModel):
     prognostics: PrognosticsSettings = Field(default_factory=PrognosticsSettings)
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
     monitor: MonitorConfig = Field(default_factory=MonitorConfig)
+    clock: ClockSettings = Field(default_factory=ClockSettings)
 
 
 def _loc(err: Mapping[str, Any]) -> str:

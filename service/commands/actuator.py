@@ -38,6 +38,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="stop after this much simulated time [s] (default: run until killed)",
     )
     p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default: scenario)")
+    p.add_argument(
+        "--cache-s",
+        type=float,
+        default=10.0,
+        help="seconds of messages the publisher's cache holds for recovery (default 10)",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary at the end")
     add_zenoh_arguments(p)
 
@@ -63,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
         return fail(str(e))
     if not args.rate > 0 or args.samples_per_msg < 1:
         return fail("--rate must be > 0 and --samples-per-msg >= 1")
+    if not 0 < args.cache_s <= 3600:
+        return fail(f"--cache-s: must be in (0, 3600] s, got {args.cache_s}")
     va = VirtualActuator(scenario, rate_hz=args.rate, t_origin=time.time(), seed=args.seed)
     stop = threading.Event()
 
@@ -91,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
             duration_s=args.duration,
             samples_per_msg=args.samples_per_msg,
             fmt=args.format,
+            cache_s=args.cache_s,
         )
     counters["seq_next"] = va.seq
     if args.json:

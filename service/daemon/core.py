@@ -43,7 +43,7 @@ import numpy as np
 from service import messages as m
 from service.config import ServiceConfig
 from service.daemon.commission import Commissioner
-from service.daemon.intake import MAX_ACTUATORS, ActuatorState, accept, reason_of
+from service.daemon.intake import MAX_ACTUATORS, ActuatorState, ClockCheck, accept, reason_of
 from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.status import snapshot
 from service.daemon.systemd import sd_notify, watchdog_interval
@@ -123,6 +123,7 @@ class Daemon:
         self.silence_s = config.silence_s
         self.queue_size = config.queue_size
         self.max_bytes = config.max_bytes
+        self.clock = ClockCheck(**config.clock.model_dump())
         self.tick_s = tick_s
         self.gather_s = gather_s
         self.max_batch = max_batch
@@ -183,6 +184,7 @@ class Daemon:
         self._worker: threading.Thread | None = None
         self._session = None
         self._decl: list[Any] = []
+        self._sources: dict[str, str] = {}  # advanced publisher id -> key
         self.latency = deque(maxlen=50000)  # receipt -> health output [s]
         self.age = deque(maxlen=50000)  # sample time t -> health output [s] (Unix-time t)
         self.bad_log = RateLimitedLog(log, bad_log_interval_s)
@@ -226,8 +228,24 @@ class Daemon:
 
     def _on_zenoh_sample(self, sample) -> None:
         try:
-            self.submit(str(sample.key_expr), sample.payload.to_bytes())
+            key = str(sample.key_expr)
+            self.submit(key, sample.payload.to_bytes())
+            si = sample.source_info
+            if si is not None and si.source_id is not None:
+                self._sources[str(si.source_id)] = key
         except Exception:  # never let a callback raise into zenoh
+            self.errors += 1
+
+    def _on_miss(self, miss) -> None:
+        """Samples that the advanced subscriber could not recover, counted per actuator."""
+        try:
+            st = self._state_for_key(self._sources.get(str(miss.source), ""))
+            if st is not None:
+                st.missed += int(miss.nb)
+            else:
+                self.unknown["missed"] = self.unknown.get("missed", 0) + int(miss.nb)
+            log.warning("missed %d messages from %s", miss.nb, st.name if st else miss.source)
+        except Exception:
             self.errors += 1
 
     def _count_drop(self, key: str) -> None:
@@ -268,6 +286,7 @@ class Daemon:
         while q and len(msgs) < self.max_batch:
             msgs.append(q.popleft())
         parts: list[tuple[ActuatorState, str, m.MeasArrays, int, float]] = []
+        now = time.time()
         for key, payload, t_recv in msgs:
             st = self._state_for_key(key)
             if st is None:
@@ -291,10 +310,13 @@ class Daemon:
                 st.count_bad(reason)
                 self.bad_log.warning(st.name, "bad message from %s: %s (%s)", st.name, e, reason)
                 continue
-            j0 = accept(st, a, self.bad_log, self._on_restart)
-            if j0 >= len(a.t):
+            j0, j1 = accept(st, a, self.bad_log, self._on_restart, self.clock, now)
+            if j0 >= j1:
                 continue
-            self._log_meas(st, payload, a, j0)
+            full = j0 == 0 and j1 == len(a.t)
+            if j1 < len(a.t):
+                a = m.MeasArrays(a.seq[:j1], a.t[:j1], a.values[:j1])
+            self._log_meas(st, payload, a, j0, full)
             parts.append((st, key, a, j0, t_recv))
         n_fed = sum(len(p[2].t) - p[3] for p in parts)
         if parts:
@@ -309,13 +331,16 @@ class Daemon:
         self.busy_s += time.perf_counter() - t0
         return n_fed
 
-    def _log_meas(self, st: ActuatorState, payload: bytes, a: m.MeasArrays, j0: int) -> None:
-        """The accepted samples j0.. of a message on the actuator's ``meas`` topic."""
+    def _log_meas(
+        self, st: ActuatorState, payload: bytes, a: m.MeasArrays, j0: int, full: bool = True
+    ) -> None:
+        """The accepted samples j0.. of a message (``full``: all of the payload's) on the
+        actuator's ``meas`` topic."""
         topic = m.mcap_topic(st.aircraft, st.actuator, "meas")
         n = len(a.t)
         try:
             if self._log_payload is not None:  # the log process decodes the payload again
-                self._log_payload(topic, payload, None if j0 == 0 else list(range(j0, n)))
+                self._log_payload(topic, payload, None if full else list(range(j0, n)))
             else:
                 self.logger.log_block(
                     topic, a.t[j0:], MEAS_LOG_FIELDS, meas_log_values(a, j0), int_fields=("seq",)
@@ -426,7 +451,11 @@ class Daemon:
             log.error("MCAP log failed, service degraded: %s", self.log_failure)
             sd_notify(f"STATUS=degraded: MCAP log failed: {self.log_failure[:200]}")
 
-    def _on_restart(self, st: ActuatorState, t: float, seq: int) -> None:
+    def _on_restart(self, st: ActuatorState, t: float, seq: int, back: bool = False) -> None:
+        if back and isinstance(self.bank, MonitorBank):  # time went back: the filter restarts
+            self.bank.t_last[
+                self.bank.index_of(f"fleet/{st.aircraft}/{st.actuator}/meas")
+            ] = -np.inf
         self._service_event(st, "restart", t, value=seq)
 
     def _service_event(
@@ -522,7 +551,20 @@ class Daemon:
         if session is not None:
             self._session = session
             self.fanout.session = session
-            self._decl.append(session.declare_subscriber(self.key_expr, self._on_zenoh_sample))
+            from zenoh import ext as zx
+
+            # advanced subscriber: recovers from the publishers' caches what a router restart
+            # or a disconnect lost; what it cannot recover is counted as ``missed``
+            sub = zx.declare_advanced_subscriber(
+                session,
+                self.key_expr,
+                self._on_zenoh_sample,
+                history=zx.HistoryConfig(detect_late_publishers=True),
+                recovery=zx.RecoveryConfig(heartbeat=True),
+                subscriber_detection=True,
+            )
+            self._decl.append(sub)
+            self._decl.append(sub.sample_miss_listener(self._on_miss))
             skey = m.KEY_STATUS.format(station=self.station, shard=self.shard)
             self._decl.append(session.declare_queryable(skey, self._on_status_query))
             self._decl.append(

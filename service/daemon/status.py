@@ -68,6 +68,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
             "samples": sum(a["samples"] for a in acts.values()),
             "dropped": sum(a["dropped"] for a in acts.values()) + d.unknown.get("dropped", 0),
             "bad": sum(a["bad_total"] for a in acts.values()),
+            "missed": sum(a["missed"] for a in acts.values()) + d.unknown.get("missed", 0),
             "unknown": dict(d.unknown),
             "errors": d.errors,
             "latency_ms": {
