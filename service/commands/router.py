@@ -33,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument(
         "--config", default=None, metavar="FILE.json5",
-        help="a Zenoh JSON5 config (e.g. deploy/router.json5); --listen/--connect override it",
+        help="a Zenoh JSON5 config (e.g. deploy/loopback/router.json5); --listen/--connect override it",
     )  # fmt: skip
     from service.config import add_tls_arguments
 
