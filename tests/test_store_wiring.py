@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from models.scenario import Profile
-from service.calibration import measured_run
+from service.calibration import calibrate, measured_run
 from service.config import PrognosticsSettings, ServiceConfig
 from service.daemon import Daemon
 from service.log import McapLogger
 from service.messages import mcap_topic
 from service.monitor import MonitorBank, MonitorFleet
-from service.prognostics.fleetsim import C_LK_NOMINAL, calibrate_fast
+from service.prognostics.fleetsim import C_LK_NOMINAL
 from service.replay import replay
 from service.scenarios import load_scenario
 from service.store import open_store
@@ -59,7 +59,7 @@ def odd(tmp_path_factory):
     d = tmp_path_factory.mktemp("odd")
     healthy = _run(1.0, seed=11)
     leak = _run(3.5, seed=12)
-    base = calibrate_fast(healthy)
+    base = calibrate(healthy)
     store = str(d / "health.sqlite")
     with open_store(store) as s:
         s.add_baseline(ODD, base.model_dump(), "test: healthy run")
