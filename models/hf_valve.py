@@ -139,17 +139,26 @@ def _residuals(x_s, q_j, p_s, c_lk, p1, p2, params):
     return f1, f2
 
 
-def _bisect_p2(x_s, q_j, p_s, c_lk, p1, lo, hi, params, n_iter):
-    """P2 solving f2(P1, P2) = 0 (f2 decreasing in P2), clipped to [lo, hi]."""
-    a = np.broadcast_to(lo, p1.shape).copy()
-    b = np.broadcast_to(hi, p1.shape).copy()
+def bisect_decreasing(f, lo: NDArray, hi: NDArray, n_iter: int) -> NDArray:
+    """Element-wise root of ``f`` decreasing in its argument on [lo, hi] (the bound if none
+    inside): ``n_iter`` halvings of the bracket."""
+    a, b = lo.copy(), hi.copy()
     for _ in range(n_iter):
         m = 0.5 * (a + b)
-        _, f2 = _residuals(x_s, q_j, p_s, c_lk, p1, m, params)
-        pos = f2 > 0
+        pos = f(m) > 0
         a = np.where(pos, m, a)
         b = np.where(pos, b, m)
     return 0.5 * (a + b)
+
+
+def _bisect_p2(x_s, q_j, p_s, c_lk, p1, lo, hi, params, n_iter):
+    """P2 solving f2(P1, P2) = 0 (f2 decreasing in P2), clipped to [lo, hi]."""
+    return bisect_decreasing(
+        lambda p2: _residuals(x_s, q_j, p_s, c_lk, p1, p2, params)[1],
+        np.broadcast_to(lo, p1.shape),
+        np.broadcast_to(hi, p1.shape),
+        n_iter,
+    )
 
 
 def hf_static_pressures(

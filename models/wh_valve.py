@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from models.hf_valve import bisect_decreasing
 from models.params import WHParams
 
 __all__ = [
@@ -90,17 +91,6 @@ def _residuals(x_s, q_j, p_sr, c_lk, p1, p2, wp):
     return q1 - q2 - q_lk - q_j, q3 - q4 + q_lk + q_j
 
 
-def _bisect(f, lo, hi, n_iter):
-    """Root of a function decreasing in its argument on [lo, hi] (bound if none inside)."""
-    a, b = lo.copy(), hi.copy()
-    for _ in range(n_iter):
-        m = 0.5 * (a + b)
-        pos = f(m) > 0
-        a = np.where(pos, m, a)
-        b = np.where(pos, b, m)
-    return 0.5 * (a + b)
-
-
 def wh_static_pressures(
     x_s: ArrayLike,
     q_j: ArrayLike,
@@ -124,9 +114,13 @@ def wh_static_pressures(
     hi = wp.p_r + p_sr + 10.0 * p_sr
 
     def p2_of(p1):
-        return _bisect(lambda p2: _residuals(x_s, q_j, p_sr, c, p1, p2, wp)[1], lo, hi, n_iter)
+        return bisect_decreasing(
+            lambda p2: _residuals(x_s, q_j, p_sr, c, p1, p2, wp)[1], lo, hi, n_iter
+        )
 
-    p1 = _bisect(lambda p1: _residuals(x_s, q_j, p_sr, c, p1, p2_of(p1), wp)[0], lo, hi, n_iter)
+    p1 = bisect_decreasing(
+        lambda p1: _residuals(x_s, q_j, p_sr, c, p1, p2_of(p1), wp)[0], lo, hi, n_iter
+    )
     return p1.reshape(shape), p2_of(p1).reshape(shape)
 
 
