@@ -42,7 +42,7 @@ from models.dutycycle import DutyCycle, duty_cycle  # noqa: E402
 TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "reinit": 0}
 
 
-def run_one(dc: DutyCycle, fixed_noise: bool = False) -> dict:
+def run_one(dc: DutyCycle, fixed_noise: bool = False, model: str = "C5") -> dict:
     """Calibrate on the healthy segment, run the monitor on the test scenario, score it."""
     from scipy.stats import chi2
 
@@ -52,7 +52,7 @@ def run_one(dc: DutyCycle, fixed_noise: bool = False) -> dict:
 
     w0 = time.perf_counter()
     _, meas_c = measured_run(dc.calibration)
-    cfg = MonitorConfig()
+    cfg = MonitorConfig(model=model)
     if not fixed_noise:
         cfg = cfg.model_copy(update={"noise": identify_noise(meas_c)})
     base = calibrate(meas_c, config=cfg)
@@ -136,9 +136,9 @@ def run_one(dc: DutyCycle, fixed_noise: bool = False) -> dict:
     return out
 
 
-def _job(args: tuple[int, int, bool]) -> dict:
-    seed, index, fixed = args
-    return run_one(duty_cycle(seed, index), fixed_noise=fixed)
+def _job(args: tuple[int, int, bool, str]) -> dict:
+    seed, index, fixed, model = args
+    return run_one(duty_cycle(seed, index), fixed_noise=fixed, model=model)
 
 
 def failures(r: dict) -> list[str]:
@@ -231,10 +231,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--only", default=None, help="comma-separated indices to run")
     ap.add_argument("--fixed-noise", action="store_true", help="default R, not identified")
+    ap.add_argument("--model", default="C5", help="monitor process model (C5, WH, ...)")
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
     a = ap.parse_args(argv)
     idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
-    jobs = [(a.seed, i, a.fixed_noise) for i in idx]
+    jobs = [(a.seed, i, a.fixed_noise, a.model) for i in idx]
     w0 = time.perf_counter()
     if a.workers > 1:
         with ProcessPoolExecutor(max_workers=a.workers) as ex:
