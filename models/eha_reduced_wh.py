@@ -39,6 +39,7 @@ from models.eha_reduced import (
     K_P_VAP,
     K_V_F,
     K_X_SM,
+    K_X_0,
     K_X_SS,
     N_PRM,
     ReducedParams,
@@ -152,7 +153,7 @@ def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: flo
     for _ in range(n_sub):
         x_s, v_s = er.spool_step(x_s, v_s, i + i_b, h, rp)
 
-        def f(y, x_s=x_s):
+        def f(y, x_s=x_s - rp.x_0):  # the lands see the spool from its hydraulic null
             return _rhs(x_s, *y, f_r, p_ev, c_ev, rp, k_o, dp_lam, bv)
 
         y = (x_j, v_j, pt1, pt2)
@@ -218,18 +219,20 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
     c_lk = max(x[6], 0.0)
     x_sm = prm[K_X_SM]
     x_ref = min(max(prm[K_K_SV] * (i + x[7]), -x_sm), x_sm)
+    x_0 = prm[K_X_0]  # hydraulic null: the lands see x_S - x_0
     hh = 0.5 * h
     h6 = h / 6.0
     for _ in range(n_sub):
         x_s, v_s = _spool_nb(x_s, v_s, x_ref, x_sm, coef)
-        a1, a2, a3 = rhs_nb(x_s, v_j, pt1, pt2, f_r, p_s, c_lk, prm)
+        x_l = x_s - x_0
+        a1, a2, a3 = rhs_nb(x_l, v_j, pt1, pt2, f_r, p_s, c_lk, prm)
         a0 = v_j
         b0 = v_j + hh * a1
-        b1, b2, b3 = rhs_nb(x_s, b0, pt1 + hh * a2, pt2 + hh * a3, f_r, p_s, c_lk, prm)
+        b1, b2, b3 = rhs_nb(x_l, b0, pt1 + hh * a2, pt2 + hh * a3, f_r, p_s, c_lk, prm)
         c0 = v_j + hh * b1
-        c1, c2, c3 = rhs_nb(x_s, c0, pt1 + hh * b2, pt2 + hh * b3, f_r, p_s, c_lk, prm)
+        c1, c2, c3 = rhs_nb(x_l, c0, pt1 + hh * b2, pt2 + hh * b3, f_r, p_s, c_lk, prm)
         d0 = v_j + h * c1
-        d1, d2, d3 = rhs_nb(x_s, d0, pt1 + h * c2, pt2 + h * c3, f_r, p_s, c_lk, prm)
+        d1, d2, d3 = rhs_nb(x_l, d0, pt1 + h * c2, pt2 + h * c3, f_r, p_s, c_lk, prm)
         x_j += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
         v_j += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
         pt1 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)

@@ -201,13 +201,18 @@ def bank_rows(meas: dict[str, NDArray], config: MonitorConfig, baseline: Baselin
 
 def calibrate(
     meas: dict[str, NDArray],
-    law: str = "C5",
+    law: str | None = None,
     config: MonitorConfig | None = None,
     passes: int = 2,
     settle_s: float = 1.0,
 ) -> Baseline:
-    """Identify a baseline from healthy measurements (all three steps of the docstring)."""
-    cfg = (config or MonitorConfig()).model_copy(update={"model": law})
+    """Identify a baseline from healthy measurements (all three steps of the docstring).
+
+    ``law`` is the process model the baseline is for; by default ``config.model`` (C5 when
+    neither is given)."""
+    cfg = config or MonitorConfig()
+    law = law or cfg.model
+    cfg = cfg.model_copy(update={"model": law})
     base = identify_baseline(meas, law)
     t = np.asarray(meas["t"], float)
     for _ in range(passes):
