@@ -42,7 +42,9 @@ from models.dutycycle import DutyCycle, duty_cycle  # noqa: E402
 TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "reinit": 0}
 
 
-def run_one(dc: DutyCycle, fixed_noise: bool = False, model: str = "C5") -> dict:
+def run_one(
+    dc: DutyCycle, fixed_noise: bool = False, model: str = "C5", overrides: dict | None = None
+) -> dict:
     """Calibrate on the healthy segment, run the monitor on the test scenario, score it."""
     from scipy.stats import chi2
 
@@ -52,7 +54,7 @@ def run_one(dc: DutyCycle, fixed_noise: bool = False, model: str = "C5") -> dict
 
     w0 = time.perf_counter()
     _, meas_c = measured_run(dc.calibration)
-    cfg = MonitorConfig(model=model)
+    cfg = MonitorConfig(model=model, **(overrides or {}))
     if not fixed_noise:
         cfg = cfg.model_copy(update={"noise": identify_noise(meas_c)})
     base = calibrate(meas_c, config=cfg)
@@ -136,9 +138,9 @@ def run_one(dc: DutyCycle, fixed_noise: bool = False, model: str = "C5") -> dict
     return out
 
 
-def _job(args: tuple[int, int, bool, str]) -> dict:
-    seed, index, fixed, model = args
-    return run_one(duty_cycle(seed, index), fixed_noise=fixed, model=model)
+def _job(args: tuple[int, int, bool, str, dict]) -> dict:
+    seed, index, fixed, model, overrides = args
+    return run_one(duty_cycle(seed, index), fixed_noise=fixed, model=model, overrides=overrides)
 
 
 def failures(r: dict) -> list[str]:
@@ -232,10 +234,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default=None, help="comma-separated indices to run")
     ap.add_argument("--fixed-noise", action="store_true", help="default R, not identified")
     ap.add_argument("--model", default="C5", help="monitor process model (C5, WH, ...)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="override a MonitorConfig field (numbers only), e.g. --set adapt_nis=0",
+    )
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
     a = ap.parse_args(argv)
     idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
-    jobs = [(a.seed, i, a.fixed_noise, a.model) for i in idx]
+    overrides = {}
+    for kv in a.set:
+        key, sep, val = kv.partition("=")
+        if not sep:
+            ap.error(f"--set {kv!r}: expected FIELD=VALUE")
+        try:
+            overrides[key] = float(val)
+        except ValueError:
+            ap.error(f"--set {kv!r}: VALUE must be a number")
+    from service.monitor import MonitorConfig
+
+    try:
+        MonitorConfig(model=a.model, **overrides)
+    except ValueError as e:
+        ap.error(f"--model/--set: {e}")
+    jobs = [(a.seed, i, a.fixed_noise, a.model, overrides) for i in idx]
     w0 = time.perf_counter()
     if a.workers > 1:
         with ProcessPoolExecutor(max_workers=a.workers) as ex:

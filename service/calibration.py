@@ -221,8 +221,10 @@ def calibrate(
         c_est = float(np.mean(rows.est[sel, EST_KEYS.index("c_lk")]))
         p_sr_est = float(np.mean(rows.est[sel, EST_KEYS.index("p_sr")]))
         inv_g = 1.0 / base.g_pq + (c_est - base.c_lk)
-        # the P_SR estimate is clipped at rated: only correct P_R when it reads low
-        p_r = base.p_r + 0.5 * min(p_sr_est - base.p_sr_rated, 0.0)
+        # the P_SR estimate is clipped at rated: only correct P_R when it reads low. Not for
+        # WH: its P_SR is read through its own orifice law, not the chamber-pressure sum, so
+        # the correction would feed WH's model error back into P_R
+        p_r = base.p_r + (0.0 if law == "WH" else 0.5 * min(p_sr_est - base.p_sr_rated, 0.0))
         g_new = 1.0 / max(inv_g, 1e-14)
         # keep the flow gain P_SR / (x_SS G_PQ) fixed: only the sum 1/G_PQ + C_Lk moves
         x_ss = base.x_ss * base.g_pq / g_new

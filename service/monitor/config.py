@@ -113,6 +113,16 @@ class MonitorConfig(_Cfg):
         gt=0,
         description="... and while the NIS/dof average is below this (the model explains the data)",
     )
+    adapt_nis: float = Field(
+        0.0,
+        ge=0,
+        description="adaptive process noise: a sample whose NIS/dof exceeds this is redone with "
+        "the plant states' process noise scaled by NIS/dof / adapt_nis (0 = off; "
+        "docs/estimation.md, adaptive process noise)",
+    )
+    adapt_max: float = Field(
+        100.0, ge=1, description="largest process-noise scale of the adaptive step"
+    )
     reduced_param_q: float = Field(
         0.01,
         ge=0,

@@ -84,6 +84,8 @@ CST_FIELDS: tuple[str, ...] = (
     "gate_v",  # C_Lk learnt only below this |v_J| (filter units) ...
     "gate_x_s",  # ... with the spool within its underlap (filter units) ...
     "gate_nis",  # ... and the NIS/dof average below this
+    "adapt_nis",  # a sample whose NIS/dof exceeds this is redone with inflated plant noise
+    "adapt_max",  # ... scaled by NIS/dof / adapt_nis, at most this (adaptive process noise)
 )
 (
     C_H_MAX,
@@ -105,6 +107,8 @@ CST_FIELDS: tuple[str, ...] = (
     C_GATE_V,
     C_GATE_XS,
     C_GATE_NIS,
+    C_ADAPT_NIS,
+    C_ADAPT_MAX,
 ) = range(len(CST_FIELDS))
 
 # counter columns: prepare_inputs' cnt (n_act, 2) and block_steps' cnt (n_act, 3)
@@ -119,6 +123,14 @@ STEP_OK = 0  # stepped
 STEP_BROKEN = 1  # non-finite or not positive definite: re-initialise
 STEP_DIVERGED = 2  # NIS average above nis_reinit: re-initialise, keep the parameters
 STEP_INIT = 3  # first sample or gap: (re-)initialise from this sample, not stepped
+
+
+@njit(cache=True, inline="always")
+def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws, n):
+    """One UKF step on the bank's process model: WH (n = 10) or a C-type law (n = 8)."""
+    if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
+        return ukf_one_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
+    return ukf_one(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
 
 
 @njit(cache=True, inline="always")
@@ -147,16 +159,31 @@ def step_one(
     gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
     gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
     c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
-    if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
-        nis_j, st = ukf_one_wh(
-            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc, c, prm_k,
-            y[j], ws,
-        )  # fmt: skip
-    else:
-        nis_j, st = ukf_one(
-            X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc, c, prm_k,
-            y[j], ws,
-        )  # fmt: skip
+    dof = 0.0
+    for r in range(mask.shape[1]):
+        if mask[j, r]:
+            dof += 1.0
+    # adaptive process noise (docs/estimation.md, "Adaptive process noise"): keep the prior,
+    # and if this sample's NIS/dof passes adapt_nis, redo the step with the plant states'
+    # process noise (not the parameters') scaled by NIS/dof / adapt_nis
+    thr = cst_k[C_ADAPT_NIS]
+    x_sv, q_sv, p_sv = tmp[n : 2 * n], tmp[2 * n : 3 * n], tmp[3 * n :]
+    if thr > 0.0:
+        for r in range(n):
+            x_sv[r] = X[k, r]
+            for s_ in range(n):
+                p_sv[r * n + s_] = PP[k, r, s_]
+    nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc,
+                     c, prm_k, y[j], ws, n)  # fmt: skip
+    if thr > 0.0 and dof > 0.0 and nis_j > thr * dof:
+        g = min(nis_j / (thr * dof), cst_k[C_ADAPT_MAX])
+        for r in range(n):
+            X[k, r] = x_sv[r]
+            for s_ in range(n):
+                PP[k, r, s_] = p_sv[r * n + s_]
+            q_sv[r] = q_k[r] * (1.0 if S_P_SR <= r <= S_I_B else g)
+        nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_sv, R_k, sc_k, zs_k,
+                         Wm, Wc, c, prm_k, y[j], ws, n)  # fmt: skip
     if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
         X[k, S_C_LK] = c_prior
         PP[k, S_C_LK, S_C_LK] = p_prior + q_k[S_C_LK] * dt
@@ -174,10 +201,6 @@ def step_one(
     # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
     X[k, S_C_LK] = min(max(X[k, S_C_LK], 0.0), cst_k[C_C_LK_MAX])
     X[k, S_P_SR] = min(max(X[k, S_P_SR], cst_k[C_P_VAP]), cst_k[C_P_SR_MAX])
-    dof = 0.0
-    for r in range(mask.shape[1]):
-        if mask[j, r]:
-            dof += 1.0
     a = 1.0 - math.exp(-dt / cst_k[C_NIS_TAU])
     avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
     nis_avg[j] = avg
@@ -289,7 +312,7 @@ def bank_step(
     )
     ws = borrowed_all(ws)
     coef = np.empty(4)
-    tmp = np.empty(X.shape[1])
+    tmp = np.empty(X.shape[1] * (X.shape[1] + 3))  # model output, then step_one's scratch
     for j in range(ks.shape[0]):
         flag[j] = step_one(
             j, ks[j], t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale,
@@ -393,7 +416,7 @@ def block_steps(
     m = z.shape[1]
     n = X.shape[1]
     coef = np.empty(4)
-    tmp = np.empty(n)
+    tmp = np.empty(n * (n + 3))  # model output, then step_one's scratch
     for j in range(j0, ks.shape[0]):
         k = ks[j]
         if not (emit0 and j == j0):
