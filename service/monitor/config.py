@@ -113,6 +113,13 @@ class MonitorConfig(_Cfg):
         gt=0,
         description="... and while the NIS/dof average is below this (the model explains the data)",
     )
+    c_lk_gate_p12: float = Field(
+        0.0,
+        ge=0,
+        lt=1,
+        description="... and while the measured |P1 - P2| is above this share of rated P_SR "
+        "(0 = off; docs/estimation.md, observability gate)",
+    )
     adapt_nis: float = Field(
         0.0,
         ge=0,

@@ -84,6 +84,7 @@ CST_FIELDS: tuple[str, ...] = (
     "gate_v",  # C_Lk learnt only below this |v_J| (filter units) ...
     "gate_x_s",  # ... with the spool within its underlap (filter units) ...
     "gate_nis",  # ... and the NIS/dof average below this
+    "gate_p12",  # ... and while the measured |P1 - P2| is above this [Pa]
     "adapt_nis",  # a sample whose NIS/dof exceeds this is redone with inflated plant noise
     "adapt_max",  # ... scaled by NIS/dof / adapt_nis, at most this (adaptive process noise)
 )
@@ -107,6 +108,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_GATE_V,
     C_GATE_XS,
     C_GATE_NIS,
+    C_GATE_P12,
     C_ADAPT_NIS,
     C_ADAPT_MAX,
 ) = range(len(CST_FIELDS))
@@ -158,6 +160,11 @@ def step_one(
     # observability gate: C_Lk only from the valve's linear region at low speed
     gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
     gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
+    # ... and with a pressure difference that carries a leak flow (C_Lk P12) above the flow
+    # error of the valve's null (docs/estimation.md, observability gate)
+    if cst_k[C_GATE_P12] > 0.0 and mask[j, Z_P1] and mask[j, Z_P2]:
+        p12_m = z[j, Z_P1] * zs_k[Z_P1] - z[j, Z_P2] * zs_k[Z_P2]
+        gate = gate or abs(p12_m) < cst_k[C_GATE_P12]
     c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
     dof = 0.0
     for r in range(mask.shape[1]):
