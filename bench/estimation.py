@@ -7,6 +7,11 @@ NASA ProgPy 1.9's UnscentedKalmanFilter on the same model as a PrognosticsModel)
     .venv/bin/python bench/estimation.py --skip-accuracy # speed only
     .venv/bin/python bench/estimation.py --json out.json # also write the figures as JSON
     .venv/bin/python bench/estimation.py --model C5,WH   # process models side by side
+    .venv/bin/python bench/estimation.py --suite 30 --seed 1 --workers 2  # randomized suite
+
+``--suite N`` runs N seeded random duty cycles instead (issue 10): the whole command line goes
+to ``bench/estimation_suite.py`` (its options: ``--seed --workers --only --fixed-noise --model
+--json``), which prints every figure per duty cycle, then its median and worst case.
 
 The truth is the HF bench with the scenarios' seeded sensor noise. ProgPy is optional
 (``pip install 'progpy==1.9.*'``, the ``bench`` extra); without it that column reads
@@ -365,8 +370,24 @@ def print_speed(sp: dict, fleet: int) -> None:
     )
 
 
-def main() -> int:
+def _suite_requested(argv: list[str]) -> bool:
+    return any(a == "--suite" or a.startswith("--suite=") for a in argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if _suite_requested(argv):  # the randomized suite, and nothing else
+        from bench import estimation_suite
+
+        return estimation_suite.main(argv)
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "--suite",
+        type=int,
+        metavar="N",
+        help="run N seeded random duty cycles instead (bench/estimation_suite.py: --seed, "
+        "--workers, --only, --fixed-noise, --model, --json)",
+    )
     ap.add_argument("--healthy-s", type=float, default=600.0, help="false-alarm run length [s]")
     ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
@@ -379,7 +400,11 @@ def main() -> int:
         default="C5",
         help="process model(s) of the monitor, comma-separated (e.g. C5,WH: side by side)",
     )
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
+    if args.suite is not None:  # "--sui N": argparse's abbreviation of --suite
+        from bench import estimation_suite
+
+        return estimation_suite.main(argv)
     models = tuple(m.strip() for m in args.model.split(",") if m.strip())
     for m in models:
         print(f"baseline {m}: {Baseline.default(m).source}")

@@ -45,6 +45,7 @@ def format_status(daemons: dict) -> str:
         lat = st.get("latency_ms", {})
         lines.append(
             f"{key}: pid {st.get('pid')} up {_fmt(st.get('uptime_s'), '.0f')} s, "
+            f"model {st.get('model') or '-'}, "
             f"{st.get('samples')} samples, {st.get('dropped')} dropped, {st.get('bad')} bad, "
             f"latency p50 {_fmt(lat.get('p50'))} ms p99 {_fmt(lat.get('p99'))} ms"
         )

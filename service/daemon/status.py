@@ -33,8 +33,9 @@ def service_state(log_failure: str | None) -> str:
 
 
 def snapshot(d: Daemon) -> dict[str, Any]:
-    """The daemon's status as plain JSON types: actuators, counters, latency and age
-    percentiles, alarms, liveliness, silent actuators, the log's failure and the state."""
+    """The daemon's status as plain JSON types: the monitor's process model, actuators,
+    counters, latency and age percentiles, alarms, liveliness, silent actuators, the log's
+    failure and the state."""
     now = time.monotonic()
     for attempt in range(5):  # the worker mutates counters meanwhile: retry a torn read
         try:
@@ -59,6 +60,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
             "station": d.station,
             "shard": d.shard,
             "key_expr": d.key_expr,
+            "model": getattr(getattr(d.bank, "config", None), "model", None),
             "pid": os.getpid(),
             "uptime_s": up,
             "log": [str(p) for p in d.logger.paths],

@@ -1,0 +1,66 @@
+"""``bench/estimation.py --suite N`` (issue 10): the randomized suite of
+``bench/estimation_suite.py``, reached from the benchmark's own command line."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FIGURES = {"inc%", "bias%", "psr%", "psr_all%", "nis%", "reinit", "false", "delay"}
+
+
+def _run(script: str, *argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, str(ROOT / "bench" / script), *argv],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+    )
+
+
+def test_estimation_suite_option_delegates_to_the_suite(tmp_path):
+    out = tmp_path / "suite.json"
+    argv = ("--suite", "2", "--seed", "1", "--only", "0,1", "--workers", "1", "--json")
+    r = _run("estimation.py", *argv, str(out))
+    assert r.returncode == 0, r.stderr
+    # the suite's table and summary only: none of the issue-3 accuracy or speed sections
+    assert "suite seed 1, 2 duty cycles" in r.stdout
+    assert "figure   n   median    worst   target" in r.stdout
+    assert "Accuracy (truth" not in r.stdout and "Speed per update" not in r.stdout
+    d = json.loads(out.read_text())
+    rows, s = d["rows"], d["summary"]
+    assert [row["name"] for row in rows] == ["dc1_000", "dc1_001"]
+    for row in rows:
+        assert set(row) >= FIGURES
+        assert 0.0 <= row["nis%"] <= 100.0
+        assert isinstance(row["reinit"], int) and row["reinit"] >= 0
+        assert isinstance(row["false"], int) and row["false"] >= 0
+        for k in ("inc%", "bias%", "psr%", "delay"):
+            assert row[k] is None or math.isfinite(row[k]) or row[k] == math.inf
+    # summary: distribution (median) and worst case over the 2 duty cycles
+    assert s["nis%"]["n"] == 2 and s["reinit"]["n"] == 2 and s["false"]["n"] == 2
+    assert s["nis%"]["worst"] == min(row["nis%"] for row in rows)
+    assert s["reinit"]["worst"] == max(row["reinit"] for row in rows)
+    assert s["false"]["median"] == sum(row["false"] for row in rows) / 2
+    assert "failing" in s and "reinit_healthy" in s
+
+    # one implementation: the same figures as bench/estimation_suite.py itself
+    ref = tmp_path / "ref.json"
+    r2 = _run("estimation_suite.py", *argv, str(ref))
+    assert r2.returncode == 0, r2.stderr
+    d2 = json.loads(ref.read_text())
+    strip = [{k: v for k, v in row.items() if k != "wall_s"} for row in rows]
+    assert strip == [{k: v for k, v in row.items() if k != "wall_s"} for row in d2["rows"]]
+    assert s == d2["summary"]
+
+
+def test_estimation_suite_option_rejects_the_benchmark_options():
+    # with --suite the benchmark does nothing else: its own options are an error there
+    r = _run("estimation.py", "--suite", "1", "--healthy-s", "5")
+    assert r.returncode == 2
+    assert "unrecognized arguments: --healthy-s 5" in r.stderr
