@@ -77,9 +77,12 @@ def _fmt(v, spec: str) -> str:
 
 
 def print_accuracy(rows: list[dict]) -> None:
-    print("\nAccuracy (truth: HF bench + sensor noise; values at the end of each run)")
+    print(
+        '\nAccuracy (truth: HF bench + sensor noise; values at the end of each run; "1s":'
+        " mean over the last second)"
+    )
     hdr = (
-        f"{'scenario':<22}{'model':<6}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'incr err%':>10}{'1s-mean%':>9}"
+        f"{'scenario':<22}{'model':<6}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'C_Lk 1s%':>9}{'incr err%':>10}{'1s-mean%':>9}"
         f"{'P_SR err%':>10}{'P_SR 5% s':>10}{'delay s':>8}{'false':>6}{'NIS in%':>8}"
         f"{'reinit':>7}"
     )
@@ -88,7 +91,8 @@ def print_accuracy(rows: list[dict]) -> None:
     for r in rows:
         print(
             f"{r['scenario']:<22}{r['model']:<6}{r['channels']:<8}{r['duration_s']:>6.0f}"
-            f"{_fmt(r['c_lk_error_pct'], '+10.1f')}{_fmt(r['c_lk_increase_error_pct'], '+10.1f')}"
+            f"{_fmt(r['c_lk_error_pct'], '+10.1f')}{_fmt(r.get('c_lk_error_settled_pct'), '+9.1f')}"
+            f"{_fmt(r['c_lk_increase_error_pct'], '+10.1f')}"
             f"{_fmt(r['c_lk_increase_error_settled_pct'], '+9.1f')}"
             f"{_fmt(r['p_sr_error_pct'], '+10.2f')}{_fmt(r['p_sr_settle_s'], '10.3f')}"
             f"{_fmt(r['detection_delay_s'], '8.3f')}{r['false_alarms']:>6d}"

@@ -6,7 +6,8 @@
     .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --only 3,7   # a few members
 
 Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
-(``service.monitor.MonitorBank``, full channel set, C5) runs with the baseline calibrated on
+(``service.monitor.MonitorBank``, full channel set, the WH process model unless ``--model``,
+with its defaults ``MODEL_DEFAULTS``; ``--set FIELD=VALUE`` overrides a setting) runs with the baseline calibrated on
 the healthy segment (``service.calibration.calibrate``) and, unless ``--fixed-noise``, the
 sensor noise identified there (``service.calibration.identify_noise``). Figures (targets of
 issue 10 in brackets):
@@ -233,7 +234,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--only", default=None, help="comma-separated indices to run")
     ap.add_argument("--fixed-noise", action="store_true", help="default R, not identified")
-    ap.add_argument("--model", default="C5", help="monitor process model (C5, WH, ...)")
+    ap.add_argument(
+        "--model",
+        default="WH",
+        help="monitor process model (WH, the default for duty cycles; C5, ...)",
+    )
     ap.add_argument(
         "--set",
         action="append",

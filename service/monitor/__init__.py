@@ -10,6 +10,7 @@ from service.monitor.config import (
     AlarmConfig,
     Baseline,
     MeasurementNoise,
+    MODEL_DEFAULTS,
     MonitorConfig,
     ProcessNoise,
 )
@@ -33,6 +34,7 @@ __all__ = [
     "ProcessNoise",
     "AlarmConfig",
     "MonitorConfig",
+    "MODEL_DEFAULTS",
     "Baseline",
     "AlarmEvent",
     "MonitorOutput",

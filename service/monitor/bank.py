@@ -197,8 +197,8 @@ class MonitorBank:
             gate_v=c.c_lk_gate_v / self.scale[S_V_J],
             gate_x_s=(self.rp.x_u if self.rp.x_u > 0 else math.inf) / self.scale[S_X_S],
             gate_nis=c.c_lk_gate_nis,
-            gate_p12=c.c_lk_gate_p12 * b.p_sr_rated,
-            adapt_nis=c.adapt_nis,
+            gate_p12=c.resolved("c_lk_gate_p12") * b.p_sr_rated,
+            adapt_nis=c.resolved("adapt_nis"),
             adapt_max=c.adapt_max,
         )
         self._ws = workspace(self.nx, N_CHANNELS)
