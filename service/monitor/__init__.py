@@ -7,10 +7,10 @@ Monitor) and ``kernels`` (the compiled per-sample loops). See docs/estimation.md
 
 from service.monitor.bank import Monitor, MonitorBank
 from service.monitor.config import (
+    MODEL_DEFAULTS,
     AlarmConfig,
     Baseline,
     MeasurementNoise,
-    MODEL_DEFAULTS,
     MonitorConfig,
     ProcessNoise,
 )
