@@ -244,7 +244,8 @@ def main(argv: list[str] | None = None) -> int:
         action="append",
         default=[],
         metavar="FIELD=VALUE",
-        help="override a MonitorConfig field (numbers only), e.g. --set adapt_nis=0",
+        help="override a MonitorConfig field (numbers only), e.g. --set adapt_nis=0 or "
+        "--set process.c_lk=2e-13",
     )
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
     a = ap.parse_args(argv)
@@ -255,9 +256,14 @@ def main(argv: list[str] | None = None) -> int:
         if not sep:
             ap.error(f"--set {kv!r}: expected FIELD=VALUE")
         try:
-            overrides[key] = float(val)
+            num = float(val)
         except ValueError:
             ap.error(f"--set {kv!r}: VALUE must be a number")
+        *path, leaf = key.split(".")  # process.c_lk=2e-13: a field of a nested setting
+        node = overrides
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = num
     from service.monitor import MonitorConfig
 
     try:

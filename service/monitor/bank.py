@@ -200,6 +200,7 @@ class MonitorBank:
             gate_p12=c.resolved("c_lk_gate_p12") * b.p_sr_rated,
             adapt_nis=c.resolved("adapt_nis"),
             adapt_max=c.adapt_max,
+            adapt_reinit=c.adapt_reinit,
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}

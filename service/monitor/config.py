@@ -78,9 +78,9 @@ class AlarmConfig(_Cfg):
     )
 
 
-# settings whose default depends on the process model (docs/estimation.md, "Large duty
-# cycles"): tuned on WH, which follows the chamber transients they act on; the C-types keep
-# the filter of the bundled scenarios
+# settings whose default depends on the process model (tuned on WH, which follows the
+# chamber transients they act on; the C-types keep the filter of the bundled scenarios;
+# docs/estimation.md, "WH on the duty-cycle suite")
 MODEL_DEFAULTS: dict[str, dict[str, float]] = {"WH": {"adapt_nis": 1.5, "c_lk_gate_p12": 0.05}}
 
 
@@ -137,6 +137,12 @@ class MonitorConfig(_Cfg):
     )
     adapt_max: float = Field(
         100.0, ge=1, description="largest process-noise scale of the adaptive step"
+    )
+    adapt_reinit: float = Field(
+        3e3,
+        gt=1,
+        description="with adaptive process noise on, one sample whose NIS/dof exceeds this "
+        "re-initialises (no plant transient explains it: a dead or swapped sensor)",
     )
 
     def resolved(self, name: str) -> float:

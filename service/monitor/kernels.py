@@ -87,6 +87,7 @@ CST_FIELDS: tuple[str, ...] = (
     "gate_p12",  # ... and while the measured |P1 - P2| is above this [Pa]
     "adapt_nis",  # a sample whose NIS/dof exceeds this is redone with inflated plant noise
     "adapt_max",  # ... scaled by NIS/dof / adapt_nis, at most this (adaptive process noise)
+    "adapt_reinit",  # with adaptation on, one sample above this NIS/dof re-initialises
 )
 (
     C_H_MAX,
@@ -111,6 +112,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_GATE_P12,
     C_ADAPT_NIS,
     C_ADAPT_MAX,
+    C_ADAPT_REINIT,
 ) = range(len(CST_FIELDS))
 
 # counter columns: prepare_inputs' cnt (n_act, 2) and block_steps' cnt (n_act, 3)
@@ -123,7 +125,8 @@ UKF_FAILED = 2  # status of service.ukf.ukf_one: no positive definite factor
 # codes of step_one / block_steps
 STEP_OK = 0  # stepped
 STEP_BROKEN = 1  # non-finite or not positive definite: re-initialise
-STEP_DIVERGED = 2  # NIS average above nis_reinit: re-initialise, keep the parameters
+STEP_DIVERGED = 2  # NIS average above nis_reinit, or (adaptive) one sample above adapt_reinit:
+# re-initialise, keep the parameters
 STEP_INIT = 3  # first sample or gap: (re-)initialise from this sample, not stepped
 
 
@@ -170,7 +173,7 @@ def step_one(
     for r in range(mask.shape[1]):
         if mask[j, r]:
             dof += 1.0
-    # adaptive process noise (docs/estimation.md, "Adaptive process noise"): keep the prior,
+    # adaptive process noise (docs/estimation.md, "WH on the duty-cycle suite"): keep the prior,
     # and if this sample's NIS/dof passes adapt_nis, redo the step with the plant states'
     # process noise (not the parameters') scaled by NIS/dof / adapt_nis
     thr = cst_k[C_ADAPT_NIS]
@@ -182,7 +185,10 @@ def step_one(
                 p_sv[r * n + s_] = PP[k, r, s_]
     nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc,
                      c, prm_k, y[j], ws, n)  # fmt: skip
+    capped = False
     if thr > 0.0 and dof > 0.0 and nis_j > thr * dof:
+        # a sample no plant transient explains (a dead or swapped sensor): diverged
+        capped = nis_j > cst_k[C_ADAPT_REINIT] * dof
         g = min(nis_j / (thr * dof), cst_k[C_ADAPT_MAX])
         for r in range(n):
             X[k, r] = x_sv[r]
@@ -221,7 +227,7 @@ def step_one(
     T_LAST[k] = t[j]
     if ok:
         NIS_AVG[k] = avg
-        return STEP_DIVERGED if avg > cst_k[C_NIS_REINIT] else STEP_OK
+        return STEP_DIVERGED if avg > cst_k[C_NIS_REINIT] or capped else STEP_OK
     NIS_AVG[k] = 0.0
     return STEP_BROKEN
 
