@@ -82,8 +82,8 @@ def print_accuracy(rows: list[dict]) -> None:
         " mean over the last second)"
     )
     hdr = (
-        f"{'scenario':<22}{'model':<6}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'C_Lk 1s%':>9}{'incr err%':>10}{'1s-mean%':>9}"
-        f"{'P_SR err%':>10}{'P_SR 5% s':>10}{'delay s':>8}{'false':>6}{'NIS in%':>8}"
+        f"{'scenario':<22}{'model':<6}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'C_Lk 1s%':>9}{'C_Lk rms%':>10}{'incr err%':>10}{'1s-mean%':>9}"
+        f"{'P_SR err%':>10}{'P_SR rms%':>10}{'P_SR 5% s':>10}{'delay s':>8}{'false':>6}{'NIS in%':>8}"
         f"{'reinit':>7}"
     )
     print(hdr)
@@ -92,9 +92,11 @@ def print_accuracy(rows: list[dict]) -> None:
         print(
             f"{r['scenario']:<22}{r['model']:<6}{r['channels']:<8}{r['duration_s']:>6.0f}"
             f"{_fmt(r['c_lk_error_pct'], '+10.1f')}{_fmt(r.get('c_lk_error_settled_pct'), '+9.1f')}"
+            f"{_fmt(r.get('c_lk_rms_pct'), '10.1f')}"
             f"{_fmt(r['c_lk_increase_error_pct'], '+10.1f')}"
             f"{_fmt(r['c_lk_increase_error_settled_pct'], '+9.1f')}"
-            f"{_fmt(r['p_sr_error_pct'], '+10.2f')}{_fmt(r['p_sr_settle_s'], '10.3f')}"
+            f"{_fmt(r['p_sr_error_pct'], '+10.2f')}{_fmt(r.get('p_sr_rms_pct'), '10.2f')}"
+            f"{_fmt(r['p_sr_settle_s'], '10.3f')}"
             f"{_fmt(r['detection_delay_s'], '8.3f')}{r['false_alarms']:>6d}"
             f"{_fmt(r['nis_in_band_pct'], '8.1f')}{r['counters']['reinit']:>7d}"
         )

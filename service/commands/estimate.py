@@ -143,6 +143,11 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
         c_err_settled = 100.0 * (c_mean - c_true) / c_true
         if inc_true >= baseline.c_lk:
             c_settled = 100.0 * ((c_mean - baseline.c_lk) - inc_true) / inc_true
+    # whole-run accuracy: RMS of the relative C_Lk and P_SR errors after the arming time
+    after = tt >= tt[0] + config.arm_s
+    c_true_t, p_true_t = np.interp(tt[after], t, sim.c_lk), np.interp(tt[after], t, sim.p_sr)
+    c_rms = float(100.0 * np.sqrt(np.mean((c_est_all[after] / c_true_t - 1.0) ** 2)))
+    p_rms = float(100.0 * np.sqrt(np.mean((p_est_all[after] / p_true_t - 1.0) ** 2)))
     out = {
         "scenario": scenario.name,
         "model": config.model,
@@ -166,6 +171,8 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
         ),
         "c_lk_increase_error_settled_pct": c_settled,
         "c_lk_error_settled_pct": c_err_settled,
+        "c_lk_rms_pct": c_rms,
+        "p_sr_rms_pct": p_rms,
         "alarms": [{"t": e.t, "kind": e.kind, "state": e.state} for e in events],
         "false_alarms": false_alarms,
         "detection_delay_s": detection_delay,
