@@ -40,7 +40,6 @@ from models.eha_reduced import (
     K_V_F,
     K_X_0,
     K_X_SM,
-    K_X_SS,
     N_PRM,
     ReducedParams,
     _spool_nb,
@@ -76,8 +75,8 @@ H_MAX = 1e-3 / 3.0  # longest RK4 substep [s]: 3 substeps at the 1 ms sample ste
 RK4_REAL_LIMIT = 2.785  # classic RK4 is stable for real lambda h in [-2.785, 0]
 
 # parameter vector: models.eha_reduced's layout, then the WH constants (docs/models.md eq. 2, 3, 5)
-K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV = range(N_PRM, N_PRM + 4)
-N_PRM_WH = N_PRM + 4
+K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R = range(N_PRM, N_PRM + 6)
+N_PRM_WH = N_PRM + 6
 
 
 def k_orifice(rp: ReducedParams) -> float:
@@ -95,6 +94,8 @@ def param_vector(rp: ReducedParams, v_c: float, beta: float) -> NDArray:
     a[K_WH_DP_LAM] = dp_lam
     a[K_WH_ISQ_LAM] = 1.0 / math.sqrt(dp_lam)
     a[K_WH_BV] = beta / v_c
+    a[K_WH_XS_S] = rp.x_ss * (1.0 + rp.skew)  # supply lands' underlap [m]
+    a[K_WH_XS_R] = rp.x_ss * (1.0 - rp.skew)  # return lands' underlap [m]
     return a
 
 
@@ -125,11 +126,11 @@ def _orifice(a, dp, k_o, dp_lam):
 def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, k_o, dp_lam, bv):
     p1, p2 = np.maximum(pt1, rp.p_vap), np.maximum(pt2, rp.p_vap)
     p_s = rp.p_r + p_sr
-    a_p, a_m = rp.x_ss + x_s, rp.x_ss - x_s
-    q1 = _orifice(a_p, p_s - p1, k_o, dp_lam)
-    q2 = _orifice(a_m, p1 - rp.p_r, k_o, dp_lam)
-    q3 = _orifice(a_m, p_s - p2, k_o, dp_lam)
-    q4 = _orifice(a_p, p2 - rp.p_r, k_o, dp_lam)
+    xs_s, xs_r = rp.x_ss * (1.0 + rp.skew), rp.x_ss * (1.0 - rp.skew)
+    q1 = _orifice(xs_s + x_s, p_s - p1, k_o, dp_lam)
+    q2 = _orifice(xs_r - x_s, p1 - rp.p_r, k_o, dp_lam)
+    q3 = _orifice(xs_s - x_s, p_s - p2, k_o, dp_lam)
+    q4 = _orifice(xs_r + x_s, p2 - rp.p_r, k_o, dp_lam)
     p12 = p1 - p2
     q_lk = c_lk * p12
     q_j = rp.area * v_j
@@ -190,17 +191,16 @@ _NB = {"cache": True, "error_model": "numpy"}
 def rhs_nb(x_s, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
     """(dv_J/dt, dp~1/dt, dp~2/dt) of docs/models.md eqs. 1-6 with the jack equation;
     p_s = P_R + P_SR (absolute supply)."""
-    p_vap, p_r, x_ss = prm[K_P_VAP], prm[K_P_R], prm[K_X_SS]
+    p_vap, p_r = prm[K_P_VAP], prm[K_P_R]
+    xs_s, xs_r = prm[K_WH_XS_S], prm[K_WH_XS_R]  # supply and return lands' underlaps
     k_o, dp_lam, isq, bv = prm[K_WH_K], prm[K_WH_DP_LAM], prm[K_WH_ISQ_LAM], prm[K_WH_BV]
     area = prm[K_AREA]
     p1 = max(pt1, p_vap)
     p2 = max(pt2, p_vap)
-    a_p = x_ss + x_s
-    a_m = x_ss - x_s
-    q1 = wh_orifice(a_p, p_s - p1, k_o, dp_lam, isq)
-    q2 = wh_orifice(a_m, p1 - p_r, k_o, dp_lam, isq)
-    q3 = wh_orifice(a_m, p_s - p2, k_o, dp_lam, isq)
-    q4 = wh_orifice(a_p, p2 - p_r, k_o, dp_lam, isq)
+    q1 = wh_orifice(xs_s + x_s, p_s - p1, k_o, dp_lam, isq)
+    q2 = wh_orifice(xs_r - x_s, p1 - p_r, k_o, dp_lam, isq)
+    q3 = wh_orifice(xs_s - x_s, p_s - p2, k_o, dp_lam, isq)
+    q4 = wh_orifice(xs_r + x_s, p2 - p_r, k_o, dp_lam, isq)
     p12 = p1 - p2
     q_lk = c_lk * p12
     q_j = area * v_j

@@ -25,6 +25,7 @@ sensor noise added (seeded).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -99,6 +100,15 @@ def identify_baseline(
     win = max(5, int(round(0.2 / dt)) | 1)  # 0.2 s Savitzky-Golay window, odd
     p1, p2 = np.asarray(meas["p1"], float), np.asarray(meas["p2"], float)
     p_r = float(np.mean(0.5 * (p1 + p2)) - 0.5 * p_sr)
+    skew = 0.0
+    if law == "WH":
+        # WH keeps the return pressure (a line pressure, known) and reads the chamber
+        # pressures' offset from mid-supply as a supply/return underlap skew, which scales
+        # with P_SR as land mismatch does (an offset in P_R would not):
+        # (P_k - P_R) / P_SR = f = k^2 / (1 + k^2), k = (1 + skew) / (1 - skew)
+        f = float(np.clip((p_r + 0.5 * p_sr - nom.p_r) / p_sr, 0.05, 0.95))
+        k = math.sqrt(f / (1.0 - f))
+        skew, p_r = (k - 1.0) / (k + 1.0), nom.p_r
     x_s = savgol_filter(np.asarray(meas["x_s"], float), win, 3)
     p12 = savgol_filter(p1 - p2, win, 3)
     v_j = savgol_filter(np.asarray(meas["x_j"], float), win, 3, deriv=1, delta=dt)
@@ -122,7 +132,7 @@ def identify_baseline(
     x_ss = (2.0 if law == "WH" else 1.0) / a  # WH: the tangent null gain 2 P_SR / x_SS
     return nom.model_copy(
         update={"x_ss": x_ss, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "x_0": x_0,
-                "source": "lsq"}
+                "skew": skew, "source": "lsq"}
     )  # fmt: skip
 
 

@@ -192,6 +192,14 @@ class Baseline(_Cfg):
     x_0: float = Field(
         0.0, description="hydraulic null of the spool [m] (land mismatch), from calibration"
     )
+    skew: float = Field(
+        0.0,
+        gt=-0.5,
+        lt=0.5,
+        description="WH model only: land underlap skew, supply lands x_SS (1 + skew), return "
+        "lands x_SS (1 - skew); sets the chamber pressures at null (P_k - P_R) / P_SR = "
+        "k^2 / (1 + k^2), k = (1 + skew) / (1 - skew); from calibration",
+    )
     v_c: float = Field(7e-5, gt=0, description="WH model only: lumped chamber volume V [m^3]")
     beta: float = Field(1.4e9, gt=0, description="WH model only: lumped bulk modulus [Pa]")
     source: str = "nominal"
