@@ -255,7 +255,8 @@ _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CA
 # WH (models.eha_reduced_wh): its own calibration, ``servowatch calibrate --scenario
 # healthy_noise --model WH`` (x_SS near the geometric underlap: WH has the tangent null gain)
 _DEFAULT_CALIBRATION["WH"] = {
-    "g_pq": 711004641780.7323,
-    "x_ss": 0.00010417653134594477,
-    "p_r": 499618.36005641706,
+    "g_pq": 711005642085.4442,
+    "x_ss": 0.00010417638478131995,
+    "p_r": 500000.0,
+    "skew": -1.908199718612985e-05,
 }
