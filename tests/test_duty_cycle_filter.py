@@ -31,18 +31,55 @@ def _suite_module():
 
 def test_wh_lands_see_the_spool_from_its_hydraulic_null():
     """Compiled and numpy steps agree with x_0 != 0, and x_0 moves the chamber flows."""
-    base = Baseline.default("WH").model_copy(update={"x_0": 2e-6})
+    base = Baseline.default("WH").model_copy(update={"x_0": 2e-6, "skew": 0.02})
     rp = base.reduced_params()
-    assert rp.x_0 == 2e-6
+    assert rp.x_0 == 2e-6 and rp.skew == 0.02
     prm = erw.param_vector(rp, base.v_c, base.beta)
     x = np.array([1.1e-5, 2e-4, 1e-3, 2e-3, 4000.0, 19.5e6, 3e-13, 5e-5, 12.6e6, 8.4e6])
     out = np.empty(10)
     erw.step_nb(x, 2.3e-4, 1e-3, 3, prm, out)
     ref = erw.step(x, 2.3e-4, 1e-3, rp, 3, base.v_c, base.beta)
     np.testing.assert_allclose(out, ref, rtol=1e-11, atol=1e-12)
-    rp0 = rp._replace(x_0=0.0)
-    ref0 = erw.step(x, 2.3e-4, 1e-3, rp0, 3, base.v_c, base.beta)
-    assert abs(ref[8] - ref0[8]) > 1e4  # 2 um of null shifts chamber 1 by tens of kPa in 1 ms
+    for rp0 in (rp._replace(x_0=0.0), rp._replace(skew=0.0)):
+        ref0 = erw.step(x, 2.3e-4, 1e-3, rp0, 3, base.v_c, base.beta)
+        assert abs(ref[8] - ref0[8]) > 1e4  # both move chamber 1 by tens of kPa in 1 ms
+
+
+def test_land_skew_sets_the_chamber_pressures_at_null():
+    """At null, with the jack held, each chamber sits at P_R + f P_SR, f = k^2 / (1 + k^2),
+    k = (1 + skew) / (1 - skew) (docs/estimation.md, "WH on the duty-cycle suite"): run the
+    numpy model to rest from mid-supply and compare, at two supplies (f does not move)."""
+    base = Baseline.default("WH").model_copy(update={"skew": 0.03, "c_lk": 0.0})
+    rp = base.reduced_params()
+    k = 1.03 / 0.97
+    f = k * k / (1 + k * k)
+    for p_sr in (20e6, 12e6):
+        mid = rp.p_r + 0.5 * p_sr
+        x = np.array([0.0, 0.0, 0.0, 0.0, 0.0, p_sr, 0.0, 0.0, mid, mid])
+        for _ in range(200):
+            x = erw.step(x, 0.0, 1e-3, rp._replace(mass=1e9), 3, base.v_c, base.beta)
+            x[2:4] = 0.0  # jack held
+        assert (x[8] - rp.p_r) / p_sr == pytest.approx(f, rel=2e-3)
+        assert (x[9] - rp.p_r) / p_sr == pytest.approx(f, rel=2e-3)
+
+
+def test_p_sr_after_a_drop_on_a_mismatched_plant():
+    """Suite member 11 (seed 1): lands 88-92 um, supply drop with a 2.9x leak step. With the
+    chamber-pressure offset read as a return-pressure offset, WH's P_SR read 2.0 % high over
+    the last second and the C_Lk increase 22 % high; as a land skew, within 0.5 % and 10 %."""
+    dc = duty_cycle(1, 11)
+    _, mc = measured_run(dc.calibration)
+    cfg = MonitorConfig(model="WH").model_copy(update={"noise": identify_noise(mc)})
+    base = calibrate(mc, config=cfg)
+    assert base.p_r == Baseline.nominal("WH").p_r and base.skew != 0.0
+    sim, meas = measured_run(dc.test)
+    rows = bank_rows(meas, cfg, base)
+    last = rows.t >= rows.t[-1] - 1.0
+    p_sr = rows.est[last, EST_KEYS.index("p_sr")].mean()
+    assert abs(p_sr / sim.p_sr[-1] - 1.0) < 0.005
+    inc_true = sim.c_lk[-1] - sim.c_lk[0]
+    inc = rows.est[last, C_LK].mean() - base.c_lk
+    assert abs(inc / inc_true - 1.0) < 0.10
 
 
 def test_model_defaults_resolve_per_model():
