@@ -132,9 +132,12 @@ def test_run_from_toml_on_the_wh_model_over_zenoh(tmp_path, healthy):
     try:
         st = wait(lambda st: True, "the daemon's status queryable")
         assert st["model"] == "WH"
-        pub = session.declare_publisher(KEY)
+        # BLOCK, as the virtual actuator publishes: the default (drop) lets a burst of puts
+        # overflow the transmit queue on a loaded machine (600 of 3000 samples once)
+        pub = session.declare_publisher(KEY, congestion_control=zenoh.CongestionControl.BLOCK)
         for j in range(0, len(healthy), 100):
             pub.put(m.encode_meas(healthy[j : j + 100]))
+            time.sleep(0.002)
         n = len(healthy)
         st = wait(
             lambda st: st["actuators"].get(KEY, {}).get("samples") == n and st["queue"] == 0,
