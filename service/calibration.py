@@ -236,14 +236,16 @@ def calibrate(
         # null refinement: a null error dx_0 is a flow error K_x dx_0, read as a leak
         # K_x dx_0 / P12; on a run that holds P12 at two levels (x_0 fitted) the monitor's
         # own C_Lk bias against 1/P12 gives dx_0 (slope) and the 1/G_PQ bias (intercept)
+        # (WH only: on C5 it halved the suite's median C_Lk increase error but one member's
+        # filter then diverged, 48 re-initialisations; docs/estimation.md)
         x_0 = base.x_0
-        if base.x_0 != 0.0:
+        if base.x_0 != 0.0 and law == "WH":
             p12_s = np.interp(rows.t[sel], t, p12_m)
             use = np.abs(p12_s) > NULL_FIT_SPREAD * 0.5 * base.p_sr_rated
             if use.sum() > 100:
                 inv = 1.0 / p12_s[use]
                 slope, icpt = np.polyfit(inv, c_all[use] - base.c_lk, 1)
-                k_x = (2.0 if law == "WH" else 1.0) * base.p_sr_rated / (base.x_ss * base.g_pq)
+                k_x = 2.0 * base.p_sr_rated / (base.x_ss * base.g_pq)  # WH null flow gain
                 x_0 = base.x_0 + float(slope) / k_x
                 c_est = base.c_lk + float(icpt)
         inv_g = 1.0 / base.g_pq + (c_est - base.c_lk)
