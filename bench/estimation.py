@@ -79,7 +79,7 @@ def _fmt(v, spec: str) -> str:
 def print_accuracy(rows: list[dict]) -> None:
     print(
         '\nAccuracy (truth: HF bench + sensor noise; values at the end of each run; "1s":'
-        " mean over the last second)"
+        ' mean over the last second; "rms": over the run after the arming time)'
     )
     hdr = (
         f"{'scenario':<22}{'model':<6}{'ch':<8}{'dur s':>6}{'C_Lk err%':>10}{'C_Lk 1s%':>9}{'C_Lk rms%':>10}{'incr err%':>10}{'1s-mean%':>9}"
