@@ -181,7 +181,7 @@ class MonitorBank:
             h_max=h_max,
             c_lk_max=c.c_lk_max / self.scale[S_C_LK],
             p_vap=self.rp.p_vap / self.scale[S_P_SR],
-            p_sr_max=b.p_sr_rated / self.scale[S_P_SR],
+            p_sr_max=c.resolved("p_sr_max_ratio") * b.p_sr_rated / self.scale[S_P_SR],
             nis_tau=c.nis_tau_s,
             nis_reinit=c.nis_reinit,
             c_lk0=b.c_lk,

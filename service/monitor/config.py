@@ -81,7 +81,10 @@ class AlarmConfig(_Cfg):
 # settings whose default depends on the process model (tuned on WH, which follows the
 # chamber transients they act on; the C-types keep the filter of the bundled scenarios;
 # docs/estimation.md, "WH on the duty-cycle suite")
-MODEL_DEFAULTS: dict[str, dict[str, float]] = {"WH": {"adapt_nis": 1.5, "c_lk_gate_p12": 0.05}}
+MODEL_DEFAULTS: dict[str, dict[str, float]] = {
+    "WH": {"adapt_nis": 1.5, "c_lk_gate_p12": 0.05, "p_sr_max_ratio": 1.05}
+}
+_RESOLVED_FALLBACK: dict[str, float] = {"p_sr_max_ratio": 1.0}  # the rest: 0 (off)
 
 
 class MonitorConfig(_Cfg):
@@ -128,6 +131,13 @@ class MonitorConfig(_Cfg):
         "(0 = off; None = the model's default, MODEL_DEFAULTS; docs/estimation.md, "
         "observability gate)",
     )
+    p_sr_max_ratio: float | None = Field(
+        None,
+        ge=1,
+        le=2,
+        description="upper clip of the P_SR estimate as a share of rated (None = the model's "
+        "default, MODEL_DEFAULTS, else 1: a clip at rated biases an uncertain estimate low)",
+    )
     adapt_nis: float | None = Field(
         None,
         ge=0,
@@ -148,7 +158,9 @@ class MonitorConfig(_Cfg):
     def resolved(self, name: str) -> float:
         """``name`` (c_lk_gate_p12 or adapt_nis) as set, else the model's default."""
         v = getattr(self, name)
-        return MODEL_DEFAULTS.get(self.model, {}).get(name, 0.0) if v is None else float(v)
+        if v is not None:
+            return float(v)
+        return MODEL_DEFAULTS.get(self.model, {}).get(name, _RESOLVED_FALLBACK.get(name, 0.0))
 
     reduced_param_q: float = Field(
         0.01,
