@@ -47,9 +47,8 @@ def run_one(
     dc: DutyCycle, fixed_noise: bool = False, model: str = "C5", overrides: dict | None = None
 ) -> dict:
     """Calibrate on the healthy segment, run the monitor on the test scenario, score it."""
-    from scipy.stats import chi2
-
     from service.calibration import calibrate, identify_noise, measured_run
+    from service.commands.estimate import count_false_alarms, nis_in_band_pct
     from service.messages import CHANNELS
     from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, MonitorBank, MonitorConfig
 
@@ -117,21 +116,8 @@ def run_one(
         raised = [e.t for e in events if e.kind == "leak" and e.state == "raised" and e.t >= tc - 1]
         delay = (raised[0] - tc) if raised else float("inf")
     out["delay"] = delay
-    false = 0
-    for e in events:
-        if e.state != "raised":
-            continue
-        j = min(int(np.searchsorted(t, e.t)), len(t) - 1)
-        if e.kind == "leak" and lr_true[j] < acfg.leak_clear:
-            false += 1
-        if e.kind == "supply" and p_true[j] / p0 > acfg.supply_clear:
-            false += 1
-    out["false"] = false
-    dof = res["nis_dof"]
-    sel = (t >= t[0] + cfg.arm_s) & (dof > 0)
-    lo, hi = chi2.ppf(0.025, dof[sel]), chi2.ppf(0.975, dof[sel])
-    nis = res["nis"][sel]
-    out["nis%"] = float(100.0 * np.mean((nis >= lo) & (nis <= hi)))
+    out["false"] = count_false_alarms(events, t, lr_true, p_true / p0, acfg)
+    out["nis%"] = nis_in_band_pct(t, res["nis"], res["nis_dof"], cfg.arm_s)
     out["reinit"] = int(bank.counters_of("a")["reinit"])
     out["reinit_t"] = [round(e.t, 3) for e in events if e.kind == "reinit"]
     out["alarms"] = [(round(e.t, 3), e.kind, e.state) for e in events if e.kind != "reinit"]

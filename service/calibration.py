@@ -85,6 +85,11 @@ def measured_run(
     return sim, meas
 
 
+def _smoothing_window(t: NDArray) -> int:
+    """Samples in the 0.2 s Savitzky-Golay window of the calibration (odd, at least 5)."""
+    return max(5, int(round(0.2 / float(np.median(np.diff(t))))) | 1)
+
+
 NULL_FIT_SPREAD = 0.1  # fit x_0 when P12 at rest spans more than this share of P_SR (5-95 %)
 NULL_FIT_V = 0.5e-3  # "at rest": smoothed |v_J| below this [m/s]
 
@@ -97,7 +102,7 @@ def identify_baseline(
     p_sr = float(p_sr_rated or nom.p_sr_rated)
     t = np.asarray(meas["t"], float)
     dt = float(np.median(np.diff(t)))
-    win = max(5, int(round(0.2 / dt)) | 1)  # 0.2 s Savitzky-Golay window, odd
+    win = _smoothing_window(t)
     p1, p2 = np.asarray(meas["p1"], float), np.asarray(meas["p2"], float)
     p_r = float(np.mean(0.5 * (p1 + p2)) - 0.5 * p_sr)
     skew = 0.0
@@ -225,8 +230,9 @@ def calibrate(
     cfg = cfg.model_copy(update={"model": law})
     base = identify_baseline(meas, law)
     t = np.asarray(meas["t"], float)
-    win = max(5, int(round(0.2 / float(np.median(np.diff(t))))) | 1)  # 0.2 s, odd
-    p12_m = savgol_filter(np.asarray(meas["p1"], float) - np.asarray(meas["p2"], float), win, 2)
+    p12_m = savgol_filter(
+        np.asarray(meas["p1"], float) - np.asarray(meas["p2"], float), _smoothing_window(t), 2
+    )
     for _ in range(passes):
         rows = bank_rows(meas, cfg, base)
         sel = rows.t >= t[0] + settle_s

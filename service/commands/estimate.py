@@ -43,6 +43,32 @@ def _first_cross(t, cond) -> float | None:
     return float(t[k[0]]) if len(k) else None
 
 
+def count_false_alarms(events, t, leak_ratio, supply_ratio, alarms) -> int:
+    """Alarms raised while the truth is on the healthy side of the clear level: a leak alarm
+    with the true C_Lk / baseline below ``leak_clear``, a supply alarm with the true
+    P_SR / rated above ``supply_clear``. ``leak_ratio``, ``supply_ratio`` on the grid ``t``."""
+    false = 0
+    for e in events:
+        if e.state != "raised":
+            continue
+        j = min(int(np.searchsorted(t, e.t)), len(t) - 1)
+        if e.kind == "leak" and leak_ratio[j] < alarms.leak_clear:
+            false += 1
+        if e.kind == "supply" and supply_ratio[j] > alarms.supply_clear:
+            false += 1
+    return false
+
+
+def nis_in_band_pct(t, nis, dof, arm_s: float) -> float | None:
+    """Share [%] of the samples after the arming time whose NIS lies in its two-sided 95 %
+    chi-square band (None when there is none)."""
+    sel = (t >= t[0] + arm_s) & (dof > 0)
+    if not sel.any():
+        return None
+    lo, hi = chi2.ppf(0.025, dof[sel]), chi2.ppf(0.975, dof[sel])
+    return float(100.0 * np.mean((nis[sel] >= lo) & (nis[sel] <= hi)))
+
+
 def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_outputs=False) -> dict:
     """Run truth + monitor on ``scenario``; the summary dict of issue 3 item 6 (plus extras).
 
@@ -95,15 +121,7 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
     acfg = config.alarms
     true_leak = sim.c_lk / baseline.c_lk
     true_sup = sim.p_sr / baseline.p_sr_rated
-    false_alarms = 0
-    for e in events:
-        if e.state != "raised":
-            continue
-        j = min(int(np.searchsorted(t, e.t)), len(t) - 1)
-        if e.kind == "leak" and true_leak[j] < acfg.leak_clear:
-            false_alarms += 1
-        if e.kind == "supply" and true_sup[j] > acfg.supply_clear:
-            false_alarms += 1
+    false_alarms = count_false_alarms(events, t, true_leak, true_sup, acfg)
     delays: dict[str, float | None] = {}
     for kind, cond in (
         ("leak", true_leak >= acfg.leak_raise),
@@ -116,10 +134,7 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
         delays[kind] = (raised[0] - tc) if raised else None
     finite = [d for d in delays.values() if d is not None]
     detection_delay = max(finite) if finite and len(finite) == len(delays) else None
-    # NIS inside its two-sided 95 % chi-square band (after the alarm arming time)
-    sel = (tt >= tt[0] + config.arm_s) & (dof > 0)
-    lo, hi = chi2.ppf(0.025, dof[sel]), chi2.ppf(0.975, dof[sel])
-    in_band = float(100.0 * np.mean((nis[sel] >= lo) & (nis[sel] <= hi))) if sel.any() else None
+    in_band = nis_in_band_pct(tt, nis, dof, config.arm_s)
     # supply tracking: time after the last change of the true P_SR from which the estimate
     # stays within 5 % of the truth
     p_settle = None

@@ -156,7 +156,8 @@ class MonitorConfig(_Cfg):
     )
 
     def resolved(self, name: str) -> float:
-        """``name`` (c_lk_gate_p12 or adapt_nis) as set, else the model's default."""
+        """``name`` (c_lk_gate_p12, adapt_nis or p_sr_max_ratio) as set, else the model's
+        default (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1)."""
         v = getattr(self, name)
         if v is not None:
             return float(v)
