@@ -43,34 +43,42 @@ from models.dutycycle import DutyCycle, duty_cycle  # noqa: E402
 TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "reinit": 0}
 
 
-def run_one(
-    dc: DutyCycle, fixed_noise: bool = False, model: str = "C5", overrides: dict | None = None
-) -> dict:
-    """Calibrate on the healthy segment, run the monitor on the test scenario, score it."""
-    from service.calibration import calibrate, identify_noise, measured_run
-    from service.commands.estimate import count_false_alarms, nis_in_band_pct
-    from service.messages import CHANNELS
-    from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, MonitorBank, MonitorConfig
+def monitor_run(
+    dc: DutyCycle,
+    fixed_noise: bool = False,
+    model: str = "WH",
+    overrides: dict | None = None,
+    supply_sensor: bool = False,
+):
+    """Calibrate on the healthy segment, run one monitor on the test scenario: (truth, output
+    rows, baseline, config, bank). ``supply_sensor``: the plant also measures P_SR."""
+    from service.calibration import calibrate, identify_noise, meas_channels, measured_run
+    from service.monitor import MonitorBank, MonitorConfig
 
-    w0 = time.perf_counter()
-    _, meas_c = measured_run(dc.calibration)
+    _, meas_c = measured_run(dc.calibration, with_supply_sensor=supply_sensor)
     cfg = MonitorConfig(model=model, **(overrides or {}))
     if not fixed_noise:
         cfg = cfg.model_copy(update={"noise": identify_noise(meas_c)})
     base = calibrate(meas_c, config=cfg)
-    sim, meas = measured_run(dc.test)
+    sim, meas = measured_run(dc.test, with_supply_sensor=supply_sensor)
     bank = MonitorBank(cfg, base)
-    k = bank.index_of("a")
-    n = len(meas["t"])
-    ch = np.full((n, len(CHANNELS)), np.nan)
-    for c, name in enumerate(CHANNELS):
-        if name in meas:
-            ch[:, c] = meas[name]
-    rows = bank.update_arrays(np.full(n, k), np.asarray(meas["t"]), ch)
+    t = np.asarray(meas["t"])
+    rows = bank.update_arrays(np.full(len(t), bank.index_of("a")), t, meas_channels(meas))
+    return sim, rows, base, cfg, bank
+
+
+def run_one(
+    dc: DutyCycle, fixed_noise: bool = False, model: str = "C5", overrides: dict | None = None
+) -> dict:
+    """Calibrate on the healthy segment, run the monitor on the test scenario, score it."""
+    from service.commands.estimate import count_false_alarms, nis_in_band_pct
+    from service.monitor import EST_KEYS, RES_KEYS
+
+    w0 = time.perf_counter()
+    sim, rows, base, cfg, bank = monitor_run(dc, fixed_noise, model, overrides)
     t = rows.t
     est = {key: rows.est[:, j] for j, key in enumerate(EST_KEYS)}
     res = {key: rows.res[:, j] for j, key in enumerate(RES_KEYS)}
-    _ = HEALTH_KEYS
     c_true = np.interp(t, sim.t, sim.c_lk)
     p_true = np.interp(t, sim.t, sim.p_sr)
     c0, p0 = float(sim.c_lk[0]), float(sim.p_sr[0])
@@ -213,6 +221,32 @@ def print_summary(s: dict) -> None:
         print(f"  {name}: {', '.join(bad)}")
 
 
+def parse_overrides(ap: argparse.ArgumentParser, model: str, items: list[str]) -> dict:
+    """``--set FIELD=VALUE`` items as MonitorConfig overrides (``process.c_lk=2e-13``: a field
+    of a nested setting), checked against the config; ``ap.error`` names a bad item."""
+    from service.monitor import MonitorConfig
+
+    overrides: dict = {}
+    for kv in items:
+        key, sep, val = kv.partition("=")
+        if not sep:
+            ap.error(f"--set {kv!r}: expected FIELD=VALUE")
+        try:
+            num = float(val)
+        except ValueError:
+            ap.error(f"--set {kv!r}: VALUE must be a number")
+        *path, leaf = key.split(".")
+        node = overrides
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = num
+    try:
+        MonitorConfig(model=model, **overrides)
+    except ValueError as e:
+        ap.error(f"--model/--set: {e}")
+    return overrides
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--suite", type=int, default=30, help="number of duty cycles")
@@ -236,26 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
     a = ap.parse_args(argv)
     idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
-    overrides = {}
-    for kv in a.set:
-        key, sep, val = kv.partition("=")
-        if not sep:
-            ap.error(f"--set {kv!r}: expected FIELD=VALUE")
-        try:
-            num = float(val)
-        except ValueError:
-            ap.error(f"--set {kv!r}: VALUE must be a number")
-        *path, leaf = key.split(".")  # process.c_lk=2e-13: a field of a nested setting
-        node = overrides
-        for part in path:
-            node = node.setdefault(part, {})
-        node[leaf] = num
-    from service.monitor import MonitorConfig
-
-    try:
-        MonitorConfig(model=a.model, **overrides)
-    except ValueError as e:
-        ap.error(f"--model/--set: {e}")
+    overrides = parse_overrides(ap, a.model, a.set)
     jobs = [(a.seed, i, a.fixed_noise, a.model, overrides) for i in idx]
     w0 = time.perf_counter()
     if a.workers > 1:
