@@ -60,7 +60,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
             "station": d.station,
             "shard": d.shard,
             "key_expr": d.key_expr,
-            "model": getattr(getattr(d.bank, "config", None), "model", None),
+            "model": d.bank.config.model,  # the model the monitors actually run
             "pid": os.getpid(),
             "uptime_s": up,
             "log": [str(p) for p in d.logger.paths],
