@@ -46,7 +46,7 @@ SCENARIOS_WH = ("est_overload", "est_large_steps", "est_load_reversal")
 
 # -- accuracy ------------------------------------------------------------------------------
 def _one(args) -> dict:
-    model, name, channels, duration, *leak = args
+    model, overrides, name, channels, duration, *leak = args
     from models.scenario import Event, Profile
     from service.commands.estimate import evaluate
 
@@ -56,19 +56,24 @@ def _one(args) -> dict:
     if leak:  # a leak step to leak[0] at 1.5 s (e.g. 2x nominal = an increase of 1x)
         prof = Profile(initial=2e-13, events=[Event(t=1.5, value=leak[0])])
         sc = sc.model_copy(update={"leak": prof, "name": f"{name}_{leak[0] / 2e-13:g}x"})
-    r = evaluate(sc, MonitorConfig(model=model, channels=channels))
+    r = evaluate(sc, MonitorConfig(model=model, channels=channels, **overrides))
     return {k: v for k, v in r.items() if not k.startswith("_")}
 
 
-def accuracy(healthy_s: float, workers: int, models: tuple[str, ...] = ("C5",)) -> list[dict]:
+def accuracy(
+    healthy_s: float,
+    workers: int,
+    models: tuple[str, ...] = ("C5",),
+    overrides: dict | None = None,
+) -> list[dict]:
     """Every scenario for every model; the rows of one scenario are adjacent (models side by
-    side)."""
+    side). ``overrides``: MonitorConfig fields set for every model."""
     jobs = [(n, ch, None) for ch in ("full", "reduced") for n in SCENARIOS]
     jobs.insert(0, ("healthy_noise", "full", healthy_s))
     jobs.insert(4, ("leak_step", "full", None, 4e-13))  # the smallest target: +1x nominal
     jobs[7:7] = [(n, "full", None) for n in SCENARIOS_WH]
     with ProcessPoolExecutor(max_workers=workers) as ex:
-        return list(ex.map(_one, [(m, *j) for j in jobs for m in models]))
+        return list(ex.map(_one, [(m, overrides or {}, *j) for j in jobs for m in models]))
 
 
 def _fmt(v, spec: str) -> str:
@@ -406,12 +411,25 @@ def main(argv: list[str] | None = None) -> int:
         default="C5",
         help="process model(s) of the monitor, comma-separated (e.g. C5,WH: side by side)",
     )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="override a MonitorConfig field for every model (numbers only), e.g. --set "
+        "process.p_sr=5e5",
+    )
     args = ap.parse_args(argv)
     if args.suite is not None:  # "--sui N": argparse's abbreviation of --suite
         from bench import estimation_suite
 
         return estimation_suite.main(argv)
     models = tuple(m.strip() for m in args.model.split(",") if m.strip())
+    from bench.estimation_suite import parse_overrides
+
+    overrides = {}
+    for m in models:
+        overrides = parse_overrides(ap, m, args.set)
     for m in models:
         print(f"baseline {m}: {Baseline.default(m).source}")
     out: dict = {}
@@ -424,7 +442,7 @@ def main(argv: list[str] | None = None) -> int:
             print_speed_models(out["speed_models"], args.fleet)
     if not args.skip_accuracy:
         t0 = time.perf_counter()
-        out["accuracy"] = accuracy(args.healthy_s, args.workers, models)
+        out["accuracy"] = accuracy(args.healthy_s, args.workers, models, overrides)
         print_accuracy(out["accuracy"])
         print(f"(accuracy runs: {time.perf_counter() - t0:.0f} s wall)")
     if args.json:

@@ -340,8 +340,17 @@ def _ukf_core(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, p
         _mean(sig_f, Wm, xm, K, n)
         _dev(sig_f, xm, Wc, D, Dw, K, n)
         _cov(Dw, D, Pb, K, n)
-        for r in range(n):
-            Pb[r, r] += q[r] * dt
+        if wh:  # q[8], q[9]: the chambers' differential and common modes (p~1 -+ p~2)/sqrt 2
+            for r in range(_N):
+                Pb[r, r] += q[r] * dt
+            v, cv = 0.5 * (q[_N] + q[_N + 1]) * dt, 0.5 * (q[_N + 1] - q[_N]) * dt
+            Pb[_N, _N] += v
+            Pb[_N + 1, _N + 1] += v
+            Pb[_N, _N + 1] += cv
+            Pb[_N + 1, _N] += cv
+        else:
+            for r in range(n):
+                Pb[r, r] += q[r] * dt
         # redraw the sigma points from the prior (as filterpy's predict does)
         st = max(st, _sigma_points_n(xm, Pb, c, L, sig_f, n))
     if st != 2:

@@ -143,7 +143,10 @@ class MonitorBank:
                               v_j=1e-2, f_r=1e3, p_sr=1e6, c_lk=1e-13, i_b=1e-4,
                               **wh_sc)  # fmt: skip
         pn = c.process
-        q_wh = {"pt1": pn.p_ch, "pt2": pn.p_ch} if self.wh else {}
+        # WH: the chamber columns of q hold the differential and the common mode's random
+        # walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (service.ukf; equal: uncorrelated)
+        p_cm = pn.p_ch if pn.p_ch_common is None else pn.p_ch_common
+        q_wh = {"pt1": pn.p_ch, "pt2": p_cm} if self.wh else {}
         q = _by_name(names, **{n: getattr(pn, n) for n in er.STATE_NAMES}, **q_wh)
         if c.channels == "reduced":  # parameters not observable from x_J alone
             q[[S_P_SR, S_C_LK, S_I_B]] *= c.reduced_param_q
@@ -201,6 +204,7 @@ class MonitorBank:
             adapt_nis=c.resolved("adapt_nis"),
             adapt_max=c.adapt_max,
             adapt_reinit=c.adapt_reinit,
+            adapt_p_sr=c.resolved("adapt_p_sr"),
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}

@@ -58,7 +58,16 @@ class ProcessNoise(_Cfg):
     c_lk: float = Field(1e-13, gt=0, description="leakage [m^3/s/Pa/sqrt(s)]")
     i_b: float = Field(2e-6, gt=0, description="servovalve null bias [A/sqrt(s)]")
     p_ch: float = Field(
-        1e6, gt=0, description="WH model only: chamber states p~1, p~2 [Pa/sqrt(s)]"
+        1e6,
+        gt=0,
+        description="WH model only: chamber states p~1, p~2 [Pa/sqrt(s)]; with p_ch_common "
+        "set, the differential mode (p~1 - p~2)/sqrt(2)",
+    )
+    p_ch_common: float | None = Field(
+        None,
+        gt=0,
+        description="WH model only: common mode (p~1 + p~2)/sqrt(2) of the chamber states "
+        "[Pa/sqrt(s)] (None: p_ch, the chambers' walks uncorrelated)",
     )
 
 
@@ -147,6 +156,14 @@ class MonitorConfig(_Cfg):
     )
     adapt_max: float = Field(
         100.0, ge=1, description="largest process-noise scale of the adaptive step"
+    )
+    adapt_p_sr: float | None = Field(
+        None,
+        ge=0,
+        description="> 0: the adaptive step scales the P_SR random walk too, and a sample whose "
+        "P_SR channel has a normalised innovation squared above this is redone with P_SR's "
+        "random walk scaled by it / adapt_p_sr (a supply drop the model did not expect); "
+        "0 = off; None = the model's default, MODEL_DEFAULTS",
     )
     adapt_reinit: float = Field(
         3e3,

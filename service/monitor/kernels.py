@@ -88,6 +88,7 @@ CST_FIELDS: tuple[str, ...] = (
     "adapt_nis",  # a sample whose NIS/dof exceeds this is redone with inflated plant noise
     "adapt_max",  # ... scaled by NIS/dof / adapt_nis, at most this (adaptive process noise)
     "adapt_reinit",  # with adaptation on, one sample above this NIS/dof re-initialises
+    "adapt_p_sr",  # 1: the adaptive step scales P_SR's random walk too (0: plant states only)
 )
 (
     C_H_MAX,
@@ -113,6 +114,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_ADAPT_NIS,
     C_ADAPT_MAX,
     C_ADAPT_REINIT,
+    C_ADAPT_P_SR,
 ) = range(len(CST_FIELDS))
 
 # counter columns: prepare_inputs' cnt (n_act, 2) and block_steps' cnt (n_act, 3)
@@ -186,15 +188,21 @@ def step_one(
     nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc,
                      c, prm_k, y[j], ws, n)  # fmt: skip
     capped = False
+    g = 1.0
     if thr > 0.0 and dof > 0.0 and nis_j > thr * dof:
         # a sample no plant transient explains (a dead or swapped sensor): diverged
         capped = nis_j > cst_k[C_ADAPT_REINIT] * dof
         g = min(nis_j / (thr * dof), cst_k[C_ADAPT_MAX])
+    g_p = g ** cst_k[C_ADAPT_P_SR]  # P_SR joins the adaptive step (exponent 0: held)
+    if g > 1.0:
         for r in range(n):
             X[k, r] = x_sv[r]
             for s_ in range(n):
                 PP[k, r, s_] = p_sv[r * n + s_]
-            q_sv[r] = q_k[r] * (1.0 if S_P_SR <= r <= S_I_B else g)
+            if r == S_P_SR:
+                q_sv[r] = q_k[r] * g_p
+            else:
+                q_sv[r] = q_k[r] * (1.0 if S_P_SR <= r <= S_I_B else g)
         nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_sv, R_k, sc_k, zs_k,
                          Wm, Wc, c, prm_k, y[j], ws, n)  # fmt: skip
     if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
