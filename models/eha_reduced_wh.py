@@ -9,14 +9,17 @@ States, in this order (SI)::
 The spool is the exact zero-order-hold step of ``models.eha_reduced``; x_J, v_J, p~1 and p~2
 advance by classic RK4 with the spool held over each substep. The chamber flows are the
 four-land orifice law of docs/models.md eqs. 1-4 (K_o = sqrt(2 P_SR,rated) / (x_SS G_PQ)),
-the chambers eq. 5 with the lumped beta / V, the pressures P_k = max(p~_k, P_vap) (eq. 6),
+the chambers eq. 5 with the bulk modulus beta and the volumes V1,2 = V0 +- A x_J (eq. 5b: the
+jack's position sets each chamber's stiffness; V0 the lumped mid-stroke volume), the pressures P_k = max(p~_k, P_vap) (eq. 6),
 the jack m dv_J/dt = A (P1 - P2) - F_R - c_v v_J - F_d tanh(v_J / v_f). The measurement is
 direct: x_S, x_J, P1 = max(p~1, P_vap), P2 = max(p~2, P_vap), P_SR.
 
 Stiff modes (docs/models.md section 7; ``stiff_modes``): the chamber mode
 beta/V (2 K_o (x_SS + x_SM) / sqrt(dp_lam) + C_Lk) and the hydraulic mode
 w_h = sqrt(2 beta A^2 / (V m)) (eq. 10). RK4 is stable for |lambda h| up to 2.78 on the real
-axis, so the longest substep is ``H_MAX`` = 1/3 ms: 3 substeps at the 1 ms sample step.
+axis, so the longest substep is ``H_MAX`` = 1/3 ms at mid stroke: 3 substeps at the 1 ms
+sample step. Off mid stroke the smaller chamber is stiffer by V0 / V_min, and ``n_substeps``
+shortens the substep in that ratio.
 """
 
 from __future__ import annotations
@@ -59,6 +62,10 @@ __all__ = [
     "N_PRM_WH",
     "param_vector",
     "stiff_modes",
+    "chamber_volumes",
+    "n_substeps",
+    "n_substeps_nb",
+    "V_MIN_FRACTION",
     "step",
     "measure",
     "step_core_nb",
@@ -71,12 +78,13 @@ STATE_NAMES: tuple[str, ...] = (*er.STATE_NAMES, "pt1", "pt2")
 N_STATES = len(STATE_NAMES)
 IX = {n: k for k, n in enumerate(STATE_NAMES)}
 S_PT1, S_PT2 = IX["pt1"], IX["pt2"]
-H_MAX = 1e-3 / 3.0  # longest RK4 substep [s]: 3 substeps at the 1 ms sample step
+H_MAX = 1e-3 / 3.0  # longest RK4 substep [s] at mid stroke: 3 substeps at the 1 ms sample step
 RK4_REAL_LIMIT = 2.785  # classic RK4 is stable for real lambda h in [-2.785, 0]
+V_MIN_FRACTION = 0.25  # chamber volume floor / V0 (a guard past the stroke: V_dead / V0 = 0.29)
 
 # parameter vector: models.eha_reduced's layout, then the WH constants (docs/models.md eq. 2, 3, 5)
-K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R = range(N_PRM, N_PRM + 6)
-N_PRM_WH = N_PRM + 6
+K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R, K_WH_V0 = range(N_PRM, N_PRM + 7)
+N_PRM_WH = N_PRM + 7
 
 
 def k_orifice(rp: ReducedParams) -> float:
@@ -96,6 +104,7 @@ def param_vector(rp: ReducedParams, v_c: float, beta: float) -> NDArray:
     a[K_WH_BV] = beta / v_c
     a[K_WH_XS_S] = rp.x_ss * (1.0 + rp.skew)  # supply lands' underlap [m]
     a[K_WH_XS_R] = rp.x_ss * (1.0 - rp.skew)  # return lands' underlap [m]
+    a[K_WH_V0] = v_c  # mid-stroke chamber volume V0 [m^3]
     return a
 
 
@@ -123,7 +132,20 @@ def _orifice(a, dp, k_o, dp_lam):
     return k_o * np.maximum(a, 0.0) * r
 
 
-def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, k_o, dp_lam, bv):
+def chamber_volumes(x_j, area: float, v_c: float):
+    """V1,2 = V0 +- A x_J [m^3], floored at V_MIN_FRACTION V0 (docs/models.md eq. 5b)."""
+    v_min = V_MIN_FRACTION * v_c
+    return np.maximum(v_c + area * x_j, v_min), np.maximum(v_c - area * x_j, v_min)
+
+
+def n_substeps(x_j: float, dt: float, area: float, v_c: float) -> int:
+    """RK4 substeps over ``dt`` [s] at jack position ``x_j`` [m]: the chamber mode scales as
+    1/V, so the substep H_MAX of mid stroke shrinks by V_min(x_J) / V0."""
+    v_min = float(min(chamber_volumes(x_j, area, v_c)))
+    return max(1, math.ceil(dt / H_MAX * v_c / v_min - 1e-9))
+
+
+def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, k_o, dp_lam, beta, v_c):
     p1, p2 = np.maximum(pt1, rp.p_vap), np.maximum(pt2, rp.p_vap)
     p_s = rp.p_r + p_sr
     xs_s, xs_r = rp.x_ss * (1.0 + rp.skew), rp.x_ss * (1.0 - rp.skew)
@@ -135,7 +157,8 @@ def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, k_o, dp_lam, bv):
     q_lk = c_lk * p12
     q_j = rp.area * v_j
     acc = (rp.area * p12 - f_r - rp.c_v * v_j - rp.f_d * np.tanh(v_j / rp.v_f)) / rp.mass
-    return v_j, acc, bv * (q1 - q2 - q_lk - q_j), bv * (q3 - q4 + q_lk + q_j)
+    v1, v2 = chamber_volumes(x_j, rp.area, v_c)
+    return v_j, acc, beta / v1 * (q1 - q2 - q_lk - q_j), beta / v2 * (q3 - q4 + q_lk + q_j)
 
 
 def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: float) -> NDArray:
@@ -145,7 +168,6 @@ def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: flo
     P_SR >= P_vap."""
     k_o = k_orifice(rp)
     dp_lam = WH_DP_LAM_FRACTION * rp.p_sr_rated
-    bv = beta / v_c
     x_s, v_s, x_j, v_j = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
     f_r, p_sr, c_lk, i_b = x[..., 4], x[..., 5], x[..., 6], x[..., 7]
     pt1, pt2 = x[..., 8], x[..., 9]
@@ -155,7 +177,7 @@ def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: flo
         x_s, v_s = er.spool_step(x_s, v_s, i + i_b, h, rp)
 
         def f(y, x_s=x_s - rp.x_0):  # the lands see the spool from its hydraulic null
-            return _rhs(x_s, *y, f_r, p_ev, c_ev, rp, k_o, dp_lam, bv)
+            return _rhs(x_s, *y, f_r, p_ev, c_ev, rp, k_o, dp_lam, beta, v_c)
 
         y = (x_j, v_j, pt1, pt2)
         ka = f(y)
@@ -188,8 +210,8 @@ _NB = {"cache": True, "error_model": "numpy"}
 
 
 @njit(**_NB, inline="always")
-def rhs_nb(x_s, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
-    """(dv_J/dt, dp~1/dt, dp~2/dt) of docs/models.md eqs. 1-6 with the jack equation;
+def rhs_nb(x_s, x_j, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
+    """(dv_J/dt, dp~1/dt, dp~2/dt) of docs/models.md eqs. 1-6 and 5b with the jack equation;
     p_s = P_R + P_SR (absolute supply)."""
     p_vap, p_r = prm[K_P_VAP], prm[K_P_R]
     xs_s, xs_r = prm[K_WH_XS_S], prm[K_WH_XS_R]  # supply and return lands' underlaps
@@ -206,7 +228,19 @@ def rhs_nb(x_s, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
     q_j = area * v_j
     fric = prm[K_F_D] * math.tanh(v_j / prm[K_V_F])
     acc = (area * p12 - f_r - prm[K_C_V] * v_j - fric) / prm[K_MASS]
-    return acc, bv * (q1 - q2 - q_lk - q_j), bv * (q3 - q4 + q_lk + q_j)
+    v0 = prm[K_WH_V0]  # chambers V0 +- A x_J (eq. 5b): bv = beta / V0 scaled by V0 / V_k
+    v_min = V_MIN_FRACTION * v0
+    bv1 = bv * v0 / max(v0 + area * x_j, v_min)
+    bv2 = bv * v0 / max(v0 - area * x_j, v_min)
+    return acc, bv1 * (q1 - q2 - q_lk - q_j), bv2 * (q3 - q4 + q_lk + q_j)
+
+
+@njit(**_NB, inline="always")
+def n_substeps_nb(x_j, dt, prm):
+    """Scalar ``n_substeps`` on the parameter vector."""
+    v0 = prm[K_WH_V0]
+    v_min = max(v0 - prm[K_AREA] * abs(x_j), V_MIN_FRACTION * v0)
+    return max(1, int(math.ceil(dt / H_MAX * v0 / v_min - 1e-9)))
 
 
 @njit(**_NB, inline="always")
@@ -225,14 +259,18 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
     for _ in range(n_sub):
         x_s, v_s = _spool_nb(x_s, v_s, x_ref, x_sm, coef)
         x_l = x_s - x_0
-        a1, a2, a3 = rhs_nb(x_l, v_j, pt1, pt2, f_r, p_s, c_lk, prm)
+        a1, a2, a3 = rhs_nb(x_l, x_j, v_j, pt1, pt2, f_r, p_s, c_lk, prm)
         a0 = v_j
         b0 = v_j + hh * a1
-        b1, b2, b3 = rhs_nb(x_l, b0, pt1 + hh * a2, pt2 + hh * a3, f_r, p_s, c_lk, prm)
+        b1, b2, b3 = rhs_nb(
+            x_l, x_j + hh * a0, b0, pt1 + hh * a2, pt2 + hh * a3, f_r, p_s, c_lk, prm
+        )
         c0 = v_j + hh * b1
-        c1, c2, c3 = rhs_nb(x_l, c0, pt1 + hh * b2, pt2 + hh * b3, f_r, p_s, c_lk, prm)
+        c1, c2, c3 = rhs_nb(
+            x_l, x_j + hh * b0, c0, pt1 + hh * b2, pt2 + hh * b3, f_r, p_s, c_lk, prm
+        )
         d0 = v_j + h * c1
-        d1, d2, d3 = rhs_nb(x_l, d0, pt1 + h * c2, pt2 + h * c3, f_r, p_s, c_lk, prm)
+        d1, d2, d3 = rhs_nb(x_l, x_j + h * c0, d0, pt1 + h * c2, pt2 + h * c3, f_r, p_s, c_lk, prm)
         x_j += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
         v_j += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
         pt1 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)

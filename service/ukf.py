@@ -38,6 +38,7 @@ __all__ = [
     "ukf_step_batch",
     "ukf_one",
     "ukf_one_wh",
+    "process_covariance",
     "workspace",
 ]
 
@@ -443,6 +444,18 @@ def _ukf_core(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, p
                 Pb[r, s_] = v
                 Pb[s_, r] = v
     return nis, st
+
+
+def process_covariance(q: NDArray, n: int) -> NDArray:
+    """The process noise rate Q (n, n) [per second] that a step adds as Q dt: diag(q) for a
+    C-type model; for WH (n = 10) q[8], q[9] are the chambers' differential and common
+    modes (p~1 -+ p~2)/sqrt 2, so Var p~k = (q[8] + q[9])/2 and Cov = (q[9] - q[8])/2."""
+    Q = np.diag(np.asarray(q, float)[:n])
+    if n == _N_WH:
+        d, s = Q[_N, _N], Q[_N + 1, _N + 1]
+        Q[_N, _N] = Q[_N + 1, _N + 1] = 0.5 * (d + s)
+        Q[_N, _N + 1] = Q[_N + 1, _N] = 0.5 * (s - d)
+    return Q
 
 
 @njit(cache=True)

@@ -17,7 +17,7 @@ from models import eha_reduced_wh as erw
 from service.calibration import measured_run, run_monitor
 from service.monitor import Baseline, MonitorBank, MonitorConfig
 from service.scenarios import load_scenario
-from service.ukf import BatchUKF, ukf_step_batch
+from service.ukf import BatchUKF, process_covariance, ukf_step_batch
 
 BASE = Baseline.default("WH")
 RP = BASE.reduced_params()
@@ -80,7 +80,7 @@ def test_wh_kernel_equals_batch_ukf_on_the_numpy_model():
         out[..., 4:8] = (s * scale)[..., 4:8]
         return out / scale
 
-    sig_f, xp, Pp = ukf.predict(x, P, fx, np.diag(q) * dt)
+    sig_f, xp, Pp = ukf.predict(x, P, fx, process_covariance(q, n) * dt)
     ref = ukf.update(sig_f, xp, Pp, lambda s: erw.measure(s * scale, RP) / zscale, z, R, mask)
     y, nis, st = np.zeros((1, m)), np.zeros(1), np.zeros(1, np.int64)
     w = ukf.w

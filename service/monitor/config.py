@@ -54,7 +54,12 @@ class ProcessNoise(_Cfg):
     x_j: float = Field(2e-5, gt=0, description="[m/sqrt(s)]")
     v_j: float = Field(5e-3, gt=0, description="[m/s/sqrt(s)]")
     f_r: float = Field(2e3, gt=0, description="external load [N/sqrt(s)]")
-    p_sr: float = Field(2e6, gt=0, description="supply [Pa/sqrt(s)]")
+    p_sr: float | None = Field(
+        None,
+        gt=0,
+        description="supply [Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS: 3e5 on "
+        "WH, whose adaptive step frees it on a supply change; 2e6 on the C-types)",
+    )
     c_lk: float = Field(1e-13, gt=0, description="leakage [m^3/s/Pa/sqrt(s)]")
     i_b: float = Field(2e-6, gt=0, description="servovalve null bias [A/sqrt(s)]")
     p_ch: float = Field(
@@ -67,7 +72,8 @@ class ProcessNoise(_Cfg):
         None,
         gt=0,
         description="WH model only: common mode (p~1 + p~2)/sqrt(2) of the chamber states "
-        "[Pa/sqrt(s)] (None: p_ch, the chambers' walks uncorrelated)",
+        "[Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS; equal to p_ch: the "
+        "chambers' walks uncorrelated)",
     )
 
 
@@ -91,9 +97,19 @@ class AlarmConfig(_Cfg):
 # chamber transients they act on; the C-types keep the filter of the bundled scenarios;
 # docs/estimation.md, "WH on the duty-cycle suite")
 MODEL_DEFAULTS: dict[str, dict[str, float]] = {
-    "WH": {"adapt_nis": 1.5, "c_lk_gate_p12": 0.05, "p_sr_max_ratio": 1.05}
+    "WH": {
+        "adapt_nis": 1.5,
+        "adapt_p_sr": 2.0,
+        "c_lk_gate_p12": 0.05,
+        "p_sr_max_ratio": 1.05,
+        "process.p_sr": 3e5,
+        "process.p_ch_common": 1e5,
+    }
 }
-_RESOLVED_FALLBACK: dict[str, float] = {"p_sr_max_ratio": 1.0}  # the rest: 0 (off)
+_RESOLVED_FALLBACK: dict[str, float] = {  # the rest: 0 (off)
+    "p_sr_max_ratio": 1.0,
+    "process.p_sr": 2e6,
+}
 
 
 class MonitorConfig(_Cfg):
@@ -173,12 +189,17 @@ class MonitorConfig(_Cfg):
     )
 
     def resolved(self, name: str) -> float:
-        """``name`` (c_lk_gate_p12, adapt_nis or p_sr_max_ratio) as set, else the model's
-        default (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1)."""
-        v = getattr(self, name)
+        """``name`` (c_lk_gate_p12, adapt_nis, adapt_p_sr, p_sr_max_ratio, process.p_sr or
+        process.p_ch_common) as set, else the model's default (MODEL_DEFAULTS), else off
+        (p_sr_max_ratio: 1; process.p_sr: 2e6; process.p_ch_common: process.p_ch)."""
+        obj, attr = (self.process, name.split(".", 1)[1]) if "." in name else (self, name)
+        v = getattr(obj, attr)
         if v is not None:
             return float(v)
-        return MODEL_DEFAULTS.get(self.model, {}).get(name, _RESOLVED_FALLBACK.get(name, 0.0))
+        fallback = _RESOLVED_FALLBACK.get(name, 0.0)
+        if name == "process.p_ch_common":
+            fallback = self.process.p_ch
+        return float(MODEL_DEFAULTS.get(self.model, {}).get(name, fallback))
 
     reduced_param_q: float = Field(
         0.01,

@@ -22,6 +22,7 @@ from models import eha_reduced as er
 from models import eha_reduced_wh as erw
 from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
 from models.eha_reduced_wh import measure_nb as measure_wh_nb
+from models.eha_reduced_wh import n_substeps_nb as n_substeps_wh_nb
 from models.eha_reduced_wh import step_core_nb as step_core_wh_nb
 from service.compat.numba import borrowed_all
 from service.monitor.outputs import (
@@ -154,6 +155,9 @@ def step_one(
     k_p, i_max = prm_k[er.K_K_P], prm_k[er.K_I_MAX]
     dt = t[j] - T_LAST[k]
     n_sub = max(1, int(math.ceil(dt / cst_k[C_H_MAX] - 1e-9)))
+    if n == N_STATES_WH:  # off mid stroke the smaller chamber is stiffer: shorter substeps
+        x_jm = max(abs(X[k, S_X_J] * sc_k[S_X_J]), abs(OL[k, S_X_J]))
+        n_sub = max(n_sub, n_substeps_wh_nb(x_jm, dt, prm_k))
     if not math.isnan(i_m[j]):
         i_f = i_m[j]
     elif not math.isnan(x_c[j]):
@@ -193,7 +197,7 @@ def step_one(
         # a sample no plant transient explains (a dead or swapped sensor): diverged
         capped = nis_j > cst_k[C_ADAPT_REINIT] * dof
         g = min(nis_j / (thr * dof), cst_k[C_ADAPT_MAX])
-    g_p = g ** cst_k[C_ADAPT_P_SR]  # P_SR joins the adaptive step (exponent 0: held)
+    g_p = min(g ** cst_k[C_ADAPT_P_SR], cst_k[C_ADAPT_MAX])  # P_SR joins (exponent 0: held)
     if g > 1.0:
         for r in range(n):
             X[k, r] = x_sv[r]
