@@ -205,6 +205,7 @@ class MonitorBank:
             adapt_max=c.adapt_max,
             adapt_reinit=c.adapt_reinit,
             adapt_p_sr=c.resolved("adapt_p_sr"),
+            gate_adapt=c.resolved("c_lk_gate_adapt"),
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}

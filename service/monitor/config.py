@@ -100,6 +100,7 @@ MODEL_DEFAULTS: dict[str, dict[str, float]] = {
     "WH": {
         "adapt_nis": 1.5,
         "adapt_p_sr": 2.0,
+        "c_lk_gate_adapt": 20.0,
         "c_lk_gate_p12": 0.05,
         "p_sr_max_ratio": 1.05,
         "process.p_sr": 3e5,
@@ -156,6 +157,12 @@ class MonitorConfig(_Cfg):
         "(0 = off; None = the model's default, MODEL_DEFAULTS; docs/estimation.md, "
         "observability gate)",
     )
+    c_lk_gate_adapt: float | None = Field(
+        None,
+        ge=0,
+        description="... and on a sample whose adaptive process-noise scale (NIS/dof / "
+        "adapt_nis) exceeds this (0 = off; None = the model's default, MODEL_DEFAULTS)",
+    )
     p_sr_max_ratio: float | None = Field(
         None,
         ge=1,
@@ -189,8 +196,8 @@ class MonitorConfig(_Cfg):
     )
 
     def resolved(self, name: str) -> float:
-        """``name`` (c_lk_gate_p12, adapt_nis, adapt_p_sr, p_sr_max_ratio, process.p_sr or
-        process.p_ch_common) as set, else the model's default (MODEL_DEFAULTS), else off
+        """``name`` (c_lk_gate_p12, c_lk_gate_adapt, adapt_nis, adapt_p_sr, p_sr_max_ratio,
+        process.p_sr or process.p_ch_common) as set, else the model's default (MODEL_DEFAULTS), else off
         (p_sr_max_ratio: 1; process.p_sr: 2e6; process.p_ch_common: process.p_ch)."""
         obj, attr = (self.process, name.split(".", 1)[1]) if "." in name else (self, name)
         v = getattr(obj, attr)

@@ -90,6 +90,7 @@ CST_FIELDS: tuple[str, ...] = (
     "adapt_max",  # ... scaled by NIS/dof / adapt_nis, at most this (adaptive process noise)
     "adapt_reinit",  # with adaptation on, one sample above this NIS/dof re-initialises
     "adapt_p_sr",  # 1: the adaptive step scales P_SR's random walk too (0: plant states only)
+    "gate_adapt",  # C_Lk held on a sample whose adaptive scale exceeds this (0: off)
 )
 (
     C_H_MAX,
@@ -116,6 +117,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_ADAPT_MAX,
     C_ADAPT_REINIT,
     C_ADAPT_P_SR,
+    C_GATE_ADAPT,
 ) = range(len(CST_FIELDS))
 
 # counter columns: prepare_inputs' cnt (n_act, 2) and block_steps' cnt (n_act, 3)
@@ -197,6 +199,8 @@ def step_one(
         # a sample no plant transient explains (a dead or swapped sensor): diverged
         capped = nis_j > cst_k[C_ADAPT_REINIT] * dof
         g = min(nis_j / (thr * dof), cst_k[C_ADAPT_MAX])
+    if cst_k[C_GATE_ADAPT] > 0.0 and g > cst_k[C_GATE_ADAPT]:
+        gate = True  # a transient the model does not explain: no leak information
     g_p = min(g ** cst_k[C_ADAPT_P_SR], cst_k[C_ADAPT_MAX])  # P_SR joins (exponent 0: held)
     if g > 1.0:
         for r in range(n):
