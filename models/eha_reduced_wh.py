@@ -19,7 +19,7 @@ beta/V (2 K_o (x_SS + x_SM) / sqrt(dp_lam) + C_Lk) and the hydraulic mode
 w_h = sqrt(2 beta A^2 / (V m)) (eq. 10). RK4 is stable for |lambda h| up to 2.78 on the real
 axis, so the longest substep is ``H_MAX`` = 1/3 ms at mid stroke: 3 substeps at the 1 ms
 sample step. Off mid stroke the smaller chamber is stiffer by V0 / V_min, and ``n_substeps``
-shortens the substep in that ratio.
+adds substeps once |lambda h| would pass RK4_H_TARGET = 2.5 (beyond about 9 mm).
 """
 
 from __future__ import annotations
@@ -81,10 +81,12 @@ S_PT1, S_PT2 = IX["pt1"], IX["pt2"]
 H_MAX = 1e-3 / 3.0  # longest RK4 substep [s] at mid stroke: 3 substeps at the 1 ms sample step
 RK4_REAL_LIMIT = 2.785  # classic RK4 is stable for real lambda h in [-2.785, 0]
 V_MIN_FRACTION = 0.25  # chamber volume floor / V0 (a guard past the stroke: V_dead / V0 = 0.29)
+RK4_H_TARGET = 2.5  # n_substeps keeps the chamber mode's |lambda h| below this (margin to 2.785)
 
 # parameter vector: models.eha_reduced's layout, then the WH constants (docs/models.md eq. 2, 3, 5)
-K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R, K_WH_V0 = range(N_PRM, N_PRM + 7)
-N_PRM_WH = N_PRM + 7
+(K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R, K_WH_V0,
+ K_WH_LAM0) = range(N_PRM, N_PRM + 8)  # fmt: skip
+N_PRM_WH = N_PRM + 8
 
 
 def k_orifice(rp: ReducedParams) -> float:
@@ -105,6 +107,7 @@ def param_vector(rp: ReducedParams, v_c: float, beta: float) -> NDArray:
     a[K_WH_XS_S] = rp.x_ss * (1.0 + rp.skew)  # supply lands' underlap [m]
     a[K_WH_XS_R] = rp.x_ss * (1.0 - rp.skew)  # return lands' underlap [m]
     a[K_WH_V0] = v_c  # mid-stroke chamber volume V0 [m^3]
+    a[K_WH_LAM0] = stiff_modes(rp, v_c, beta, 0.0)["chamber"]  # chamber mode at V0 [1/s]
     return a
 
 
@@ -138,11 +141,13 @@ def chamber_volumes(x_j, area: float, v_c: float):
     return np.maximum(v_c + area * x_j, v_min), np.maximum(v_c - area * x_j, v_min)
 
 
-def n_substeps(x_j: float, dt: float, area: float, v_c: float) -> int:
-    """RK4 substeps over ``dt`` [s] at jack position ``x_j`` [m]: the chamber mode scales as
-    1/V, so the substep H_MAX of mid stroke shrinks by V_min(x_J) / V0."""
-    v_min = float(min(chamber_volumes(x_j, area, v_c)))
-    return max(1, math.ceil(dt / H_MAX * v_c / v_min - 1e-9))
+def n_substeps(x_j: float, dt: float, rp: ReducedParams, v_c: float, beta: float) -> int:
+    """RK4 substeps over ``dt`` [s] at jack position ``x_j`` [m], at least dt / H_MAX: the
+    chamber mode (``stiff_modes``, at V0) scales as V0 / V_min(x_J), and |lambda h| stays
+    below RK4_H_TARGET."""
+    v_min = float(min(chamber_volumes(x_j, rp.area, v_c)))
+    lam = stiff_modes(rp, v_c, beta, 0.0)["chamber"] * v_c / v_min
+    return max(1, math.ceil(dt / H_MAX - 1e-9), math.ceil(dt * lam / RK4_H_TARGET - 1e-9))
 
 
 def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, k_o, dp_lam, beta, v_c):
@@ -240,7 +245,8 @@ def n_substeps_nb(x_j, dt, prm):
     """Scalar ``n_substeps`` on the parameter vector."""
     v0 = prm[K_WH_V0]
     v_min = max(v0 - prm[K_AREA] * abs(x_j), V_MIN_FRACTION * v0)
-    return max(1, int(math.ceil(dt / H_MAX * v0 / v_min - 1e-9)))
+    n_h = int(math.ceil(dt / H_MAX - 1e-9))
+    return max(1, n_h, int(math.ceil(dt * prm[K_WH_LAM0] * v0 / v_min / RK4_H_TARGET - 1e-9)))
 
 
 @njit(**_NB, inline="always")

@@ -25,14 +25,21 @@ V0, AREA = BASE.v_c, BASE.area  # 7e-5 m^3, 1e-3 m^2
 def test_chamber_volumes_and_substeps_by_hand():
     v1, v2 = erw.chamber_volumes(0.02, AREA, V0)
     assert (v1, v2) == pytest.approx((9e-5, 5e-5), rel=1e-12)
-    # the stiffer chamber (5e-5 m^3) shortens the 1/3 ms substep by 5/7: ceil(3 * 7/5) = 5
-    assert erw.n_substeps(0.02, 1e-3, AREA, V0) == 5
-    assert erw.n_substeps(0.0, 1e-3, AREA, V0) == 3
-    # past the stroke the floor 0.25 V0 holds: 3 * 4 = 12 substeps
+    lam0 = erw.stiff_modes(RP, V0, BASE.beta, 0.0)["chamber"]  # 6.53e3 1/s at V0
+    assert lam0 == pytest.approx(6525.5, rel=1e-4)
+
+    def n(x_j: float) -> int:
+        return erw.n_substeps(x_j, 1e-3, RP, V0, BASE.beta)
+
+    # mid stroke: the 1/3 ms substep, |lambda h| = 2.18
+    assert n(0.0) == 3
+    # 20 mm: the stiffer chamber (5e-5 m^3) has lambda = 6525.5 * 7 / 5; ceil(9.14 / 2.5) = 4
+    assert n(0.02) == 4
+    # past the stroke the floor 0.25 V0 holds: ceil(6.53 * 4 / 2.5) = 11
     assert min(erw.chamber_volumes(-0.09, AREA, V0)) == pytest.approx(0.25 * V0)
-    assert erw.n_substeps(-0.09, 1e-3, AREA, V0) == 12
-    for x_j in (0.0, 0.02, -0.035, 0.09):
-        assert erw.n_substeps_nb(x_j, 1e-3, PRM) == erw.n_substeps(x_j, 1e-3, AREA, V0)
+    assert n(-0.09) == 11
+    for x_j in (0.0, 0.0095, 0.02, -0.035, 0.09):
+        assert erw.n_substeps_nb(x_j, 1e-3, PRM) == n(x_j)
 
 
 def test_each_chamber_stiffness_follows_its_volume():
@@ -51,8 +58,8 @@ def test_each_chamber_stiffness_follows_its_volume():
 
 def test_compiled_step_equals_numpy_off_mid_stroke():
     x = np.array([1.1e-5, 2e-4, -0.032, 4e-3, 4000.0, 19.5e6, 3e-13, 5e-5, 12.6e6, 8.4e6])
-    n_sub = erw.n_substeps(x[2], 1e-3, AREA, V0)
-    assert n_sub == 6  # V1 = 7e-5 - 3.2e-5 = 3.8e-5 m^3: ceil(3 * 7 / 3.8)
+    n_sub = erw.n_substeps(x[2], 1e-3, RP, V0, BASE.beta)
+    assert n_sub == 5  # V1 = 7e-5 - 3.2e-5 = 3.8e-5 m^3: ceil(6.53 * 7 / 3.8 / 2.5)
     out = np.empty(10)
     erw.step_nb(x, 2.3e-4, 1e-3, n_sub, PRM, out)
     ref = erw.step(x, 2.3e-4, 1e-3, RP, n_sub, V0, BASE.beta)
@@ -61,13 +68,13 @@ def test_compiled_step_equals_numpy_off_mid_stroke():
 
 def test_substeps_at_the_stroke_end_keep_the_chamber_on_its_reference():
     """Near the end stop (x_J = -48 mm, V1 = 2.2e-5 m^3), spool wide open into chamber 1:
-    after 50 ms with ``n_substeps`` (10) chamber 1 sits within 1 kPa of a 100-substep
+    after 50 ms with ``n_substeps`` (9) chamber 1 sits within 1 kPa of a 100-substep
     reference; with the mid-stroke 3 substeps RK4 is past its stability limit in the laminar
     band and settles 40 kPa off."""
     x = np.array([5e-4, 0.0, -0.048, 0.0, 0.0, 20e6, 0.0, 0.0, 20e6, 1e6])
     rp = RP._replace(mass=1e9)  # jack held: the chamber mode alone
-    n_sub = erw.n_substeps(x[2], 1e-3, AREA, V0)
-    assert n_sub == 10
+    n_sub = erw.n_substeps(x[2], 1e-3, RP, V0, BASE.beta)
+    assert n_sub == 9
     runs = {}
     for n in (3, n_sub, 100):
         y = x.copy()
