@@ -5,10 +5,13 @@ jack does meanwhile.
     .venv/bin/python bench/suite_member.py --seed 1 --index 11                # WH
     .venv/bin/python bench/suite_member.py --seed 1 --index 11 --supply-sensor
     .venv/bin/python bench/suite_member.py --seed 1 --index 13 --model C5 --window 1.0
+    .venv/bin/python bench/suite_member.py --seed 2 --index 17 --png member.png
 
 Per window: mean C_Lk estimate and truth (x nominal), mean P_SR error [%], mean |P12| [MPa],
 |v_J| [mm/s] and the largest |x_S| [um] of the truth. Last line: the C_Lk increase error and
-the P_SR error over the last second (means against the truth at the end).
+the P_SR error over the last second (means against the truth at the end). ``--png F``
+also draws the run (``service.plots.plot_member``): C_Lk with its 1-sigma band, P_SR, and
+|P12|, |v_J| against the gates that hold C_Lk.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     ap.add_argument("--supply-sensor", action="store_true", help="the plant also measures P_SR")
     ap.add_argument("--window", type=float, default=0.5, help="window length [s]")
+    ap.add_argument("--png", default=None, metavar="F", help="also draw the run to this PNG")
     a = ap.parse_args(argv)
     if not a.window > 0:
         ap.error("--window must be positive")
@@ -40,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
 
     dc = duty_cycle(a.seed, a.index)
     overrides = parse_overrides(ap, a.model, a.set)
-    sim, rows, base, _, _ = monitor_run(dc, False, a.model, overrides, a.supply_sensor)
+    sim, rows, base, cfg, _ = monitor_run(dc, False, a.model, overrides, a.supply_sensor)
     t = rows.t
     c = rows.est[:, EST_KEYS.index("c_lk")]
     p = rows.est[:, EST_KEYS.index("p_sr")]
@@ -72,6 +76,19 @@ def main(argv: list[str] | None = None) -> int:
         else "- (no leak)"
     )
     print(f"last second: C_Lk increase error {inc}, P_SR error {p_err:+.2f} %")
+    if a.png:
+        from service.plots import plot_member
+
+        est = {k: rows.est[:, EST_KEYS.index(k)] for k in ("c_lk", "c_lk_sigma", "p_sr")}
+        alarms = [(e.t, e.kind, e.state) for evs in rows.events for e in evs]
+        gates = {
+            "p12": cfg.resolved("c_lk_gate_p12") * base.p_sr_rated,
+            "v_j": cfg.c_lk_gate_v,
+            "leak_raise": cfg.alarms.leak_raise,
+        }
+        tr = {"c_lk": c_t, "p_sr": p_t, "p12": p12, "v_j": v_j}
+        title = f"{dc.test.name} ({dc.kind}), model {a.model}"
+        print(f"wrote {plot_member(t, est, tr, gates, alarms, a.png, title)}")
     return 0
 
 

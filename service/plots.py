@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_characteristic", "plot_simulation", "plot_comparison"]
+__all__ = ["plot_characteristic", "plot_simulation", "plot_comparison", "plot_member"]
 
 _SIGNALS = (
     ("x_j", 1e3, "x_J [mm]"),
@@ -98,6 +98,53 @@ def plot_comparison(results: Mapping[str, object], path: str | Path, title: str 
     axes[0].legend(fontsize=8, ncol=3)
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title or "HF against the simplified models")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_member(
+    t: np.ndarray,
+    est: Mapping[str, np.ndarray],
+    truth: Mapping[str, np.ndarray],
+    gates: Mapping[str, float],
+    alarms: Sequence[tuple[float, str, str]],
+    path: str | Path,
+    title: str = "",
+) -> Path:
+    """One monitor run against its truth (docs/estimation.md, "WH on the duty-cycle suite"):
+    C_Lk / nominal with its 1-sigma band and the leak alarm level, P_SR [MPa], |P12| [MPa]
+    and |v_J| [mm/s] of the truth with the observability gates (``gates``: p12 [Pa], v_j
+    [m/s], leak_raise [x nominal]); alarms as (t, kind, state) lines."""
+    c0 = float(truth["c_lk"][0])
+    fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True)
+    c, sd = est["c_lk"] / c0, est["c_lk_sigma"] / c0
+    ax[0].fill_between(t, c - sd, c + sd, color="C0", alpha=0.25, lw=0, label="1 sigma")
+    ax[0].plot(t, c, "C0", lw=0.8, label="estimate")
+    ax[0].plot(t, truth["c_lk"] / c0, "k", lw=1.2, label="truth")
+    ax[0].axhline(gates["leak_raise"], color="C3", ls="--", lw=0.8, label="alarm level")
+    ax[0].set_ylabel("C_Lk / nominal")
+    ax[1].plot(t, est["p_sr"] * 1e-6, "C0", lw=0.8, label="estimate")
+    ax[1].plot(t, truth["p_sr"] * 1e-6, "k", lw=1.2, label="truth")
+    ax[1].set_ylabel("P_SR [MPa]")
+    ax[2].plot(t, np.abs(truth["p12"]) * 1e-6, "C2", lw=0.8)
+    ax[2].axhline(gates["p12"] * 1e-6, color="C3", ls="--", lw=0.8, label="C_Lk gate")
+    ax[2].set_ylabel("|P12| [MPa]")
+    ax[3].plot(t, np.abs(truth["v_j"]) * 1e3, "C2", lw=0.8)
+    ax[3].axhline(gates["v_j"] * 1e3, color="C3", ls="--", lw=0.8, label="C_Lk gate")
+    ax[3].set_ylabel("|v_J| [mm/s]")
+    ax[3].set_xlabel("t [s]")
+    for tt, kind, state in alarms:
+        for a in ax[:2]:
+            a.axvline(tt, color="C3" if state == "raised" else "C1", lw=0.6, alpha=0.7)
+        ax[0].text(tt, ax[0].get_ylim()[1], f" {kind} {state}", fontsize=7, va="top")
+    for a in ax:
+        a.grid(True, alpha=0.3)
+    for a in (ax[0], ax[1], ax[2], ax[3]):
+        a.legend(fontsize=7, loc="upper left")
+    fig.suptitle(title)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)

@@ -67,13 +67,14 @@ def test_estimation_suite_option_rejects_the_benchmark_options():
 
 
 def test_suite_member_prints_windows_and_the_last_second(tmp_path):
-    """bench/suite_member.py: one window line per 0.5 s of the member and the last-second
-    errors; member 11 (seed 1, leak step with a supply drop) on WH within the suite's
+    """bench/suite_member.py: one window line per 0.5 s of the member, the last-second
+    errors and, with --png, the plot; member 11 (seed 1, leak step with a supply drop) on WH within the suite's
     targets there (C_Lk increase 10 %, P_SR 5 %)."""
     import re
 
     out = subprocess.run(
-        [sys.executable, str(ROOT / "bench/suite_member.py"), "--seed", "1", "--index", "11"],
+        [sys.executable, str(ROOT / "bench/suite_member.py"), "--seed", "1", "--index", "11",
+         "--png", str(tmp_path / "m.png")],
         capture_output=True, text=True, timeout=300, cwd=ROOT,
     )  # fmt: skip
     assert out.returncode == 0, out.stderr[-2000:]
@@ -81,6 +82,11 @@ def test_suite_member_prints_windows_and_the_last_second(tmp_path):
     assert lines[0].startswith("dc1_011: leak+supply")
     windows = [ln for ln in lines if re.match(r"^\s*\d+\.\d\d\s", ln)]
     assert len(windows) >= 20  # a 12 s run or longer, 0.5 s windows
-    m = re.search(r"C_Lk increase error ([+-]\d+\.\d) %, P_SR error ([+-]\d+\.\d\d) %", lines[-1])
-    assert m, lines[-1]
+    last = lines[-2]
+    m = re.search(r"C_Lk increase error ([+-]\d+\.\d) %, P_SR error ([+-]\d+\.\d\d) %", last)
+    assert m, last
     assert abs(float(m.group(1))) < 10.0 and abs(float(m.group(2))) < 5.0
+    # --png: the run drawn (C_Lk with its band, P_SR, |P12| and |v_J| against the gates)
+    png = (tmp_path / "m.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+    assert lines[-1].startswith("wrote ") and lines[-1].endswith("m.png")
