@@ -428,7 +428,7 @@ def main(argv: list[str] | None = None) -> int:
     from bench.estimation_suite import parse_overrides
 
     overrides = {}
-    for m in models:
+    for m in models:  # the same overrides, checked against every model's config
         overrides = parse_overrides(ap, m, args.set)
     for m in models:
         print(f"baseline {m}: {Baseline.default(m).source}")

@@ -10,7 +10,8 @@ The spool is the exact zero-order-hold step of ``models.eha_reduced``; x_J, v_J,
 advance by classic RK4 with the spool held over each substep. The chamber flows are the
 four-land orifice law of docs/models.md eqs. 1-4 (K_o = sqrt(2 P_SR,rated) / (x_SS G_PQ)),
 the chambers eq. 5 with the bulk modulus beta and the volumes V1,2 = V0 +- A x_J (eq. 5b: the
-jack's position sets each chamber's stiffness; V0 the lumped mid-stroke volume), the pressures P_k = max(p~_k, P_vap) (eq. 6),
+jack's position sets each chamber's stiffness; V0 the lumped mid-stroke volume), the
+pressures P_k = max(p~_k, P_vap) (eq. 6),
 the jack m dv_J/dt = A (P1 - P2) - F_R - c_v v_J - F_d tanh(v_J / v_f). The measurement is
 direct: x_S, x_J, P1 = max(p~1, P_vap), P2 = max(p~2, P_vap), P_SR.
 

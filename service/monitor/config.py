@@ -183,10 +183,10 @@ class MonitorConfig(_Cfg):
     adapt_p_sr: float | None = Field(
         None,
         ge=0,
-        description="> 0: the adaptive step scales the P_SR random walk too, and a sample whose "
-        "P_SR channel has a normalised innovation squared above this is redone with P_SR's "
-        "random walk scaled by it / adapt_p_sr (a supply drop the model did not expect); "
-        "0 = off; None = the model's default, MODEL_DEFAULTS",
+        description="exponent k: the adaptive step scales P_SR's random walk by g^k (g = "
+        "NIS/dof / adapt_nis), at most adapt_max, so that a supply change frees it at once "
+        "and small misfits leave it alone; 0 = held (the plant states only); None = the "
+        "model's default, MODEL_DEFAULTS",
     )
     adapt_reinit: float = Field(
         3e3,
@@ -197,8 +197,9 @@ class MonitorConfig(_Cfg):
 
     def resolved(self, name: str) -> float:
         """``name`` (c_lk_gate_p12, c_lk_gate_adapt, adapt_nis, adapt_p_sr, p_sr_max_ratio,
-        process.p_sr or process.p_ch_common) as set, else the model's default (MODEL_DEFAULTS), else off
-        (p_sr_max_ratio: 1; process.p_sr: 2e6; process.p_ch_common: process.p_ch)."""
+        process.p_sr or process.p_ch_common) as set, else the model's default
+        (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1; process.p_sr: 2e6;
+        process.p_ch_common: process.p_ch)."""
         obj, attr = (self.process, name.split(".", 1)[1]) if "." in name else (self, name)
         v = getattr(obj, attr)
         if v is not None:

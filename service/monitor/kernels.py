@@ -89,7 +89,7 @@ CST_FIELDS: tuple[str, ...] = (
     "adapt_nis",  # a sample whose NIS/dof exceeds this is redone with inflated plant noise
     "adapt_max",  # ... scaled by NIS/dof / adapt_nis, at most this (adaptive process noise)
     "adapt_reinit",  # with adaptation on, one sample above this NIS/dof re-initialises
-    "adapt_p_sr",  # 1: the adaptive step scales P_SR's random walk too (0: plant states only)
+    "adapt_p_sr",  # the adaptive step scales P_SR's walk by g^adapt_p_sr (0: held)
     "gate_adapt",  # C_Lk held on a sample whose adaptive scale exceeds this (0: off)
 )
 (
@@ -201,8 +201,8 @@ def step_one(
         g = min(nis_j / (thr * dof), cst_k[C_ADAPT_MAX])
     if cst_k[C_GATE_ADAPT] > 0.0 and g > cst_k[C_GATE_ADAPT]:
         gate = True  # a transient the model does not explain: no leak information
-    g_p = min(g ** cst_k[C_ADAPT_P_SR], cst_k[C_ADAPT_MAX])  # P_SR joins (exponent 0: held)
     if g > 1.0:
+        g_p = min(g ** cst_k[C_ADAPT_P_SR], cst_k[C_ADAPT_MAX])  # P_SR's scale (exponent 0: held)
         for r in range(n):
             X[k, r] = x_sv[r]
             for s_ in range(n):
