@@ -12,7 +12,7 @@ from models.eha import simulate
 from models.params import EHAParams
 from models.scenario import Event, Profile, Scenario, SensorNoise
 from service.calibration import identify_noise, measured_run, noise_sigma
-from service.monitor import Baseline, MonitorBank
+from service.monitor import Baseline, MonitorBank, MonitorConfig
 
 P = EHAParams()
 
@@ -81,6 +81,59 @@ def test_c_lk_gate_is_a_consider_update():
     c1 = bank.x[k, 6]
     bank.update_many([("a", {**s, "t": 0.003, "p1": 14e6})])
     assert bank.x[k, 6] != c1
+
+
+@pytest.mark.parametrize("model,cfg", [("WH", {}), ("C5", {"i_b_gate_x_u": 1.0})])
+def test_null_bias_is_held_with_the_spool_past_its_underlap(model, cfg):
+    """With the spool opened past its underlap the i_b mean stays and its variance grows by
+    q dt (Schmidt); near null it learns. WH's default; the C-types' on request."""
+    bank = MonitorBank(MonitorConfig(model=model, **cfg), Baseline.default(model))
+    k = bank.index_of("a")
+    s = {"t": 0.0, "x_cmd": 0.0, "i": 0.0, "x_s": 0.0, "x_j": 0.0, "p1": 12e6, "p2": 9e6}
+    bank.update_many([("a", s)])
+    bank.update_many([("a", {**s, "t": 0.001})])
+    x_u = bank.rp.x_u
+    bank.x[k, 0] = 3 * x_u / bank.scale[0]  # spool at 0.3 mm, past the 0.1 mm underlap
+    b0, p0 = bank.x[k, 7], bank.P[k, 7, 7]
+    bank.update_many([("a", {**s, "t": 0.002, "i": 6e-3, "x_s": 3 * x_u})])
+    assert bank.x[k, 7] == b0
+    assert bank.P[k, 7, 7] == pytest.approx(p0 + bank._q[7] * 0.001, rel=1e-12)
+    bank.x[k, 0] = 0.0  # near null: i_b learns again
+    b1 = bank.x[k, 7]
+    bank.update_many([("a", {**s, "t": 0.003, "i": 1e-4, "x_s": 2e-6})])
+    assert bank.x[k, 7] != b1
+
+
+def test_null_bias_gate_defaults():
+    assert MonitorConfig(model="WH").resolved("i_b_gate_x_u") == 1.0
+    assert MonitorConfig(model="C5").resolved("i_b_gate_x_u") == 0.0  # the bundled filter
+    bank = MonitorBank()  # C5: i_b learns at any opening
+    k = bank.index_of("a")
+    s = {"t": 0.0, "x_cmd": 0.0, "i": 0.0, "x_s": 0.0, "x_j": 0.0, "p1": 12e6, "p2": 9e6}
+    bank.update_many([("a", s), ("a", {**s, "t": 0.001})])
+    bank.x[k, 0] = 3 * bank.rp.x_u / bank.scale[0]
+    b0 = bank.x[k, 7]
+    bank.update_many([("a", {**s, "t": 0.002, "i": 6e-3, "x_s": 3 * bank.rp.x_u})])
+    assert bank.x[k, 7] != b0
+
+
+@pytest.mark.slow
+def test_overload_leaves_the_null_bias_alone():
+    """est_overload saturates the current for 1.2 s (back-driven to the end stop, then the
+    return): i_b ran to 140 uA (true 0) before it was held past the underlap, and C_Lk read
+    1.3x nominal for half a second after the return (docs/estimation.md)."""
+    from service.commands.estimate import evaluate
+    from service.scenarios import load_scenario
+
+    r = evaluate(load_scenario("est_overload"), MonitorConfig(model="WH"), keep_outputs=True)
+    outs = [o for o in r["_outs"] if o is not None]
+    t = np.array([o.t for o in outs])
+    i_b = np.array([o.est["i_b"] for o in outs])
+    c = np.array([o.est["c_lk"] for o in outs]) / P.c_lk
+    # held through the saturation (unheld: up to 145 uA), and small after the return
+    assert np.max(np.abs(i_b[(t > 1.0) & (t < 2.8)])) < 5e-6
+    assert np.mean(np.abs(i_b[(t > 2.9) & (t < 3.5)])) < 10e-6  # unheld: about 30 uA
+    assert abs(np.mean(c[(t > 3.0) & (t < 4.0)]) - 1.0) < 0.08  # unheld: +10 %
 
 
 def test_noise_identification_recovers_the_sensor_noise():

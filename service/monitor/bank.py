@@ -96,6 +96,11 @@ def _by_name(names: Sequence[str], **values: float) -> NDArray:
     return np.array([values[n] for n in names], float)
 
 
+def _gate_i_b(share: float, x_u: float) -> float:
+    """Spool opening [m] past which i_b is held: ``share`` underlaps (0 or no underlap: never)."""
+    return share * x_u if share > 0.0 and x_u > 0.0 else math.inf
+
+
 def _f(v) -> float | None:
     """A finite float or None."""
     if v is None:
@@ -206,6 +211,7 @@ class MonitorBank:
             adapt_reinit=c.adapt_reinit,
             adapt_p_sr=c.resolved("adapt_p_sr"),
             gate_adapt=c.resolved("c_lk_gate_adapt"),
+            gate_i_b_x_s=_gate_i_b(c.resolved("i_b_gate_x_u"), self.rp.x_u) / self.scale[S_X_S],
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}

@@ -102,6 +102,7 @@ MODEL_DEFAULTS: dict[str, dict[str, float]] = {
         "adapt_p_sr": 2.0,
         "c_lk_gate_adapt": 20.0,
         "c_lk_gate_p12": 0.05,
+        "i_b_gate_x_u": 1.0,
         "p_sr_max_ratio": 1.05,
         "process.p_sr": 3e5,
         "process.p_ch_common": 1e5,
@@ -163,6 +164,14 @@ class MonitorConfig(_Cfg):
         description="... and on a sample whose adaptive process-noise scale (NIS/dof / "
         "adapt_nis) exceeds this (0 = off; None = the model's default, MODEL_DEFAULTS)",
     )
+    i_b_gate_x_u: float | None = Field(
+        None,
+        ge=0,
+        description="the null bias i_b is held (Schmidt update) while |x_S| exceeds this many "
+        "underlaps x_u: the spool model (a linear lag) does not follow a spool opened past it "
+        "(0 = off; None = the model's default, MODEL_DEFAULTS; docs/estimation.md, "
+        "observability gate)",
+    )
     p_sr_max_ratio: float | None = Field(
         None,
         ge=1,
@@ -196,7 +205,7 @@ class MonitorConfig(_Cfg):
     )
 
     def resolved(self, name: str) -> float:
-        """``name`` (c_lk_gate_p12, c_lk_gate_adapt, adapt_nis, adapt_p_sr, p_sr_max_ratio,
+        """``name`` (c_lk_gate_p12, c_lk_gate_adapt, i_b_gate_x_u, adapt_nis, adapt_p_sr, p_sr_max_ratio,
         process.p_sr or process.p_ch_common) as set, else the model's default
         (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1; process.p_sr: 2e6;
         process.p_ch_common: process.p_ch)."""

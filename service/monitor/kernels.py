@@ -91,6 +91,7 @@ CST_FIELDS: tuple[str, ...] = (
     "adapt_reinit",  # with adaptation on, one sample above this NIS/dof re-initialises
     "adapt_p_sr",  # the adaptive step scales P_SR's walk by g^adapt_p_sr (0: held)
     "gate_adapt",  # C_Lk held on a sample whose adaptive scale exceeds this (0: off)
+    "gate_i_b_x_s",  # i_b held while |x_S| exceeds this (filter units; inf: never)
 )
 (
     C_H_MAX,
@@ -118,6 +119,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_ADAPT_REINIT,
     C_ADAPT_P_SR,
     C_GATE_ADAPT,
+    C_GATE_I_B_XS,
 ) = range(len(CST_FIELDS))
 
 # counter columns: prepare_inputs' cnt (n_act, 2) and block_steps' cnt (n_act, 3)
@@ -177,6 +179,10 @@ def step_one(
         p12_m = z[j, Z_P1] * zs_k[Z_P1] - z[j, Z_P2] * zs_k[Z_P2]
         gate = gate or abs(p12_m) < cst_k[C_GATE_P12]
     c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
+    # the null bias i_b is learnt near null only: the spool model (a linear lag, no flow
+    # forces, no stroke limit) does not follow a spool opened past its underlap
+    hold_ib = abs(X[k, S_X_S]) > cst_k[C_GATE_I_B_XS]
+    b_prior, pb_prior = X[k, S_I_B], PP[k, S_I_B, S_I_B]
     dof = 0.0
     for r in range(mask.shape[1]):
         if mask[j, r]:
@@ -216,6 +222,9 @@ def step_one(
     if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
         X[k, S_C_LK] = c_prior
         PP[k, S_C_LK, S_C_LK] = p_prior + q_k[S_C_LK] * dt
+    if hold_ib:  # the same for i_b
+        X[k, S_I_B] = b_prior
+        PP[k, S_I_B, S_I_B] = pb_prior + q_k[S_I_B] * dt
     nis[j] = nis_j
     # the parallel (open-loop) model, driven by the command, with the estimated load
     OL[k, S_F_R] = X[k, S_F_R] * sc_k[S_F_R]
