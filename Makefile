@@ -42,6 +42,7 @@ format: $(STAMP)
 bench: $(KERNELS)
 	$(PY) bench/models.py
 	$(PY) bench/estimation.py
+	$(PY) bench/estimation_seeds.py --seeds 8
 	$(PY) bench/service.py
 
 clean:
