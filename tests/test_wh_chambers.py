@@ -159,14 +159,16 @@ def test_measured_run_has_no_supply_sensor_by_default():
 def test_c_lk_held_on_samples_far_outside_the_model():
     """est_overload: the 1 ms step to a 24 kN load moved C_Lk to 1.27x nominal, held there
     through the back-driving (the speed gate). Holding C_Lk on a sample whose adaptive scale
-    NIS/dof / adapt_nis exceeds 20 (the WH default) brings the run's C_Lk RMS from 21 % to
-    16 %; on the healthy run (nothing that far outside the model) it changes nothing."""
+    NIS/dof / adapt_nis exceeds 20 (the WH default) brings the run's C_Lk RMS from 19.7 % to
+    14.1 % (with i_b held past the underlap; 21.5 % to 16.2 % before); on the healthy run
+    (nothing that far outside the model) it changes nothing."""
     assert MonitorConfig(model="WH").resolved("c_lk_gate_adapt") == 20.0
     assert MonitorConfig().resolved("c_lk_gate_adapt") == 0.0
     over = load_scenario("est_overload")
     held = evaluate(over, MonitorConfig(model="WH"))
     free = evaluate(over, MonitorConfig(model="WH", c_lk_gate_adapt=0.0))
-    assert held["c_lk_rms_pct"] < 17.0 < 20.0 < free["c_lk_rms_pct"]
+    assert held["c_lk_rms_pct"] < 16.0
+    assert free["c_lk_rms_pct"] > held["c_lk_rms_pct"] + 4.0
     healthy = load_scenario("healthy_noise")
     a = evaluate(healthy, MonitorConfig(model="WH"))
     b = evaluate(healthy, MonitorConfig(model="WH", c_lk_gate_adapt=0.0))
