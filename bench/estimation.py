@@ -45,17 +45,25 @@ SCENARIOS_WH = ("est_overload", "est_large_steps", "est_load_reversal")
 
 
 # -- accuracy ------------------------------------------------------------------------------
-def _one(args) -> dict:
-    model, overrides, name, channels, duration, *leak = args
+def bundled_scenario(name: str, duration: float | None = None, leak: float | None = None):
+    """Bundled scenario ``name``, optionally ``duration`` [s] long, or with a leak step to
+    ``leak`` [m^3/s/Pa] at 1.5 s (e.g. 2x nominal = an increase of 1x) in place of its own."""
     from models.scenario import Event, Profile
-    from service.commands.estimate import evaluate
 
     sc = load_scenario(name)
     if duration is not None:
         sc = sc.model_copy(update={"duration_s": duration, "name": f"{name}_{duration:g}s"})
-    if leak:  # a leak step to leak[0] at 1.5 s (e.g. 2x nominal = an increase of 1x)
-        prof = Profile(initial=2e-13, events=[Event(t=1.5, value=leak[0])])
-        sc = sc.model_copy(update={"leak": prof, "name": f"{name}_{leak[0] / 2e-13:g}x"})
+    if leak is not None:
+        prof = Profile(initial=2e-13, events=[Event(t=1.5, value=leak)])
+        sc = sc.model_copy(update={"leak": prof, "name": f"{name}_{leak / 2e-13:g}x"})
+    return sc
+
+
+def _one(args) -> dict:
+    model, overrides, name, channels, duration, *leak = args
+    from service.commands.estimate import evaluate
+
+    sc = bundled_scenario(name, duration, leak[0] if leak else None)
     r = evaluate(sc, MonitorConfig(model=model, channels=channels, **overrides))
     return {k: v for k, v in r.items() if not k.startswith("_")}
 

@@ -29,7 +29,7 @@ from scipy import stats
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.estimation import SCENARIOS, SCENARIOS_WH  # noqa: E402
+from bench.estimation import SCENARIOS, SCENARIOS_WH, bundled_scenario  # noqa: E402
 from bench.estimation_suite import parse_overrides  # noqa: E402
 
 # the full-channel rows of bench/estimation.py: (row name, scenario, leak step to [m^3/s/Pa])
@@ -71,16 +71,11 @@ def run_pair(args) -> dict:
     """Scenario ``name`` (leak step to ``leak`` at 1.5 s if given) with sensor seed ``seed``,
     through the monitor on each of ``models``: {model: figures}."""
     models, overrides, row, name, leak, seed = args
-    from models.scenario import Event, Profile
     from service.commands.estimate import evaluate
     from service.monitor import MonitorConfig
-    from service.scenarios import load_scenario
 
-    sc = load_scenario(name)
-    upd: dict = {"sensors": sc.sensors.model_copy(update={"seed": seed})}
-    if leak is not None:
-        upd["leak"] = Profile(initial=2e-13, events=[Event(t=1.5, value=leak)])
-    sc = sc.model_copy(update=upd)
+    sc = bundled_scenario(name, leak=leak)
+    sc = sc.model_copy(update={"sensors": sc.sensors.model_copy(update={"seed": seed})})
     out = {"row": row, "seed": seed}
     for m in models:
         out[m] = _figures(evaluate(sc, MonitorConfig(model=m, **overrides.get(m, {}))))
@@ -134,7 +129,7 @@ def print_compare(cmp: list[dict], a: str, b: str, seeds: int) -> None:
     print("-" * len(hdr))
     for c in cmp:
         iv = f"[{_f(c['lo'], '+.3g')}, {_f(c['hi'], '+.3g')}]" if c["lo"] is not None else "-"
-        extra = f" ({c['one_only']} seed(s) {'raised by one model only'})" if c["one_only"] else ""
+        extra = f" ({c['one_only']} seed(s) defined for one model only)" if c["one_only"] else ""
         print(
             f"{c['row']:<20}{c['figure']:<12}{c['n']:>3}{_f(c['mean_a'], '10.3f')}"
             f"{_f(c['mean_b'], '10.3f')}{_f(c['diff'], '+10.3f')}{iv:>22}  {c['verdict']}{extra}"

@@ -142,7 +142,6 @@ def plot_member(
         ax[0].text(tt, ax[0].get_ylim()[1], f" {kind} {state}", fontsize=7, va="top")
     for a in ax:
         a.grid(True, alpha=0.3)
-    for a in (ax[0], ax[1], ax[2], ax[3]):
         a.legend(fontsize=7, loc="upper left")
     fig.suptitle(title)
     fig.tight_layout()

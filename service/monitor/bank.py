@@ -96,9 +96,10 @@ def _by_name(names: Sequence[str], **values: float) -> NDArray:
     return np.array([values[n] for n in names], float)
 
 
-def _gate_i_b(share: float, x_u: float) -> float:
-    """Spool opening [m] past which i_b is held: ``share`` underlaps (0 or no underlap: never)."""
-    return share * x_u if share > 0.0 and x_u > 0.0 else math.inf
+def _underlaps(n: float, x_u: float) -> float:
+    """Spool opening [m] of ``n`` underlaps x_u, past which a gate holds a parameter
+    (n = 0 or no underlap: inf, never)."""
+    return n * x_u if n > 0.0 and x_u > 0.0 else math.inf
 
 
 def _f(v) -> float | None:
@@ -203,7 +204,7 @@ class MonitorBank:
             leak_max_sigma=a.leak_max_sigma,
             supply_max_sigma=a.supply_max_sigma,
             gate_v=c.c_lk_gate_v / self.scale[S_V_J],
-            gate_x_s=(self.rp.x_u if self.rp.x_u > 0 else math.inf) / self.scale[S_X_S],
+            gate_x_s=_underlaps(1.0, self.rp.x_u) / self.scale[S_X_S],
             gate_nis=c.c_lk_gate_nis,
             gate_p12=c.resolved("c_lk_gate_p12") * b.p_sr_rated,
             adapt_nis=c.resolved("adapt_nis"),
@@ -211,7 +212,7 @@ class MonitorBank:
             adapt_reinit=c.adapt_reinit,
             adapt_p_sr=c.resolved("adapt_p_sr"),
             gate_adapt=c.resolved("c_lk_gate_adapt"),
-            gate_i_b_x_s=_gate_i_b(c.resolved("i_b_gate_x_u"), self.rp.x_u) / self.scale[S_X_S],
+            gate_i_b_x_s=_underlaps(c.resolved("i_b_gate_x_u"), self.rp.x_u) / self.scale[S_X_S],
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}
