@@ -35,6 +35,7 @@ from service.monitor.kernels import (
     IN_Z,
     INPUT_COLUMNS,
     N_CHANNELS,
+    N_PENDING,
     PREP_COUNTERS,
     S_C_LK,
     S_F_R,
@@ -151,9 +152,19 @@ class MonitorBank:
         pn = c.process
         # WH: the chamber columns of q hold the differential and the common mode's random
         # walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (service.ukf; equal: uncorrelated)
-        q_wh = {"pt1": pn.p_ch, "pt2": c.resolved("process.p_ch_common")} if self.wh else {}
-        q_set = {n: getattr(pn, n) for n in er.STATE_NAMES if n != "p_sr"}
-        q = _by_name(names, **q_set, p_sr=c.resolved("process.p_sr"), **q_wh)
+        q_wh = (
+            {"pt1": c.resolved("process.p_ch"), "pt2": c.resolved("process.p_ch_common")}
+            if self.wh
+            else {}
+        )
+        q_set = {n: getattr(pn, n) for n in er.STATE_NAMES if n not in ("p_sr", "c_lk")}
+        q = _by_name(
+            names,
+            **q_set,
+            p_sr=c.resolved("process.p_sr"),
+            c_lk=c.resolved("process.c_lk"),
+            **q_wh,
+        )
         if c.channels == "reduced":  # parameters not observable from x_J alone
             q[[S_P_SR, S_C_LK, S_I_B]] *= c.reduced_param_q
         self._q = (q / self.scale) ** 2
@@ -213,6 +224,9 @@ class MonitorBank:
             adapt_p_sr=c.resolved("adapt_p_sr"),
             gate_adapt=c.resolved("c_lk_gate_adapt"),
             gate_i_b_x_s=_underlaps(c.resolved("i_b_gate_x_u"), self.rp.x_u) / self.scale[S_X_S],
+            mask_tau=a.leak_mask_tau_s,
+            mask_supply=a.leak_mask_supply,
+            mask_s=a.leak_mask_s,
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}
@@ -249,7 +263,8 @@ class MonitorBank:
         self.nis_avg = np.zeros(cap)
         self.t_init = np.zeros(cap)
         self.alarm = np.zeros((cap, len(ALARM_KINDS)), bool)
-        self.pending = np.full((cap, len(ALARM_KINDS)), np.nan)  # since when a change is due
+        # per alarm since when a change is due, then the leak mask's supply tracker
+        self.pending = np.full((cap, N_PENDING), np.nan)
         self.counters: list[dict[str, int]] = [dict.fromkeys(COUNTERS, 0) for _ in range(cap)]
         self.events_log: list[list[AlarmEvent]] = [[] for _ in range(cap)]
         # per-actuator baseline rows (the default's until set_baseline)

@@ -92,6 +92,9 @@ CST_FIELDS: tuple[str, ...] = (
     "adapt_p_sr",  # the adaptive step scales P_SR's walk by g^adapt_p_sr (0: held)
     "gate_adapt",  # C_Lk held on a sample whose adaptive scale exceeds this (0: off)
     "gate_i_b_x_s",  # i_b held while |x_S| exceeds this (filter units; inf: never)
+    "mask_tau",  # time constant of the lagged supply ratio [s]
+    "mask_supply",  # supply transient: |P_SR/rated - its lagged value| above this ...
+    "mask_s",  # ... freezes the leak alarm, and for this long after [s] (0: off)
 )
 (
     C_H_MAX,
@@ -120,7 +123,18 @@ CST_FIELDS: tuple[str, ...] = (
     C_ADAPT_P_SR,
     C_GATE_ADAPT,
     C_GATE_I_B_XS,
+    C_MASK_TAU,
+    C_MASK_SUPPLY,
+    C_MASK_S,
 ) = range(len(CST_FIELDS))
+
+# the bank's pending array (n_act, N_PENDING): per alarm, since when its change is due (NaN:
+# none); then the supply tracker of the leak alarm's mask: the lagged supply ratio, the time
+# the mask ends and the time of the lagged ratio (NaN: not started)
+PEND_SR_LAG = N_ALARMS
+PEND_MASK_END = N_ALARMS + 1
+PEND_T_LAG = N_ALARMS + 2  # time of the lagged ratio [s]
+N_PENDING = N_ALARMS + 3
 
 # counter columns: prepare_inputs' cnt (n_act, 2) and block_steps' cnt (n_act, 3)
 PREP_COUNTERS: tuple[str, ...] = ("bad_channel", "skipped_nan")
@@ -305,6 +319,23 @@ def row_one(
     sd_l = est[j, EST_C_LK_SIGMA] / c_lk0 if c_lk0 > 0 else 0.0
     sd_s = est[j, EST_P_SR_SIGMA] / p_rated
     armed = t[j] - T_INIT[kk] >= cst_k[C_ARM]
+    # a supply transient confounds the leak estimate (C_Lk and P_SR both explain the chamber
+    # pressures until P_SR has followed): the leak alarm keeps its state while the supply
+    # ratio leaves its lagged value by more than mask_supply, and mask_s after
+    # (docs/estimation.md, "Leak alarm during a supply transient")
+    masked = False
+    if cst_k[C_MASK_S] > 0.0:
+        sr_lag, t_lag = PENDING[k, PEND_SR_LAG], PENDING[k, PEND_T_LAG]
+        if math.isnan(sr_lag) or not t[j] > t_lag:
+            sr_lag = sr
+        elif abs(sr - sr_lag) > cst_k[C_MASK_SUPPLY]:
+            PENDING[k, PEND_MASK_END] = t[j] + cst_k[C_MASK_S]
+        if not math.isnan(t_lag) and t[j] > t_lag:
+            sr_lag += (1.0 - math.exp(-(t[j] - t_lag) / cst_k[C_MASK_TAU])) * (sr - sr_lag)
+        PENDING[k, PEND_SR_LAG] = sr_lag
+        PENDING[k, PEND_T_LAG] = t[j]
+        end = PENDING[k, PEND_MASK_END]
+        masked = (not math.isnan(end)) and t[j] < end
     for a in range(N_ALARMS):
         on = ALARM[k, a]
         if a == ALARM_LEAK:
@@ -320,7 +351,9 @@ def row_one(
                 else (sr <= cst_k[C_SUP_RAISE] and sd_s < cst_k[C_SUP_SIG])
             )
         fire[j, a] = 0
-        if want and armed:
+        if a == ALARM_LEAK and masked:
+            PENDING[k, a] = math.nan  # frozen: the persistence starts again after the mask
+        elif want and armed:
             if math.isnan(PENDING[k, a]):
                 PENDING[k, a] = t[j]
             if t[j] - PENDING[k, a] >= cst_k[C_HOLD] - 1e-12:
