@@ -97,7 +97,7 @@ def stream():
 
 
 def _state(bank: MonitorBank):
-    return [_bits(getattr(bank, a)) for a in ("x", "P", "ol", "t_last", "i_last", "nis_avg")]
+    return [_bits(getattr(bank, a)) for a in ("x", "P", "ol", "t_last", "carry", "nis_avg")]
 
 
 def test_block_rows_equal_round_rows(stream):

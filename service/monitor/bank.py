@@ -28,12 +28,17 @@ from models import eha_reduced_wh as erw
 from service.messages import CHANNELS as WIRE
 from service.monitor.config import MONITOR_MODELS, Baseline, MonitorConfig
 from service.monitor.kernels import (
+    CARRY_GM,
+    CARRY_GP,
+    CARRY_I,
+    CARRY_N,
     CST_FIELDS,
     IN_I,
     IN_T,
     IN_X_CMD,
     IN_Z,
     INPUT_COLUMNS,
+    N_CARRY,
     N_CHANNELS,
     N_PENDING,
     PREP_COUNTERS,
@@ -227,6 +232,9 @@ class MonitorBank:
             mask_tau=a.leak_mask_tau_s,
             mask_supply=a.leak_mask_supply,
             mask_s=a.leak_mask_s,
+            cusum_nu=c.c_lk_cusum_nu,
+            cusum_h=c.resolved("c_lk_cusum_h"),
+            cusum_kick=(c.c_lk_cusum_kick * b.c_lk / self.scale[S_C_LK]) ** 2,
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}
@@ -259,7 +267,7 @@ class MonitorBank:
         self.P = np.zeros((cap, n, n))
         self.ol = np.zeros((cap, n))  # SI open-loop (parallel) model state
         self.t_last = np.full(cap, -np.inf)
-        self.i_last = np.zeros(cap)
+        self.carry = np.zeros((cap, N_CARRY))  # last current [A], C_Lk CUSUMs, detections
         self.nis_avg = np.zeros(cap)
         self.t_init = np.zeros(cap)
         self.alarm = np.zeros((cap, len(ALARM_KINDS)), bool)
@@ -276,7 +284,7 @@ class MonitorBank:
         self.r_cst = np.tile(self._cst, (cap, 1))
         self.r_base: list[tuple[Baseline, er.ReducedParams]] = [(self.baseline, self.rp)] * cap
 
-    _ARRAYS = ("x", "P", "ol", "t_last", "i_last", "nis_avg", "t_init", "alarm", "pending",
+    _ARRAYS = ("x", "P", "ol", "t_last", "carry", "nis_avg", "t_init", "alarm", "pending",
                "r_scale", "r_zscale", "r_q", "r_R", "r_prm", "r_cst")  # fmt: skip
 
     def _grow(self) -> None:
@@ -311,6 +319,11 @@ class MonitorBank:
     def counters_of(self, key: str) -> dict[str, int]:
         """Sample counters of actuator ``key`` (accepted, skipped_nan, skipped_time, ...)."""
         return self.counters[self.ids[key]]
+
+    def c_lk_changes_of(self, key: str) -> int:
+        """Changes of C_Lk the change detector of actuator ``key`` has read (``MonitorConfig.
+        c_lk_cusum_h``; docs/estimation.md, "C_Lk change detector")."""
+        return int(self.carry[self.ids[key], CARRY_N])
 
     def update_many(self, samples: Sequence[tuple[str, Mapping]]) -> list[MonitorOutput | None]:
         """Process samples (actuator id, sample) in order; the result equals feeding them one
@@ -519,7 +532,7 @@ class MonitorBank:
         while True:
             j, code = block_steps(
                 j, emit, ks, t, z, mask, cand, i_m, x_c, self.x, self.P, self.ol, self.t_last,
-                self.i_last, self.nis_avg, self.t_init, self.r_q, self.r_R, self.r_scale,
+                self.carry, self.nis_avg, self.t_init, self.r_q, self.r_R, self.r_scale,
                 self.r_zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst,
                 self.config.max_gap_s, self._expect, self._ws, y, nis, nis_avg, acc, *snap, cnt,
             )  # fmt: skip
@@ -535,7 +548,7 @@ class MonitorBank:
                 self._init_state(k, z[j], mask[j], i_j, x_j)
                 self.t_last[k] = tj
                 self.t_init[k] = tj
-                self.i_last[k] = i_j if i_j is not None else 0.0
+                self.carry[k, CARRY_I] = i_j if i_j is not None else 0.0
                 self.counters[k]["accepted"] += 1
             else:  # broken or diverged (the step was done and counted)
                 keep = self.x[k].copy()
@@ -686,6 +699,7 @@ class MonitorBank:
         self.ol[k] = xs
         self.ol[k, S_P_SR], self.ol[k, S_C_LK] = b.p_sr_rated, b.c_lk
         self.nis_avg[k] = 0.0
+        self.carry[k, CARRY_GP] = self.carry[k, CARRY_GM] = 0.0  # the change detector restarts
 
     def _round(self, items: list[tuple[str, Mapping]], slots: list[int], out: list) -> None:
         cfg = self.config
@@ -703,7 +717,7 @@ class MonitorBank:
                 self._init_state(k, z1[0], m1[0], p[3], p[4])
                 self.t_last[k] = t
                 self.t_init[k] = t
-                self.i_last[k] = p[3] if p[3] is not None else 0.0
+                self.carry[k, CARRY_I] = p[3] if p[3] is not None else 0.0
                 self.counters[k]["accepted"] += 1
                 self._outputs(
                     np.array([k]), np.array([t]), z1, m1, np.zeros((1, N_CHANNELS)), np.zeros(1), [[]],
@@ -728,7 +742,7 @@ class MonitorBank:
         nis_avg = np.zeros(B)
         flag = np.zeros(B, np.int64)
         bank_step(
-            ks, t, z, mask, i_m, x_c, self.x, self.P, self.ol, self.t_last, self.i_last,
+            ks, t, z, mask, i_m, x_c, self.x, self.P, self.ol, self.t_last, self.carry,
             self.nis_avg, self.r_q, self.r_R, self.r_scale, self.r_zscale, self.ukf.w.Wm,
             self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst, self._ws, y, nis, nis_avg, flag,
         )  # fmt: skip

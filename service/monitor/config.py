@@ -124,6 +124,7 @@ MODEL_DEFAULTS: dict[str, dict[str, float]] = {
         "adapt_nis": 1.5,
         "adapt_p_sr": 2.0,
         "c_lk_gate_adapt": 20.0,
+        "c_lk_cusum_h": 10.0,
         "c_lk_gate_p12": 0.05,
         "i_b_gate_x_u": 1.0,
         "p_sr_max_ratio": 1.05,
@@ -197,6 +198,20 @@ class MonitorConfig(_Cfg):
         "(0 = off; None = the model's default, MODEL_DEFAULTS; docs/estimation.md, "
         "observability gate)",
     )
+    c_lk_cusum_h: float | None = Field(
+        None,
+        ge=0,
+        description="C_Lk change detector: threshold of the two-sided CUSUM of the "
+        "standardised C_Lk updates (0 = off; None = the model's default, MODEL_DEFAULTS; "
+        "docs/estimation.md, C_Lk change detector)",
+    )
+    c_lk_cusum_nu: float = Field(0.5, ge=0, description="... its drift per sample")
+    c_lk_cusum_kick: float = Field(
+        0.5,
+        gt=0,
+        description="... on a detection, C_Lk's 1-sigma grows by this share of the "
+        "baseline C_Lk (in quadrature)",
+    )
     p_sr_max_ratio: float | None = Field(
         None,
         ge=1,
@@ -230,7 +245,7 @@ class MonitorConfig(_Cfg):
     )
 
     def resolved(self, name: str) -> float:
-        """``name`` (c_lk_gate_p12, c_lk_gate_adapt, i_b_gate_x_u, adapt_nis, adapt_p_sr,
+        """``name`` (c_lk_gate_p12, c_lk_gate_adapt, c_lk_cusum_h, i_b_gate_x_u, adapt_nis, adapt_p_sr,
         p_sr_max_ratio, process.p_sr, process.c_lk, process.p_ch or process.p_ch_common) as
         set, else the model's default (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1;
         process.p_sr: 2e6; process.c_lk: 1e-13; process.p_ch: 1e6; process.p_ch_common:

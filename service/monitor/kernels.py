@@ -95,6 +95,9 @@ CST_FIELDS: tuple[str, ...] = (
     "mask_tau",  # time constant of the lagged supply ratio [s]
     "mask_supply",  # supply transient: |P_SR/rated - its lagged value| above this ...
     "mask_s",  # ... freezes the leak alarm, and for this long after [s] (0: off)
+    "cusum_nu",  # C_Lk change detector: drift of the CUSUM of standardised C_Lk updates
+    "cusum_h",  # ... its threshold (0: off)
+    "cusum_kick",  # ... the C_Lk variance added on a detection (filter units^2)
 )
 (
     C_H_MAX,
@@ -126,7 +129,16 @@ CST_FIELDS: tuple[str, ...] = (
     C_MASK_TAU,
     C_MASK_SUPPLY,
     C_MASK_S,
+    C_CUSUM_NU,
+    C_CUSUM_H,
+    C_CUSUM_KICK,
 ) = range(len(CST_FIELDS))
+
+# the bank's carry array (n_act, N_CARRY): the last current [A] (held when a sample has
+# neither current nor command), the C_Lk change detector's CUSUMs (+, -) and its number of
+# detections since the actuator was added
+CARRY_I, CARRY_GP, CARRY_GM, CARRY_N = range(4)
+N_CARRY = 4
 
 # the bank's pending array (n_act, N_PENDING): per alarm, since when its change is due (NaN:
 # none); then the supply tracker of the leak alarm's mask: the lagged supply ratio, the time
@@ -161,7 +173,7 @@ def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws, n):
 
 @njit(cache=True, inline="always")
 def step_one(
-    j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale, zscale, Wm,
+    j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm,
     Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
 ):  # fmt: skip
     """Sample j of actuator k (in place on the bank arrays): inputs (measured current, else
@@ -181,9 +193,9 @@ def step_one(
     elif not math.isnan(x_c[j]):
         i_f = min(max(k_p * (x_c[j] - X[k, S_X_J] * sc_k[S_X_J]), -i_max), i_max)
     else:
-        i_f = I_LAST[k]
+        i_f = CARRY[k, CARRY_I]
     i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, S_X_J]), -i_max), i_max)
-    I_LAST[k] = i_f
+    CARRY[k, CARRY_I] = i_f
     # observability gate: C_Lk only from the valve's linear region at low speed
     gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
     gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
@@ -236,6 +248,22 @@ def step_one(
     if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
         X[k, S_C_LK] = c_prior
         PP[k, S_C_LK, S_C_LK] = p_prior + q_k[S_C_LK] * dt
+    elif cst_k[C_CUSUM_H] > 0.0:
+        # C_Lk change detector (docs/estimation.md, "C_Lk change detector"): the update
+        # standardised by its model variance (prior - posterior) is N(0, 1) and white while
+        # C_Lk holds still; a two-sided CUSUM of it past cusum_h reads a change, and the
+        # variance added lets the filter follow it at once
+        v_upd = p_prior + q_k[S_C_LK] * dt - PP[k, S_C_LK, S_C_LK]
+        if v_upd > 0.0:
+            u = (X[k, S_C_LK] - c_prior) / math.sqrt(v_upd)
+            gp = max(0.0, CARRY[k, CARRY_GP] + u - cst_k[C_CUSUM_NU])
+            gm = max(0.0, CARRY[k, CARRY_GM] - u - cst_k[C_CUSUM_NU])
+            if gp > cst_k[C_CUSUM_H] or gm > cst_k[C_CUSUM_H]:
+                PP[k, S_C_LK, S_C_LK] += cst_k[C_CUSUM_KICK]
+                CARRY[k, CARRY_N] += 1.0
+                gp = gm = 0.0
+            CARRY[k, CARRY_GP] = gp
+            CARRY[k, CARRY_GM] = gm
     if hold_ib:  # the same for i_b
         X[k, S_I_B] = b_prior
         PP[k, S_I_B, S_I_B] = pb_prior + q_k[S_I_B] * dt
@@ -371,12 +399,12 @@ def row_one(
 
 @njit(cache=True)
 def bank_step(
-    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale, zscale, Wm, Wc,
+    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm, Wc,
     c, prm, cst, ws, y, nis, nis_avg, flag,
 ):  # fmt: skip
     """One sample for each actuator ks[j] through ``step_one``; flag[j] its return code."""
-    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG = borrowed_all(
-        (ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG)
+    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG = borrowed_all(
+        (ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG)
     )
     q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag = borrowed_all(
         (q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag)
@@ -386,7 +414,7 @@ def bank_step(
     tmp = np.empty(X.shape[1] * (X.shape[1] + 3))  # model output, then step_one's scratch
     for j in range(ks.shape[0]):
         flag[j] = step_one(
-            j, ks[j], t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale,
+            j, ks[j], t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale,
             zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
         )  # fmt: skip
 
@@ -461,7 +489,7 @@ def prepare_inputs(ks, vals, present, use, zscale, cnt):
 
 @njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
 def block_steps(
-    j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT, q,
+    j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT, q,
     R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis, nis_avg, acc, SX, SPD,
     SOL, STI, SNA, cnt,
 ):  # fmt: skip
@@ -476,8 +504,8 @@ def block_steps(
     # every array argument through borrowed_all (see service.ukf): the inlined step_one takes
     # about 30 arrays, which numba would otherwise reference-count with atomic operations at
     # every sample (about a fifth of the step)
-    ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT = borrowed_all(
-        (ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, T_INIT)
+    ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT = borrowed_all(
+        (ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT)
     )
     q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg = borrowed_all(
         (q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg)
@@ -503,7 +531,7 @@ def block_steps(
                 return j, STEP_INIT
             cnt[k, CNT_ACCEPTED] += 1
             code = step_one(
-                j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, I_LAST, NIS_AVG, q, R, scale,
+                j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale,
                 zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
             )  # fmt: skip
             if code != STEP_OK:
