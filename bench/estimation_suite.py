@@ -21,7 +21,13 @@ issue 10 in brackets):
 - ``false``: alarms raised while the truth is on the healthy side of the clear level [0];
 - ``nis%``: share of samples (after the arming time) whose NIS is in its 95 % band [>= 90 %];
 - ``reinit``: divergence re-initialisations [0 on a healthy plant];
-- ``bias%``: C_Lk reading over the last second against nominal where the plant has no leak.
+- ``bias%``: C_Lk reading over the last second against nominal where the plant has no leak;
+- ``obs`` (no target): seconds from the true crossing of the raise level to the end of the
+  first window, as long as the alarm's persistence time, in which the true signals pass the
+  filter's observability gate (|v_J| below ``c_lk_gate_v``, |x_S| within the underlap, |P12|
+  above ``c_lk_gate_p12``; ``first_observable``): a monitor that learns C_Lk only where the
+  gate is open cannot raise the alarm earlier. A late alarm whose ``obs`` passes the 1 s
+  target is marked ``delay(obs)`` (still a miss).
 """
 
 from __future__ import annotations
@@ -65,6 +71,34 @@ def monitor_run(
     t = np.asarray(meas["t"])
     rows = bank.update_arrays(np.full(len(t), bank.index_of("a")), t, meas_channels(meas))
     return sim, rows, base, cfg, bank
+
+
+def first_observable(
+    t: np.ndarray,
+    v_j: np.ndarray,
+    x_s: np.ndarray,
+    p12: np.ndarray,
+    t0: float,
+    v_max: float,
+    x_s_max: float,
+    p12_min: float,
+    hold_s: float,
+) -> float:
+    """Seconds from ``t0`` to the end of the first window of ``hold_s`` in which |v_J| <
+    v_max, |x_S| < x_s_max and |P12| > p12_min hold throughout (the C_Lk gate of
+    docs/estimation.md, "Observability gate"), on samples ``t`` [s]; inf if none."""
+    ok = (np.abs(v_j) < v_max) & (np.abs(x_s) < x_s_max) & (np.abs(p12) > p12_min)
+    ok &= t >= t0
+    start = None
+    for j in np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(np.int8), [0])))):
+        if start is None:
+            start = j  # a run of ok samples begins
+            continue
+        end = j - 1  # ... and ends at sample end
+        if t[end] - t[start] >= hold_s - 1e-12:
+            return float(t[start] + hold_s - t0)
+        start = None
+    return float("inf")
 
 
 def run_one(
@@ -118,12 +152,18 @@ def run_one(
     out["psr_all%"] = worst_all
     lr_true = c_true / c0
     cross = np.flatnonzero(lr_true >= acfg.leak_raise)
-    delay = None
+    delay = obs = None
     if len(cross):
         tc = float(t[cross[0]])
         raised = [e.t for e in events if e.kind == "leak" and e.state == "raised" and e.t >= tc - 1]
         delay = (raised[0] - tc) if raised else float("inf")
+        obs = first_observable(
+            np.asarray(sim.t), np.asarray(sim.v_j), np.asarray(sim.x_s) - base.x_0,
+            np.asarray(sim.p1 - sim.p2), tc, cfg.c_lk_gate_v, base.x_u,
+            cfg.resolved("c_lk_gate_p12") * base.p_sr_rated, acfg.hold_s,
+        )  # fmt: skip
     out["delay"] = delay
+    out["obs"] = obs
     out["false"] = count_false_alarms(events, t, lr_true, p_true / p0, acfg)
     out["nis%"] = nis_in_band_pct(t, res["nis"], res["nis_dof"], cfg.arm_s)
     out["reinit"] = int(bank.counters_of("a")["reinit"])
@@ -146,7 +186,8 @@ def failures(r: dict) -> list[str]:
     if r["psr%"] is not None and abs(r["psr%"]) > TARGETS["psr%"]:
         bad.append("psr%")
     if r["delay"] is not None and not (r["delay"] <= TARGETS["delay"]):
-        bad.append("delay")
+        obs = r.get("obs")
+        bad.append("delay(obs)" if obs is not None and obs > TARGETS["delay"] else "delay")
     if r["false"] > 0:
         bad.append("false")
     if r["nis%"] < TARGETS["nis%"]:
@@ -166,7 +207,8 @@ def _f(v, spec: str, width: int) -> str:
 
 def print_table(rows: list[dict]) -> None:
     hdr = (f"{'scenario':<11}{'kind':<19}{'leak x':>7}{'noise':>6}{'inc%':>7}{'bias%':>7}"
-           f"{'psr%':>7}{'psr_all':>8}{'delay':>7}{'false':>6}{'nis%':>6}{'reinit':>7}  fails")  # fmt: skip
+           f"{'psr%':>7}{'psr_all':>8}{'delay':>7}{'obs':>7}{'false':>6}{'nis%':>6}{'reinit':>7}"
+           "  fails")  # fmt: skip
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
@@ -174,7 +216,7 @@ def print_table(rows: list[dict]) -> None:
             f"{r['name']:<11}{r['kind']:<19}{r['leak_ratio']:>7.2f}{r['noise_scale']:>6.2f}"
             f"{_f(r['inc%'], '+.1f', 7)}{_f(r['bias%'], '+.1f', 7)}{_f(r['psr%'], '+.2f', 7)}"
             f"{_f(r.get('psr_all%'), '+.2f', 8)}"
-            f"{_f(r['delay'], '.3f', 7)}{r['false']:>6d}{r['nis%']:>6.1f}{r['reinit']:>7d}  "
+            f"{_f(r['delay'], '.3f', 7)}{_f(r.get('obs'), '.3f', 7)}{r['false']:>6d}{r['nis%']:>6.1f}{r['reinit']:>7d}  "
             f"{','.join(failures(r)) or 'ok'}"
         )
 
@@ -188,6 +230,7 @@ def summary(rows: list[dict]) -> dict:
         ("psr%", lambda a: a[np.argmax(np.abs(a))]),
         ("psr_all%", lambda a: a[np.argmax(np.abs(a))]),
         ("delay", np.max),
+        ("obs", np.max),
         ("false", np.max),
         ("nis%", np.min),
         ("reinit", np.max),
@@ -210,8 +253,8 @@ def summary(rows: list[dict]) -> dict:
 def print_summary(s: dict) -> None:
     print("\nfigure   n   median    worst   target")
     tgt = {"inc%": "|.|<=10", "psr%": "|.|<=5", "delay": "<=1 s", "false": "0", "nis%": ">=90",
-           "reinit": "0 healthy", "bias%": "-", "psr_all%": "-"}  # fmt: skip
-    for key in ("inc%", "bias%", "psr%", "psr_all%", "delay", "false", "nis%", "reinit"):
+           "reinit": "0 healthy", "bias%": "-", "psr_all%": "-", "obs": "-"}  # fmt: skip
+    for key in ("inc%", "bias%", "psr%", "psr_all%", "delay", "obs", "false", "nis%", "reinit"):
         if key in s:
             d = s[key]
             print(f"{key:<7}{d['n']:>4}{d['median']:>9.3f}{d['worst']:>9.3f}   {tgt[key]}")

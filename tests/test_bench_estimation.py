@@ -9,8 +9,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
-FIGURES = {"inc%", "bias%", "psr%", "psr_all%", "nis%", "reinit", "false", "delay"}
+FIGURES = {"inc%", "bias%", "psr%", "psr_all%", "nis%", "reinit", "false", "delay", "obs"}
 
 
 def _run(script: str, *argv: str) -> subprocess.CompletedProcess:
@@ -90,3 +93,25 @@ def test_suite_member_prints_windows_and_the_last_second(tmp_path):
     png = (tmp_path / "m.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
     assert lines[-1].startswith("wrote ") and lines[-1].endswith("m.png")
+
+
+def test_first_observable_window_by_hand():
+    """The end of the first run of gate-open samples at least hold_s long, from t0."""
+    sys.path.insert(0, str(ROOT))
+    from bench.estimation_suite import failures, first_observable
+
+    t = [round(0.01 * j, 2) for j in range(100)]  # 0 .. 0.99 s, 10 ms apart
+    v = [0.02 if j < 30 or 40 <= j < 45 else 0.0 for j in range(100)]  # moving before 0.3 s
+    x_s = [0.0] * 100
+    p12 = [3e6 if j != 33 else 0.5e6 for j in range(100)]  # one low sample at 0.33 s
+    args = dict(v_max=0.01, x_s_max=1e-4, p12_min=1e6, hold_s=0.05)
+    arr = [np.asarray(a, float) for a in (t, v, x_s, p12)]
+    # from 0.1 s: the run 0.30-0.32 is too short (0.33 fails |P12|), 0.34-0.39 lasts 0.05 s
+    assert first_observable(*arr, t0=0.1, **args) == pytest.approx(0.34 + 0.05 - 0.1)
+    assert first_observable(*arr, t0=0.36, **args) == pytest.approx(0.45 + 0.05 - 0.36)
+    assert math.isinf(first_observable(*arr, t0=0.98, **args))
+    # a late alarm is marked when even the first observable window came after the target
+    row = {"inc%": None, "psr%": None, "false": 0, "nis%": 95.0, "reinit": 0, "kind": "leak"}
+    assert failures({**row, "delay": 1.2, "obs": 1.1}) == ["delay(obs)"]
+    assert failures({**row, "delay": 1.2, "obs": 0.4}) == ["delay"]
+    assert failures({**row, "delay": 0.9, "obs": 0.4}) == []
