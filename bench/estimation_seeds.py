@@ -11,6 +11,11 @@ interval lies wholly on one side of zero, else "-" (no difference seen at this N
 
     .venv/bin/python bench/estimation_seeds.py --models C5,WH --seeds 8 --workers 2
     .venv/bin/python bench/estimation_seeds.py --seeds 4 --only leak_step,est_overload --json s.json
+    .venv/bin/python bench/estimation_seeds.py --seeds 8 --only combined --plant c_r=2.5e-7
+
+``--plant FIELD=VALUE`` changes the HF plant of every scenario (an ``EHAParams`` field); each
+model's baseline is then calibrated on healthy_noise with that plant (``calibrate``) instead
+of the bundled default calibration.
 """
 
 from __future__ import annotations
@@ -67,18 +72,41 @@ def _figures(r: dict) -> dict[str, float | None]:
     }
 
 
+def plant_scenario(name: str, plant: dict[str, float], leak: float | None = None):
+    """Bundled scenario ``name`` (``bundled_scenario``) with the EHAParams overrides ``plant``
+    added to its own."""
+    sc = bundled_scenario(name, leak=leak)
+    return sc.model_copy(update={"params": {**sc.params, **plant}}) if plant else sc
+
+
+def plant_baselines(models, overrides: dict, plant: dict[str, float]) -> dict:
+    """Each model's baseline for the plant: the bundled default without ``plant``, else
+    ``calibrate`` on healthy_noise with it."""
+    from service.calibration import calibrate, measured_run
+    from service.monitor import Baseline, MonitorConfig
+
+    if not plant:
+        return {m: Baseline.default(m) for m in models}
+    _, meas = measured_run(plant_scenario("healthy_noise", plant))
+    return {
+        m: calibrate(meas, config=MonitorConfig(model=m, **overrides.get(m, {}))) for m in models
+    }
+
+
 def run_pair(args) -> dict:
-    """Scenario ``name`` (leak step to ``leak`` at 1.5 s if given) with sensor seed ``seed``,
-    through the monitor on each of ``models``: {model: figures}."""
-    models, overrides, row, name, leak, seed = args
+    """Scenario ``name`` (leak step to ``leak`` at 1.5 s if given; EHAParams overrides
+    ``plant``) with sensor seed ``seed``, through the monitor on each of ``models`` with its
+    baseline: {model: figures}."""
+    models, overrides, plant, baselines, row, name, leak, seed = args
     from service.commands.estimate import evaluate
     from service.monitor import MonitorConfig
 
-    sc = bundled_scenario(name, leak=leak)
+    sc = plant_scenario(name, plant, leak)
     sc = sc.model_copy(update={"sensors": sc.sensors.model_copy(update={"seed": seed})})
     out = {"row": row, "seed": seed}
     for m in models:
-        out[m] = _figures(evaluate(sc, MonitorConfig(model=m, **overrides.get(m, {}))))
+        cfg = MonitorConfig(model=m, **overrides.get(m, {}))
+        out[m] = _figures(evaluate(sc, cfg, baselines[m]))
     return out
 
 
@@ -141,6 +169,27 @@ def print_compare(cmp: list[dict], a: str, b: str, seeds: int) -> None:
         print(f"  {c['row']}: {c['figure']} {c['mean_a']:.3f} -> {c['mean_b']:.3f}")
 
 
+def parse_plant(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, float]:
+    """``--plant FIELD=VALUE`` items as EHAParams overrides, checked; ``ap.error`` names a bad
+    item."""
+    from models.params import EHAParams
+
+    plant: dict[str, float] = {}
+    for kv in items:
+        key, sep, val = kv.partition("=")
+        try:
+            plant[key] = float(val)
+        except ValueError:
+            sep = ""
+        if not sep:
+            ap.error(f"--plant {kv!r}: expected FIELD=VALUE with a number")
+    try:
+        EHAParams(**plant)
+    except ValueError as e:
+        ap.error(f"--plant: {e}")
+    return plant
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--models", default="C5,WH", help="A,B: the two process models")
@@ -154,6 +203,14 @@ def main(argv: list[str] | None = None) -> int:
         default=[],
         metavar="MODEL:FIELD=VALUE",
         help="override a MonitorConfig field of one model, e.g. --set WH:process.c_lk=1.2e-13",
+    )
+    ap.add_argument(
+        "--plant",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="change the HF plant of every scenario (an EHAParams field, e.g. c_r=2.5e-7); "
+        "each model is then calibrated on healthy_noise with that plant",
     )
     args = ap.parse_args(argv)
     models = tuple(m.strip() for m in args.models.split(",") if m.strip())
@@ -176,8 +233,15 @@ def main(argv: list[str] | None = None) -> int:
             if mod == m:
                 items.append(rest)
         overrides[m] = parse_overrides(ap, m, items)
+    plant = parse_plant(ap, args.plant)
+    baselines = plant_baselines(models, overrides, plant)
+    if plant:
+        print(f"plant: {plant}; baselines calibrated on healthy_noise with it", file=sys.stderr)
     jobs = [
-        (models, overrides, *r, s) for r in RUNS if r[0] in only for s in range(1, args.seeds + 1)
+        (models, overrides, plant, baselines, *r, s)
+        for r in RUNS
+        if r[0] in only
+        for s in range(1, args.seeds + 1)
     ]
     t0 = time.perf_counter()
     rows = []

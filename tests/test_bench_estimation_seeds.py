@@ -78,6 +78,9 @@ def _run(*argv: str) -> subprocess.CompletedProcess:
         (("--only", "nope"), "--only: unknown nope"),
         (("--set", "process.c_lk=1e-13"), "MODEL:FIELD=VALUE"),
         (("--set", "WH:nope=1"), "--model/--set"),
+        (("--plant", "c_r"), "--plant 'c_r': expected FIELD=VALUE"),
+        (("--plant", "c_rr=1e-6"), "c_rr"),
+        (("--plant", "c_r=-1"), "c_r"),
     ],
 )
 def test_bad_arguments_are_named(argv, msg):
@@ -103,3 +106,19 @@ def test_two_seeds_end_to_end(tmp_path):
     mean_b = (runs[0]["WH"]["c_lk_rms"] + runs[1]["WH"]["c_lk_rms"]) / 2
     assert rms["n"] == 2 and rms["mean_b"] == pytest.approx(mean_b)
     assert {r[0] for r in RUNS} >= {"leak_step_2x", "est_overload", "healthy_noise"}
+
+
+def test_plant_overrides_join_the_scenario_params():
+    """--plant adds EHAParams overrides to every scenario (its own kept) and, when set,
+    calibrates each model on healthy_noise with that plant."""
+    sys.path.insert(0, str(ROOT))
+    from bench.estimation import bundled_scenario
+    from bench.estimation_seeds import plant_baselines, plant_scenario
+    from service.monitor import Baseline
+
+    sc = plant_scenario("leak_step", {"c_r": 2.5e-7}, leak=4e-13)
+    assert sc.params["c_r"] == 2.5e-7 and sc.leak.events[0].value == 4e-13
+    assert "c_r" not in plant_scenario("leak_step", {}).params
+    assert plant_scenario("leak_step", {}) == bundled_scenario("leak_step")
+    base = plant_baselines(("C5", "WH"), {}, {})
+    assert base["WH"] == Baseline.default("WH") and base["C5"] == Baseline.default("C5")
