@@ -157,6 +157,7 @@ def test_run_from_toml_on_the_wh_model_over_zenoh(tmp_path, healthy):
     a = final["actuators"][KEY]
     assert (a["samples"], a["bad_total"], a["gaps"], final["dropped"]) == (n, 0, 0, 0)
     assert a["monitor"]["reinit"] == 0
+    assert a["monitor"]["c_lk_changes"] == 0  # a healthy run: the change detector is quiet
     est = [r for r in read_log(log) if r[0] == f"/{KEY[:-5]}/est"]
     t = np.array([r[1] for r in est])
     c = np.array([r[2]["c_lk"] for r in est])

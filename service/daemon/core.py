@@ -521,9 +521,13 @@ class Daemon:
         return len(self._queue)
 
     def monitor_counters(self, key: str) -> dict[str, int] | None:
-        """The monitor's own sample counters of ``key`` (None before its first sample)."""
+        """The monitor's own sample counters of ``key`` and the C_Lk changes its detector read
+        (None before its first sample)."""
         try:
-            return dict(self.bank.counters_of(key))
+            return {
+                **self.bank.counters_of(key),
+                "c_lk_changes": self.bank.c_lk_changes_of(key),
+            }
         except KeyError:
             return None
 

@@ -5,7 +5,8 @@ its baseline and its version in the health store, None: not commissioned, the de
 gives it to the bank (``MonitorBank.index_of(key, baseline)``), which keeps the
 baseline-dependent vectors as one row per actuator: one batched update serves every
 actuator whatever its baseline. It presents the bank interface the daemon and the replay
-use (``index_of``, ``update_arrays``, ``step_arrays``/``rows_of``, ``counters_of``); with
+use (``index_of``, ``update_arrays``, ``step_arrays``/``rows_of``, ``counters_of``,
+``c_lk_changes_of``); with
 every actuator on the default, the numbers are those of a plain ``MonitorBank``.
 ``rebase`` moves an actuator to another baseline (auto-commissioning).
 """
@@ -74,6 +75,10 @@ class MonitorFleet:
     def counters_of(self, key: str) -> dict[str, int]:
         """The monitor's sample counters of ``key``."""
         return self.bank.counters_of(key)
+
+    def c_lk_changes_of(self, key: str) -> int:
+        """``MonitorBank.c_lk_changes_of``."""
+        return self.bank.c_lk_changes_of(key)
 
     def step_arrays(self, ks: NDArray, t: NDArray, channels: NDArray) -> StepBlock | None:
         """``MonitorBank.step_arrays``."""
