@@ -322,7 +322,7 @@ class MonitorBank:
 
     def c_lk_changes_of(self, key: str) -> int:
         """Changes of C_Lk the change detector of actuator ``key`` has read (``MonitorConfig.
-        c_lk_cusum_h``; docs/estimation.md, "C_Lk change detector")."""
+        c_lk_cusum_h``; docs/estimation.md, "C_Lk change detector (WH)")."""
         return int(self.carry[self.ids[key], CARRY_N])
 
     def update_many(self, samples: Sequence[tuple[str, Mapping]]) -> list[MonitorOutput | None]:

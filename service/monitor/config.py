@@ -203,7 +203,7 @@ class MonitorConfig(_Cfg):
         ge=0,
         description="C_Lk change detector: threshold of the two-sided CUSUM of the "
         "standardised C_Lk updates (0 = off; None = the model's default, MODEL_DEFAULTS; "
-        "docs/estimation.md, C_Lk change detector)",
+        "docs/estimation.md, C_Lk change detector (WH))",
     )
     c_lk_cusum_nu: float = Field(0.5, ge=0, description="... its drift per sample")
     c_lk_cusum_kick: float = Field(

@@ -249,7 +249,7 @@ def step_one(
         X[k, S_C_LK] = c_prior
         PP[k, S_C_LK, S_C_LK] = p_prior + q_k[S_C_LK] * dt
     elif cst_k[C_CUSUM_H] > 0.0:
-        # C_Lk change detector (docs/estimation.md, "C_Lk change detector"): the update
+        # C_Lk change detector (docs/estimation.md, "C_Lk change detector (WH)"): the update
         # standardised by its model variance (prior - posterior) is N(0, 1) and white while
         # C_Lk holds still; a two-sided CUSUM of it past cusum_h reads a change, and the
         # variance added lets the filter follow it at once
@@ -306,10 +306,11 @@ def row_one(
 ):  # fmt: skip
     """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
     innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak
-    and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence
-    and the sigma gate (fire: FIRE_RAISED or FIRE_CLEARED this sample, else 0). The filter state is row kk of
-    X, PD (the diagonal of P), OL, T_INIT and NIS_AVG: the bank's row k, or the snapshot of
-    sample j taken by ``block_steps``; the alarm state is the bank's row k. scale, zscale,
+    and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence,
+    the sigma gate and the leak alarm's supply-transient mask (fire: FIRE_RAISED or
+    FIRE_CLEARED this sample, else 0). The filter state is row kk of X, PD (the diagonal of
+    P), OL, T_INIT and NIS_AVG: the bank's row k, or the snapshot of sample j taken by
+    ``block_steps``; the alarm state (ALARM, PENDING) is the bank's row k. scale, zscale,
     prm, cst hold one row per actuator (its baseline): row k."""
     sc_k, zs_k, prm_k, cst_k = scale[k], zscale[k], prm[k], cst[k]
     n = X.shape[1]
