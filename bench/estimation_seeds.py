@@ -35,7 +35,7 @@ from scipy import stats
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench.estimation import SCENARIOS, SCENARIOS_WH, bundled_scenario  # noqa: E402
-from bench.estimation_suite import parse_overrides  # noqa: E402
+from bench.estimation_suite import numeric_items, parse_overrides  # noqa: E402
 
 # the full-channel rows of bench/estimation.py: (row name, scenario, leak step to [m^3/s/Pa])
 RUNS: tuple[tuple[str, str, float | None], ...] = (
@@ -174,15 +174,7 @@ def parse_plant(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, floa
     item."""
     from models.params import EHAParams
 
-    plant: dict[str, float] = {}
-    for kv in items:
-        key, sep, val = kv.partition("=")
-        try:
-            plant[key] = float(val)
-        except ValueError:
-            sep = ""
-        if not sep:
-            ap.error(f"--plant {kv!r}: expected FIELD=VALUE with a number")
+    plant = dict(numeric_items(ap, "--plant", items))
     try:
         EHAParams(**plant)
     except ValueError as e:

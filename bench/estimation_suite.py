@@ -264,20 +264,26 @@ def print_summary(s: dict) -> None:
         print(f"  {name}: {', '.join(bad)}")
 
 
+def numeric_items(ap: argparse.ArgumentParser, flag: str, items: list[str]):
+    """``FIELD=VALUE`` items of option ``flag`` as (field, number) pairs; ``ap.error`` names a
+    bad item."""
+    for kv in items:
+        key, sep, val = kv.partition("=")
+        if not sep:
+            ap.error(f"{flag} {kv!r}: expected FIELD=VALUE")
+        try:
+            yield key, float(val)
+        except ValueError:
+            ap.error(f"{flag} {kv!r}: VALUE must be a number")
+
+
 def parse_overrides(ap: argparse.ArgumentParser, model: str, items: list[str]) -> dict:
     """``--set FIELD=VALUE`` items as MonitorConfig overrides (``process.c_lk=2e-13``: a field
     of a nested setting), checked against the config; ``ap.error`` names a bad item."""
     from service.monitor import MonitorConfig
 
     overrides: dict = {}
-    for kv in items:
-        key, sep, val = kv.partition("=")
-        if not sep:
-            ap.error(f"--set {kv!r}: expected FIELD=VALUE")
-        try:
-            num = float(val)
-        except ValueError:
-            ap.error(f"--set {kv!r}: VALUE must be a number")
+    for key, num in numeric_items(ap, "--set", items):
         *path, leaf = key.split(".")
         node = overrides
         for part in path:

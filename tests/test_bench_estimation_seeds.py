@@ -79,6 +79,7 @@ def _run(*argv: str) -> subprocess.CompletedProcess:
         (("--set", "process.c_lk=1e-13"), "MODEL:FIELD=VALUE"),
         (("--set", "WH:nope=1"), "--model/--set"),
         (("--plant", "c_r"), "--plant 'c_r': expected FIELD=VALUE"),
+        (("--plant", "c_r=wide"), "--plant 'c_r=wide': VALUE must be a number"),
         (("--plant", "c_rr=1e-6"), "c_rr"),
         (("--plant", "c_r=-1"), "c_r"),
     ],

@@ -123,7 +123,7 @@ def test_wh_defaults_resolve_for_the_supply_walk():
     assert wh.resolved("process.p_sr") == MODEL_DEFAULTS["WH"]["process.p_sr"] == 3e5
     assert c5.resolved("process.p_sr") == 2e6
     assert wh.resolved("process.p_ch_common") == 1e5
-    assert c5.resolved("process.p_ch_common") == c5.resolved("process.p_ch") == 1e6
+    assert c5.resolved("process.p_ch_common") == c5.process.p_ch == 1e6
     assert wh.resolved("adapt_p_sr") == 2.0 and c5.resolved("adapt_p_sr") == 0.0
     cfg = MonitorConfig(model="WH", process={"p_sr": 1e6, "p_ch_common": 1e6})
     assert cfg.resolved("process.p_sr") == 1e6 and cfg.resolved("process.p_ch_common") == 1e6

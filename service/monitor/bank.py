@@ -157,19 +157,9 @@ class MonitorBank:
         pn = c.process
         # WH: the chamber columns of q hold the differential and the common mode's random
         # walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (service.ukf; equal: uncorrelated)
-        q_wh = (
-            {"pt1": c.resolved("process.p_ch"), "pt2": c.resolved("process.p_ch_common")}
-            if self.wh
-            else {}
-        )
-        q_set = {n: getattr(pn, n) for n in er.STATE_NAMES if n not in ("p_sr", "c_lk")}
-        q = _by_name(
-            names,
-            **q_set,
-            p_sr=c.resolved("process.p_sr"),
-            c_lk=c.resolved("process.c_lk"),
-            **q_wh,
-        )
+        q_wh = {"pt1": pn.p_ch, "pt2": c.resolved("process.p_ch_common")} if self.wh else {}
+        q_set = {n: getattr(pn, n) for n in er.STATE_NAMES if n != "p_sr"}
+        q = _by_name(names, **q_set, p_sr=c.resolved("process.p_sr"), **q_wh)
         if c.channels == "reduced":  # parameters not observable from x_J alone
             q[[S_P_SR, S_C_LK, S_I_B]] *= c.reduced_param_q
         self._q = (q / self.scale) ** 2

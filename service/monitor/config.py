@@ -60,19 +60,13 @@ class ProcessNoise(_Cfg):
         description="supply [Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS: 3e5 on "
         "WH, whose adaptive step frees it on a supply change; 2e6 on the C-types)",
     )
-    c_lk: float | None = Field(
-        None,
-        gt=0,
-        description="leakage [m^3/s/Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS, "
-        "else 1e-13)",
-    )
+    c_lk: float = Field(1e-13, gt=0, description="leakage [m^3/s/Pa/sqrt(s)]")
     i_b: float = Field(2e-6, gt=0, description="servovalve null bias [A/sqrt(s)]")
-    p_ch: float | None = Field(
-        None,
+    p_ch: float = Field(
+        1e6,
         gt=0,
         description="WH model only: chamber states p~1, p~2 [Pa/sqrt(s)]; with p_ch_common "
-        "set, the differential mode (p~1 - p~2)/sqrt(2) (None = the model's default, "
-        "MODEL_DEFAULTS, else 1e6)",
+        "set, the differential mode (p~1 - p~2)/sqrt(2)",
     )
     p_ch_common: float | None = Field(
         None,
@@ -135,8 +129,6 @@ MODEL_DEFAULTS: dict[str, dict[str, float]] = {
 _RESOLVED_FALLBACK: dict[str, float] = {  # the rest: 0 (off)
     "p_sr_max_ratio": 1.0,
     "process.p_sr": 2e6,
-    "process.c_lk": 1e-13,
-    "process.p_ch": 1e6,
 }
 
 
@@ -246,17 +238,16 @@ class MonitorConfig(_Cfg):
 
     def resolved(self, name: str) -> float:
         """``name`` (c_lk_gate_p12, c_lk_gate_adapt, c_lk_cusum_h, i_b_gate_x_u, adapt_nis, adapt_p_sr,
-        p_sr_max_ratio, process.p_sr, process.c_lk, process.p_ch or process.p_ch_common) as
-        set, else the model's default (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1;
-        process.p_sr: 2e6; process.c_lk: 1e-13; process.p_ch: 1e6; process.p_ch_common:
-        process.p_ch)."""
+        p_sr_max_ratio, process.p_sr or process.p_ch_common) as set, else the model's default
+        (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1; process.p_sr: 2e6;
+        process.p_ch_common: process.p_ch)."""
         obj, attr = (self.process, name.split(".", 1)[1]) if "." in name else (self, name)
         v = getattr(obj, attr)
         if v is not None:
             return float(v)
         fallback = _RESOLVED_FALLBACK.get(name, 0.0)
         if name == "process.p_ch_common":
-            fallback = self.resolved("process.p_ch")
+            fallback = self.process.p_ch
         return float(MODEL_DEFAULTS.get(self.model, {}).get(name, fallback))
 
     reduced_param_q: float = Field(
