@@ -135,6 +135,20 @@ def identify_baseline(
             f"calibration failed: the healthy run does not excite the valve near null ({coef})"
         )
     x_ss = (2.0 if law == "WH" else 1.0) / a  # WH: the tangent null gain 2 P_SR / x_SS
+    if law == "WH" and nom.c_land > 0.0:
+        # 1/G_PQ is the lands' whole null pressure coefficient; WH carries the laminar
+        # clearance share apart (c_land, supply-independent), so its orifices keep the
+        # rest, at the same flow gain 2 P_SR / (x_SS G_PQ)
+        # (docs/estimation.md, "Land clearance leak (WH)")
+        inv_orifice = 1.0 / g_pq - nom.c_land
+        if not inv_orifice > 0.0:
+            raise ValueError(
+                f"calibration failed: the valve's null pressure coefficient 1/G_PQ = "
+                f"{1.0 / g_pq:.3e} does not exceed the lands' clearance leak c_land = "
+                f"{nom.c_land:.3e} m^3/(s Pa)"
+            )
+        g_orifice = 1.0 / inv_orifice
+        x_ss, g_pq = x_ss * g_pq / g_orifice, g_orifice
     return nom.model_copy(
         update={"x_ss": x_ss, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "x_0": x_0,
                 "skew": skew, "source": "lsq"}
