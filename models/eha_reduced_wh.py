@@ -87,8 +87,8 @@ RK4_H_TARGET = 2.5  # n_substeps keeps the chamber mode's |lambda h| below this 
 
 # parameter vector: models.eha_reduced's layout, then the WH constants (docs/models.md eq. 2, 3, 5)
 (K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R, K_WH_V0,
- K_WH_LAM0, K_WH_C_LAND) = range(N_PRM, N_PRM + 9)  # fmt: skip
-N_PRM_WH = N_PRM + 9
+ K_WH_LAM0, K_WH_C_LAND, K_WH_LAP_CH) = range(N_PRM, N_PRM + 10)  # fmt: skip
+N_PRM_WH = N_PRM + 10
 
 
 def k_orifice(rp: ReducedParams) -> float:
@@ -110,7 +110,8 @@ def param_vector(rp: ReducedParams, v_c: float, beta: float) -> NDArray:
     a[K_WH_XS_R] = rp.x_ss * (1.0 - rp.skew)  # return lands' underlap [m]
     a[K_WH_V0] = v_c  # mid-stroke chamber volume V0 [m^3]
     a[K_WH_LAM0] = stiff_modes(rp, v_c, beta, 0.0)["chamber"]  # chamber mode at V0 [1/s]
-    a[K_WH_C_LAND] = rp.c_land  # land-clearance leak, added to C_Lk [m^3/(s Pa)]
+    a[K_WH_C_LAND] = rp.c_land  # land-clearance leak of an open land [m^3/(s Pa)]
+    a[K_WH_LAP_CH] = rp.lap_ch  # chamber 1's lands lap_ch narrower, chamber 2's wider [m]
     return a
 
 
@@ -170,11 +171,12 @@ def land_flows(x_l, p1, p2, p_sr, rp: ReducedParams):
     k_o, dp_lam = k_orifice(rp), WH_DP_LAM_FRACTION * rp.p_sr_rated
     p_s = rp.p_r + p_sr
     xs_s, xs_r = rp.x_ss * (1.0 + rp.skew), rp.x_ss * (1.0 - rp.skew)
+    d = rp.lap_ch
     return (
-        _land(xs_s + x_l, p_s - p1, k_o, dp_lam, rp.c_land),
-        _land(xs_r - x_l, p1 - rp.p_r, k_o, dp_lam, rp.c_land),
-        _land(xs_s - x_l, p_s - p2, k_o, dp_lam, rp.c_land),
-        _land(xs_r + x_l, p2 - rp.p_r, k_o, dp_lam, rp.c_land),
+        _land(xs_s - d + x_l, p_s - p1, k_o, dp_lam, rp.c_land),
+        _land(xs_r - d - x_l, p1 - rp.p_r, k_o, dp_lam, rp.c_land),
+        _land(xs_s + d - x_l, p_s - p2, k_o, dp_lam, rp.c_land),
+        _land(xs_r + d + x_l, p2 - rp.p_r, k_o, dp_lam, rp.c_land),
     )
 
 
@@ -253,10 +255,11 @@ def rhs_nb(x_s, x_j, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
     p1 = max(pt1, p_vap)
     p2 = max(pt2, p_vap)
     g = prm[K_WH_C_LAND]  # laminar clearance leak of an open land
-    q1 = land_nb(xs_s + x_s, p_s - p1, k_o, dp_lam, isq, g)
-    q2 = land_nb(xs_r - x_s, p1 - p_r, k_o, dp_lam, isq, g)
-    q3 = land_nb(xs_s - x_s, p_s - p2, k_o, dp_lam, isq, g)
-    q4 = land_nb(xs_r + x_s, p2 - p_r, k_o, dp_lam, isq, g)
+    d = prm[K_WH_LAP_CH]  # chamber 1's lands d narrower, chamber 2's d wider
+    q1 = land_nb(xs_s - d + x_s, p_s - p1, k_o, dp_lam, isq, g)
+    q2 = land_nb(xs_r - d - x_s, p1 - p_r, k_o, dp_lam, isq, g)
+    q3 = land_nb(xs_s + d - x_s, p_s - p2, k_o, dp_lam, isq, g)
+    q4 = land_nb(xs_r + d + x_s, p2 - p_r, k_o, dp_lam, isq, g)
     p12 = p1 - p2
     q_lk = c_lk * p12
     q_j = area * v_j

@@ -86,8 +86,9 @@ def test_cli_calibrate_writes_a_loadable_baseline(tmp_path, capsys):
 
 
 def test_cli_calibrate_prints_the_wh_clearance_leak(tmp_path, capsys):
-    """WH's baseline carries the lands' clearance leak (a design value), and the summary says
-    so; a C-type's has none and says nothing of it."""
+    """WH's baseline carries the lands' clearance leak (the design value scaled with the
+    fitted land coefficient), and the summary says so; a C-type's has none and says nothing of
+    it."""
     out = tmp_path / "base.json"
     sc = tmp_path / "h.toml"
     sc.write_text(
@@ -99,8 +100,12 @@ def test_cli_calibrate_prints_the_wh_clearance_leak(tmp_path, capsys):
                    "--passes", "0"])  # fmt: skip
         assert rc == 0
         text = capsys.readouterr().out
-        assert ("clearance leak (design value) 6.32e-14" in text) is shown
-        assert Baseline.load(out).c_land == (P.g_lam_open if shown else 0.0)
+        assert ("lands' clearance leak" in text) is shown
+        c_land = Baseline.load(out).c_land
+        if shown:
+            assert c_land == pytest.approx(P.g_lam_open, rel=0.05)
+        else:
+            assert c_land == 0.0
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")

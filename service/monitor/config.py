@@ -300,6 +300,14 @@ class Baseline(_Cfg):
         "lands x_SS (1 - skew); sets the chamber pressures at null (P_k - P_R) / P_SR = "
         "k^2 / (1 + k^2), k = (1 + skew) / (1 - skew); from calibration",
     )
+    lap_ch: float = Field(
+        0.0,
+        gt=-2e-5,
+        lt=2e-5,
+        description="WH model only: chamber 1's two lands (S->1, 1->R) underlapped lap_ch less "
+        "and chamber 2's lap_ch more [m]; with x_SS, skew and x_0 it places all four lands "
+        '(docs/estimation.md, "Land-by-land calibration (WH)"); from calibration',
+    )
     c_land: float = Field(
         0.0,
         ge=0,
@@ -364,8 +372,11 @@ _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CA
 # healthy_noise --model WH`` (x_SS and G_PQ within 0.6 % of the valve's geometric values: WH
 # has the tangent null gain, and the lands' clearance leak c_land apart)
 _DEFAULT_CALIBRATION["WH"] = {
-    "g_pq": 744132400602.1583,
-    "x_ss": 9.953873435916057e-05,
+    "g_pq": 735929994408.0331,
+    "x_ss": 0.00010003468527916063,
     "p_r": 500000.0,
-    "skew": -1.908199718612985e-05,
+    "skew": -1.9081997186216825e-05,
+    "c_land": 5.761954354126013e-14,
+    "x_0": 0.0,
+    "lap_ch": 0.0,
 }
