@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{dc.test.name}: {dc.kind}" + (f", leak {dc.leak_shape} {dc.leak_ratio:.2f}x" if
           dc.leak_shape else "") + f"; model {a.model}, supply sensor {a.supply_sensor}")  # fmt: skip
     print(f"baseline x_SS {base.x_ss * 1e6:.2f} um, G_PQ {base.g_pq:.3e}, P_R {base.p_r / 1e6:.3f}"
-          f" MPa, x_0 {base.x_0 * 1e6:+.3f} um, skew {base.skew:+.2e}, c_land {base.c_land:.2e}")  # fmt: skip
+          f" MPa, x_0 {base.x_0 * 1e6:+.3f} um, skew {base.skew:+.2e}")  # fmt: skip
     print("     t  C_est/c0  C_true/c0  P_SR err%  |P12| MPa  |v_J| mm/s  max|x_S| um")
     for lo in np.arange(t[0], t[-1], a.window):
         s = (t >= lo) & (t < lo + a.window)

@@ -14,13 +14,10 @@ that mismatch as a fault, so its effective parameters are identified first on he
    same form with twice the pressure gain, P12 (1 + G_PQ C_Lk) = (2 P_SR / x_SS) x_S -
    G_PQ A v_J (the tangent gain of the real valve), so its x_SS is 2 / a; G_PQ and x_SS
    then give its land coefficient K_o = sqrt(2 P_SR) / (x_SS G_PQ) = a sqrt(P_SR / 2).
-   WH then places its four lands and K_o by a nonlinear fit of its two chamber flow
-   balances, starting from these values (``fit_wh_lands``).
 3. Only 1/G_PQ + C_Lk is identifiable at null, so C_Lk stays at nominal and the residual bias
    of the monitor's C_Lk estimate on the same healthy data is moved into 1/G_PQ, keeping the
    flow gain P_SR / (x_SS G_PQ) fixed (a few fixed passes), so that a healthy plant reads
-   C_Lk = nominal and a leak reads as an increase. WH moves it into its lands' clearance
-   leak instead, the one term of its law the fit does not place.
+   C_Lk = nominal and a leak reads as an increase.
 
 ``measured_run`` makes the "recorded log" from a scenario: the HF bench with the scenario's
 sensor noise added (seeded).
@@ -138,103 +135,9 @@ def identify_baseline(
             f"calibration failed: the healthy run does not excite the valve near null ({coef})"
         )
     x_ss = (2.0 if law == "WH" else 1.0) / a  # WH: the tangent null gain 2 P_SR / x_SS
-    if law == "WH" and nom.c_land > 0.0:
-        # 1/G_PQ is the lands' whole null pressure coefficient; WH carries the laminar
-        # clearance share apart (c_land, supply-independent), so its orifices keep the
-        # rest, at the same flow gain 2 P_SR / (x_SS G_PQ)
-        # (docs/estimation.md, "Land clearance leak (WH)")
-        inv_orifice = 1.0 / g_pq - nom.c_land
-        if not inv_orifice > 0.0:
-            raise ValueError(
-                f"calibration failed: the valve's null pressure coefficient 1/G_PQ = "
-                f"{1.0 / g_pq:.3e} does not exceed the lands' clearance leak c_land = "
-                f"{nom.c_land:.3e} m^3/(s Pa)"
-            )
-        g_orifice = 1.0 / inv_orifice
-        x_ss, g_pq = x_ss * g_pq / g_orifice, g_orifice
     return nom.model_copy(
         update={"x_ss": x_ss, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "x_0": x_0,
                 "skew": skew, "source": "lsq"}
-    )  # fmt: skip
-
-
-WH_FIT_SPAN = 0.7  # the land-by-land fit uses samples with |x_S| below this share of x_SS
-
-
-def fit_wh_lands(meas: dict[str, NDArray], base: Baseline) -> Baseline:
-    """Step 2b (WH): the four land underlaps U1..U4 and the land coefficient K_o by nonlinear
-    least squares on the two chamber flow balances of WH (docs/models.md eqs. 1-5; docs/
-    estimation.md, "Land-by-land calibration (WH)"), sample by sample on the smoothed signals
-    of step 2 within ``WH_FIT_SPAN`` x_SS of null, C_Lk nominal:
-
-        Q1 - Q2 - C_Lk P12 - A v_J - V1/beta dP1/dt = 0,   Q3 - Q4 + C_Lk P12 + A v_J - V2/beta dP2/dt = 0,
-
-    Q_k = K_o max(a_k, 0) r(dp_k) + c_land dp_k (open land), a1 = U1 + x_S, a2 = U2 - x_S,
-    a3 = U3 - x_S, a4 = U4 + x_S. The clearance leak scales with K_o (both are proportional to
-    the port width). The result is written as x_SS, skew, x_0, lap_ch (which place the four
-    lands exactly) and G_PQ = sqrt(2 P_SR,rated) / (x_SS K_o); starts from step 2's values."""
-    from scipy.optimize import least_squares
-
-    from models.eha_reduced_wh import land_flows
-
-    t = np.asarray(meas["t"], float)
-    dt = float(np.median(np.diff(t)))
-    win = _smoothing_window(t)
-
-    def smooth(key: str, deriv: int = 0) -> NDArray:
-        return savgol_filter(np.asarray(meas[key], float), win, 3, deriv=deriv, delta=dt)
-
-    x_s, x_j, v_j = smooth("x_s"), smooth("x_j"), smooth("x_j", 1)
-    p1, p2, dp1, dp2 = smooth("p1"), smooth("p2"), smooth("p1", 1), smooth("p2", 1)
-    keep = np.abs(x_s) < WH_FIT_SPAN * base.x_ss
-    keep[: win * 2] = False  # start-up transient
-    keep[-win:] = False
-    if keep.sum() < 100:
-        raise ValueError("calibration failed: too few samples near null for the WH land fit")
-    x_s, x_j, v_j, p1, p2, dp1, dp2 = (y[keep] for y in (x_s, x_j, v_j, p1, p2, dp1, dp2))
-    c1 = (base.v_c + base.area * x_j) / base.beta  # chamber compliances V_k / beta [m^3/Pa]
-    c2 = (base.v_c - base.area * x_j) / base.beta
-    q_lk, q_j = base.c_lk * (p1 - p2), base.area * v_j
-    p_sr = base.p_sr_rated
-    k_o0 = math.sqrt(2.0 * p_sr) / (base.x_ss * base.g_pq)
-    xs_s, xs_r = base.x_ss * (1.0 + base.skew), base.x_ss * (1.0 - base.skew)
-    u0 = np.array([xs_s - base.x_0, xs_r + base.x_0, xs_s + base.x_0, xs_r - base.x_0])
-    rp0 = base.reduced_params()._replace(x_0=0.0, lap_ch=0.0, skew=0.0)
-    scale = k_o0 * base.x_ss * math.sqrt(p_sr)
-    nom = Baseline.nominal("WH")
-    # c_land per unit K_o: both are proportional to the port width (design values)
-    c_land_per_k = nom.c_land / (math.sqrt(2.0 * nom.p_sr_rated) / (nom.x_ss * nom.g_pq))
-
-    # the four lands apart only when the run holds P12 at two levels (step 2 fitted x_0):
-    # at one load the null and the underlaps trade off; then one common underlap scale
-    four = base.x_0 != 0.0
-
-    def lands(theta: NDArray):
-        """(x_SS, skew, x_0, lap_ch, G_PQ, c_land) of the underlaps u0 theta[:4] (or u0
-        theta[0]) and K_o0 theta[-1]."""
-        u1, u2, u3, u4 = u0 * (theta[:4] if four else theta[0])
-        k_o = k_o0 * theta[-1]
-        s_, r_ = 0.5 * (u1 + u3), 0.5 * (u2 + u4)
-        x_ss = 0.5 * (s_ + r_)
-        return (x_ss, (s_ - r_) / (s_ + r_), 0.25 * ((u3 - u1) + (u2 - u4)),
-                0.25 * ((u3 - u1) - (u2 - u4)), math.sqrt(2.0 * p_sr) / (x_ss * k_o),
-                c_land_per_k * k_o)  # fmt: skip
-
-    def residual(theta: NDArray) -> NDArray:
-        x_ss, skew, x_0, lap_ch, g_pq, c_land = lands(theta)
-        rp = rp0._replace(x_ss=x_ss, skew=skew, lap_ch=lap_ch, g_pq=g_pq, c_land=c_land)
-        q1, q2, q3, q4 = land_flows(x_s - x_0, p1, p2, p_sr, rp)
-        r1 = q1 - q2 - q_lk - q_j - c1 * dp1
-        r2 = q3 - q4 + q_lk + q_j - c2 * dp2
-        return np.concatenate([r1, r2]) / scale
-
-    sol = least_squares(residual, np.ones(5 if four else 2), bounds=(0.5, 2.0))
-    if not sol.success:
-        raise ValueError(f"calibration failed: the WH land fit did not converge ({sol.message})")
-    x_ss, skew, x_0, lap_ch, g_pq, c_land = lands(sol.x)
-    return base.model_copy(
-        update={"x_ss": x_ss, "skew": skew, "x_0": x_0, "lap_ch": lap_ch, "g_pq": g_pq,
-                "c_land": c_land}
     )  # fmt: skip
 
 
@@ -326,26 +229,38 @@ def calibrate(
     law = law or cfg.model
     cfg = cfg.model_copy(update={"model": law})
     base = identify_baseline(meas, law)
-    if law == "WH":
-        base = fit_wh_lands(meas, base)
-    t0 = float(np.asarray(meas["t"], float)[0])
+    t = np.asarray(meas["t"], float)
+    p12_m = savgol_filter(
+        np.asarray(meas["p1"], float) - np.asarray(meas["p2"], float), _smoothing_window(t), 2
+    )
     for _ in range(passes):
         rows = bank_rows(meas, cfg, base)
-        sel = rows.t >= t0 + settle_s
-        c_est = float(np.mean(rows.est[sel, EST_KEYS.index("c_lk")]))
-        if law == "WH":
-            # the lands are placed by the fit; the monitor's residual C_Lk bias on the healthy
-            # run goes into the supply-independent clearance leak (docs/estimation.md,
-            # "Land-by-land calibration (WH)")
-            c_land = max(base.c_land + (c_est - base.c_lk), 0.0)
-            base = base.model_copy(update={"c_land": c_land})
-            continue
+        sel = rows.t >= t[0] + settle_s
+        c_all = rows.est[sel, EST_KEYS.index("c_lk")]
+        c_est = float(np.mean(c_all))
         p_sr_est = float(np.mean(rows.est[sel, EST_KEYS.index("p_sr")]))
+        # null refinement: a null error dx_0 is a flow error K_x dx_0, read as a leak
+        # K_x dx_0 / P12; on a run that holds P12 at two levels (x_0 fitted) the monitor's
+        # own C_Lk bias against 1/P12 gives dx_0 (slope) and the 1/G_PQ bias (intercept)
+        # (WH only: on C5 it halved the suite's median C_Lk increase error but one member's
+        # filter then diverged, 48 re-initialisations; docs/estimation.md)
+        x_0 = base.x_0
+        if base.x_0 != 0.0 and law == "WH":
+            p12_s = np.interp(rows.t[sel], t, p12_m)
+            use = np.abs(p12_s) > NULL_FIT_SPREAD * 0.5 * base.p_sr_rated
+            if use.sum() > 100:
+                inv = 1.0 / p12_s[use]
+                slope, icpt = np.polyfit(inv, c_all[use] - base.c_lk, 1)
+                k_x = 2.0 * base.p_sr_rated / (base.x_ss * base.g_pq)  # WH null flow gain
+                x_0 = base.x_0 + float(slope) / k_x
+                c_est = base.c_lk + float(icpt)
         inv_g = 1.0 / base.g_pq + (c_est - base.c_lk)
-        # the P_SR estimate is clipped at rated: only correct P_R when it reads low
-        p_r = base.p_r + 0.5 * min(p_sr_est - base.p_sr_rated, 0.0)
+        # the P_SR estimate is clipped at rated: only correct P_R when it reads low. Not for
+        # WH: its P_SR is read through its own orifice law, not the chamber-pressure sum, so
+        # the correction would feed WH's model error back into P_R
+        p_r = base.p_r + (0.0 if law == "WH" else 0.5 * min(p_sr_est - base.p_sr_rated, 0.0))
         g_new = 1.0 / max(inv_g, 1e-14)
         # keep the flow gain P_SR / (x_SS G_PQ) fixed: only the sum 1/G_PQ + C_Lk moves
         x_ss = base.x_ss * base.g_pq / g_new
-        base = base.model_copy(update={"g_pq": g_new, "x_ss": x_ss, "p_r": p_r})
+        base = base.model_copy(update={"g_pq": g_new, "x_ss": x_ss, "p_r": p_r, "x_0": x_0})
     return base.model_copy(update={"source": "calibrated"})

@@ -85,29 +85,6 @@ def test_cli_calibrate_writes_a_loadable_baseline(tmp_path, capsys):
     assert 1.7 < 1e-4 / b.x_ss < 2.2  # the tangent pressure gain at null: about 2x secant
 
 
-def test_cli_calibrate_prints_the_wh_clearance_leak(tmp_path, capsys):
-    """WH's baseline carries the lands' clearance leak (the design value scaled with the
-    fitted land coefficient), and the summary says so; a C-type's has none and says nothing of
-    it."""
-    out = tmp_path / "base.json"
-    sc = tmp_path / "h.toml"
-    sc.write_text(
-        'name = "h"\nduration_s = 1.5\n[command]\ninitial = 0.0\nperiodic = ['
-        '{ kind = "sine", amplitude = 0.002, freq_hz = 0.3 }]\n[load]\ninitial = 4000.0\n'
-    )
-    for model, shown in (("WH", True), ("C5", False)):
-        rc = main(["calibrate", "--scenario", str(sc), "--model", model, "--out", str(out),
-                   "--passes", "0"])  # fmt: skip
-        assert rc == 0
-        text = capsys.readouterr().out
-        assert ("lands' clearance leak" in text) is shown
-        c_land = Baseline.load(out).c_land
-        if shown:
-            assert c_land == pytest.approx(P.g_lam_open, rel=0.05)
-        else:
-            assert c_land == 0.0
-
-
 @pytest.mark.filterwarnings("ignore::UserWarning")
 def test_cli_calibrate_errors(tmp_path, capsys):
     assert main(["calibrate", "--scenario", "nope", "--out", str(tmp_path / "x")]) == 2

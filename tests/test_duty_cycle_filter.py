@@ -1,6 +1,6 @@
 """The filter on large duty cycles with the WH process model (docs/estimation.md, "WH on the
 duty-cycle suite"): the lands' hydraulic null, adaptive process noise, the |P12| gate, the
-land-by-land calibration, and suite members that meet every target of issue 10."""
+null refinement of the calibration, and suite members that meet every target of issue 10."""
 
 from __future__ import annotations
 
@@ -48,10 +48,8 @@ def test_wh_lands_see_the_spool_from_its_hydraulic_null():
 def test_land_skew_sets_the_chamber_pressures_at_null():
     """At null, with the jack held, each chamber sits at P_R + f P_SR, f = k^2 / (1 + k^2),
     k = (1 + skew) / (1 - skew) (docs/estimation.md, "WH on the duty-cycle suite"): run the
-    numpy model to rest from mid-supply and compare, at two supplies (f does not move). The
-    orifices only: the lands' clearance leak, the same on every open land, pulls towards
-    mid-supply and is off here."""
-    base = Baseline.default("WH").model_copy(update={"skew": 0.03, "c_lk": 0.0, "c_land": 0.0})
+    numpy model to rest from mid-supply and compare, at two supplies (f does not move)."""
+    base = Baseline.default("WH").model_copy(update={"skew": 0.03, "c_lk": 0.0})
     rp = base.reduced_params()
     k = 1.03 / 0.97
     f = k * k / (1 + k * k)
@@ -68,9 +66,7 @@ def test_land_skew_sets_the_chamber_pressures_at_null():
 def test_p_sr_after_a_drop_on_a_mismatched_plant():
     """Suite member 11 (seed 1): lands 88-92 um, supply drop with a 2.9x leak step. With the
     chamber-pressure offset read as a return-pressure offset, WH's P_SR read 2.0 % high over
-    the last second and the C_Lk increase 22 % high; as a land skew, within 0.5 % and 15 %
-    (+12 %: the lands' clearance leak, docs/estimation.md "Land clearance leak (WH)", moved it
-    from +7 %; the suite's member dc1_011)."""
+    the last second and the C_Lk increase 22 % high; as a land skew, within 0.5 % and 10 %."""
     dc = duty_cycle(1, 11)
     _, mc = measured_run(dc.calibration)
     cfg = MonitorConfig(model="WH").model_copy(update={"noise": identify_noise(mc)})
@@ -83,7 +79,7 @@ def test_p_sr_after_a_drop_on_a_mismatched_plant():
     assert abs(p_sr / sim.p_sr[-1] - 1.0) < 0.005
     inc_true = sim.c_lk[-1] - sim.c_lk[0]
     inc = rows.est[last, C_LK].mean() - base.c_lk
-    assert abs(inc / inc_true - 1.0) < 0.15
+    assert abs(inc / inc_true - 1.0) < 0.10
 
 
 def test_model_defaults_resolve_per_model():
@@ -144,22 +140,15 @@ def test_p12_gate_holds_c_lk_below_the_gate():
     assert np.ptp(free) > 0.05 * base.c_lk
 
 
-def test_land_fit_reads_nominal_on_a_mismatched_plant():
+def test_null_refinement_reads_nominal_on_a_mismatched_plant():
     """Suite member 13 (seed 1): lands 106-110 um, calibration at +-2-5 kN. With the null fitted
     from rest points only, the WH monitor read C_Lk 0.37x nominal at rest at the start of the
-    test run; with the four lands placed by the calibration's fit (docs/estimation.md,
-    "Land-by-land calibration (WH)"), within 15 %, and the fitted lands within 0.5 um of the
-    plant's."""
+    test run; with the refinement from its own C_Lk bias against 1/P12, within 15 %."""
     dc = duty_cycle(1, 13)
     _, mc = measured_run(dc.calibration)
     cfg = MonitorConfig(model="WH").model_copy(update={"noise": identify_noise(mc)})
     base = calibrate(mc, config=cfg)
     assert base.law == "WH" and base.x_0 != 0.0
-    xs_s, xs_r = base.x_ss * (1 + base.skew), base.x_ss * (1 - base.skew)
-    d, x_0 = base.lap_ch, base.x_0
-    fitted = (xs_s - d - x_0, xs_r - d + x_0, xs_s + d + x_0, xs_r + d - x_0)  # U1..U4
-    plant = tuple(dc.params[f"u{k}"] for k in range(1, 5))
-    assert np.allclose(fitted, plant, atol=0.5e-6), (fitted, plant)
     _, meas = measured_run(dc.test.model_copy(update={"duration_s": 1.0}))
     c = bank_rows(meas, cfg, base).est[:, C_LK]
     assert 0.85 < float(np.mean(c[200:])) / base.c_lk < 1.15

@@ -148,6 +148,4 @@ def _run(args: argparse.Namespace, store) -> int:
         print(f"baseline version {out['version']} of {args.actuator} recorded in {store.where}")
     print(f"  effective x_SS {base.x_ss * 1e6:.2f} um (nominal 100), G_PQ {base.g_pq:.3e} Pa s/m^3")
     print(f"  C_Lk (fixed, nominal) {base.c_lk:.2e}, P_R {base.p_r / 1e6:.3f} MPa")
-    if base.c_land > 0.0:
-        print(f"  lands' clearance leak {base.c_land:.2e} m^3/(s Pa), land skew {base.skew:+.2e}")
     return 0

@@ -300,21 +300,6 @@ class Baseline(_Cfg):
         "lands x_SS (1 - skew); sets the chamber pressures at null (P_k - P_R) / P_SR = "
         "k^2 / (1 + k^2), k = (1 + skew) / (1 - skew); from calibration",
     )
-    lap_ch: float = Field(
-        0.0,
-        gt=-2e-5,
-        lt=2e-5,
-        description="WH model only: chamber 1's two lands (S->1, 1->R) underlapped lap_ch less "
-        "and chamber 2's lap_ch more [m]; with x_SS, skew and x_0 it places all four lands "
-        '(docs/estimation.md, "Land-by-land calibration (WH)"); from calibration',
-    )
-    c_land: float = Field(
-        0.0,
-        ge=0,
-        description="WH model only: laminar leak through the lands' radial clearance "
-        "[m^3/(s Pa)], a cross-port leak added to C_Lk that does not scale with the supply "
-        '(docs/estimation.md, "Land clearance leak (WH)"); nominal from the valve\'s design',
-    )
     v_c: float = Field(7e-5, gt=0, description="WH model only: lumped chamber volume V [m^3]")
     beta: float = Field(1.4e9, gt=0, description="WH model only: lumped bulk modulus [Pa]")
     source: str = "nominal"
@@ -326,7 +311,6 @@ class Baseline(_Cfg):
         rp = er.reduced_params(params, law)._asdict()
         fields = {k: v for k, v in rp.items() if k in cls.model_fields}
         # WH: V = V0 (mid-stroke chamber) and beta_l, as models.params.wh_params
-        fields["c_land"] = p.g_lam_open if law == "WH" else 0.0
         return cls(**fields, c_lk=p.c_lk, v_c=p.v0, beta=p.beta_l, source="nominal")
 
     @classmethod
@@ -369,14 +353,10 @@ _CAL_HEALTHY_NOISE = {
 # near null every C-law reduces to the same linear form, so one calibration serves them all
 _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CAL_HEALTHY_NOISE)
 # WH (models.eha_reduced_wh): its own calibration, ``servowatch calibrate --scenario
-# healthy_noise --model WH`` (x_SS and G_PQ within 0.6 % of the valve's geometric values: WH
-# has the tangent null gain, and the lands' clearance leak c_land apart)
+# healthy_noise --model WH`` (x_SS near the geometric underlap: WH has the tangent null gain)
 _DEFAULT_CALIBRATION["WH"] = {
-    "g_pq": 735929994408.0331,
-    "x_ss": 0.00010003468527916063,
+    "g_pq": 711005642085.4442,
+    "x_ss": 0.00010417638478131995,
     "p_r": 500000.0,
-    "skew": -1.9081997186216825e-05,
-    "c_land": 5.761954354126013e-14,
-    "x_0": 0.0,
-    "lap_ch": 0.0,
+    "skew": -1.908199718612985e-05,
 }
