@@ -32,6 +32,7 @@ from service.monitor.kernels import (
     CARRY_GP,
     CARRY_I,
     CARRY_N,
+    CARRY_P12,
     CST_FIELDS,
     IN_I,
     IN_T,
@@ -213,6 +214,7 @@ class MonitorBank:
             gate_x_s=_underlaps(1.0, self.rp.x_u) / self.scale[S_X_S],
             gate_nis=c.c_lk_gate_nis,
             gate_p12=c.resolved("c_lk_gate_p12") * b.p_sr_rated,
+            gate_p12_tau=c.c_lk_gate_p12_tau_s,
             adapt_nis=c.resolved("adapt_nis"),
             adapt_max=c.adapt_max,
             adapt_reinit=c.adapt_reinit,
@@ -257,7 +259,7 @@ class MonitorBank:
         self.P = np.zeros((cap, n, n))
         self.ol = np.zeros((cap, n))  # SI open-loop (parallel) model state
         self.t_last = np.full(cap, -np.inf)
-        self.carry = np.zeros((cap, N_CARRY))  # last current [A], C_Lk CUSUMs, detections
+        self.carry = np.zeros((cap, N_CARRY))  # last current [A], C_Lk CUSUMs, detections, gate P12
         self.nis_avg = np.zeros(cap)
         self.t_init = np.zeros(cap)
         self.alarm = np.zeros((cap, len(ALARM_KINDS)), bool)
@@ -690,6 +692,7 @@ class MonitorBank:
         self.ol[k, S_P_SR], self.ol[k, S_C_LK] = b.p_sr_rated, b.c_lk
         self.nis_avg[k] = 0.0
         self.carry[k, CARRY_GP] = self.carry[k, CARRY_GM] = 0.0  # the change detector restarts
+        self.carry[k, CARRY_P12] = f_r / b.area  # the C_Lk gate's low-passed P1 - P2 [Pa]
 
     def _round(self, items: list[tuple[str, Mapping]], slots: list[int], out: list) -> None:
         cfg = self.config

@@ -172,9 +172,16 @@ class MonitorConfig(_Cfg):
         None,
         ge=0,
         lt=1,
-        description="... and while the measured |P1 - P2| is above this share of rated P_SR "
+        description="... and while the measured |P1 - P2|, low-passed (c_lk_gate_p12_tau_s), "
+        "is above this share of rated P_SR "
         "(0 = off; None = the model's default, MODEL_DEFAULTS; docs/estimation.md, "
         "observability gate)",
+    )
+    c_lk_gate_p12_tau_s: float = Field(
+        0.05,
+        ge=0,
+        description="... that |P1 - P2| low-passed over the samples before this one, with this "
+        "time constant [s] (0 = the sample's own value; docs/estimation.md, observability gate)",
     )
     c_lk_gate_adapt: float | None = Field(
         None,

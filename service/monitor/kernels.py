@@ -85,7 +85,8 @@ CST_FIELDS: tuple[str, ...] = (
     "gate_v",  # C_Lk learnt only below this |v_J| (filter units) ...
     "gate_x_s",  # ... with the spool within its underlap (filter units) ...
     "gate_nis",  # ... and the NIS/dof average below this
-    "gate_p12",  # ... and while the measured |P1 - P2| is above this [Pa]
+    "gate_p12",  # ... and while the measured |P1 - P2| is above this [Pa] ...
+    "gate_p12_tau",  # ... low-passed over the samples before, with this time constant [s]
     "adapt_nis",  # a sample whose NIS/dof exceeds this is redone with inflated plant noise
     "adapt_max",  # ... scaled by NIS/dof / adapt_nis, at most this (adaptive process noise)
     "adapt_reinit",  # with adaptation on, one sample above this NIS/dof re-initialises
@@ -120,6 +121,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_GATE_XS,
     C_GATE_NIS,
     C_GATE_P12,
+    C_GATE_P12_TAU,
     C_ADAPT_NIS,
     C_ADAPT_MAX,
     C_ADAPT_REINIT,
@@ -136,9 +138,10 @@ CST_FIELDS: tuple[str, ...] = (
 
 # the bank's carry array (n_act, N_CARRY): the last current [A] (held when a sample has
 # neither current nor command), the C_Lk change detector's CUSUMs (+, -) and its number of
-# detections since the actuator was added
-CARRY_I, CARRY_GP, CARRY_GM, CARRY_N = range(4)
-N_CARRY = 4
+# detections since the actuator was added, and the low-passed measured P1 - P2 [Pa] of the
+# C_Lk gate
+CARRY_I, CARRY_GP, CARRY_GM, CARRY_N, CARRY_P12 = range(5)
+N_CARRY = 5
 
 # the bank's pending array (n_act, N_PENDING): per alarm, since when its change is due (NaN:
 # none); then the supply tracker of the leak alarm's mask: the lagged supply ratio, the time
@@ -200,10 +203,19 @@ def step_one(
     gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
     gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
     # ... and with a pressure difference that carries a leak flow (C_Lk P12) above the flow
-    # error of the valve's null (docs/estimation.md, observability gate)
-    if cst_k[C_GATE_P12] > 0.0 and mask[j, Z_P1] and mask[j, Z_P2]:
-        p12_m = z[j, Z_P1] * zs_k[Z_P1] - z[j, Z_P2] * zs_k[Z_P2]
-        gate = gate or abs(p12_m) < cst_k[C_GATE_P12]
+    # error of the valve's null (docs/estimation.md, observability gate), judged on a low-pass
+    # of the measured P1 - P2 over the samples before this one: a gate on the sample's own
+    # noisy value opens on the samples whose noise raises |P12|, and near the threshold that
+    # selection biases C_Lk
+    if cst_k[C_GATE_P12] > 0.0:
+        both_p = mask[j, Z_P1] and mask[j, Z_P2]
+        p12_m = z[j, Z_P1] * zs_k[Z_P1] - z[j, Z_P2] * zs_k[Z_P2] if both_p else math.nan
+        tau = cst_k[C_GATE_P12_TAU]
+        p12_g = CARRY[k, CARRY_P12] if tau > 0.0 else p12_m
+        if not math.isnan(p12_g):
+            gate = gate or abs(p12_g) < cst_k[C_GATE_P12]
+        if both_p and tau > 0.0:
+            CARRY[k, CARRY_P12] += (1.0 - math.exp(-dt / tau)) * (p12_m - CARRY[k, CARRY_P12])
     c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
     # the null bias i_b is learnt near null only: the spool model (a linear lag, no flow
     # forces, no stroke limit) does not follow a spool opened past its underlap
