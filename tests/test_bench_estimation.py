@@ -115,3 +115,17 @@ def test_first_observable_window_by_hand():
     assert failures({**row, "delay": 1.2, "obs": 1.1}) == ["delay(obs)"]
     assert failures({**row, "delay": 1.2, "obs": 0.4}) == ["delay"]
     assert failures({**row, "delay": 0.9, "obs": 0.4}) == []
+
+
+def test_gate_bias_prints_both_gates_per_hold():
+    """bench/gate_bias.py: one line per |P12| and noise seed, the per-sample gate's C_Lk
+    reading at 1.1 MPa biased low and the low-passed gate's near the baseline; bad options
+    exit 2 naming the option."""
+    r = _run("gate_bias.py", "--p12", "1.1", "--noise-seeds", "1")
+    assert r.returncode == 0, r.stderr[-2000:]
+    rows = [ln.split() for ln in r.stdout.splitlines()[2:]]
+    assert len(rows) == 1 and rows[0][:2] == ["1.10", "1"]
+    per_sample, low_passed = float(rows[0][2]), float(rows[0][3])
+    assert per_sample < 0.85 and abs(low_passed - 1.0) < 0.15
+    bad = _run("gate_bias.py", "--duration", "1")
+    assert bad.returncode == 2 and "--duration" in bad.stderr
