@@ -129,3 +129,41 @@ def test_gate_bias_prints_both_gates_per_hold():
     assert per_sample < 0.85 and abs(low_passed - 1.0) < 0.15
     bad = _run("gate_bias.py", "--duration", "1")
     assert bad.returncode == 2 and "--duration" in bad.stderr
+
+
+def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
+    """bench/suite_readings.py: each member's settled reading error is the suite's own
+    figure in units of nominal C_Lk (bias% / 100 on a healthy member, inc% x the true
+    increase / 100 on a leak member); every member lands in one |P12| bin, one supply bin
+    and one kind; the err x |P12| column is err's RMS scaled by |P12|; bad options exit 2."""
+    sys.path.insert(0, str(ROOT))
+    from bench.estimation_suite import run_one
+    from models.dutycycle import duty_cycle
+
+    out = tmp_path / "r.json"
+    r = _run("suite_readings.py", "--seeds", "1", "--suite", "2", "--workers", "1",
+             "--json", str(out))  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    data = json.loads(out.read_text())
+    rows = {row["name"]: row for row in data["rows"]}
+    assert sorted(rows) == ["dc1_000", "dc1_001"]
+    for index in (0, 1):
+        dc = duty_cycle(1, index)
+        s = run_one(dc, model="WH")
+        row = rows[dc.test.name]
+        if dc.leak_shape is None:
+            assert row["err"] == pytest.approx(s["bias%"] / 100.0, rel=1e-9, abs=1e-12)
+        else:
+            inc_true = (dc.leak_ratio - 1.0)  # the leak's end value over the plant's C_Lk
+            assert row["err"] == pytest.approx(s["inc%"] / 100.0 * inc_true, rel=1e-6)
+    bins = data["bins"]
+    for group in ("|P12| MPa", "supply/rated", "kind"):
+        assert sum(b["n"] for b in bins if b["group"] == group) == 2
+    (total,) = [b for b in bins if b["group"] == "all"]
+    errs = np.array([row["err"] for row in rows.values()])
+    p12 = np.abs([row["p12_mpa"] for row in rows.values()])
+    assert total["rms"] == pytest.approx(float(np.sqrt(np.mean(errs**2))))
+    assert total["rms_flow"] == pytest.approx(float(np.sqrt(np.mean((errs * p12) ** 2))))
+    assert "err x |P12|" in r.stdout and "dc1_001" in r.stdout
+    bad = _run("suite_readings.py", "--seeds", "one")
+    assert bad.returncode == 2 and "--seeds" in bad.stderr

@@ -1,0 +1,136 @@
+"""Where the monitor's settled C_Lk reading errs on the duty-cycle suite, by operating point
+(docs/estimation.md, "Where the settled C_Lk reading errs").
+
+    .venv/bin/python bench/suite_readings.py --seeds 1,2,3,4,5 --workers 2   # about 2 min
+    .venv/bin/python bench/suite_readings.py --seeds 1 --suite 4 --json r.json
+
+Every member of each suite seed (``models.dutycycle``), calibrated on its own healthy segment
+and run as ``bench/estimation_suite.py`` runs it (``monitor_run``). Per member, ``err`` is the
+error of the last-second mean C_Lk reading in units of the plant's own nominal C_Lk: the
+estimated minus the true increase over the baseline (so for a leak member err = inc% x the
+true increase / 100, and on a plant with no leak err = bias% / 100). Beside it, the last
+second's mean true P12 [MPa] and |v_J| [mm/s], and the supply at the end as a share of rated.
+
+Then err's mean, standard deviation and RMS binned by |P12|, by the final supply and by fault
+kind, and in each |P12| bin the RMS of err x |P12| [nominal x MPa]: a constant flow error
+dQ read as a leak gives err = dQ / (C_Lk,nom P12), so err x |P12| is the same in every bin
+when the reading's error is such a flow error (a null offset dx_0 is dQ = K_q dx_0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+P12_BINS_MPA = (0.0, 1.0, 2.0, 4.0, 6.0, np.inf)
+SUPPLY_BINS = (0.0, 0.7, 0.9, 1.1)
+
+
+def reading(seed: int, index: int, model: str = "WH") -> dict:
+    """One member's settled C_Lk reading error and the operating point it was read at."""
+    from estimation_suite import monitor_run
+
+    from models.dutycycle import duty_cycle
+    from service.monitor import EST_KEYS
+
+    dc = duty_cycle(seed, index)
+    sim, rows, base, _, _ = monitor_run(dc, model=model)
+    c0 = float(sim.c_lk[0])
+    last = rows.t >= rows.t[-1] - 1.0
+    c_mean = float(np.mean(rows.est[last, EST_KEYS.index("c_lk")]))
+    inc_true = float(sim.c_lk[-1]) - c0
+    st = sim.t >= sim.t[-1] - 1.0
+    return {
+        "name": dc.test.name,
+        "kind": dc.kind,
+        "leak_ratio": dc.leak_ratio,
+        "err": ((c_mean - base.c_lk) - inc_true) / c0,
+        "p12_mpa": float(np.mean(sim.p1[st] - sim.p2[st])) / 1e6,
+        "v_j_mm_s": float(np.mean(np.abs(sim.v_j[st]))) * 1e3,
+        "supply": float(sim.p_sr[-1] / sim.p_sr[0]),
+    }
+
+
+def _job(args: tuple[int, int, str]) -> dict:
+    return reading(*args)
+
+
+def binned(rows: list[dict]) -> list[tuple[str, str, int, float, float, float, float | None]]:
+    """(group, bin, n, mean, sd, rms of err, rms of err x |P12| or None) per non-empty bin."""
+    err = np.array([r["err"] for r in rows])
+    p12 = np.abs([r["p12_mpa"] for r in rows])
+    sup = np.array([r["supply"] for r in rows])
+    out = []
+
+    def add(group: str, label: str, sel: np.ndarray, flow: bool) -> None:
+        if sel.any():
+            e = err[sel]
+            fl = float(np.sqrt(np.mean((e * p12[sel]) ** 2))) if flow else None
+            out.append((group, label, int(sel.sum()), float(e.mean()), float(e.std()),
+                        float(np.sqrt(np.mean(e**2))), fl))  # fmt: skip
+
+    for lo, hi in zip(P12_BINS_MPA[:-1], P12_BINS_MPA[1:], strict=True):
+        add("|P12| MPa", f"{lo:g}-{hi:g}", (p12 >= lo) & (p12 < hi), True)
+    for lo, hi in zip(SUPPLY_BINS[:-1], SUPPLY_BINS[1:], strict=True):
+        add("supply/rated", f"{lo:g}-{hi:g}", (sup >= lo) & (sup < hi), False)
+    for kind in dict.fromkeys(r["kind"] for r in rows):
+        add("kind", kind, np.array([r["kind"] == kind for r in rows]), False)
+    add("all", "-", np.ones(len(rows), bool), True)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", default="1", help="comma-separated suite seeds")
+    ap.add_argument("--suite", type=int, default=30, help="members per seed")
+    ap.add_argument("--model", default="WH")
+    ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument("--json", default=None, help="write the rows and the bins to this file")
+    a = ap.parse_args(argv)
+    try:
+        seeds = [int(s) for s in a.seeds.split(",")]
+    except ValueError:
+        ap.error(f"--seeds: comma-separated integers, not {a.seeds!r}")
+    if a.suite < 1:
+        ap.error("--suite: at least 1 member")
+    jobs = [(s, i, a.model) for s in seeds for i in range(a.suite)]
+    w0 = time.perf_counter()
+    if a.workers > 1:
+        with ProcessPoolExecutor(max_workers=a.workers) as ex:
+            rows = list(ex.map(_job, jobs))
+    else:
+        rows = [_job(j) for j in jobs]
+    print(f"seeds {a.seeds}, {len(rows)} members, model {a.model}, "
+          f"{time.perf_counter() - w0:.0f} s wall")  # fmt: skip
+    print(f"{'member':<10} {'kind':<12} {'leak x':>6} {'err':>7} {'P12 MPa':>8} "
+          f"{'|v_J| mm/s':>10} {'supply':>7}")  # fmt: skip
+    for r in rows:
+        print(f"{r['name']:<10} {r['kind']:<12} {r['leak_ratio']:>6.2f} {r['err']:>+7.3f} "
+              f"{r['p12_mpa']:>+8.2f} {r['v_j_mm_s']:>10.1f} {r['supply']:>7.2f}")  # fmt: skip
+    bins = binned(rows)
+    print("\nerr: settled C_Lk reading error in units of nominal C_Lk")
+    print(f"{'group':<13} {'bin':<12} {'n':>4} {'mean':>7} {'sd':>6} {'rms':>6} {'rms err x |P12|':>16}")
+    for g, label, n, mean, sd, rms, fl in bins:
+        fls = f"{fl:>16.3f}" if fl is not None else f"{'-':>16}"
+        print(f"{g:<13} {label:<12} {n:>4d} {mean:>+7.3f} {sd:>6.3f} {rms:>6.3f} {fls}")
+    if a.json:
+        keys = ("group", "bin", "n", "mean", "sd", "rms", "rms_flow")
+        Path(a.json).write_text(
+            json.dumps({"rows": rows, "bins": [dict(zip(keys, b, strict=True)) for b in bins]},
+                       indent=1) + "\n"  # fmt: skip
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
