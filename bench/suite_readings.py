@@ -119,15 +119,19 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['p12_mpa']:>+8.2f} {r['v_j_mm_s']:>10.1f} {r['supply']:>7.2f}")  # fmt: skip
     bins = binned(rows)
     print("\nerr: settled C_Lk reading error in units of nominal C_Lk")
-    print(f"{'group':<13} {'bin':<12} {'n':>4} {'mean':>7} {'sd':>6} {'rms':>6} {'rms err x |P12|':>16}")
+    print(
+        f"{'group':<13} {'bin':<12} {'n':>4} {'mean':>7} {'sd':>6} {'rms':>6} {'rms err x |P12|':>16}"
+    )
     for g, label, n, mean, sd, rms, fl in bins:
         fls = f"{fl:>16.3f}" if fl is not None else f"{'-':>16}"
         print(f"{g:<13} {label:<12} {n:>4d} {mean:>+7.3f} {sd:>6.3f} {rms:>6.3f} {fls}")
     if a.json:
         keys = ("group", "bin", "n", "mean", "sd", "rms", "rms_flow")
         Path(a.json).write_text(
-            json.dumps({"rows": rows, "bins": [dict(zip(keys, b, strict=True)) for b in bins]},
-                       indent=1) + "\n"  # fmt: skip
+            json.dumps(
+                {"rows": rows, "bins": [dict(zip(keys, b, strict=True)) for b in bins]}, indent=1
+            )
+            + "\n"  # fmt: skip
         )
     return 0
 

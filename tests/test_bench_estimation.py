@@ -154,7 +154,7 @@ def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
         if dc.leak_shape is None:
             assert row["err"] == pytest.approx(s["bias%"] / 100.0, rel=1e-9, abs=1e-12)
         else:
-            inc_true = (dc.leak_ratio - 1.0)  # the leak's end value over the plant's C_Lk
+            inc_true = dc.leak_ratio - 1.0  # the leak's end value over the plant's C_Lk
             assert row["err"] == pytest.approx(s["inc%"] / 100.0 * inc_true, rel=1e-6)
     bins = data["bins"]
     for group in ("|P12| MPa", "supply/rated", "kind"):
