@@ -36,15 +36,16 @@ P12_BINS_MPA = (0.0, 1.0, 2.0, 4.0, 6.0, np.inf)
 SUPPLY_BINS = (0.0, 0.7, 0.9, 1.1)
 
 
-def reading(seed: int, index: int, model: str = "WH") -> dict:
-    """One member's settled C_Lk reading error and the operating point it was read at."""
+def reading(seed: int, index: int, model: str = "WH", overrides: dict | None = None) -> dict:
+    """One member's settled C_Lk reading error and the operating point it was read at
+    (``overrides``: MonitorConfig fields, as ``--set``)."""
     from estimation_suite import monitor_run
 
     from models.dutycycle import duty_cycle
     from service.monitor import EST_KEYS
 
     dc = duty_cycle(seed, index)
-    sim, rows, base, _, _ = monitor_run(dc, model=model)
+    sim, rows, base, _, _ = monitor_run(dc, model=model, overrides=overrides)
     c0 = float(sim.c_lk[0])
     last = rows.t >= rows.t[-1] - 1.0
     c_mean = float(np.mean(rows.est[last, EST_KEYS.index("c_lk")]))
@@ -61,7 +62,7 @@ def reading(seed: int, index: int, model: str = "WH") -> dict:
     }
 
 
-def _job(args: tuple[int, int, str]) -> dict:
+def _job(args: tuple[int, int, str, dict]) -> dict:
     return reading(*args)
 
 
@@ -95,6 +96,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--suite", type=int, default=30, help="members per seed")
     ap.add_argument("--model", default="WH")
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="override a MonitorConfig field, as bench/estimation_suite.py --set",
+    )
     ap.add_argument("--json", default=None, help="write the rows and the bins to this file")
     a = ap.parse_args(argv)
     try:
@@ -103,7 +111,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--seeds: comma-separated integers, not {a.seeds!r}")
     if a.suite < 1:
         ap.error("--suite: at least 1 member")
-    jobs = [(s, i, a.model) for s in seeds for i in range(a.suite)]
+    from estimation_suite import parse_overrides
+
+    overrides = parse_overrides(ap, a.model, a.set)
+    jobs = [(s, i, a.model, overrides) for s in seeds for i in range(a.suite)]
     w0 = time.perf_counter()
     if a.workers > 1:
         with ProcessPoolExecutor(max_workers=a.workers) as ex:

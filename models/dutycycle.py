@@ -155,6 +155,11 @@ def _load(rng: np.random.Generator, t0: float, t_end: float) -> Profile:
     return Profile(initial=f0, events=events, periodic=periodic)
 
 
+CAL_SINE_END_S = 5.0  # the calibration's sines end here, both at a zero crossing
+CAL_HOLD_SWAP_S = 6.5  # ... then a hold under the second load, the first load back here
+CAL_HOLD_END_S = 8.0  # ... and a hold under it to the end of the segment
+
+
 def duty_cycle(seed: int, index: int) -> DutyCycle:
     """Duty cycle ``index`` of suite ``seed`` (fault kind cycles healthy, leak, supply,
     leak+supply with the index; everything else drawn from ``default_rng([seed, index])``)."""
@@ -169,18 +174,23 @@ def duty_cycle(seed: int, index: int) -> DutyCycle:
     cal = Scenario(
         name=f"dc{seed}_{index:03d}_cal",
         description="healthy calibration segment of the same plant",
-        duration_s=5.0,
+        duration_s=CAL_HOLD_END_S,
         command=Profile(
             initial=0.0,
             periodic=[
-                Periodic(amplitude=float(rng.uniform(1.5e-3, 3e-3)), freq_hz=0.3),
-                Periodic(amplitude=0.2e-3, freq_hz=1.1),
+                Periodic(
+                    amplitude=float(rng.uniform(1.5e-3, 3e-3)), freq_hz=0.3, t_end=CAL_SINE_END_S
+                ),
+                Periodic(amplitude=0.2e-3, freq_hz=1.1, t_end=CAL_SINE_END_S),
             ],
-        ),
+        ),  # fmt: skip
         load=Profile(
-            initial=float(rng.uniform(2e3, 5e3)),
+            initial=(load_1 := float(rng.uniform(2e3, 5e3))),
             # a stream of its own: the test scenario's draws do not depend on this one
-            events=[Event(t=2.5, value=float(aux.uniform(-5e3, -2e3)), ramp_s=0.2)],
+            events=[
+                Event(t=2.5, value=float(aux.uniform(-5e3, -2e3)), ramp_s=0.2),
+                Event(t=CAL_HOLD_SWAP_S, value=load_1, ramp_s=0.2),
+            ],
         ),
         supply=Profile(initial=p0),
         params=params,

@@ -83,6 +83,7 @@ class ReducedParams(NamedTuple):
     x_u: float = 0.0  # land underlap [m]: beyond it one land pair closes (x_eq); 0 = off
     x_0: float = 0.0  # hydraulic null of the spool [m]: the law sees x_S - x_0 (land mismatch)
     skew: float = 0.0  # WH only: supply lands underlapped x_SS (1 + skew), return x_SS (1 - skew)
+    c_land: float = 0.0  # WH only: laminar land-clearance leak, a cross-port leak [m^3/(s Pa)]
 
 
 def x_eq(x_s, x_u: float):

@@ -73,6 +73,7 @@ __all__ = [
     "step_points_nb",
     "measure_nb",
     "rhs_nb",
+    "land_flows",
 ]
 
 STATE_NAMES: tuple[str, ...] = (*er.STATE_NAMES, "pt1", "pt2")
@@ -86,8 +87,8 @@ RK4_H_TARGET = 2.5  # n_substeps keeps the chamber mode's |lambda h| below this 
 
 # parameter vector: models.eha_reduced's layout, then the WH constants (docs/models.md eq. 2, 3, 5)
 (K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R, K_WH_V0,
- K_WH_LAM0) = range(N_PRM, N_PRM + 8)  # fmt: skip
-N_PRM_WH = N_PRM + 8
+ K_WH_LAM0, K_WH_C_LAND) = range(N_PRM, N_PRM + 9)  # fmt: skip
+N_PRM_WH = N_PRM + 9
 
 
 def k_orifice(rp: ReducedParams) -> float:
@@ -109,6 +110,7 @@ def param_vector(rp: ReducedParams, v_c: float, beta: float) -> NDArray:
     a[K_WH_XS_R] = rp.x_ss * (1.0 - rp.skew)  # return lands' underlap [m]
     a[K_WH_V0] = v_c  # mid-stroke chamber volume V0 [m^3]
     a[K_WH_LAM0] = stiff_modes(rp, v_c, beta, 0.0)["chamber"]  # chamber mode at V0 [1/s]
+    a[K_WH_C_LAND] = rp.c_land  # land-clearance leak, added to C_Lk [m^3/(s Pa)]
     return a
 
 
@@ -117,7 +119,11 @@ def stiff_modes(rp: ReducedParams, v_c: float, beta: float, c_lk: float) -> dict
     |lambda| H_MAX for each: chamber (laminar band, spool at full stroke) [1/s], hydraulic
     w_h (eq. 10) [rad/s], friction F_d / (v_f m) [1/s]."""
     dp_lam = WH_DP_LAM_FRACTION * rp.p_sr_rated
-    lam_c = beta / v_c * (2.0 * k_orifice(rp) * (rp.x_ss + rp.x_sm) / math.sqrt(dp_lam) + c_lk)
+    lam_c = (
+        beta
+        / v_c
+        * (2.0 * k_orifice(rp) * (rp.x_ss + rp.x_sm) / math.sqrt(dp_lam) + c_lk + 2.0 * rp.c_land)
+    )
     w_h = math.sqrt(2.0 * beta * rp.area**2 / (v_c * rp.mass))
     lam_f = rp.f_d / (rp.v_f * rp.mass)
     return {
@@ -136,6 +142,12 @@ def _orifice(a, dp, k_o, dp_lam):
     return k_o * np.maximum(a, 0.0) * r
 
 
+def _land(a, dp, k_o, dp_lam, c_land):
+    """One land: the orifice (eqs. 2-3) plus, while it is open, its laminar clearance leak
+    c_land dp (docs/estimation.md, "Land clearance leak (WH)")."""
+    return _orifice(a, dp, k_o, dp_lam) + np.where(a > 0.0, c_land * dp, 0.0)
+
+
 def chamber_volumes(x_j, area: float, v_c: float):
     """V1,2 = V0 +- A x_J [m^3], floored at V_MIN_FRACTION V0 (docs/models.md eq. 5b)."""
     v_min = V_MIN_FRACTION * v_c
@@ -151,14 +163,24 @@ def n_substeps(x_j: float, dt: float, rp: ReducedParams, v_c: float, beta: float
     return max(1, math.ceil(dt / H_MAX - 1e-9), math.ceil(dt * lam / RK4_H_TARGET - 1e-9))
 
 
-def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, k_o, dp_lam, beta, v_c):
-    p1, p2 = np.maximum(pt1, rp.p_vap), np.maximum(pt2, rp.p_vap)
+def land_flows(x_l, p1, p2, p_sr, rp: ReducedParams):
+    """Q1 (S->1), Q2 (1->R), Q3 (S->2), Q4 (2->R) [m^3/s] of the filter's lands (docs/models.md
+    eqs. 1-4 with the land skew, plus each open land's clearance leak ``rp.c_land``) at the
+    spool position seen from the hydraulic null ``x_l`` = x_S - x_0 [m] and absolute P1, P2."""
+    k_o, dp_lam = k_orifice(rp), WH_DP_LAM_FRACTION * rp.p_sr_rated
     p_s = rp.p_r + p_sr
     xs_s, xs_r = rp.x_ss * (1.0 + rp.skew), rp.x_ss * (1.0 - rp.skew)
-    q1 = _orifice(xs_s + x_s, p_s - p1, k_o, dp_lam)
-    q2 = _orifice(xs_r - x_s, p1 - rp.p_r, k_o, dp_lam)
-    q3 = _orifice(xs_s - x_s, p_s - p2, k_o, dp_lam)
-    q4 = _orifice(xs_r + x_s, p2 - rp.p_r, k_o, dp_lam)
+    return (
+        _land(xs_s + x_l, p_s - p1, k_o, dp_lam, rp.c_land),
+        _land(xs_r - x_l, p1 - rp.p_r, k_o, dp_lam, rp.c_land),
+        _land(xs_s - x_l, p_s - p2, k_o, dp_lam, rp.c_land),
+        _land(xs_r + x_l, p2 - rp.p_r, k_o, dp_lam, rp.c_land),
+    )
+
+
+def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, beta, v_c):
+    p1, p2 = np.maximum(pt1, rp.p_vap), np.maximum(pt2, rp.p_vap)
+    q1, q2, q3, q4 = land_flows(x_s, p1, p2, p_sr, rp)
     p12 = p1 - p2
     q_lk = c_lk * p12
     q_j = rp.area * v_j
@@ -172,8 +194,6 @@ def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: flo
     exact spool step, then one RK4 step of (x_J, v_J, p~1, p~2) with the spool held.
     Parameters (f_r, p_sr, c_lk, i_b) are copied through; evaluated with C_Lk >= 0,
     P_SR >= P_vap."""
-    k_o = k_orifice(rp)
-    dp_lam = WH_DP_LAM_FRACTION * rp.p_sr_rated
     x_s, v_s, x_j, v_j = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
     f_r, p_sr, c_lk, i_b = x[..., 4], x[..., 5], x[..., 6], x[..., 7]
     pt1, pt2 = x[..., 8], x[..., 9]
@@ -183,7 +203,7 @@ def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: flo
         x_s, v_s = er.spool_step(x_s, v_s, i + i_b, h, rp)
 
         def f(y, x_s=x_s - rp.x_0):  # the lands see the spool from its hydraulic null
-            return _rhs(x_s, *y, f_r, p_ev, c_ev, rp, k_o, dp_lam, beta, v_c)
+            return _rhs(x_s, *y, f_r, p_ev, c_ev, rp, beta, v_c)
 
         y = (x_j, v_j, pt1, pt2)
         ka = f(y)
@@ -216,6 +236,13 @@ _NB = {"cache": True, "error_model": "numpy"}
 
 
 @njit(**_NB, inline="always")
+def land_nb(a, dp, k_o, dp_lam, isq, g):
+    """Scalar ``_land``: orifice flow plus the laminar leak g dp of an open land."""
+    q = wh_orifice(a, dp, k_o, dp_lam, isq)
+    return q + g * dp if a > 0.0 else q
+
+
+@njit(**_NB, inline="always")
 def rhs_nb(x_s, x_j, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
     """(dv_J/dt, dp~1/dt, dp~2/dt) of docs/models.md eqs. 1-6 and 5b with the jack equation;
     p_s = P_R + P_SR (absolute supply)."""
@@ -225,10 +252,11 @@ def rhs_nb(x_s, x_j, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
     area = prm[K_AREA]
     p1 = max(pt1, p_vap)
     p2 = max(pt2, p_vap)
-    q1 = wh_orifice(xs_s + x_s, p_s - p1, k_o, dp_lam, isq)
-    q2 = wh_orifice(xs_r - x_s, p1 - p_r, k_o, dp_lam, isq)
-    q3 = wh_orifice(xs_s - x_s, p_s - p2, k_o, dp_lam, isq)
-    q4 = wh_orifice(xs_r + x_s, p2 - p_r, k_o, dp_lam, isq)
+    g = prm[K_WH_C_LAND]  # laminar clearance leak of an open land
+    q1 = land_nb(xs_s + x_s, p_s - p1, k_o, dp_lam, isq, g)
+    q2 = land_nb(xs_r - x_s, p1 - p_r, k_o, dp_lam, isq, g)
+    q3 = land_nb(xs_s - x_s, p_s - p2, k_o, dp_lam, isq, g)
+    q4 = land_nb(xs_r + x_s, p2 - p_r, k_o, dp_lam, isq, g)
     p12 = p1 - p2
     q_lk = c_lk * p12
     q_j = area * v_j

@@ -116,6 +116,13 @@ class EHAParams(BaseModel):
         return self.g_p / self.g_q
 
     @property
+    def g_lam_open(self) -> float:
+        """Laminar clearance conductance of an open land, G_lam = w c_r^3 / (12 mu l_min)
+        [m^3/(s Pa)] (physics.md section 3.2). With all four lands open and matched it acts
+        as a cross-port leak of the same coefficient, independent of the supply."""
+        return self.w_eff * self.c_r**3 / (12.0 * self.mu * self.l_min)
+
+    @property
     def v0(self) -> float:
         """Chamber volume at mid stroke V0 = A stroke + V_dead [m^3]."""
         return self.area * self.stroke + self.v_dead

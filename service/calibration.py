@@ -18,6 +18,11 @@ that mismatch as a fault, so its effective parameters are identified first on he
    of the monitor's C_Lk estimate on the same healthy data is moved into 1/G_PQ, keeping the
    flow gain P_SR / (x_SS G_PQ) fixed (a few fixed passes), so that a healthy plant reads
    C_Lk = nominal and a leak reads as an increase.
+   WH carries the lands' laminar clearance leak apart (``Baseline.c_land``, the valve's
+   design value): it does not grow as the supply drops, as the orifices' coefficient does.
+4. WH, where the run holds the jack under two loads or more: x_0 and the lands' null
+   pressure coefficient from the holds (``hold_fit``), so that the law reads nominal C_Lk
+   at a hold, where the monitor reads it (the passes of step 3 average over the motion).
 
 ``measured_run`` makes the "recorded log" from a scenario: the HF bench with the scenario's
 sensor noise added (seeded).
@@ -45,6 +50,9 @@ __all__ = [
     "bank_rows",
     "meas_channels",
     "SAMPLE_KEYS",
+    "hold_windows",
+    "hold_reading",
+    "hold_fit",
 ]
 
 SAMPLE_KEYS: tuple[str, ...] = ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2")
@@ -135,6 +143,20 @@ def identify_baseline(
             f"calibration failed: the healthy run does not excite the valve near null ({coef})"
         )
     x_ss = (2.0 if law == "WH" else 1.0) / a  # WH: the tangent null gain 2 P_SR / x_SS
+    if law == "WH" and nom.c_land > 0.0:
+        # 1/G_PQ is the lands' whole null pressure coefficient; WH carries the laminar
+        # clearance share apart (c_land, supply-independent), so its orifices keep the
+        # rest, at the same flow gain 2 P_SR / (x_SS G_PQ)
+        # (docs/estimation.md, "Land clearance leak (WH)")
+        inv_orifice = 1.0 / g_pq - nom.c_land
+        if not inv_orifice > 0.0:
+            raise ValueError(
+                f"calibration failed: the valve's null pressure coefficient 1/G_PQ = "
+                f"{1.0 / g_pq:.3e} does not exceed the lands' clearance leak c_land = "
+                f"{nom.c_land:.3e} m^3/(s Pa)"
+            )
+        g_orifice = 1.0 / inv_orifice
+        x_ss, g_pq = x_ss * g_pq / g_orifice, g_orifice
     return nom.model_copy(
         update={"x_ss": x_ss, "g_pq": g_pq, "p_r": p_r, "p_sr_rated": p_sr, "x_0": x_0,
                 "skew": skew, "source": "lsq"}
@@ -220,11 +242,12 @@ def calibrate(
     config: MonitorConfig | None = None,
     passes: int = 2,
     settle_s: float = 1.0,
+    holds: bool = True,
 ) -> Baseline:
-    """Identify a baseline from healthy measurements (all three steps of the docstring).
+    """Identify a baseline from healthy measurements (all steps of the docstring).
 
     ``law`` is the process model the baseline is for; by default ``config.model`` (C5 when
-    neither is given)."""
+    neither is given). ``holds``: on WH, finish with ``hold_fit`` (step 4)."""
     cfg = config or MonitorConfig()
     law = law or cfg.model
     cfg = cfg.model_copy(update={"model": law})
@@ -263,4 +286,76 @@ def calibrate(
         # keep the flow gain P_SR / (x_SS G_PQ) fixed: only the sum 1/G_PQ + C_Lk moves
         x_ss = base.x_ss * base.g_pq / g_new
         base = base.model_copy(update={"g_pq": g_new, "x_ss": x_ss, "p_r": p_r, "x_0": x_0})
+    if law == "WH" and holds:
+        base = hold_fit(meas, base)
     return base.model_copy(update={"source": "calibrated"})
+
+
+HOLD_SETTLE_S = 0.3  # a hold: the command has not moved for this long [s] ...
+HOLD_DP12 = 0.05  # ... |dP12/dt| (smoothed) below this share of P_SR per second ...
+HOLD_MIN_S = 0.3  # ... for at least this long [s]
+
+
+def hold_windows(meas: dict[str, NDArray], p_sr: float) -> list[tuple[float, float, float]]:
+    """Mean (x_S, P1, P2) [m, Pa, Pa] of each hold of a run: the position command still for
+    HOLD_SETTLE_S, the smoothed jack speed below NULL_FIT_V and P12 steady (HOLD_DP12), for
+    at least HOLD_MIN_S."""
+    t = np.asarray(meas["t"], float)
+    dt = float(np.median(np.diff(t)))
+    win = _smoothing_window(t)
+    p1, p2 = np.asarray(meas["p1"], float), np.asarray(meas["p2"], float)
+    v_j = savgol_filter(np.asarray(meas["x_j"], float), win, 3, deriv=1, delta=dt)
+    dp12 = savgol_filter(p1 - p2, win, 3, deriv=1, delta=dt)
+    x_cmd = np.asarray(meas["x_cmd"], float)
+    moved = np.concatenate(([True], np.abs(np.diff(x_cmd)) > 1e-9))
+    last_move = np.maximum.accumulate(np.where(moved, np.arange(len(t)), 0))
+    ok = (t - t[last_move] >= HOLD_SETTLE_S) & (np.abs(v_j) < NULL_FIT_V)
+    ok &= np.abs(dp12) < HOLD_DP12 * p_sr
+    ok[:win] = False
+    ok[-win:] = False
+    x_s = np.asarray(meas["x_s"], float)
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(np.int8), [0]))))
+    return [
+        (float(np.mean(x_s[a:b])), float(np.mean(p1[a:b])), float(np.mean(p2[a:b])))
+        for a, b in zip(edges[::2], edges[1::2], strict=True)
+        if t[b - 1] - t[a] >= HOLD_MIN_S
+    ]
+
+
+def hold_reading(base: Baseline, x_s: float, p1: float, p2: float, p_sr: float) -> float:
+    """C_Lk [m^3/(s Pa)] the WH law of ``base`` reads at a hold (x_S, P1, P2 absolute, at
+    supply P_SR): both chamber balances of docs/models.md eq. 5 with v_J = 0 and steady
+    pressures, Q1 - Q2 = C_Lk P12 = Q4 - Q3, averaged."""
+    from models.eha_reduced_wh import land_flows
+
+    rp = base.reduced_params()
+    q1, q2, q3, q4 = land_flows(x_s - rp.x_0, p1, p2, p_sr, rp)
+    return float(((q1 - q2) - (q3 - q4)) / (2.0 * (p1 - p2)))
+
+
+def hold_fit(meas: dict[str, NDArray], base: Baseline) -> Baseline:
+    """WH: the hydraulic null x_0 and the lands' null pressure coefficient (x_SS, with G_PQ
+    moving so that the flow gain P_SR / (x_SS G_PQ) stays) such that the law reads the
+    baseline C_Lk at every hold of the healthy run (least squares, ``hold_reading``): the
+    monitor reads C_Lk at holds, where slow motion with stick-slip reads it differently
+    (docs/estimation.md, "Calibrating where the monitor reads"). Only where the run holds
+    P12 at two levels at least NULL_FIT_SPREAD of P_SR apart; otherwise ``base``."""
+    from scipy.optimize import least_squares
+
+    p_sr = base.p_sr_rated
+    holds = [h for h in hold_windows(meas, p_sr) if abs(h[1] - h[2]) > 0.5 * NULL_FIT_SPREAD * p_sr]
+    if len(holds) < 2 or np.ptp([h[1] - h[2] for h in holds]) < NULL_FIT_SPREAD * p_sr:
+        return base
+    flow = base.x_ss * base.g_pq  # x_SS G_PQ: the flow gain's denominator, kept
+
+    def moved(v: NDArray) -> Baseline:  # v = (dx_0 [um], relative change of x_SS)
+        x_ss = base.x_ss * (1.0 + v[1])
+        return base.model_copy(
+            update={"x_0": base.x_0 + v[0] * 1e-6, "x_ss": x_ss, "g_pq": flow / x_ss}
+        )
+
+    def residuals(v: NDArray) -> list[float]:
+        b = moved(v)
+        return [(hold_reading(b, *h, p_sr) - b.c_lk) / b.c_lk for h in holds]
+
+    return moved(least_squares(residuals, [0.0, 0.0], x_scale=[0.1, 0.01]).x)

@@ -48,8 +48,10 @@ def test_wh_lands_see_the_spool_from_its_hydraulic_null():
 def test_land_skew_sets_the_chamber_pressures_at_null():
     """At null, with the jack held, each chamber sits at P_R + f P_SR, f = k^2 / (1 + k^2),
     k = (1 + skew) / (1 - skew) (docs/estimation.md, "WH on the duty-cycle suite"): run the
-    numpy model to rest from mid-supply and compare, at two supplies (f does not move)."""
-    base = Baseline.default("WH").model_copy(update={"skew": 0.03, "c_lk": 0.0})
+    numpy model to rest from mid-supply and compare, at two supplies (f does not move). The
+    orifices only: the lands' clearance leak, the same on every open land, pulls towards
+    mid-supply and is off here."""
+    base = Baseline.default("WH").model_copy(update={"skew": 0.03, "c_lk": 0.0, "c_land": 0.0})
     rp = base.reduced_params()
     k = 1.03 / 0.97
     f = k * k / (1 + k * k)
@@ -66,7 +68,9 @@ def test_land_skew_sets_the_chamber_pressures_at_null():
 def test_p_sr_after_a_drop_on_a_mismatched_plant():
     """Suite member 11 (seed 1): lands 88-92 um, supply drop with a 2.9x leak step. With the
     chamber-pressure offset read as a return-pressure offset, WH's P_SR read 2.0 % high over
-    the last second and the C_Lk increase 22 % high; as a land skew, within 0.5 % and 10 %."""
+    the last second and the C_Lk increase 22 % high; as a land skew, within 0.5 % and 15 %
+    (+12 %: the lands' clearance leak, docs/estimation.md "Land clearance leak (WH)", moved it
+    from +7 %; the suite's member dc1_011)."""
     dc = duty_cycle(1, 11)
     _, mc = measured_run(dc.calibration)
     cfg = MonitorConfig(model="WH").model_copy(update={"noise": identify_noise(mc)})
@@ -79,7 +83,7 @@ def test_p_sr_after_a_drop_on_a_mismatched_plant():
     assert abs(p_sr / sim.p_sr[-1] - 1.0) < 0.005
     inc_true = sim.c_lk[-1] - sim.c_lk[0]
     inc = rows.est[last, C_LK].mean() - base.c_lk
-    assert abs(inc / inc_true - 1.0) < 0.10
+    assert abs(inc / inc_true - 1.0) < 0.15
 
 
 def test_model_defaults_resolve_per_model():

@@ -25,8 +25,15 @@ V0, AREA = BASE.v_c, BASE.area  # 7e-5 m^3, 1e-3 m^2
 def test_chamber_volumes_and_substeps_by_hand():
     v1, v2 = erw.chamber_volumes(0.02, AREA, V0)
     assert (v1, v2) == pytest.approx((9e-5, 5e-5), rel=1e-12)
-    lam0 = erw.stiff_modes(RP, V0, BASE.beta, 0.0)["chamber"]  # 6.53e3 1/s at V0
-    assert lam0 == pytest.approx(6525.5, rel=1e-4)
+    lam0 = erw.stiff_modes(RP, V0, BASE.beta, 0.0)["chamber"]  # 6.48e3 1/s at V0
+    k_o = math.sqrt(2 * RP.p_sr_rated) / (RP.x_ss * RP.g_pq)
+    by_hand = (
+        BASE.beta
+        / V0
+        * (2 * k_o * (RP.x_ss + RP.x_sm) / math.sqrt(5e-3 * RP.p_sr_rated) + 2 * RP.c_land)
+    )
+    assert lam0 == pytest.approx(by_hand, rel=1e-12)
+    assert lam0 == pytest.approx(6478, rel=1e-3)
 
     def n(x_j: float) -> int:
         return erw.n_substeps(x_j, 1e-3, RP, V0, BASE.beta)

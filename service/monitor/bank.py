@@ -227,6 +227,7 @@ class MonitorBank:
             cusum_nu=c.c_lk_cusum_nu,
             cusum_h=c.resolved("c_lk_cusum_h"),
             cusum_kick=(c.c_lk_cusum_kick * b.c_lk / self.scale[S_C_LK]) ** 2,
+            gate_var_max=(c.resolved("c_lk_gated_sigma_max") * b.c_lk / self.scale[S_C_LK]) ** 2,
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}

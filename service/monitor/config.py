@@ -120,6 +120,7 @@ MODEL_DEFAULTS: dict[str, dict[str, float]] = {
         "c_lk_gate_adapt": 20.0,
         "c_lk_cusum_h": 10.0,
         "c_lk_gate_p12": 0.05,
+        "c_lk_gated_sigma_max": 0.7,
         "i_b_gate_x_u": 1.0,
         "p_sr_max_ratio": 1.05,
         "process.p_sr": 3e5,
@@ -182,6 +183,12 @@ class MonitorConfig(_Cfg):
         ge=0,
         description="... that |P1 - P2| low-passed over the samples before this one, with this "
         "time constant [s] (0 = the sample's own value; docs/estimation.md, observability gate)",
+    )
+    c_lk_gated_sigma_max: float | None = Field(
+        None,
+        ge=0,
+        description="while the gate holds C_Lk its variance grows with the walk up to this "
+        "sigma, as a share of baseline C_Lk (0 = no cap; None = the model's default)",
     )
     c_lk_gate_adapt: float | None = Field(
         None,
@@ -307,6 +314,13 @@ class Baseline(_Cfg):
         "lands x_SS (1 - skew); sets the chamber pressures at null (P_k - P_R) / P_SR = "
         "k^2 / (1 + k^2), k = (1 + skew) / (1 - skew); from calibration",
     )
+    c_land: float = Field(
+        0.0,
+        ge=0,
+        description="WH model only: laminar leak through the lands' radial clearance "
+        "[m^3/(s Pa)], a cross-port leak added to C_Lk that does not scale with the supply "
+        '(docs/estimation.md, "Land clearance leak (WH)"); nominal from the valve\'s design',
+    )
     v_c: float = Field(7e-5, gt=0, description="WH model only: lumped chamber volume V [m^3]")
     beta: float = Field(1.4e9, gt=0, description="WH model only: lumped bulk modulus [Pa]")
     source: str = "nominal"
@@ -318,6 +332,7 @@ class Baseline(_Cfg):
         rp = er.reduced_params(params, law)._asdict()
         fields = {k: v for k, v in rp.items() if k in cls.model_fields}
         # WH: V = V0 (mid-stroke chamber) and beta_l, as models.params.wh_params
+        fields["c_land"] = p.g_lam_open if law == "WH" else 0.0
         return cls(**fields, c_lk=p.c_lk, v_c=p.v0, beta=p.beta_l, source="nominal")
 
     @classmethod
@@ -360,10 +375,11 @@ _CAL_HEALTHY_NOISE = {
 # near null every C-law reduces to the same linear form, so one calibration serves them all
 _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CAL_HEALTHY_NOISE)
 # WH (models.eha_reduced_wh): its own calibration, ``servowatch calibrate --scenario
-# healthy_noise --model WH`` (x_SS near the geometric underlap: WH has the tangent null gain)
+# healthy_noise --model WH`` (x_SS and G_PQ within 0.6 % of the valve's geometric values: WH
+# has the tangent null gain, and the lands' clearance leak c_land apart)
 _DEFAULT_CALIBRATION["WH"] = {
-    "g_pq": 711005642085.4442,
-    "x_ss": 0.00010417638478131995,
+    "g_pq": 744131931899.0598,
+    "x_ss": 9.953879705519822e-05,
     "p_r": 500000.0,
     "skew": -1.908199718612985e-05,
 }

@@ -99,6 +99,7 @@ CST_FIELDS: tuple[str, ...] = (
     "cusum_nu",  # C_Lk change detector: drift of the CUSUM of standardised C_Lk updates
     "cusum_h",  # ... its threshold (0: off)
     "cusum_kick",  # ... the C_Lk variance added on a detection (filter units^2)
+    "gate_var_max",  # while held, C_Lk's variance grows up to this (filter units^2; 0: no cap)
 )
 (
     C_H_MAX,
@@ -134,6 +135,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_CUSUM_NU,
     C_CUSUM_H,
     C_CUSUM_KICK,
+    C_GATE_VAR_MAX,
 ) = range(len(CST_FIELDS))
 
 # the bank's carry array (n_act, N_CARRY): the last current [A] (held when a sample has
@@ -259,7 +261,10 @@ def step_one(
                          Wm, Wc, c, prm_k, y[j], ws, n)  # fmt: skip
     if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
         X[k, S_C_LK] = c_prior
-        PP[k, S_C_LK, S_C_LK] = p_prior + q_k[S_C_LK] * dt
+        v_held = p_prior + q_k[S_C_LK] * dt
+        if cst_k[C_GATE_VAR_MAX] > 0.0:
+            v_held = max(p_prior, min(v_held, cst_k[C_GATE_VAR_MAX]))
+        PP[k, S_C_LK, S_C_LK] = v_held
     elif cst_k[C_CUSUM_H] > 0.0:
         # C_Lk change detector (docs/estimation.md, "C_Lk change detector (WH)"): the update
         # standardised by its model variance (prior - posterior) is N(0, 1) and white while
