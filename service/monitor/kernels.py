@@ -214,7 +214,9 @@ def step_one(
         p12_m = z[j, Z_P1] * zs_k[Z_P1] - z[j, Z_P2] * zs_k[Z_P2] if both_p else math.nan
         tau = cst_k[C_GATE_P12_TAU]
         p12_g = CARRY[k, CARRY_P12] if tau > 0.0 else p12_m
-        if not math.isnan(p12_g):
+        if not both_p:
+            gate = True  # no measured P12 in this sample: it carries no leak information
+        elif not math.isnan(p12_g):
             gate = gate or abs(p12_g) < cst_k[C_GATE_P12]
         if both_p and tau > 0.0:
             CARRY[k, CARRY_P12] += (1.0 - math.exp(-dt / tau)) * (p12_m - CARRY[k, CARRY_P12])
