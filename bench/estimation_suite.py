@@ -296,6 +296,14 @@ def parse_overrides(ap: argparse.ArgumentParser, model: str, items: list[str]) -
     return overrides
 
 
+def run_jobs(job, jobs: list, workers: int) -> list:
+    """``[job(j) for j in jobs]``, in a pool of ``workers`` processes when more than one."""
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as ex:
+            return list(ex.map(job, jobs))
+    return [job(j) for j in jobs]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--suite", type=int, default=30, help="number of duty cycles")
@@ -322,11 +330,7 @@ def main(argv: list[str] | None = None) -> int:
     overrides = parse_overrides(ap, a.model, a.set)
     jobs = [(a.seed, i, a.fixed_noise, a.model, overrides) for i in idx]
     w0 = time.perf_counter()
-    if a.workers > 1:
-        with ProcessPoolExecutor(max_workers=a.workers) as ex:
-            rows = list(ex.map(_job, jobs))
-    else:
-        rows = [_job(j) for j in jobs]
+    rows = run_jobs(_job, jobs, a.workers)
     print(f"suite seed {a.seed}, {len(rows)} duty cycles, {time.perf_counter() - w0:.0f} s wall")
     print_table(rows)
     s = summary(rows)

@@ -24,7 +24,6 @@ import json
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -111,16 +110,12 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--seeds: comma-separated integers, not {a.seeds!r}")
     if a.suite < 1:
         ap.error("--suite: at least 1 member")
-    from estimation_suite import parse_overrides
+    from estimation_suite import parse_overrides, run_jobs
 
     overrides = parse_overrides(ap, a.model, a.set)
     jobs = [(s, i, a.model, overrides) for s in seeds for i in range(a.suite)]
     w0 = time.perf_counter()
-    if a.workers > 1:
-        with ProcessPoolExecutor(max_workers=a.workers) as ex:
-            rows = list(ex.map(_job, jobs))
-    else:
-        rows = [_job(j) for j in jobs]
+    rows = run_jobs(_job, jobs, a.workers)
     print(f"seeds {a.seeds}, {len(rows)} members, model {a.model}, "
           f"{time.perf_counter() - w0:.0f} s wall")  # fmt: skip
     print(f"{'member':<10} {'kind':<12} {'leak x':>6} {'err':>7} {'P12 MPa':>8} "
