@@ -2,7 +2,7 @@
 (docs/estimation.md, "Where the settled C_Lk reading errs").
 
     .venv/bin/python bench/suite_readings.py --seeds 1,2,3,4,5 --workers 2   # about 2 min
-    .venv/bin/python bench/suite_readings.py --seeds 1 --suite 4 --json r.json
+    .venv/bin/python bench/suite_readings.py --seeds 1 --suite 4 --json r.json --png r.png
 
 Every member of each suite seed (``models.dutycycle``), calibrated on its own healthy segment
 and run as ``bench/estimation_suite.py`` runs it (``monitor_run``). Per member, ``err`` is the
@@ -15,6 +15,7 @@ Then err's mean, standard deviation and RMS binned by |P12|, by the final supply
 kind, and in each |P12| bin the RMS of err x |P12| [nominal x MPa]: a constant flow error
 dQ read as a leak gives err = dQ / (C_Lk,nom P12), so err x |P12| is the same in every bin
 when the reading's error is such a flow error (a null offset dx_0 is dQ = K_q dx_0).
+``--png F`` draws err against |P12| with +-(the RMS of err x |P12|) / |P12|.
 """
 
 from __future__ import annotations
@@ -103,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         help="override a MonitorConfig field, as bench/estimation_suite.py --set",
     )
     ap.add_argument("--json", default=None, help="write the rows and the bins to this file")
+    ap.add_argument("--png", default=None, metavar="F", help="also draw err against |P12|")
     a = ap.parse_args(argv)
     try:
         seeds = [int(s) for s in a.seeds.split(",")]
@@ -131,6 +133,12 @@ def main(argv: list[str] | None = None) -> int:
     for g, label, n, mean, sd, rms, fl in bins:
         fls = f"{fl:>16.3f}" if fl is not None else f"{'-':>16}"
         print(f"{g:<13} {label:<12} {n:>4d} {mean:>+7.3f} {sd:>6.3f} {rms:>6.3f} {fls}")
+    if a.png:
+        from service.plots import plot_readings
+
+        flow = next(b[6] for b in bins if b[0] == "all")
+        title = f"settled C_Lk reading, seeds {a.seeds}, {len(rows)} members, {a.model}"
+        print(f"wrote {plot_readings(rows, flow, a.png, title)}")
     if a.json:
         keys = ("group", "bin", "n", "mean", "sd", "rms", "rms_flow")
         Path(a.json).write_text(

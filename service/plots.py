@@ -11,7 +11,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_characteristic", "plot_simulation", "plot_comparison", "plot_member"]
+__all__ = [
+    "plot_characteristic",
+    "plot_simulation",
+    "plot_comparison",
+    "plot_member",
+    "plot_readings",
+]
 
 _SIGNALS = (
     ("x_j", 1e3, "x_J [mm]"),
@@ -144,6 +150,37 @@ def plot_member(
         a.grid(True, alpha=0.3)
         a.legend(fontsize=7, loc="upper left")
     fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_readings(
+    rows: Sequence[Mapping[str, object]], flow: float, path: str | Path, title: str = ""
+) -> Path:
+    """Settled C_Lk reading errors of suite members (docs/estimation.md, "Where the settled
+    C_Lk reading errs"): err [nominal C_Lk] against the last second's |P12| [MPa], one dot a
+    member, coloured by the supply at the end (share of rated), with +-``flow`` / |P12|, the
+    error a constant flow error of ``flow`` [nominal x MPa] gives."""
+    p12 = np.abs([float(r["p12_mpa"]) for r in rows])
+    err = np.array([float(r["err"]) for r in rows])
+    sup = np.array([float(r["supply"]) for r in rows])
+    fig, ax = plt.subplots(figsize=(8, 5))
+    sc = ax.scatter(p12, err, c=sup, cmap="viridis", vmin=0.5, vmax=1.0, s=14)
+    fig.colorbar(sc, ax=ax, label="supply at the end / rated")
+    x = np.linspace(0.5, max(float(p12.max()), 1.0), 200)
+    for sign in (1.0, -1.0):
+        ax.plot(x, sign * flow / x, "C3", ls="--", lw=0.8,
+                label=f"+-{flow:.2f} / |P12| (a constant flow error)" if sign > 0 else None)  # fmt: skip
+    ax.axhline(0.0, color="k", lw=0.6)
+    ax.set_ylim(-0.8, 0.8)
+    ax.set_xlabel("|P12| over the last second [MPa]")
+    ax.set_ylabel("settled C_Lk error [nominal C_Lk]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+    ax.set_title(title)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=100)

@@ -135,14 +135,15 @@ def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
     """bench/suite_readings.py: each member's settled reading error is the suite's own
     figure in units of nominal C_Lk (bias% / 100 on a healthy member, inc% x the true
     increase / 100 on a leak member); every member lands in one |P12| bin, one supply bin
-    and one kind; the err x |P12| column is err's RMS scaled by |P12|; bad options exit 2."""
+    and one kind; the err x |P12| column is err's RMS scaled by |P12|; --png draws them; bad
+    options exit 2."""
     sys.path.insert(0, str(ROOT))
     from bench.estimation_suite import run_one
     from models.dutycycle import duty_cycle
 
     out = tmp_path / "r.json"
     r = _run("suite_readings.py", "--seeds", "1", "--suite", "2", "--workers", "1",
-             "--json", str(out))  # fmt: skip
+             "--json", str(out), "--png", str(tmp_path / "r.png"))  # fmt: skip
     assert r.returncode == 0, r.stderr[-2000:]
     data = json.loads(out.read_text())
     rows = {row["name"]: row for row in data["rows"]}
@@ -165,5 +166,8 @@ def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
     assert total["rms"] == pytest.approx(float(np.sqrt(np.mean(errs**2))))
     assert total["rms_flow"] == pytest.approx(float(np.sqrt(np.mean((errs * p12) ** 2))))
     assert "err x |P12|" in r.stdout and "dc1_001" in r.stdout
+    png = (tmp_path / "r.png").read_bytes()  # --png: err against |P12|
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    assert r.stdout.rstrip().endswith("r.png")
     bad = _run("suite_readings.py", "--seeds", "one")
     assert bad.returncode == 2 and "--seeds" in bad.stderr
