@@ -294,6 +294,8 @@ def calibrate(
 HOLD_SETTLE_S = 0.3  # a hold: the command has not moved for this long [s] ...
 HOLD_DP12 = 0.05  # ... |dP12/dt| (smoothed) below this share of P_SR per second ...
 HOLD_MIN_S = 0.3  # ... for at least this long [s]
+HOLD_FIT_MAX_DX0 = 0.05  # hold_fit moves x_0 by at most this share of x_SS ...
+HOLD_FIT_MAX_DXSS = 0.2  # ... and x_SS by at most this share of itself
 
 
 def hold_windows(meas: dict[str, NDArray], p_sr: float) -> list[tuple[float, float, float]]:
@@ -339,7 +341,8 @@ def hold_fit(meas: dict[str, NDArray], base: Baseline) -> Baseline:
     baseline C_Lk at every hold of the healthy run (least squares, ``hold_reading``): the
     monitor reads C_Lk at holds, where slow motion with stick-slip reads it differently
     (docs/estimation.md, "Calibrating where the monitor reads"). Only where the run holds
-    P12 at two levels at least NULL_FIT_SPREAD of P_SR apart; otherwise ``base``."""
+    P12 at two levels at least NULL_FIT_SPREAD of P_SR apart, and only a fit within
+    HOLD_FIT_MAX_DX0 and HOLD_FIT_MAX_DXSS of ``base``; otherwise ``base``."""
     from scipy.optimize import least_squares
 
     p_sr = base.p_sr_rated
@@ -358,4 +361,13 @@ def hold_fit(meas: dict[str, NDArray], base: Baseline) -> Baseline:
         b = moved(v)
         return [(hold_reading(b, *h, p_sr) - b.c_lk) / b.c_lk for h in holds]
 
-    return moved(least_squares(residuals, [0.0, 0.0], x_scale=[0.1, 0.01]).x)
+    sol = least_squares(residuals, [0.0, 0.0], x_scale=[0.1, 0.01])
+    # a fit that moves the null by more than HOLD_FIT_MAX_DX0 or x_SS by more than
+    # HOLD_FIT_MAX_DXSS is not a refinement of the passes' baseline: keep that one
+    if not (
+        sol.success
+        and abs(sol.x[0]) * 1e-6 <= HOLD_FIT_MAX_DX0 * base.x_ss
+        and abs(sol.x[1]) <= HOLD_FIT_MAX_DXSS
+    ):
+        return base
+    return moved(sol.x)

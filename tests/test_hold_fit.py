@@ -111,3 +111,18 @@ def test_no_holds_no_fit():
     assert hold_windows(meas, 20e6) == []
     a, b = calibrate(meas, config=cfg), calibrate(meas, config=cfg, holds=False)
     assert (a.x_0, a.x_ss, a.g_pq) == (b.x_0, b.x_ss, b.g_pq)
+
+
+def test_a_fit_far_from_the_passes_baseline_is_not_taken():
+    """Holds whose spool positions are 40 um off what the baseline law expects (a spool
+    sensor offset, say) would need x_0 moved by 40 % of x_SS: the fit is refused and the
+    passes' baseline kept; the same holds as measured are fitted."""
+    from service.calibration import hold_fit
+
+    dc = duty_cycle(3, 17)
+    _, meas = measured_run(dc.calibration)
+    cfg = MonitorConfig(model="WH").model_copy(update={"noise": identify_noise(meas)})
+    base = calibrate(meas, config=cfg, holds=False)
+    assert hold_fit(meas, base) != base
+    shifted = {**meas, "x_s": np.asarray(meas["x_s"]) + 40e-6}
+    assert hold_fit(shifted, base) == base
