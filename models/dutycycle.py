@@ -183,7 +183,7 @@ def duty_cycle(seed: int, index: int) -> DutyCycle:
                 ),
                 Periodic(amplitude=0.2e-3, freq_hz=1.1, t_end=CAL_SINE_END_S),
             ],
-        ),  # fmt: skip
+        ),
         load=Profile(
             initial=(load_1 := float(rng.uniform(2e3, 5e3))),
             # a stream of its own: the test scenario's draws do not depend on this one
