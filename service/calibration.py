@@ -98,6 +98,11 @@ def _smoothing_window(t: NDArray) -> int:
     return max(5, int(round(0.2 / float(np.median(np.diff(t))))) | 1)
 
 
+def _jack_speed(meas: dict[str, NDArray], win: int, dt: float) -> NDArray:
+    """dx_J/dt [m/s] from the Savitzky-Golay window ``win`` (cubic) of the measured x_J."""
+    return savgol_filter(np.asarray(meas["x_j"], float), win, 3, deriv=1, delta=dt)
+
+
 NULL_FIT_SPREAD = 0.1  # fit x_0 when P12 at rest spans more than this share of P_SR (5-95 %)
 NULL_FIT_V = 0.5e-3  # "at rest": smoothed |v_J| below this [m/s]
 
@@ -124,7 +129,7 @@ def identify_baseline(
         skew, p_r = (k - 1.0) / (k + 1.0), nom.p_r
     x_s = savgol_filter(np.asarray(meas["x_s"], float), win, 3)
     p12 = savgol_filter(p1 - p2, win, 3)
-    v_j = savgol_filter(np.asarray(meas["x_j"], float), win, 3, deriv=1, delta=dt)
+    v_j = _jack_speed(meas, win, dt)
     keep = np.abs(x_s) < 0.7 * nom.x_ss
     keep[: win * 2] = False  # start-up transient
     keep[-win:] = False
@@ -306,7 +311,7 @@ def hold_windows(meas: dict[str, NDArray], p_sr: float) -> list[tuple[float, flo
     dt = float(np.median(np.diff(t)))
     win = _smoothing_window(t)
     p1, p2 = np.asarray(meas["p1"], float), np.asarray(meas["p2"], float)
-    v_j = savgol_filter(np.asarray(meas["x_j"], float), win, 3, deriv=1, delta=dt)
+    v_j = _jack_speed(meas, win, dt)
     dp12 = savgol_filter(p1 - p2, win, 3, deriv=1, delta=dt)
     x_cmd = np.asarray(meas["x_cmd"], float)
     moved = np.concatenate(([True], np.abs(np.diff(x_cmd)) > 1e-9))

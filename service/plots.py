@@ -27,6 +27,15 @@ _SIGNALS = (
 )
 
 
+def _save(fig, path: str | Path, dpi: int = 100) -> Path:
+    """Lay out ``fig``, write it to ``path`` as PNG at ``dpi`` and close it."""
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
 def plot_characteristic(
     x_s: np.ndarray,
     q_j: Sequence[float],
@@ -46,11 +55,7 @@ def plot_characteristic(
     ax.set_title(f"P12-x_S characteristic, model {model}, P_SR = {p_sr * 1e-6:.1f} MPa")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path, dpi=110)
 
 
 def plot_simulation(res, path: str | Path, title: str = "") -> Path:
@@ -76,11 +81,7 @@ def plot_simulation(res, path: str | Path, title: str = "") -> Path:
     axes[0].legend(fontsize=8)
     axes[2].legend(fontsize=8)
     fig.suptitle(title or f"EHA bench, valve {res.valve}")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_comparison(results: Mapping[str, object], path: str | Path, title: str = "") -> Path:
@@ -104,11 +105,7 @@ def plot_comparison(results: Mapping[str, object], path: str | Path, title: str 
     axes[0].legend(fontsize=8, ncol=3)
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title or "HF against the simplified models")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_member(
@@ -150,11 +147,7 @@ def plot_member(
         a.grid(True, alpha=0.3)
         a.legend(fontsize=7, loc="upper left")
     fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_readings(
@@ -181,8 +174,4 @@ def plot_readings(
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
     ax.set_title(title)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
