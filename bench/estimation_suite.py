@@ -4,6 +4,7 @@
     .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --workers 2
     .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --json suite.json
     .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --only 3,7   # a few members
+    .venv/bin/python bench/estimation_suite.py --seed 6 --only 5 --noise-scale 0.1  # diagnostic
 
 Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
 (``service.monitor.MonitorBank``, full channel set, the WH process model unless ``--model``,
@@ -44,7 +45,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from models.dutycycle import DutyCycle, duty_cycle  # noqa: E402
+from models.dutycycle import DutyCycle, duty_cycle, scale_noise  # noqa: E402
 
 TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "reinit": 0}
 
@@ -173,9 +174,12 @@ def run_one(
     return out
 
 
-def _job(args: tuple[int, int, bool, str, dict]) -> dict:
-    seed, index, fixed, model, overrides = args
-    return run_one(duty_cycle(seed, index), fixed_noise=fixed, model=model, overrides=overrides)
+def _job(args: tuple[int, int, bool, str, dict, float]) -> dict:
+    seed, index, fixed, model, overrides, noise = args
+    dc = duty_cycle(seed, index)
+    if noise != 1.0:
+        dc = scale_noise(dc, noise)
+    return run_one(dc, fixed_noise=fixed, model=model, overrides=overrides)
 
 
 def failures(r: dict) -> list[str]:
@@ -324,11 +328,21 @@ def main(argv: list[str] | None = None) -> int:
         help="override a MonitorConfig field (numbers only), e.g. --set adapt_nis=0 or "
         "--set process.c_lk=2e-13",
     )
+    ap.add_argument(
+        "--noise-scale",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="every sensor's noise times F, calibration and test (a diagnostic: what stays "
+        "at F = 0.1 is model error)",
+    )
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
     a = ap.parse_args(argv)
+    if not a.noise_scale >= 0.0:
+        ap.error(f"--noise-scale {a.noise_scale}: must be >= 0")
     idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
     overrides = parse_overrides(ap, a.model, a.set)
-    jobs = [(a.seed, i, a.fixed_noise, a.model, overrides) for i in idx]
+    jobs = [(a.seed, i, a.fixed_noise, a.model, overrides, a.noise_scale) for i in idx]
     w0 = time.perf_counter()
     rows = run_jobs(_job, jobs, a.workers)
     print(f"suite seed {a.seed}, {len(rows)} duty cycles, {time.perf_counter() - w0:.0f} s wall")

@@ -36,15 +36,20 @@ P12_BINS_MPA = (0.0, 1.0, 2.0, 4.0, 6.0, np.inf)
 SUPPLY_BINS = (0.0, 0.7, 0.9, 1.1)
 
 
-def reading(seed: int, index: int, model: str = "WH", overrides: dict | None = None) -> dict:
+def reading(
+    seed: int, index: int, model: str = "WH", overrides: dict | None = None, noise: float = 1.0
+) -> dict:
     """One member's settled C_Lk reading error and the operating point it was read at
-    (``overrides``: MonitorConfig fields, as ``--set``)."""
+    (``overrides``: MonitorConfig fields, as ``--set``; ``noise``: the sensors' noise times
+    this, ``models.dutycycle.scale_noise``)."""
     from estimation_suite import monitor_run
 
-    from models.dutycycle import duty_cycle
+    from models.dutycycle import duty_cycle, scale_noise
     from service.monitor import EST_KEYS
 
     dc = duty_cycle(seed, index)
+    if noise != 1.0:
+        dc = scale_noise(dc, noise)
     sim, rows, base, _, _ = monitor_run(dc, model=model, overrides=overrides)
     c0 = float(sim.c_lk[0])
     last = rows.t >= rows.t[-1] - 1.0
@@ -62,7 +67,7 @@ def reading(seed: int, index: int, model: str = "WH", overrides: dict | None = N
     }
 
 
-def _job(args: tuple[int, int, str, dict]) -> dict:
+def _job(args: tuple[int, int, str, dict, float]) -> dict:
     return reading(*args)
 
 
@@ -103,6 +108,13 @@ def main(argv: list[str] | None = None) -> int:
         metavar="FIELD=VALUE",
         help="override a MonitorConfig field, as bench/estimation_suite.py --set",
     )
+    ap.add_argument(
+        "--noise-scale",
+        type=float,
+        default=1.0,
+        metavar="F",
+        help="every sensor's noise times F, as bench/estimation_suite.py --noise-scale",
+    )
     ap.add_argument("--json", default=None, help="write the rows and the bins to this file")
     ap.add_argument("--png", default=None, metavar="F", help="also draw err against |P12|")
     a = ap.parse_args(argv)
@@ -112,13 +124,16 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--seeds: comma-separated integers, not {a.seeds!r}")
     if a.suite < 1:
         ap.error("--suite: at least 1 member")
+    if not a.noise_scale >= 0.0:
+        ap.error(f"--noise-scale {a.noise_scale}: must be >= 0")
     from estimation_suite import parse_overrides, run_jobs
 
     overrides = parse_overrides(ap, a.model, a.set)
-    jobs = [(s, i, a.model, overrides) for s in seeds for i in range(a.suite)]
+    jobs = [(s, i, a.model, overrides, a.noise_scale) for s in seeds for i in range(a.suite)]
     w0 = time.perf_counter()
     rows = run_jobs(_job, jobs, a.workers)
-    print(f"seeds {a.seeds}, {len(rows)} members, model {a.model}, "
+    noise = f", noise x{a.noise_scale:g}" if a.noise_scale != 1.0 else ""
+    print(f"seeds {a.seeds}, {len(rows)} members, model {a.model}{noise}, "
           f"{time.perf_counter() - w0:.0f} s wall")  # fmt: skip
     print(f"{'member':<10} {'kind':<12} {'leak x':>6} {'err':>7} {'P12 MPa':>8} "
           f"{'|v_J| mm/s':>10} {'supply':>7}")  # fmt: skip

@@ -171,3 +171,27 @@ def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
     assert r.stdout.rstrip().endswith("r.png")
     bad = _run("suite_readings.py", "--seeds", "one")
     assert bad.returncode == 2 and "--seeds" in bad.stderr
+    bad = _run("suite_readings.py", "--noise-scale", "-0.5")
+    assert bad.returncode == 2 and "--noise-scale" in bad.stderr
+
+
+def test_suite_noise_scale_runs_the_member_with_its_noise_scaled(tmp_path):
+    """bench/estimation_suite.py --noise-scale 0.1: the member's row is run_one on
+    scale_noise(member, 0.1) (its printed noise scale a tenth of the member's), not the
+    member as drawn; a negative factor exits 2, naming the option."""
+    sys.path.insert(0, str(ROOT))
+    from bench.estimation_suite import run_one
+    from models.dutycycle import duty_cycle, scale_noise
+
+    out = tmp_path / "s.json"
+    r = _run("estimation_suite.py", "--seed", "1", "--only", "0", "--workers", "1",
+             "--noise-scale", "0.1", "--json", str(out))  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    (row,) = json.loads(out.read_text())["rows"]
+    dc = duty_cycle(1, 0)
+    assert row["noise_scale"] == pytest.approx(0.1 * dc.noise_scale)
+    want = run_one(scale_noise(dc, 0.1), model="WH")
+    assert row["bias%"] == pytest.approx(want["bias%"], rel=1e-9)
+    assert row["bias%"] != pytest.approx(run_one(dc, model="WH")["bias%"], rel=1e-3)
+    bad = _run("estimation_suite.py", "--noise-scale", "-1")
+    assert bad.returncode == 2 and "--noise-scale" in bad.stderr

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.dutycycle import MAX_LOAD_N, SETTLE_S, STROKE_FRACTION, duty_cycle, suite
+from models.dutycycle import (
+    MAX_LOAD_N,
+    SETTLE_S,
+    STROKE_FRACTION,
+    duty_cycle,
+    scale_noise,
+    suite,
+)
 from models.params import EHAParams
 from models.scenario import Scenario
 
@@ -69,3 +76,23 @@ def test_plant_tolerances():
         assert dc.test.sensors.x_j_m == pytest.approx(50e-6 * dc.noise_scale)
         assert dc.calibration.params == dc.test.params  # calibrated on the same plant
         assert dc.calibration.leak is None  # the calibration segment is healthy
+
+
+def test_scale_noise_scales_every_sensor_and_keeps_the_rest():
+    """scale_noise(dc, 0.1): each sensor's 1-sigma, calibration and test, is a tenth of the
+    member's (x_S 0.5 um x the member's noise scale -> a tenth of that), the noise seeds,
+    plant, commands and faults are the same; 0 gives noiseless sensors; a negative factor is
+    refused, naming it."""
+    dc = SUITE[3]
+    q = scale_noise(dc, 0.1)
+    for a, b in ((dc.calibration, q.calibration), (dc.test, q.test)):
+        for key in ("x_s_m", "x_j_m", "p_pa", "p_sr_pa", "current_a"):
+            assert getattr(b.sensors, key) == pytest.approx(0.1 * getattr(a.sensors, key))
+        assert b.sensors.seed == a.sensors.seed and b.sensors.rate_hz == a.sensors.rate_hz
+        assert b.model_copy(update={"sensors": a.sensors}) == a
+    assert dc.calibration.sensors.x_s_m == pytest.approx(0.5e-6 * dc.noise_scale)
+    assert q.noise_scale == pytest.approx(0.1 * dc.noise_scale)
+    assert (q.params, q.leak_t, q.supply_changes) == (dc.params, dc.leak_t, dc.supply_changes)
+    assert scale_noise(dc, 0.0).test.sensors.p_pa == 0.0
+    with pytest.raises(ValueError, match="noise factor"):
+        scale_noise(dc, -1.0)
