@@ -176,9 +176,7 @@ def run_one(
 
 def _job(args: tuple[int, int, bool, str, dict, float]) -> dict:
     seed, index, fixed, model, overrides, noise = args
-    dc = duty_cycle(seed, index)
-    if noise != 1.0:
-        dc = scale_noise(dc, noise)
+    dc = scale_noise(duty_cycle(seed, index), noise)  # noise 1: the member as drawn
     return run_one(dc, fixed_noise=fixed, model=model, overrides=overrides)
 
 
@@ -300,6 +298,17 @@ def parse_overrides(ap: argparse.ArgumentParser, model: str, items: list[str]) -
     return overrides
 
 
+def noise_factor(text: str) -> float:
+    """argparse type of ``--noise-scale``: a factor >= 0 (``models.dutycycle.scale_noise``)."""
+    try:
+        f = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not f >= 0.0:
+        raise argparse.ArgumentTypeError(f"{text}: must be >= 0")
+    return f
+
+
 def run_jobs(job, jobs: list, workers: int) -> list:
     """``[job(j) for j in jobs]``, in a pool of ``workers`` processes when more than one."""
     if workers > 1:
@@ -330,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--noise-scale",
-        type=float,
+        type=noise_factor,
         default=1.0,
         metavar="F",
         help="every sensor's noise times F, calibration and test (a diagnostic: what stays "
@@ -338,8 +347,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
     a = ap.parse_args(argv)
-    if not a.noise_scale >= 0.0:
-        ap.error(f"--noise-scale {a.noise_scale}: must be >= 0")
     idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
     overrides = parse_overrides(ap, a.model, a.set)
     jobs = [(a.seed, i, a.fixed_noise, a.model, overrides, a.noise_scale) for i in idx]

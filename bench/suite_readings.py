@@ -47,9 +47,7 @@ def reading(
     from models.dutycycle import duty_cycle, scale_noise
     from service.monitor import EST_KEYS
 
-    dc = duty_cycle(seed, index)
-    if noise != 1.0:
-        dc = scale_noise(dc, noise)
+    dc = scale_noise(duty_cycle(seed, index), noise)  # noise 1: the member as drawn
     sim, rows, base, _, _ = monitor_run(dc, model=model, overrides=overrides)
     c0 = float(sim.c_lk[0])
     last = rows.t >= rows.t[-1] - 1.0
@@ -96,6 +94,8 @@ def binned(rows: list[dict]) -> list[tuple[str, str, int, float, float, float, f
 
 
 def main(argv: list[str] | None = None) -> int:
+    from estimation_suite import noise_factor, parse_overrides, run_jobs
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="1", help="comma-separated suite seeds")
     ap.add_argument("--suite", type=int, default=30, help="members per seed")
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--noise-scale",
-        type=float,
+        type=noise_factor,
         default=1.0,
         metavar="F",
         help="every sensor's noise times F, as bench/estimation_suite.py --noise-scale",
@@ -124,10 +124,6 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--seeds: comma-separated integers, not {a.seeds!r}")
     if a.suite < 1:
         ap.error("--suite: at least 1 member")
-    if not a.noise_scale >= 0.0:
-        ap.error(f"--noise-scale {a.noise_scale}: must be >= 0")
-    from estimation_suite import parse_overrides, run_jobs
-
     overrides = parse_overrides(ap, a.model, a.set)
     jobs = [(s, i, a.model, overrides, a.noise_scale) for s in seeds for i in range(a.suite)]
     w0 = time.perf_counter()
