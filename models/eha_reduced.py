@@ -84,6 +84,8 @@ class ReducedParams(NamedTuple):
     x_0: float = 0.0  # hydraulic null of the spool [m]: the law sees x_S - x_0 (land mismatch)
     skew: float = 0.0  # WH only: supply lands underlapped x_SS (1 + skew), return x_SS (1 - skew)
     c_land: float = 0.0  # WH only: laminar land-clearance leak, a cross-port leak [m^3/(s Pa)]
+    f_s: float = 0.0  # WH only: breakaway (static) friction [N]; 0 = no stiction
+    v_stick: float = 3e-4  # WH only: stick band [m/s]: |v_J| below it the jack can stick
 
 
 def x_eq(x_s, x_u: float):

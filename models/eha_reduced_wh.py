@@ -12,8 +12,13 @@ four-land orifice law of docs/models.md eqs. 1-4 (K_o = sqrt(2 P_SR,rated) / (x_
 the chambers eq. 5 with the bulk modulus beta and the volumes V1,2 = V0 +- A x_J (eq. 5b: the
 jack's position sets each chamber's stiffness; V0 the lumped mid-stroke volume), the
 pressures P_k = max(p~_k, P_vap) (eq. 6),
-the jack m dv_J/dt = A (P1 - P2) - F_R - c_v v_J - F_d tanh(v_J / v_f). The measurement is
-direct: x_S, x_J, P1 = max(p~1, P_vap), P2 = max(p~2, P_vap), P_SR.
+the jack m dv_J/dt = A (P1 - P2) - F_R - c_v v_J - F_d tanh(v_J / v_f), with Karnopp
+stiction (docs/estimation.md, "Stiction in the WH process model"): while |v_J| < v_stick and
+the applied force |A P12 - F_R| <= F_s the jack is stuck (v_J relaxes to 0 with TAU_STICK),
+and a v_J that crosses zero within a substep under such a force is set to 0 (an explicit
+step of 1/3 ms changes v_J by up to a few mm/s, which would jump a narrow band); F_s = 0 is
+the smooth friction alone. The measurement is direct: x_S, x_J, P1 = max(p~1, P_vap),
+P2 = max(p~2, P_vap), P_SR.
 
 Stiff modes (docs/models.md section 7; ``stiff_modes``): the chamber mode
 beta/V (2 K_o (x_SS + x_SM) / sqrt(dp_lam) + C_Lk) and the hydraulic mode
@@ -87,8 +92,9 @@ RK4_H_TARGET = 2.5  # n_substeps keeps the chamber mode's |lambda h| below this 
 
 # parameter vector: models.eha_reduced's layout, then the WH constants (docs/models.md eq. 2, 3, 5)
 (K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R, K_WH_V0,
- K_WH_LAM0, K_WH_C_LAND) = range(N_PRM, N_PRM + 9)  # fmt: skip
-N_PRM_WH = N_PRM + 9
+ K_WH_LAM0, K_WH_C_LAND, K_WH_F_S, K_WH_V_STICK) = range(N_PRM, N_PRM + 11)  # fmt: skip
+N_PRM_WH = N_PRM + 11
+TAU_STICK = 1e-3  # relaxation time of v_J while stuck [s] (as the HF plant's)
 
 
 def k_orifice(rp: ReducedParams) -> float:
@@ -98,7 +104,8 @@ def k_orifice(rp: ReducedParams) -> float:
 
 def param_vector(rp: ReducedParams, v_c: float, beta: float) -> NDArray:
     """Float64 vector of the compiled WH kernels: ``models.eha_reduced.param_vector`` (law
-    WH, longest substep ``H_MAX``) followed by K_o, dp_lam, 1/sqrt(dp_lam) and beta / V."""
+    WH, longest substep ``H_MAX``) followed by K_o, dp_lam, 1/sqrt(dp_lam), beta / V, the
+    lands' underlaps, V0, the chamber mode, the land leak, F_s and v_stick."""
     a = np.empty(N_PRM_WH)
     a[:N_PRM] = er.param_vector(rp._replace(law="WH", h_max=min(rp.h_max, H_MAX)))
     dp_lam = WH_DP_LAM_FRACTION * rp.p_sr_rated
@@ -111,6 +118,8 @@ def param_vector(rp: ReducedParams, v_c: float, beta: float) -> NDArray:
     a[K_WH_V0] = v_c  # mid-stroke chamber volume V0 [m^3]
     a[K_WH_LAM0] = stiff_modes(rp, v_c, beta, 0.0)["chamber"]  # chamber mode at V0 [1/s]
     a[K_WH_C_LAND] = rp.c_land  # land-clearance leak, added to C_Lk [m^3/(s Pa)]
+    a[K_WH_F_S] = rp.f_s  # breakaway friction [N] (0: no stiction)
+    a[K_WH_V_STICK] = rp.v_stick  # stick band [m/s]
     return a
 
 
@@ -184,7 +193,12 @@ def _rhs(x_s, x_j, v_j, pt1, pt2, f_r, p_sr, c_lk, rp, beta, v_c):
     p12 = p1 - p2
     q_lk = c_lk * p12
     q_j = rp.area * v_j
-    acc = (rp.area * p12 - f_r - rp.c_v * v_j - rp.f_d * np.tanh(v_j / rp.v_f)) / rp.mass
+    f_a = rp.area * p12 - f_r
+    acc = np.where(
+        (np.abs(v_j) < rp.v_stick) & (np.abs(f_a) <= rp.f_s),
+        -v_j / TAU_STICK,  # stuck: friction holds the applied force (Karnopp)
+        (f_a - rp.c_v * v_j - rp.f_d * np.tanh(v_j / rp.v_f)) / rp.mass,
+    )
     v1, v2 = chamber_volumes(x_j, rp.area, v_c)
     return v_j, acc, beta / v1 * (q1 - q2 - q_lk - q_j), beta / v2 * (q3 - q4 + q_lk + q_j)
 
@@ -210,10 +224,13 @@ def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: flo
         kb = f(tuple(u + 0.5 * h * d for u, d in zip(y, ka, strict=True)))
         kc = f(tuple(u + 0.5 * h * d for u, d in zip(y, kb, strict=True)))
         kd = f(tuple(u + h * d for u, d in zip(y, kc, strict=True)))
-        x_j, v_j, pt1, pt2 = (
+        x_j, v_new, pt1, pt2 = (
             u + h / 6.0 * (a + 2.0 * b + 2.0 * c + d)
             for u, a, b, c, d in zip(y, ka, kb, kc, kd, strict=True)
         )
+        # v_J crossed zero within the substep and the applied force cannot break away: stuck
+        f_a = rp.area * (np.maximum(pt1, rp.p_vap) - np.maximum(pt2, rp.p_vap)) - f_r
+        v_j = np.where((v_new * v_j < 0.0) & (np.abs(f_a) <= rp.f_s), 0.0, v_new)
     return np.stack([x_s, v_s, x_j, v_j, f_r, p_sr, c_lk, i_b, pt1, pt2], axis=-1)
 
 
@@ -260,8 +277,11 @@ def rhs_nb(x_s, x_j, v_j, pt1, pt2, f_r, p_s, c_lk, prm):
     p12 = p1 - p2
     q_lk = c_lk * p12
     q_j = area * v_j
-    fric = prm[K_F_D] * math.tanh(v_j / prm[K_V_F])
-    acc = (area * p12 - f_r - prm[K_C_V] * v_j - fric) / prm[K_MASS]
+    f_a = area * p12 - f_r
+    if abs(v_j) < prm[K_WH_V_STICK] and abs(f_a) <= prm[K_WH_F_S]:
+        acc = -v_j / TAU_STICK  # stuck: friction holds the applied force (Karnopp)
+    else:
+        acc = (f_a - prm[K_C_V] * v_j - prm[K_F_D] * math.tanh(v_j / prm[K_V_F])) / prm[K_MASS]
     v0 = prm[K_WH_V0]  # chambers V0 +- A x_J (eq. 5b): bv = beta / V0 scaled by V0 / V_k
     v_min = V_MIN_FRACTION * v0
     bv1 = bv * v0 / max(v0 + area * x_j, v_min)
@@ -291,6 +311,7 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
     x_0 = prm[K_X_0]  # hydraulic null: the lands see x_S - x_0
     hh = 0.5 * h
     h6 = h / 6.0
+    f_s, area, p_vap = prm[K_WH_F_S], prm[K_AREA], prm[K_P_VAP]
     for _ in range(n_sub):
         x_s, v_s = _spool_nb(x_s, v_s, x_ref, x_sm, coef)
         x_l = x_s - x_0
@@ -307,9 +328,14 @@ def step_core_nb(x, i, h, n_sub, prm, coef, out):
         d0 = v_j + h * c1
         d1, d2, d3 = rhs_nb(x_l, x_j + h * c0, d0, pt1 + h * c2, pt2 + h * c3, f_r, p_s, c_lk, prm)
         x_j += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
-        v_j += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+        v_new = v_j + h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
         pt1 += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
         pt2 += h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+        if v_new * v_j < 0.0 and f_s > 0.0:  # v_J crossed zero within the substep:
+            f_a = area * (max(pt1, p_vap) - max(pt2, p_vap)) - f_r
+            if abs(f_a) <= f_s:
+                v_new = 0.0  # ... and the applied force cannot break away: stuck
+        v_j = v_new
     out[0], out[1], out[2], out[3] = x_s, v_s, x_j, v_j
     out[4], out[5], out[6], out[7] = x[4], x[5], x[6], x[7]
     out[8], out[9] = pt1, pt2

@@ -4,7 +4,7 @@ and estimates that recover once real samples come back.
 
 Asserted by counts, not timing (update_arrays, 10 samples per call; C5 and WH): one
 re-initialisation at the onset of the zeros and one when real samples return, none in
-between; C_Lk, P_SR and x_J within 2 % of a fresh monitor's from 200 samples (0.2 s) on."""
+between; C_Lk, P_SR and x_J within 2 % of a fresh monitor's from 300 samples (0.3 s) on."""
 
 from __future__ import annotations
 
@@ -72,7 +72,8 @@ def test_all_zero_samples_cost_one_reinit_and_the_estimates_recover(healthy, mod
                                                                             0, 0, 0)  # fmt: skip
 
     # real samples again: one more re-initialisation (the jump back), then the estimates of
-    # a fresh monitor fed the same samples, within 2 % from 200 samples (0.2 s) on
+    # a fresh monitor fed the same samples, within 2 % from 300 samples (0.3 s) on (WH: the
+    # stuck jack of a stiction model is a state the two histories leave at different times)
     t_b = t_z[-1] + 1e-3 + (t_h[N_PRE:] - t_h[N_PRE])
     est_b, res_b, _, reinit_b = _feed(bank, "a", t_b, ch_h[N_PRE:])
     assert reinit_b[0] == 2 and reinit_b[-1] == 2
@@ -81,7 +82,7 @@ def test_all_zero_samples_cost_one_reinit_and_the_estimates_recover(healthy, mod
     assert reinit_r[-1] == 0
     for key in ("c_lk", "p_sr", "x_j"):
         j = EST_KEYS.index(key)
-        rel = np.abs(est_b[200:, j] - est_r[200:, j]) / np.abs(est_r[200:, j])
+        rel = np.abs(est_b[300:, j] - est_r[300:, j]) / np.abs(est_r[300:, j])
         assert rel.max() < 0.02, (key, float(rel.max()))
     j = EST_KEYS.index("c_lk")
     assert np.mean(est_b[-1000:, j]) == pytest.approx(2e-13, rel=0.15)

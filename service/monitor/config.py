@@ -295,6 +295,19 @@ class Baseline(_Cfg):
     c_v: float = 2000.0
     f_d: float = 400.0
     v_f: float = 2e-3
+    f_s: float = Field(
+        0.0,
+        ge=0,
+        description="WH model only: breakaway (static) friction F_s [N], the datasheet's; the "
+        "jack sticks while |A P12 - F_R| <= F_s; 0 = smooth friction only "
+        '(docs/estimation.md, "Stiction in the WH process model")',
+    )
+    v_stick: float = Field(
+        3e-4,
+        gt=0,
+        description="WH model only: stick band [m/s], about twice the filter's v_J walk per "
+        "1 ms sample (5e-3 m/s/sqrt(s) x sqrt(1 ms) = 0.16 mm/s)",
+    )
     k_sv: float = 0.05
     x_sm: float = 5e-4
     omega_n: float = 2 * math.pi * 150.0
@@ -334,6 +347,7 @@ class Baseline(_Cfg):
         fields = {k: v for k, v in rp.items() if k in cls.model_fields}
         # WH: V = V0 (mid-stroke chamber) and beta_l, as models.params.wh_params
         fields["c_land"] = p.g_lam_open if law == "WH" else 0.0
+        fields["f_s"] = p.f_s if law == "WH" else 0.0  # WH: the jack sticks (Karnopp)
         return cls(**fields, c_lk=p.c_lk, v_c=p.v0, beta=p.beta_l, source="nominal")
 
     @classmethod
@@ -376,11 +390,11 @@ _CAL_HEALTHY_NOISE = {
 # near null every C-law reduces to the same linear form, so one calibration serves them all
 _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CAL_HEALTHY_NOISE)
 # WH (models.eha_reduced_wh): its own calibration, ``servowatch calibrate --scenario
-# healthy_noise --model WH`` (x_SS and G_PQ within 0.6 % of the valve's geometric values: WH
-# has the tangent null gain, and the lands' clearance leak c_land apart)
+# healthy_noise --model WH`` (x_SS and G_PQ within 0.3 % of the valve's geometric values: WH
+# has the tangent null gain, the lands' clearance leak c_land apart, and the jack's stiction)
 _DEFAULT_CALIBRATION["WH"] = {
-    "g_pq": 744131931899.0598,
-    "x_ss": 9.953879705519822e-05,
+    "g_pq": 741970902991.5072,
+    "x_ss": 9.982870898704355e-05,
     "p_r": 500000.0,
     "skew": -1.908199718612985e-05,
 }
