@@ -230,7 +230,8 @@ def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: flo
         )
         # v_J crossed zero within the substep and the applied force cannot break away: stuck
         f_a = rp.area * (np.maximum(pt1, rp.p_vap) - np.maximum(pt2, rp.p_vap)) - f_r
-        v_j = np.where((v_new * v_j < 0.0) & (np.abs(f_a) <= rp.f_s), 0.0, v_new)
+        stuck = (v_new * v_j < 0.0) & (np.abs(f_a) <= rp.f_s) & (rp.f_s > 0.0)
+        v_j = np.where(stuck, 0.0, v_new)
     return np.stack([x_s, v_s, x_j, v_j, f_r, p_sr, c_lk, i_b, pt1, pt2], axis=-1)
 
 
