@@ -1,0 +1,133 @@
+"""The C_Lk a monitor's valve law reads at the HF plant's static holds (docs/estimation.md,
+"Stiction in the WH process model" and "What the remaining misses are made of").
+
+    .venv/bin/python bench/hold_readings.py                       # a few seconds
+    .venv/bin/python bench/hold_readings.py --supply 1,0.7 --leak 1,5 --load 4000
+    .venv/bin/python bench/hold_readings.py --baseline wh.json     # a saved WH baseline
+
+A hold: the HF valve (``models.hf_valve.hf_static_pressures``) at the spool position where,
+with the jack still, its static P12 carries the load (P12 = F_R / A) at supply P_SR and
+leak C_Lk. The C_Lk each law reads there, with its default baseline (or ``--baseline``):
+
+* WH: both chamber balances of the four-land law, ``service.calibration.hold_reading``;
+* a C-type law: the C_Lk at which the law, at v_J = 0 and the same x_S and P_SR, gives the
+  measured P12 (the laws are monotone in C_Lk; solved by bracketing).
+
+Printed as the reading's error in % of the true C_Lk. This is the static part of the
+monitor's error; the filter's reading adds the dynamics (friction, chamber transients).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from scipy.optimize import brentq  # noqa: E402
+
+from models.eha_reduced import p12_state  # noqa: E402
+from models.hf_valve import hf_static_p12, hf_static_pressures  # noqa: E402
+from models.params import EHAParams  # noqa: E402
+from service.calibration import hold_reading  # noqa: E402
+from service.monitor import Baseline  # noqa: E402
+from service.monitor.config import MONITOR_MODELS  # noqa: E402
+
+
+def hf_hold(plant: EHAParams, p_sr: float, c_lk: float, load_n: float) -> tuple[float, ...]:
+    """(x_S [m], P1, P2 [Pa]) of the HF plant held still under ``load_n`` [N]."""
+    p12 = load_n / plant.area
+    x_s = brentq(
+        lambda x: float(hf_static_p12(x, 0.0, p_sr, plant, c_lk)) - p12, -8e-5, 8e-5, xtol=1e-14
+    )
+    p1, p2 = (float(p) for p in hf_static_pressures(x_s, 0.0, p_sr, plant, c_lk))
+    return x_s, p1, p2
+
+
+def law_reading(base: Baseline, x_s: float, p1: float, p2: float, p_sr: float) -> float:
+    """C_Lk [m^3/(s Pa)] that ``base``'s law reads at a hold (x_S, absolute P1, P2, P_SR)."""
+    if base.law == "WH":
+        return hold_reading(base, x_s, p1, p2, p_sr)
+    rp = base.reduced_params()
+    p12 = p1 - p2
+
+    def gap(c: float) -> float:
+        return float(p12_state(x_s, 0.0, p_sr, c, rp)) - p12
+
+    return brentq(gap, 0.0, 1e-10, xtol=1e-20)
+
+
+def table(
+    models: list[str],
+    supplies: list[float],
+    leaks: list[float],
+    loads: list[float],
+    baselines: dict[str, Baseline] | None = None,
+) -> list[dict]:
+    """One row per (supply share of rated, leak multiple of nominal, load [N]): the hold and
+    each model's reading error [% of the true C_Lk]."""
+    plant = EHAParams()
+    bases = {m: (baselines or {}).get(m) or Baseline.default(m) for m in models}
+    rows = []
+    for s in supplies:
+        for k in leaks:
+            for f in loads:
+                c = k * plant.c_lk
+                x_s, p1, p2 = hf_hold(plant, s * plant.p_sr, c, f)
+                row = {"supply": s, "leak": k, "load_n": f, "x_s_um": x_s * 1e6}
+                row["p12_mpa"] = (p1 - p2) / 1e6
+                for m, b in bases.items():
+                    row[m] = 100.0 * (law_reading(b, x_s, p1, p2, s * plant.p_sr) / c - 1.0)
+                rows.append(row)
+    return rows
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers, got {text!r}"
+        ) from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--models", default="WH,C5", help="comma-separated process models")
+    ap.add_argument("--supply", type=_floats, default=[1.0, 0.7], help="shares of rated P_SR")
+    ap.add_argument("--leak", type=_floats, default=[1, 2, 3, 5], help="multiples of nominal C_Lk")
+    ap.add_argument("--load", type=_floats, default=[4000.0, 2000.0], help="loads F_R [N]")
+    ap.add_argument("--baseline", default=None, help="a saved baseline JSON for its own law")
+    a = ap.parse_args(argv)
+    models = [m.strip() for m in a.models.split(",") if m.strip()]
+    bad = [m for m in models if m not in MONITOR_MODELS]
+    if bad:
+        ap.error(f"--models: unknown {bad}; expected some of {MONITOR_MODELS}")
+    if any(s <= 0 for s in a.supply) or any(k <= 0 for k in a.leak):
+        ap.error("--supply and --leak must be positive")
+    if any(f == 0 for f in a.load):
+        ap.error("--load: a hold needs a load (P12 = 0 carries no leak flow)")
+    given = {}
+    if a.baseline:
+        try:
+            b = Baseline.load(a.baseline)
+        except (OSError, ValueError) as e:
+            ap.error(f"--baseline: {e}")
+        given[b.law] = b
+    rows = table(models, a.supply, a.leak, a.load, given)
+    src = {m: (given.get(m) or Baseline.default(m)).source for m in models}
+    print("C_Lk read at the HF plant's static holds, error in % of the true C_Lk")
+    for m in models:
+        print(f"  {m}: baseline {src[m]}")
+    head = f"{'supply':>6} {'leak':>5} {'load N':>7} {'x_S um':>7} {'P12 MPa':>7}"
+    print(head + "".join(f" {m:>7}" for m in models))
+    for r in rows:
+        line = f"{r['supply']:6.2f} {r['leak']:5.2f} {r['load_n']:7.0f} {r['x_s_um']:7.3f}"
+        line += f" {r['p12_mpa']:7.2f}" + "".join(f" {r[m]:+7.2f}" for m in models)
+        print(line)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

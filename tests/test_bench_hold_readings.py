@@ -1,0 +1,55 @@
+"""``bench/hold_readings.py``: the C_Lk a law reads at the HF plant's static holds."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from models.eha_reduced import p12_state
+from service.monitor import Baseline
+
+ROOT = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("hold_readings", ROOT / "bench/hold_readings.py")
+hr = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(hr)
+
+
+def test_the_geometric_wh_law_reads_the_hf_holds():
+    """WH with the valve's geometric values (``Baseline.nominal``) is the HF valve's own
+    four-land law (turbulent lands, the laminar clearance apart): at every hold, rated and
+    0.7 of rated supply, 1x to 5x leak, 2 and 4 kN, it reads C_Lk within 0.3 %; the hold
+    carries the load (P12 = F_R / A)."""
+    rows = hr.table(
+        ["WH"], [1.0, 0.7], [1.0, 5.0], [4000.0, -2000.0], {"WH": Baseline.nominal("WH")}
+    )
+    assert len(rows) == 8
+    for r in rows:
+        assert r["p12_mpa"] == pytest.approx(r["load_n"] / 1e3, rel=1e-6)  # A = 1e-3 m^2
+        assert abs(r["WH"]) < 0.3, r
+
+
+def test_a_c_type_reading_gives_the_holds_p12_back():
+    """The C5 reading is the C_Lk at which the law, still jack, gives the hold's P12."""
+    base = Baseline.default("C5")
+    x_s, p1, p2 = hr.hf_hold(hr.EHAParams(), 14e6, 1e-12, 4000.0)
+    c = hr.law_reading(base, x_s, p1, p2, 14e6)
+    assert float(p12_state(x_s, 0.0, 14e6, c, base.reduced_params())) == pytest.approx(
+        p1 - p2, rel=1e-9
+    )
+
+
+def test_cli_prints_the_table_and_refuses_a_zero_load():
+    run = [sys.executable, str(ROOT / "bench/hold_readings.py")]
+    out = subprocess.run([*run, "--supply", "1", "--leak", "5", "--load", "4000"],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    last = out.stdout.splitlines()[-1].split()
+    assert [float(v) for v in last[:3]] == [1.0, 5.0, 4000.0] and len(last) == 7
+    bad = subprocess.run(
+        [*run, "--load", "0"], capture_output=True, text=True, timeout=60, cwd=ROOT
+    )
+    assert bad.returncode == 2 and "--load" in bad.stderr
