@@ -56,9 +56,12 @@ def monitor_run(
     model: str = "WH",
     overrides: dict | None = None,
     supply_sensor: bool = False,
+    plant_friction: bool = False,
 ):
     """Calibrate on the healthy segment, run one monitor on the test scenario: (truth, output
-    rows, baseline, config, bank). ``supply_sensor``: the plant also measures P_SR."""
+    rows, baseline, config, bank). ``supply_sensor``: the plant also measures P_SR.
+    ``plant_friction`` (a diagnostic): the calibrated baseline then takes the plant's own
+    Coulomb and breakaway friction (F_d, F_s), which a real monitor does not know."""
     from service.calibration import calibrate, identify_noise, meas_channels, measured_run
     from service.monitor import MonitorBank, MonitorConfig
 
@@ -67,6 +70,8 @@ def monitor_run(
     if not fixed_noise:
         cfg = cfg.model_copy(update={"noise": identify_noise(meas_c)})
     base = calibrate(meas_c, config=cfg)
+    if plant_friction:
+        base = base.model_copy(update={"f_d": dc.params["f_d"], "f_s": dc.params["f_s"]})
     sim, meas = measured_run(dc.test, with_supply_sensor=supply_sensor)
     bank = MonitorBank(cfg, base)
     t = np.asarray(meas["t"])
@@ -103,14 +108,21 @@ def first_observable(
 
 
 def run_one(
-    dc: DutyCycle, fixed_noise: bool = False, model: str = "C5", overrides: dict | None = None
+    dc: DutyCycle,
+    fixed_noise: bool = False,
+    model: str = "C5",
+    overrides: dict | None = None,
+    plant_friction: bool = False,
 ) -> dict:
-    """Calibrate on the healthy segment, run the monitor on the test scenario, score it."""
+    """Calibrate on the healthy segment, run the monitor on the test scenario, score it
+    (``plant_friction``: see ``monitor_run``)."""
     from service.commands.estimate import count_false_alarms, nis_in_band_pct
     from service.monitor import EST_KEYS, RES_KEYS
 
     w0 = time.perf_counter()
-    sim, rows, base, cfg, bank = monitor_run(dc, fixed_noise, model, overrides)
+    sim, rows, base, cfg, bank = monitor_run(
+        dc, fixed_noise, model, overrides, plant_friction=plant_friction
+    )
     t = rows.t
     est = {key: rows.est[:, j] for j, key in enumerate(EST_KEYS)}
     res = {key: rows.res[:, j] for j, key in enumerate(RES_KEYS)}
@@ -174,10 +186,10 @@ def run_one(
     return out
 
 
-def _job(args: tuple[int, int, bool, str, dict, float]) -> dict:
-    seed, index, fixed, model, overrides, noise = args
+def _job(args: tuple[int, int, bool, str, dict, float, bool]) -> dict:
+    seed, index, fixed, model, overrides, noise, friction = args
     dc = scale_noise(duty_cycle(seed, index), noise)  # noise 1: the member as drawn
-    return run_one(dc, fixed_noise=fixed, model=model, overrides=overrides)
+    return run_one(dc, fixed, model, overrides, plant_friction=friction)
 
 
 def failures(r: dict) -> list[str]:
@@ -345,11 +357,19 @@ def main(argv: list[str] | None = None) -> int:
         help="every sensor's noise times F, calibration and test (a diagnostic: what stays "
         "at F = 0.1 is model error)",
     )
+    ap.add_argument(
+        "--plant-friction",
+        action="store_true",
+        help="give each calibrated baseline its plant's own friction F_d, F_s (a diagnostic: "
+        "what a perfectly known friction would change)",
+    )
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
     a = ap.parse_args(argv)
     idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
     overrides = parse_overrides(ap, a.model, a.set)
-    jobs = [(a.seed, i, a.fixed_noise, a.model, overrides, a.noise_scale) for i in idx]
+    jobs = [
+        (a.seed, i, a.fixed_noise, a.model, overrides, a.noise_scale, a.plant_friction) for i in idx
+    ]
     w0 = time.perf_counter()
     rows = run_jobs(_job, jobs, a.workers)
     print(f"suite seed {a.seed}, {len(rows)} duty cycles, {time.perf_counter() - w0:.0f} s wall")

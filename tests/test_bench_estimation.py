@@ -195,3 +195,26 @@ def test_suite_noise_scale_runs_the_member_with_its_noise_scaled(tmp_path):
     assert row["bias%"] != pytest.approx(run_one(dc, model="WH")["bias%"], rel=1e-3)
     bad = _run("estimation_suite.py", "--noise-scale", "-1")
     assert bad.returncode == 2 and "--noise-scale" in bad.stderr
+
+
+def test_suite_plant_friction_gives_the_baseline_the_plants_friction(tmp_path):
+    """bench/estimation_suite.py --plant-friction (a diagnostic): the calibrated baseline
+    takes the member's own F_d and F_s, the rest of the calibration unchanged, and the row is
+    run_one with it; without the option the baseline keeps the datasheet's (400 / 600 N)."""
+    sys.path.insert(0, str(ROOT))
+    from bench.estimation_suite import monitor_run, run_one
+    from models.dutycycle import duty_cycle
+
+    dc = duty_cycle(1, 2)
+    own = monitor_run(dc, model="WH", plant_friction=True)[2]
+    sheet = monitor_run(dc, model="WH")[2]
+    assert (own.f_d, own.f_s) == (dc.params["f_d"], dc.params["f_s"])
+    assert (sheet.f_d, sheet.f_s) == (400.0, 600.0) != (own.f_d, own.f_s)
+    assert own.model_copy(update={"f_d": 400.0, "f_s": 600.0}) == sheet
+    out = tmp_path / "f.json"
+    r = _run("estimation_suite.py", "--seed", "1", "--only", "2", "--workers", "1",
+             "--plant-friction", "--json", str(out))  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    (row,) = json.loads(out.read_text())["rows"]
+    want = run_one(dc, model="WH", plant_friction=True)
+    assert row["psr%"] == pytest.approx(want["psr%"], rel=1e-9)
