@@ -95,3 +95,16 @@ def test_compiled_equals_numpy_around_the_stick_band():
         np.testing.assert_allclose(out, ref, rtol=1e-11, atol=1e-12)
         caught += out[3] == 0.0
     assert caught > 0  # some of them were caught at zero
+
+
+def test_calibrate_cli_keeps_and_prints_the_breakaway_friction(tmp_path, capsys):
+    """``servowatch calibrate --model WH``: the written baseline carries the datasheet's F_s
+    (600 N) and the summary prints the friction it assumes."""
+    from service.cli import main
+
+    out = tmp_path / "wh.json"
+    rc = main(["calibrate", "--scenario", "healthy_noise", "--model", "WH", "--passes", "0",
+               "--out", str(out)])  # fmt: skip
+    assert rc == 0
+    assert "Coulomb F_d 400 N, breakaway F_s 600 N" in capsys.readouterr().out
+    assert Baseline.load(out).f_s == 600.0

@@ -148,4 +148,7 @@ def _run(args: argparse.Namespace, store) -> int:
         print(f"baseline version {out['version']} of {args.actuator} recorded in {store.where}")
     print(f"  effective x_SS {base.x_ss * 1e6:.2f} um (nominal 100), G_PQ {base.g_pq:.3e} Pa s/m^3")
     print(f"  C_Lk (fixed, nominal) {base.c_lk:.2e}, P_R {base.p_r / 1e6:.3f} MPa")
+    if base.law == "WH":
+        stick = f"breakaway F_s {base.f_s:.0f} N" if base.f_s > 0 else "no stiction (F_s 0)"
+        print(f"  friction (datasheet): Coulomb F_d {base.f_d:.0f} N, {stick}")
     return 0
