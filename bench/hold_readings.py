@@ -28,21 +28,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from scipy.optimize import brentq  # noqa: E402
 
 from models.eha_reduced import p12_state  # noqa: E402
-from models.hf_valve import hf_static_p12, hf_static_pressures  # noqa: E402
+from models.hf_valve import hf_static_hold  # noqa: E402
 from models.params import EHAParams  # noqa: E402
 from service.calibration import hold_reading  # noqa: E402
 from service.monitor import Baseline  # noqa: E402
 from service.monitor.config import MONITOR_MODELS  # noqa: E402
-
-
-def hf_hold(plant: EHAParams, p_sr: float, c_lk: float, load_n: float) -> tuple[float, ...]:
-    """(x_S [m], P1, P2 [Pa]) of the HF plant held still under ``load_n`` [N]."""
-    p12 = load_n / plant.area
-    x_s = brentq(
-        lambda x: float(hf_static_p12(x, 0.0, p_sr, plant, c_lk)) - p12, -8e-5, 8e-5, xtol=1e-14
-    )
-    p1, p2 = (float(p) for p in hf_static_pressures(x_s, 0.0, p_sr, plant, c_lk))
-    return x_s, p1, p2
 
 
 def law_reading(base: Baseline, x_s: float, p1: float, p2: float, p_sr: float) -> float:
@@ -59,22 +49,17 @@ def law_reading(base: Baseline, x_s: float, p1: float, p2: float, p_sr: float) -
 
 
 def table(
-    models: list[str],
-    supplies: list[float],
-    leaks: list[float],
-    loads: list[float],
-    baselines: dict[str, Baseline] | None = None,
+    bases: dict[str, Baseline], supplies: list[float], leaks: list[float], loads: list[float]
 ) -> list[dict]:
     """One row per (supply share of rated, leak multiple of nominal, load [N]): the hold and
-    each model's reading error [% of the true C_Lk]."""
+    the reading error [% of the true C_Lk] of each baseline's law (keyed by model)."""
     plant = EHAParams()
-    bases = {m: (baselines or {}).get(m) or Baseline.default(m) for m in models}
     rows = []
     for s in supplies:
         for k in leaks:
             for f in loads:
                 c = k * plant.c_lk
-                x_s, p1, p2 = hf_hold(plant, s * plant.p_sr, c, f)
+                x_s, p1, p2 = hf_static_hold(f / plant.area, s * plant.p_sr, plant, c)
                 row = {"supply": s, "leak": k, "load_n": f, "x_s_um": x_s * 1e6}
                 row["p12_mpa"] = (p1 - p2) / 1e6
                 for m, b in bases.items():
@@ -108,18 +93,18 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--supply and --leak must be positive")
     if any(f == 0 for f in a.load):
         ap.error("--load: a hold needs a load (P12 = 0 carries no leak flow)")
-    given = {}
+    bases = {m: Baseline.default(m) for m in models}
     if a.baseline:
         try:
             b = Baseline.load(a.baseline)
         except (OSError, ValueError) as e:
             ap.error(f"--baseline: {e}")
-        given[b.law] = b
-    rows = table(models, a.supply, a.leak, a.load, given)
-    src = {m: (given.get(m) or Baseline.default(m)).source for m in models}
+        if b.law in bases:
+            bases[b.law] = b
+    rows = table(bases, a.supply, a.leak, a.load)
     print("C_Lk read at the HF plant's static holds, error in % of the true C_Lk")
-    for m in models:
-        print(f"  {m}: baseline {src[m]}")
+    for m, b in bases.items():
+        print(f"  {m}: baseline {b.source}")
     head = f"{'supply':>6} {'leak':>5} {'load N':>7} {'x_S um':>7} {'P12 MPa':>7}"
     print(head + "".join(f" {m:>7}" for m in models))
     for r in rows:

@@ -37,7 +37,7 @@ from numba import njit
 from numpy.typing import NDArray
 
 from models import eha_reduced as er
-from models.compiled import wh_orifice
+from models.compiled import TAU_STICK, wh_orifice  # TAU_STICK: the HF plant's stuck relaxation
 from models.eha_reduced import (
     K_AREA,
     K_C_V,
@@ -94,7 +94,6 @@ RK4_H_TARGET = 2.5  # n_substeps keeps the chamber mode's |lambda h| below this 
 (K_WH_K, K_WH_DP_LAM, K_WH_ISQ_LAM, K_WH_BV, K_WH_XS_S, K_WH_XS_R, K_WH_V0,
  K_WH_LAM0, K_WH_C_LAND, K_WH_F_S, K_WH_V_STICK) = range(N_PRM, N_PRM + 11)  # fmt: skip
 N_PRM_WH = N_PRM + 11
-TAU_STICK = 1e-3  # relaxation time of v_J while stuck [s] (as the HF plant's)
 
 
 def k_orifice(rp: ReducedParams) -> float:

@@ -22,6 +22,7 @@ __all__ = [
     "chamber_derivatives",
     "hf_static_pressures",
     "hf_static_p12",
+    "hf_static_hold",
 ]
 
 
@@ -270,3 +271,18 @@ def hf_static_p12(
     """
     p1, p2 = hf_static_pressures(x_s, q_j, p_sr, params, c_lk)
     return p1 - p2
+
+
+def hf_static_hold(
+    p12: float, p_sr: float, params: EHAParams, c_lk: float | None = None, x_max: float = 8e-5
+) -> tuple[float, float, float]:
+    """(x_S [m], P1, P2 [Pa]) of the HF valve holding the jack still (Q_J = 0) at load
+    pressure ``p12`` and supply ``p_sr``: the root of :func:`hf_static_p12` in x_S (monotone at
+    Q_J = 0), bracketed by +-``x_max``, then its absolute chamber pressures."""
+    from scipy.optimize import brentq
+
+    x_s = brentq(
+        lambda x: float(hf_static_p12(x, 0.0, p_sr, params, c_lk)) - p12, -x_max, x_max, xtol=1e-14
+    )
+    p1, p2 = hf_static_pressures(x_s, 0.0, p_sr, params, c_lk)
+    return float(x_s), float(p1), float(p2)

@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 
 from models.eha_reduced import p12_state
+from models.hf_valve import hf_static_hold
+from models.params import EHAParams
 from service.monitor import Baseline
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -23,9 +25,7 @@ def test_the_geometric_wh_law_reads_the_hf_holds():
     four-land law (turbulent lands, the laminar clearance apart): at every hold, rated and
     0.7 of rated supply, 1x to 5x leak, 2 and 4 kN, it reads C_Lk within 0.3 %; the hold
     carries the load (P12 = F_R / A)."""
-    rows = hr.table(
-        ["WH"], [1.0, 0.7], [1.0, 5.0], [4000.0, -2000.0], {"WH": Baseline.nominal("WH")}
-    )
+    rows = hr.table({"WH": Baseline.nominal("WH")}, [1.0, 0.7], [1.0, 5.0], [4000.0, -2000.0])
     assert len(rows) == 8
     for r in rows:
         assert r["p12_mpa"] == pytest.approx(r["load_n"] / 1e3, rel=1e-6)  # A = 1e-3 m^2
@@ -35,7 +35,7 @@ def test_the_geometric_wh_law_reads_the_hf_holds():
 def test_a_c_type_reading_gives_the_holds_p12_back():
     """The C5 reading is the C_Lk at which the law, still jack, gives the hold's P12."""
     base = Baseline.default("C5")
-    x_s, p1, p2 = hr.hf_hold(hr.EHAParams(), 14e6, 1e-12, 4000.0)
+    x_s, p1, p2 = hf_static_hold(4e6, 14e6, EHAParams(), 1e-12)
     c = hr.law_reading(base, x_s, p1, p2, 14e6)
     assert float(p12_state(x_s, 0.0, 14e6, c, base.reduced_params())) == pytest.approx(
         p1 - p2, rel=1e-9

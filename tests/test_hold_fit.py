@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq, fsolve
+from scipy.optimize import fsolve
 
 from models.dutycycle import CAL_HOLD_END_S, CAL_HOLD_SWAP_S, CAL_SINE_END_S, duty_cycle
 from models.eha_reduced_wh import land_flows
-from models.hf_valve import hf_static_p12, hf_static_pressures
+from models.hf_valve import hf_static_hold
 from models.params import EHAParams
 from service.calibration import (
     calibrate,
@@ -87,13 +87,7 @@ def test_hold_fit_reads_nominal_at_the_plants_holds(seed, index):
     after = calibrate(meas, config=cfg)
     err = {id(before): [], id(after): []}
     for p12 in (-6e6, -4e6, -2e6, 2e6, 4e6, 6e6):
-        x_s = brentq(
-            lambda x, p12=p12: float(hf_static_p12(x, 0.0, plant.p_sr, plant)) - p12,
-            -8e-5,
-            8e-5,
-            xtol=1e-13,
-        )
-        p1, p2 = (float(p) for p in hf_static_pressures(x_s, 0.0, plant.p_sr, plant))
+        x_s, p1, p2 = hf_static_hold(p12, plant.p_sr, plant)
         for b in (before, after):
             err[id(b)].append(hold_reading(b, x_s, p1, p2, plant.p_sr) / plant.c_lk - 1.0)
     rms_before = float(np.sqrt(np.mean(np.square(err[id(before)]))))
