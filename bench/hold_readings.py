@@ -4,6 +4,7 @@
     .venv/bin/python bench/hold_readings.py                       # a few seconds
     .venv/bin/python bench/hold_readings.py --supply 1,0.7 --leak 1,5 --load 4000
     .venv/bin/python bench/hold_readings.py --baseline wh.json     # a saved WH baseline
+    .venv/bin/python bench/hold_readings.py --calibrated-seeds 8   # a few seconds
 
 A hold: the HF valve (``models.hf_valve.hf_static_pressures``) at the spool position where,
 with the jack still, its static P12 carries the load (P12 = F_R / A) at supply P_SR and
@@ -15,6 +16,11 @@ leak C_Lk. The C_Lk each law reads there, with its default baseline (or ``--base
 
 Printed as the reading's error in % of the true C_Lk. This is the static part of the
 monitor's error; the filter's reading adds the dynamics (friction, chamber transients).
+
+``--calibrated-seeds N`` adds N columns ``s1`` .. ``sN``: WH calibrated (``servowatch
+calibrate``, ``service.calibration.calibrate``) on the bundled healthy run with sensor-noise
+seed 1..N, so the table shows how far one run's calibration moves the law from the datasheet
+values (docs/estimation.md, "WH's default baseline: the datasheet values").
 """
 
 from __future__ import annotations
@@ -68,6 +74,17 @@ def table(
     return rows
 
 
+def calibrated_wh(seed: int) -> Baseline:
+    """WH calibrated on ``healthy_noise`` with sensor-noise seed ``seed``."""
+    from service.calibration import calibrate, measured_run
+    from service.scenarios import load_scenario
+
+    sc = load_scenario("healthy_noise")
+    sc = sc.model_copy(update={"sensors": sc.sensors.model_copy(update={"seed": seed})})
+    _, meas = measured_run(sc)
+    return calibrate(meas, law="WH")
+
+
 def _floats(text: str) -> list[float]:
     try:
         return [float(v) for v in text.split(",") if v.strip()]
@@ -84,6 +101,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--leak", type=_floats, default=[1, 2, 3, 5], help="multiples of nominal C_Lk")
     ap.add_argument("--load", type=_floats, default=[4000.0, 2000.0], help="loads F_R [N]")
     ap.add_argument("--baseline", default=None, help="a saved baseline JSON for its own law")
+    ap.add_argument(
+        "--calibrated-seeds",
+        type=int,
+        default=0,
+        metavar="N",
+        help="add WH calibrated on healthy_noise with sensor-noise seeds 1..N",
+    )
     a = ap.parse_args(argv)
     models = [m.strip() for m in a.models.split(",") if m.strip()]
     bad = [m for m in models if m not in MONITOR_MODELS]
@@ -91,6 +115,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--models: unknown {bad}; expected some of {MONITOR_MODELS}")
     if any(s <= 0 for s in a.supply) or any(k <= 0 for k in a.leak):
         ap.error("--supply and --leak must be positive")
+    if a.calibrated_seeds < 0:
+        ap.error("--calibrated-seeds must be >= 0")
     if any(f == 0 for f in a.load):
         ap.error("--load: a hold needs a load (P12 = 0 carries no leak flow)")
     bases = {m: Baseline.default(m) for m in models}
@@ -101,16 +127,23 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--baseline: {e}")
         if b.law in bases:
             bases[b.law] = b
+    for seed in range(1, a.calibrated_seeds + 1):
+        print(f"calibrating WH on healthy_noise, sensor seed {seed}", file=sys.stderr)
+        bases[f"s{seed}"] = calibrated_wh(seed)
+    cols = list(bases)
     rows = table(bases, a.supply, a.leak, a.load)
     print("C_Lk read at the HF plant's static holds, error in % of the true C_Lk")
     for m, b in bases.items():
         print(f"  {m}: baseline {b.source}")
     head = f"{'supply':>6} {'leak':>5} {'load N':>7} {'x_S um':>7} {'P12 MPa':>7}"
-    print(head + "".join(f" {m:>7}" for m in models))
+    print(head + "".join(f" {m:>7}" for m in cols))
     for r in rows:
         line = f"{r['supply']:6.2f} {r['leak']:5.2f} {r['load_n']:7.0f} {r['x_s_um']:7.3f}"
-        line += f" {r['p12_mpa']:7.2f}" + "".join(f" {r[m]:+7.2f}" for m in models)
+        line += f" {r['p12_mpa']:7.2f}" + "".join(f" {r[m]:+7.2f}" for m in cols)
         print(line)
+    cal = [r[c] for r in rows for c in cols if c.startswith("s") and c[1:].isdigit()]
+    if cal:
+        print(f"calibrated s1..s{a.calibrated_seeds}: {min(cal):+.2f} .. {max(cal):+.2f} %")
     return 0
 
 

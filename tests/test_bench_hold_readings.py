@@ -53,3 +53,29 @@ def test_cli_prints_the_table_and_refuses_a_zero_load():
         [*run, "--load", "0"], capture_output=True, text=True, timeout=60, cwd=ROOT
     )
     assert bad.returncode == 2 and "--load" in bad.stderr
+
+
+def test_wh_default_is_the_datasheet_baseline():
+    """WH's default baseline is its datasheet (geometric) values: no stored calibration."""
+    assert Baseline.default("WH") == Baseline.nominal("WH")
+    assert Baseline.default("C5").source.startswith("default calibration")
+
+
+def test_cli_adds_one_column_per_calibration_seed():
+    """``--calibrated-seeds 2``: WH calibrated on healthy_noise with sensor seeds 1 and 2, one
+    column each, and the range over them; a calibration is not the datasheet (each seed's
+    noise moves the law: its reading differs from the datasheet column)."""
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "bench/hold_readings.py"), "--calibrated-seeds", "2",
+         "--supply", "1", "--leak", "1", "--load", "4000", "--models", "WH"],
+        capture_output=True, text=True, timeout=120, cwd=ROOT,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    head = next(ln for ln in lines if ln.lstrip().startswith("supply")).split()
+    assert head[-3:] == ["WH", "s1", "s2"]
+    row = [float(v) for v in lines[-2].split()]
+    assert abs(row[5]) < 0.3  # the datasheet values at 1x, rated supply
+    assert row[6] != row[5] and row[7] != row[6]
+    lo, hi = (float(v) for v in lines[-1].split(":")[1].replace("%", "").split(".."))
+    assert lo == min(row[6:]) and hi == max(row[6:])
