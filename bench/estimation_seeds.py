@@ -15,7 +15,8 @@ interval lies wholly on one side of zero, else "-" (no difference seen at this N
 
 ``--plant FIELD=VALUE`` changes the HF plant of every scenario (an ``EHAParams`` field); each
 model's baseline is then calibrated on healthy_noise with that plant (``calibrate``) instead
-of the bundled default calibration.
+of its default baseline (``Baseline.default``: the C-types' bundled calibration, WH's
+datasheet values).
 """
 
 from __future__ import annotations

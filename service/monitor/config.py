@@ -391,8 +391,9 @@ _CAL_HEALTHY_NOISE = {
 _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CAL_HEALTHY_NOISE)
 # WH (models.eha_reduced_wh) has none: its parameters are the valve's datasheet (geometric)
 # values, Baseline.nominal. A calibration on the bundled 4 s healthy run cannot do better: it
-# fixes WH's null pressure coefficient only to about +-1 % of C_Lk, and over 8 sensor-noise
-# seeds its law reads -0.2 to +2.4 % of C_Lk at the HF plant's static holds against +0.1 % for
-# the datasheet values (``bench/hold_readings.py --calibrated-seeds 8``; docs/estimation.md,
+# fixes WH's null pressure coefficient only to about 1 % of C_Lk, and over 8 sensor-noise
+# seeds its law reads -0.56 to +3.18 % of C_Lk at the HF plant's static holds (rated and 0.7
+# of rated supply, 1-5x leak) against +0.02 to +0.20 % for the datasheet values
+# (``bench/hold_readings.py --calibrated-seeds 8``; docs/estimation.md,
 # "WH's default baseline: the datasheet values"). A unit is still calibrated on its own run
 # (``servowatch calibrate --model WH``), which fits its null where the run holds.
