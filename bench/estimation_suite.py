@@ -57,19 +57,23 @@ def monitor_run(
     overrides: dict | None = None,
     supply_sensor: bool = False,
     plant_friction: bool = False,
+    datasheet_baseline: bool = False,
 ):
     """Calibrate on the healthy segment, run one monitor on the test scenario: (truth, output
     rows, baseline, config, bank). ``supply_sensor``: the plant also measures P_SR.
     ``plant_friction`` (a diagnostic): the calibrated baseline then takes the plant's own
-    Coulomb and breakaway friction (F_d, F_s), which a real monitor does not know."""
+    Coulomb and breakaway friction (F_d, F_s), which a real monitor does not know.
+    ``datasheet_baseline`` (a diagnostic): no calibration, the model's datasheet values
+    (``Baseline.nominal``; exact for WH on a plant without tolerances,
+    ``models.dutycycle.nominal_plant``); the sensor noise is still identified."""
     from service.calibration import calibrate, identify_noise, meas_channels, measured_run
-    from service.monitor import MonitorBank, MonitorConfig
+    from service.monitor import Baseline, MonitorBank, MonitorConfig
 
     _, meas_c = measured_run(dc.calibration, with_supply_sensor=supply_sensor)
     cfg = MonitorConfig(model=model, **(overrides or {}))
     if not fixed_noise:
         cfg = cfg.model_copy(update={"noise": identify_noise(meas_c)})
-    base = calibrate(meas_c, config=cfg)
+    base = Baseline.nominal(model) if datasheet_baseline else calibrate(meas_c, config=cfg)
     if plant_friction:
         base = base.model_copy(update={"f_d": dc.params["f_d"], "f_s": dc.params["f_s"]})
     sim, meas = measured_run(dc.test, with_supply_sensor=supply_sensor)

@@ -287,6 +287,19 @@ def scale_noise(dc: DutyCycle, factor: float) -> DutyCycle:
     )
 
 
+def nominal_plant(dc: DutyCycle) -> DutyCycle:
+    """``dc`` with its plant at the datasheet values (``EHAParams()``, none of ``_plant``'s
+    tolerances) in both segments; the duty cycle, faults and noise are kept (the draws are
+    made all the same). A diagnostic: what stays is not the plants' tolerances
+    (docs/estimation.md, "What limits the settled reading")."""
+    return replace(
+        dc,
+        calibration=dc.calibration.model_copy(update={"params": {}}),
+        test=dc.test.model_copy(update={"params": {}}),
+        params={},
+    )
+
+
 def suite(n: int, seed: int) -> list[DutyCycle]:
     """The first ``n`` duty cycles of suite ``seed``."""
     return [duty_cycle(seed, k) for k in range(n)]

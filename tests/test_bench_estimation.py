@@ -175,6 +175,42 @@ def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
     assert bad.returncode == 2 and "--noise-scale" in bad.stderr
 
 
+def test_suite_readings_on_nominal_plants_and_the_datasheet_baseline(tmp_path):
+    """bench/suite_readings.py --nominal-plant --datasheet-baseline: each member's plant
+    without tolerances (models.dutycycle.nominal_plant) and the monitor on
+    Baseline.nominal, not calibrated (monitor_run's datasheet_baseline): the row is that
+    run's reading; the increase misses are the leak members past 10 % of their increase."""
+    sys.path.insert(0, str(ROOT))
+    from bench.estimation_suite import monitor_run
+    from bench.suite_readings import increase_misses
+    from models.dutycycle import duty_cycle, nominal_plant
+    from service.monitor import EST_KEYS, Baseline
+
+    out = tmp_path / "r.json"
+    r = _run("suite_readings.py", "--seeds", "6", "--suite", "2", "--workers", "1",
+             "--nominal-plant", "--datasheet-baseline", "--json", str(out))  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "nominal plants, datasheet baseline" in r.stdout
+    row = {x["name"]: x for x in json.loads(out.read_text())["rows"]}["dc6_001"]
+    dc = nominal_plant(duty_cycle(6, 1))
+    sim, rows, base, _, _ = monitor_run(dc, model="WH", datasheet_baseline=True)
+    assert base == Baseline.nominal("WH")
+    last = rows.t >= rows.t[-1] - 1.0
+    c_mean = float(np.mean(rows.est[last, EST_KEYS.index("c_lk")]))
+    c0 = float(sim.c_lk[0])
+    assert row["err"] == pytest.approx(((c_mean - base.c_lk) - (sim.c_lk[-1] - c0)) / c0)
+    miss = increase_misses([row])
+    inc = row["err"] / (dc.leak_ratio - 1.0)
+    assert miss == ([("dc6_001", inc)] if abs(inc) > 0.1 else [])
+    assert ("dc6_001" in r.stdout.split("C_Lk increase misses")[1]) == bool(miss)
+    hand = [
+        {"name": "a", "leak_ratio": 1.5, "err": 0.06},  # +12 % of a 0.5 increase: a miss
+        {"name": "b", "leak_ratio": 3.0, "err": 0.19},  # +9.5 % of 2: not a miss
+        {"name": "c", "leak_ratio": 1.0, "err": 0.5},  # no leak: not an increase
+    ]
+    assert increase_misses(hand) == [("a", pytest.approx(0.12))]
+
+
 def test_suite_noise_scale_runs_the_member_with_its_noise_scaled(tmp_path):
     """bench/estimation_suite.py --noise-scale 0.1: the member's row is run_one on
     scale_noise(member, 0.1) (its printed noise scale a tenth of the member's), not the

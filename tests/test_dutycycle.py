@@ -10,6 +10,7 @@ from models.dutycycle import (
     SETTLE_S,
     STROKE_FRACTION,
     duty_cycle,
+    nominal_plant,
     scale_noise,
     suite,
 )
@@ -96,3 +97,19 @@ def test_scale_noise_scales_every_sensor_and_keeps_the_rest():
     assert scale_noise(dc, 0.0).test.sensors.p_pa == 0.0
     with pytest.raises(ValueError, match="noise factor"):
         scale_noise(dc, -1.0)
+
+
+def test_nominal_plant_drops_the_tolerances_and_keeps_the_rest():
+    """nominal_plant(dc): both segments run on the datasheet plant (no parameter override:
+    the HF plant is EHAParams()), while the commands, loads, faults, sensors and the truth of
+    the events are the member's own."""
+    dc = SUITE[5]
+    assert dc.params  # a drawn plant has tolerances ...
+    q = nominal_plant(dc)
+    assert q.params == {} and q.calibration.params == {} and q.test.params == {}
+    assert EHAParams().with_overrides(**q.test.params) == P  # ... the nominal one has none
+    for a, b in ((dc.calibration, q.calibration), (dc.test, q.test)):
+        assert b.model_copy(update={"params": a.params}) == a
+    assert (q.kind, q.leak_t, q.leak_ratio, q.supply_changes, q.noise_scale) == (
+        dc.kind, dc.leak_t, dc.leak_ratio, dc.supply_changes, dc.noise_scale
+    )  # fmt: skip
