@@ -167,10 +167,10 @@ def main(argv: list[str] | None = None) -> int:
     ]
     w0 = time.perf_counter()
     rows = run_jobs(_job, jobs, a.workers)
-    noise = f", noise x{a.noise_scale:g}" if a.noise_scale != 1.0 else ""
-    noise += ", nominal plants" if a.nominal_plant else ""
-    noise += ", datasheet baseline" if a.datasheet_baseline else ""
-    print(f"seeds {a.seeds}, {len(rows)} members, model {a.model}{noise}, "
+    opts = f", noise x{a.noise_scale:g}" if a.noise_scale != 1.0 else ""
+    opts += ", nominal plants" if a.nominal_plant else ""
+    opts += ", datasheet baseline" if a.datasheet_baseline else ""
+    print(f"seeds {a.seeds}, {len(rows)} members, model {a.model}{opts}, "
           f"{time.perf_counter() - w0:.0f} s wall")  # fmt: skip
     print(f"{'member':<10} {'kind':<12} {'leak x':>6} {'err':>7} {'P12 MPa':>8} "
           f"{'|v_J| mm/s':>10} {'supply':>7}")  # fmt: skip
