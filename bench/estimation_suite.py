@@ -61,7 +61,7 @@ def monitor_run(
 ):
     """Calibrate on the healthy segment, run one monitor on the test scenario: (truth, output
     rows, baseline, config, bank). ``supply_sensor``: the plant also measures P_SR.
-    ``plant_friction`` (a diagnostic): the calibrated baseline then takes the plant's own
+    ``plant_friction`` (a diagnostic): the baseline then takes the plant's own
     Coulomb and breakaway friction (F_d, F_s), which a real monitor does not know.
     ``datasheet_baseline`` (a diagnostic): no calibration, the model's datasheet values
     (``Baseline.nominal``; exact for WH on a plant without tolerances,

@@ -44,22 +44,28 @@ def reading(
     noise: float = 1.0,
     nominal: bool = False,
     datasheet: bool = False,
+    frictionless: bool = False,
 ) -> dict:
     """One member's settled C_Lk reading error and the operating point it was read at
     (``overrides``: MonitorConfig fields, as ``--set``; ``noise``: the sensors' noise times
     this, ``models.dutycycle.scale_noise``; ``nominal``: the plant without tolerances,
     ``models.dutycycle.nominal_plant``; ``datasheet``: the monitor on the datasheet baseline,
-    not calibrated)."""
+    not calibrated; ``frictionless``: a nominal plant without Coulomb or breakaway friction,
+    and the baseline without them too)."""
     from estimation_suite import monitor_run
 
     from models.dutycycle import duty_cycle, nominal_plant, scale_noise
     from service.monitor import EST_KEYS
 
     dc = scale_noise(duty_cycle(seed, index), noise)  # noise 1: the member as drawn
-    if nominal:
-        dc = nominal_plant(dc)
+    if nominal or frictionless:
+        dc = nominal_plant(dc, frictionless=frictionless)
     sim, rows, base, _, _ = monitor_run(
-        dc, model=model, overrides=overrides, datasheet_baseline=datasheet
+        dc,
+        model=model,
+        overrides=overrides,
+        plant_friction=frictionless,  # the baseline takes the plant's F_d = F_s = 0
+        datasheet_baseline=datasheet,
     )
     c0 = float(sim.c_lk[0])
     last = rows.t >= rows.t[-1] - 1.0
@@ -77,7 +83,7 @@ def reading(
     }
 
 
-def _job(args: tuple[int, int, str, dict, float, bool, bool]) -> dict:
+def _job(args: tuple[int, int, str, dict, float, bool, bool, bool]) -> dict:
     return reading(*args)
 
 
@@ -150,6 +156,12 @@ def main(argv: list[str] | None = None) -> int:
         help="the monitor on the datasheet baseline, not calibrated (a diagnostic; with "
         "--nominal-plant WH's parameters are then exact)",
     )
+    ap.add_argument(
+        "--frictionless",
+        action="store_true",
+        help="every plant nominal and without Coulomb or breakaway friction, and the "
+        "monitor's baseline without them too (a diagnostic)",
+    )
     ap.add_argument("--json", default=None, help="write the rows and the bins to this file")
     ap.add_argument("--png", default=None, metavar="F", help="also draw err against |P12|")
     a = ap.parse_args(argv)
@@ -161,14 +173,24 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--suite: at least 1 member")
     overrides = parse_overrides(ap, a.model, a.set)
     jobs = [
-        (s, i, a.model, overrides, a.noise_scale, a.nominal_plant, a.datasheet_baseline)
+        (
+            s,
+            i,
+            a.model,
+            overrides,
+            a.noise_scale,
+            a.nominal_plant,
+            a.datasheet_baseline,
+            a.frictionless,
+        )
         for s in seeds
         for i in range(a.suite)
     ]
     w0 = time.perf_counter()
     rows = run_jobs(_job, jobs, a.workers)
     opts = f", noise x{a.noise_scale:g}" if a.noise_scale != 1.0 else ""
-    opts += ", nominal plants" if a.nominal_plant else ""
+    opts += ", nominal plants" if a.nominal_plant or a.frictionless else ""
+    opts += ", no Coulomb or breakaway friction" if a.frictionless else ""
     opts += ", datasheet baseline" if a.datasheet_baseline else ""
     print(f"seeds {a.seeds}, {len(rows)} members, model {a.model}{opts}, "
           f"{time.perf_counter() - w0:.0f} s wall")  # fmt: skip

@@ -287,16 +287,18 @@ def scale_noise(dc: DutyCycle, factor: float) -> DutyCycle:
     )
 
 
-def nominal_plant(dc: DutyCycle) -> DutyCycle:
+def nominal_plant(dc: DutyCycle, frictionless: bool = False) -> DutyCycle:
     """``dc`` with its plant at the datasheet values (``EHAParams()``, none of ``_plant``'s
     tolerances) in both segments; the duty cycle, faults and noise are kept (the draws are
-    made all the same). A diagnostic: what stays is not the plants' tolerances
+    made all the same). ``frictionless``: and no Coulomb or breakaway friction (F_d = F_s =
+    0; the viscous c_v stays). A diagnostic: what stays is not the plants' tolerances
     (docs/estimation.md, "What limits the settled reading")."""
+    params = {"f_d": 0.0, "f_s": 0.0} if frictionless else {}
     return replace(
         dc,
-        calibration=dc.calibration.model_copy(update={"params": {}}),
-        test=dc.test.model_copy(update={"params": {}}),
-        params={},
+        calibration=dc.calibration.model_copy(update={"params": params}),
+        test=dc.test.model_copy(update={"params": params}),
+        params=dict(params),
     )
 
 

@@ -209,6 +209,15 @@ def test_suite_readings_on_nominal_plants_and_the_datasheet_baseline(tmp_path):
         {"name": "c", "leak_ratio": 1.0, "err": 0.5},  # no leak: not an increase
     ]
     assert increase_misses(hand) == [("a", pytest.approx(0.12))]
+    # --frictionless: nominal plants without Coulomb or breakaway friction, and a baseline
+    # without them (monitor_run's plant_friction takes the plant's F_d = F_s = 0)
+    r = _run("suite_readings.py", "--seeds", "6", "--suite", "1", "--workers", "1",
+             "--frictionless", "--datasheet-baseline")  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "nominal plants, no Coulomb or breakaway friction, datasheet baseline" in r.stdout
+    dc = nominal_plant(duty_cycle(6, 0), frictionless=True)
+    _, _, base, _, _ = monitor_run(dc, plant_friction=True, datasheet_baseline=True)
+    assert (base.f_d, base.f_s) == (0.0, 0.0)
 
 
 def test_suite_noise_scale_runs_the_member_with_its_noise_scaled(tmp_path):

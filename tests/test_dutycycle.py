@@ -113,3 +113,7 @@ def test_nominal_plant_drops_the_tolerances_and_keeps_the_rest():
     assert (q.kind, q.leak_t, q.leak_ratio, q.supply_changes, q.noise_scale) == (
         dc.kind, dc.leak_t, dc.leak_ratio, dc.supply_changes, dc.noise_scale
     )  # fmt: skip
+    f = nominal_plant(dc, frictionless=True)  # ... and no Coulomb or breakaway friction
+    assert f.params == f.test.params == f.calibration.params == {"f_d": 0.0, "f_s": 0.0}
+    plant = EHAParams().with_overrides(**f.test.params)
+    assert (plant.f_d, plant.f_s, plant.c_v) == (0.0, 0.0, P.c_v)
