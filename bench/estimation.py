@@ -10,8 +10,8 @@ NASA ProgPy 1.9's UnscentedKalmanFilter on the same model as a PrognosticsModel)
     .venv/bin/python bench/estimation.py --suite 30 --seed 1 --workers 2  # randomized suite
 
 ``--suite N`` runs N seeded random duty cycles instead (issue 10): the whole command line goes
-to ``bench/estimation_suite.py`` (its options: ``--seed --workers --only --fixed-noise --model
---json``), which prints every figure per duty cycle, then its median and worst case.
+to ``bench/estimation_suite.py`` (its options: ``--seed --seeds --workers --only --fixed-noise
+--model --set --json``), which prints every figure per duty cycle, then its median and worst case.
 
 The truth is the HF bench with the scenarios' seeded sensor noise. ProgPy is optional
 (``pip install 'progpy==1.9.*'``, the ``bench`` extra); without it that column reads
@@ -405,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         metavar="N",
         help="run N seeded random duty cycles instead (bench/estimation_suite.py: --seed, "
-        "--workers, --only, --fixed-noise, --model, --json)",
+        "--seeds, --workers, --only, --fixed-noise, --model, --set, --json)",
     )
     ap.add_argument("--healthy-s", type=float, default=600.0, help="false-alarm run length [s]")
     ap.add_argument("--skip-accuracy", action="store_true")

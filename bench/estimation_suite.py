@@ -5,6 +5,7 @@
     .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --json suite.json
     .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --only 3,7   # a few members
     .venv/bin/python bench/estimation_suite.py --seed 6 --only 5 --noise-scale 0.1  # diagnostic
+    .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2  # 210 members, recap
 
 Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
 (``service.monitor.MonitorBank``, full channel set, the WH process model unless ``--model``,
@@ -83,6 +84,20 @@ def monitor_run(
     return sim, rows, base, cfg, bank
 
 
+def gate_open(
+    v_j: np.ndarray,
+    x_s: np.ndarray,
+    p12: np.ndarray,
+    v_max: float,
+    x_s_max: float,
+    p12_min: float,
+) -> np.ndarray:
+    """Samples where the true signals pass the C_Lk gate of docs/estimation.md,
+    "Observability gate": |v_J| < v_max [m/s], |x_S| < x_s_max [m] (x_S from the null) and
+    |P12| > p12_min [Pa]."""
+    return (np.abs(v_j) < v_max) & (np.abs(x_s) < x_s_max) & (np.abs(p12) > p12_min)
+
+
 def first_observable(
     t: np.ndarray,
     v_j: np.ndarray,
@@ -97,8 +112,7 @@ def first_observable(
     """Seconds from ``t0`` to the end of the first window of ``hold_s`` in which |v_J| <
     v_max, |x_S| < x_s_max and |P12| > p12_min hold throughout (the C_Lk gate of
     docs/estimation.md, "Observability gate"), on samples ``t`` [s]; inf if none."""
-    ok = (np.abs(v_j) < v_max) & (np.abs(x_s) < x_s_max) & (np.abs(p12) > p12_min)
-    ok &= t >= t0
+    ok = gate_open(v_j, x_s, p12, v_max, x_s_max, p12_min) & (t >= t0)
     start = None
     for j in np.flatnonzero(np.diff(np.concatenate(([0], ok.astype(np.int8), [0])))):
         if start is None:
@@ -333,10 +347,58 @@ def run_jobs(job, jobs: list, workers: int) -> list:
     return [job(j) for j in jobs]
 
 
+def seed_list(text: str) -> list[int]:
+    """argparse type of ``--seeds``: ``1-7`` or ``1,3,8`` (distinct integers, in order)."""
+    try:
+        if "-" in text.strip("-"):
+            lo, hi = (int(x) for x in text.split("-", 1))
+            seeds = list(range(lo, hi + 1))
+        else:
+            seeds = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected A-B or A,B,C (integers)") from None
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"{text!r}: no seeds, or a seed twice")
+    return seeds
+
+
+def recap(by_seed: dict[int, list[dict]]) -> dict:
+    """Members missing a target over several suite seeds (``by_seed``: seed -> rows): per
+    seed, per figure (a member counts once under each figure it misses) and in all."""
+    failing = {r["name"]: failures(r) for rows in by_seed.values() for r in rows if failures(r)}
+    per_figure: dict[str, int] = {}
+    for bad in failing.values():
+        for fig in bad:
+            per_figure[fig] = per_figure.get(fig, 0) + 1
+    return {
+        "members": sum(len(rows) for rows in by_seed.values()),
+        "missing": len(failing),
+        "per_seed": {seed: sum(1 for r in rows if failures(r)) for seed, rows in by_seed.items()},
+        "per_figure": dict(sorted(per_figure.items())),
+        "failing": failing,
+    }
+
+
+def print_recap(r: dict) -> None:
+    print(f"\nall seeds: {r['missing']} of {r['members']} members miss a target")
+    print("  per seed: " + ", ".join(f"{k}: {v}" for k, v in r["per_seed"].items()))
+    print("  per figure: " + (", ".join(f"{k} {v}" for k, v in r["per_figure"].items()) or "-"))
+    for name, bad in r["failing"].items():
+        print(f"  {name}: {', '.join(bad)}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--suite", type=int, default=30, help="number of duty cycles")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--seeds",
+        type=seed_list,
+        default=None,
+        metavar="A-B|A,B",
+        help="several suite seeds in one run (instead of --seed): each seed's table and "
+        "summary, then the members missing a target over all of them",
+    )
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
     ap.add_argument("--only", default=None, help="comma-separated indices to run")
     ap.add_argument("--fixed-noise", action="store_true", help="default R, not identified")
@@ -371,17 +433,32 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
     overrides = parse_overrides(ap, a.model, a.set)
+    seeds = a.seeds or [a.seed]
     jobs = [
-        (a.seed, i, a.fixed_noise, a.model, overrides, a.noise_scale, a.plant_friction) for i in idx
+        (seed, i, a.fixed_noise, a.model, overrides, a.noise_scale, a.plant_friction)
+        for seed in seeds
+        for i in idx
     ]
     w0 = time.perf_counter()
-    rows = run_jobs(_job, jobs, a.workers)
-    print(f"suite seed {a.seed}, {len(rows)} duty cycles, {time.perf_counter() - w0:.0f} s wall")
-    print_table(rows)
-    s = summary(rows)
-    print_summary(s)
+    all_rows = run_jobs(_job, jobs, a.workers)  # one pool for every seed
+    wall = time.perf_counter() - w0
+    out: dict = {}
+    for k, seed in enumerate(seeds):
+        rows = all_rows[k * len(idx) : (k + 1) * len(idx)]
+        print(f"{'' if k == 0 else chr(10)}suite seed {seed}, {len(rows)} duty cycles, "
+              f"{wall:.0f} s wall" + (f" (all {len(seeds)} seeds)" if a.seeds else ""))  # fmt: skip
+        print_table(rows)
+        s = summary(rows)
+        print_summary(s)
+        out[seed] = {"rows": rows, "summary": s}
+    if a.seeds:
+        r = recap({seed: d["rows"] for seed, d in out.items()})
+        print_recap(r)
+        doc = {"seeds": {str(k): v for k, v in out.items()}, "recap": r}
+    else:
+        doc = out[a.seed]
     if a.json:
-        Path(a.json).write_text(json.dumps({"rows": rows, "summary": s}, indent=1) + "\n")
+        Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
     return 0
 
 

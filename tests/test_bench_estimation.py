@@ -138,7 +138,7 @@ def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
     and one kind; the err x |P12| column is err's RMS scaled by |P12|; --png draws them; bad
     options exit 2."""
     sys.path.insert(0, str(ROOT))
-    from bench.estimation_suite import run_one
+    from bench.estimation_suite import gate_open, monitor_run, run_one
     from models.dutycycle import duty_cycle
 
     out = tmp_path / "r.json"
@@ -157,6 +157,18 @@ def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
         else:
             inc_true = dc.leak_ratio - 1.0  # the leak's end value over the plant's C_Lk
             assert row["err"] == pytest.approx(s["inc%"] / 100.0 * inc_true, rel=1e-6)
+    # gate-open seconds of the true signals: none after a leak on a healthy member; on the
+    # leak member, counted by hand from its leak's last change and over the last second
+    assert rows["dc1_000"]["obs_settled_s"] is None
+    sim, _, base, cfg, _ = monitor_run(duty_cycle(1, 1), model="WH")
+    gate = gate_open(sim.v_j, sim.x_s - base.x_0, sim.p1 - sim.p2, cfg.c_lk_gate_v, base.x_u,
+                     cfg.resolved("c_lk_gate_p12") * base.p_sr_rated)  # fmt: skip
+    t_leak = sim.t[np.flatnonzero(np.abs(sim.c_lk - sim.c_lk[-1]) > 1e-3 * sim.c_lk[-1])[-1]]
+    dt = sim.t[1] - sim.t[0]
+    row = rows["dc1_001"]
+    assert row["obs_settled_s"] == pytest.approx(gate[sim.t > t_leak].sum() * dt, rel=1e-6)
+    assert row["obs_last_s"] == pytest.approx(gate[sim.t >= sim.t[-1] - 1.0].sum() * dt)
+    assert 0.0 < row["obs_settled_s"] <= sim.t[-1] - t_leak and row["obs_last_s"] <= 1.0 + dt
     bins = data["bins"]
     for group in ("|P12| MPa", "supply/rated", "kind"):
         assert sum(b["n"] for b in bins if b["group"] == group) == 2
@@ -263,3 +275,58 @@ def test_suite_plant_friction_gives_the_baseline_the_plants_friction(tmp_path):
     (row,) = json.loads(out.read_text())["rows"]
     want = run_one(dc, model="WH", plant_friction=True)
     assert row["psr%"] == pytest.approx(want["psr%"], rel=1e-9)
+
+
+def test_seed_list_and_recap_by_hand():
+    """--seeds parses A-B and A,B,C; the recap counts a member once in all and once under
+    each figure it misses, per seed as the single-seed summaries do."""
+    sys.path.insert(0, str(ROOT))
+    import argparse
+
+    from bench.estimation_suite import recap, seed_list
+
+    assert seed_list("1-3") == [1, 2, 3]
+    assert seed_list("8,2") == [8, 2]
+    assert seed_list("5") == [5]
+    for bad in ("1-x", "", "2,2", "3-1"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            seed_list(bad)
+
+    def row(name, inc=None, delay=None, obs=None, false=0, kind="leak"):
+        return {"name": name, "kind": kind, "inc%": inc, "psr%": None, "delay": delay,
+                "obs": obs, "false": false, "nis%": 95.0, "reinit": 0}  # fmt: skip
+
+    by_seed = {
+        1: [row("dc1_000", kind="healthy"), row("dc1_001", inc=12.0, delay=1.5, obs=1.2)],
+        4: [row("dc4_000", false=1, kind="healthy"), row("dc4_001", inc=-3.0, delay=1.2,
+                                                          obs=0.3)],
+    }  # fmt: skip
+    r = recap(by_seed)
+    assert r["members"] == 4 and r["missing"] == 3
+    assert r["per_seed"] == {1: 1, 4: 2}
+    assert r["per_figure"] == {"delay": 1, "delay(obs)": 1, "false": 1, "inc%": 1}
+    assert r["failing"]["dc1_001"] == ["inc%", "delay(obs)"]
+
+
+def test_estimation_suite_several_seeds_in_one_run(tmp_path):
+    """--seeds 2,1: each seed's rows are the single-seed run's, and the recap is printed and
+    written with them."""
+    out, one = tmp_path / "two.json", tmp_path / "one.json"
+    common = ("--suite", "1", "--workers", "1", "--json")
+    r = _run("estimation_suite.py", "--seeds", "2,1", *common, str(out))
+    assert r.returncode == 0, r.stderr
+    assert "suite seed 2, 1 duty cycles" in r.stdout and "suite seed 1, 1 duty cycles" in r.stdout
+    assert "all seeds: " in r.stdout and "of 2 members miss a target" in r.stdout
+    d = json.loads(out.read_text())
+    assert list(d["seeds"]) == ["2", "1"] and d["recap"]["members"] == 2
+    r1 = _run("estimation_suite.py", "--seed", "1", *common, str(one))
+    assert r1.returncode == 0, r1.stderr
+    d1 = json.loads(one.read_text())
+
+    def strip(rows):
+        return [{k: v for k, v in x.items() if k != "wall_s"} for x in rows]
+
+    assert strip(d["seeds"]["1"]["rows"]) == strip(d1["rows"])
+    assert d["seeds"]["1"]["summary"] == d1["summary"]
+    bad = _run("estimation_suite.py", "--seeds", "1,1")
+    assert bad.returncode == 2 and "--seeds" in bad.stderr
