@@ -228,6 +228,7 @@ class MonitorBank:
             cusum_h=c.resolved("c_lk_cusum_h"),
             cusum_kick=(c.c_lk_cusum_kick * b.c_lk / self.scale[S_C_LK]) ** 2,
             gate_var_max=(c.resolved("c_lk_gated_sigma_max") * b.c_lk / self.scale[S_C_LK]) ** 2,
+            gate_v_flow=c.resolved("c_lk_gate_flow") * b.c_lk / b.area / self.scale[S_V_J],
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}

@@ -190,6 +190,13 @@ class MonitorConfig(_Cfg):
         description="while the gate holds C_Lk its variance grows with the walk up to this "
         "sigma, as a share of baseline C_Lk (0 = no cap; None = the model's default)",
     )
+    c_lk_gate_flow: float | None = Field(
+        None,
+        ge=0,
+        description="... and while the jack's flow A |v_J| is below this many times the "
+        "baseline leak flow C_Lk |P12| (|P12| as the gate's low-pass; 0 = off; None = the "
+        "model's default; docs/estimation.md, a speed gate relative to the leak flow)",
+    )
     c_lk_gate_adapt: float | None = Field(
         None,
         ge=0,
@@ -251,7 +258,8 @@ class MonitorConfig(_Cfg):
     )
 
     def resolved(self, name: str) -> float:
-        """``name`` (c_lk_gate_p12, c_lk_gated_sigma_max, c_lk_gate_adapt, c_lk_cusum_h,
+        """``name`` (c_lk_gate_p12, c_lk_gate_flow, c_lk_gated_sigma_max, c_lk_gate_adapt,
+        c_lk_cusum_h,
         i_b_gate_x_u, adapt_nis, adapt_p_sr, p_sr_max_ratio, process.p_sr or
         process.p_ch_common) as set, else the model's default
         (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1; process.p_sr: 2e6;

@@ -100,6 +100,7 @@ CST_FIELDS: tuple[str, ...] = (
     "cusum_h",  # ... its threshold (0: off)
     "cusum_kick",  # ... the C_Lk variance added on a detection (filter units^2)
     "gate_var_max",  # while held, C_Lk's variance grows up to this (filter units^2; 0: no cap)
+    "gate_v_flow",  # C_Lk held while |v_J| exceeds this times the gate's |P12| (filter units/Pa)
 )
 (
     C_H_MAX,
@@ -136,6 +137,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_CUSUM_H,
     C_CUSUM_KICK,
     C_GATE_VAR_MAX,
+    C_GATE_V_FLOW,
 ) = range(len(CST_FIELDS))
 
 # the bank's carry array (n_act, N_CARRY): the last current [A] (held when a sample has
@@ -218,6 +220,12 @@ def step_one(
             gate = True  # no measured P12 in this sample: it carries no leak information
         elif not math.isnan(p12_g):
             gate = gate or abs(p12_g) < cst_k[C_GATE_P12]
+            # ... and, if set (off by default), with the jack's flow A |v_J| under a few
+            # times the baseline leak flow C_Lk |P12|: a relative error of the modelled jack
+            # flow reads as a leak of that many times the error (docs/estimation.md,
+            # "A speed gate relative to the leak flow")
+            if cst_k[C_GATE_V_FLOW] > 0.0:
+                gate = gate or abs(X[k, S_V_J]) > cst_k[C_GATE_V_FLOW] * abs(p12_g)
         if both_p and tau > 0.0:
             CARRY[k, CARRY_P12] += (1.0 - math.exp(-dt / tau)) * (p12_m - CARRY[k, CARRY_P12])
     c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
