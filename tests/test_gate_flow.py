@@ -32,6 +32,17 @@ def test_a_tiny_ratio_holds_c_lk_wherever_the_jack_moves():
     np.testing.assert_array_equal(held.est[:, C_LK], np.full(len(held.t), base.c_lk))
     free = bank_rows(meas, MonitorConfig(model="WH"), base)
     assert np.ptp(free.est[:, C_LK]) > 0.05 * base.c_lk
+    # ... and only within c_lk_gate_flow_s of fast motion when that is set: here the
+    # estimated jack passes 30 mm/s only in the first few ms (the filter's start; the sines
+    # reach 3.8 mm/s), so C_Lk is held until 0.3 s after that and learnt from then on
+    after_fast = MonitorConfig(model="WH", c_lk_gate_flow=1e-6, c_lk_gate_flow_s=0.3)
+    rows = bank_rows(meas, after_fast, base)
+    fast = rows.t[np.abs(rows.est[:, EST_KEYS.index("v_j")]) > 0.03]
+    assert len(fast) > 0 and fast[-1] < 0.05
+    c = rows.est[:, C_LK]
+    t_learn = rows.t[np.flatnonzero(np.diff(c))[0] + 1]
+    assert fast[-1] + 0.3 <= t_learn <= fast[-1] + 0.302
+    assert np.all(c[rows.t < t_learn] == base.c_lk) and np.ptp(c) > 0.05 * base.c_lk
 
 
 def test_it_removes_the_spike_after_a_slew_onto_a_low_load_hold():

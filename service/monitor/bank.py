@@ -33,6 +33,7 @@ from service.monitor.kernels import (
     CARRY_I,
     CARRY_N,
     CARRY_P12,
+    CARRY_T_FAST,
     CST_FIELDS,
     IN_I,
     IN_T,
@@ -229,6 +230,8 @@ class MonitorBank:
             cusum_kick=(c.c_lk_cusum_kick * b.c_lk / self.scale[S_C_LK]) ** 2,
             gate_var_max=(c.resolved("c_lk_gated_sigma_max") * b.c_lk / self.scale[S_C_LK]) ** 2,
             gate_v_flow=c.resolved("c_lk_gate_flow") * b.c_lk / b.area / self.scale[S_V_J],
+            gate_flow_s=c.c_lk_gate_flow_s,
+            gate_flow_v_fast=c.c_lk_gate_flow_v_fast / self.scale[S_V_J],
         )
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}
@@ -695,6 +698,7 @@ class MonitorBank:
         self.nis_avg[k] = 0.0
         self.carry[k, CARRY_GP] = self.carry[k, CARRY_GM] = 0.0  # the change detector restarts
         self.carry[k, CARRY_P12] = f_r / b.area  # the C_Lk gate's low-passed P1 - P2 [Pa]
+        self.carry[k, CARRY_T_FAST] = -np.inf  # no fast motion yet
 
     def _round(self, items: list[tuple[str, Mapping]], slots: list[int], out: list) -> None:
         cfg = self.config

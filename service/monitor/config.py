@@ -197,6 +197,15 @@ class MonitorConfig(_Cfg):
         "baseline leak flow C_Lk |P12| (|P12| as the gate's low-pass; 0 = off; None = the "
         "model's default; docs/estimation.md, a speed gate relative to the leak flow)",
     )
+    c_lk_gate_flow_s: float = Field(
+        0.0,
+        ge=0,
+        description="... only within this long [s] after the estimated |v_J| last exceeded "
+        "c_lk_gate_flow_v_fast (0 = always)",
+    )
+    c_lk_gate_flow_v_fast: float = Field(
+        0.03, gt=0, description="fast motion for c_lk_gate_flow_s [m/s]"
+    )
     c_lk_gate_adapt: float | None = Field(
         None,
         ge=0,

@@ -101,6 +101,8 @@ CST_FIELDS: tuple[str, ...] = (
     "cusum_kick",  # ... the C_Lk variance added on a detection (filter units^2)
     "gate_var_max",  # while held, C_Lk's variance grows up to this (filter units^2; 0: no cap)
     "gate_v_flow",  # C_Lk held while |v_J| exceeds this times the gate's |P12| (filter units/Pa)
+    "gate_flow_s",  # ... within this long after |v_J| last exceeded gate_flow_v_fast [s] (0: always)
+    "gate_flow_v_fast",  # ... (filter units)
 )
 (
     C_H_MAX,
@@ -138,14 +140,16 @@ CST_FIELDS: tuple[str, ...] = (
     C_CUSUM_KICK,
     C_GATE_VAR_MAX,
     C_GATE_V_FLOW,
+    C_GATE_FLOW_S,
+    C_GATE_FLOW_V_FAST,
 ) = range(len(CST_FIELDS))
 
 # the bank's carry array (n_act, N_CARRY): the last current [A] (held when a sample has
 # neither current nor command), the C_Lk change detector's CUSUMs (+, -) and its number of
-# detections since the actuator was added, and the low-passed measured P1 - P2 [Pa] of the
-# C_Lk gate
-CARRY_I, CARRY_GP, CARRY_GM, CARRY_N, CARRY_P12 = range(5)
-N_CARRY = 5
+# detections since the actuator was added, the low-passed measured P1 - P2 [Pa] of the
+# C_Lk gate, and when the estimated |v_J| last exceeded gate_flow_v_fast [s]
+CARRY_I, CARRY_GP, CARRY_GM, CARRY_N, CARRY_P12, CARRY_T_FAST = range(6)
+N_CARRY = 6
 
 # the bank's pending array (n_act, N_PENDING): per alarm, since when its change is due (NaN:
 # none); then the supply tracker of the leak alarm's mask: the lagged supply ratio, the time
@@ -205,6 +209,8 @@ def step_one(
     CARRY[k, CARRY_I] = i_f
     # observability gate: C_Lk only from the valve's linear region at low speed
     gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
+    if abs(X[k, S_V_J]) > cst_k[C_GATE_FLOW_V_FAST]:
+        CARRY[k, CARRY_T_FAST] = t[j]
     gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
     # ... and with a pressure difference that carries a leak flow (C_Lk P12) above the flow
     # error of the valve's null (docs/estimation.md, observability gate), judged on a low-pass
@@ -224,7 +230,9 @@ def step_one(
             # times the baseline leak flow C_Lk |P12|: a relative error of the modelled jack
             # flow reads as a leak of that many times the error (docs/estimation.md,
             # "A speed gate relative to the leak flow")
-            if cst_k[C_GATE_V_FLOW] > 0.0:
+            # (within gate_flow_s of the last fast motion, if that is set)
+            recent = t[j] - CARRY[k, CARRY_T_FAST] < cst_k[C_GATE_FLOW_S]
+            if cst_k[C_GATE_V_FLOW] > 0.0 and (cst_k[C_GATE_FLOW_S] <= 0.0 or recent):
                 gate = gate or abs(X[k, S_V_J]) > cst_k[C_GATE_V_FLOW] * abs(p12_g)
         if both_p and tau > 0.0:
             CARRY[k, CARRY_P12] += (1.0 - math.exp(-dt / tau)) * (p12_m - CARRY[k, CARRY_P12])
