@@ -209,8 +209,8 @@ def step_one(
     CARRY[k, CARRY_I] = i_f
     # observability gate: C_Lk only from the valve's linear region at low speed
     gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
-    if abs(X[k, S_V_J]) > cst_k[C_GATE_FLOW_V_FAST]:
-        CARRY[k, CARRY_T_FAST] = t[j]
+    if cst_k[C_GATE_FLOW_S] > 0.0 and abs(X[k, S_V_J]) > cst_k[C_GATE_FLOW_V_FAST]:
+        CARRY[k, CARRY_T_FAST] = t[j]  # only c_lk_gate_flow_s reads it
     gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
     # ... and with a pressure difference that carries a leak flow (C_Lk P12) above the flow
     # error of the valve's null (docs/estimation.md, observability gate), judged on a low-pass
@@ -227,13 +227,14 @@ def step_one(
         elif not math.isnan(p12_g):
             gate = gate or abs(p12_g) < cst_k[C_GATE_P12]
             # ... and, if set (off by default), with the jack's flow A |v_J| under a few
-            # times the baseline leak flow C_Lk |P12|: a relative error of the modelled jack
-            # flow reads as a leak of that many times the error (docs/estimation.md,
+            # times the baseline leak flow C_Lk |P12| (within gate_flow_s of the last fast
+            # motion, if that is set): a relative error of the modelled jack flow reads as
+            # a leak of that many times the error (docs/estimation.md,
             # "A speed gate relative to the leak flow")
-            # (within gate_flow_s of the last fast motion, if that is set)
-            recent = t[j] - CARRY[k, CARRY_T_FAST] < cst_k[C_GATE_FLOW_S]
-            if cst_k[C_GATE_V_FLOW] > 0.0 and (cst_k[C_GATE_FLOW_S] <= 0.0 or recent):
-                gate = gate or abs(X[k, S_V_J]) > cst_k[C_GATE_V_FLOW] * abs(p12_g)
+            if cst_k[C_GATE_V_FLOW] > 0.0:
+                recent = t[j] - CARRY[k, CARRY_T_FAST] < cst_k[C_GATE_FLOW_S]
+                if cst_k[C_GATE_FLOW_S] <= 0.0 or recent:
+                    gate = gate or abs(X[k, S_V_J]) > cst_k[C_GATE_V_FLOW] * abs(p12_g)
         if both_p and tau > 0.0:
             CARRY[k, CARRY_P12] += (1.0 - math.exp(-dt / tau)) * (p12_m - CARRY[k, CARRY_P12])
     c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
