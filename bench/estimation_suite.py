@@ -365,7 +365,12 @@ def seed_list(text: str) -> list[int]:
 def recap(by_seed: dict[int, list[dict]]) -> dict:
     """Members missing a target over several suite seeds (``by_seed``: seed -> rows): per
     seed, per figure (a member counts once under each figure it misses) and in all."""
-    failing = {r["name"]: failures(r) for rows in by_seed.values() for r in rows if failures(r)}
+    failing: dict[str, list[str]] = {}
+    per_seed: dict[int, int] = {}
+    for seed, rows in by_seed.items():
+        bad_rows = {r["name"]: bad for r in rows if (bad := failures(r))}
+        per_seed[seed] = len(bad_rows)
+        failing.update(bad_rows)
     per_figure: dict[str, int] = {}
     for bad in failing.values():
         for fig in bad:
@@ -373,7 +378,7 @@ def recap(by_seed: dict[int, list[dict]]) -> dict:
     return {
         "members": sum(len(rows) for rows in by_seed.values()),
         "missing": len(failing),
-        "per_seed": {seed: sum(1 for r in rows if failures(r)) for seed, rows in by_seed.items()},
+        "per_seed": per_seed,
         "per_figure": dict(sorted(per_figure.items())),
         "failing": failing,
     }
@@ -445,8 +450,10 @@ def main(argv: list[str] | None = None) -> int:
     out: dict = {}
     for k, seed in enumerate(seeds):
         rows = all_rows[k * len(idx) : (k + 1) * len(idx)]
-        print(f"{'' if k == 0 else chr(10)}suite seed {seed}, {len(rows)} duty cycles, "
-              f"{wall:.0f} s wall" + (f" (all {len(seeds)} seeds)" if a.seeds else ""))  # fmt: skip
+        if k:
+            print()
+        print(f"suite seed {seed}, {len(rows)} duty cycles, {wall:.0f} s wall"
+              + (f" (all {len(seeds)} seeds)" if a.seeds else ""))  # fmt: skip
         print_table(rows)
         s = summary(rows)
         print_summary(s)

@@ -127,9 +127,10 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--baseline: {e}")
         if b.law in bases:
             bases[b.law] = b
-    for seed in range(1, a.calibrated_seeds + 1):
+    seed_cols = [f"s{seed}" for seed in range(1, a.calibrated_seeds + 1)]
+    for seed, col in enumerate(seed_cols, start=1):
         print(f"calibrating WH on healthy_noise, sensor seed {seed}", file=sys.stderr)
-        bases[f"s{seed}"] = calibrated_wh(seed)
+        bases[col] = calibrated_wh(seed)
     cols = list(bases)
     rows = table(bases, a.supply, a.leak, a.load)
     print("C_Lk read at the HF plant's static holds, error in % of the true C_Lk")
@@ -141,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         line = f"{r['supply']:6.2f} {r['leak']:5.2f} {r['load_n']:7.0f} {r['x_s_um']:7.3f}"
         line += f" {r['p12_mpa']:7.2f}" + "".join(f" {r[m]:+7.2f}" for m in cols)
         print(line)
-    cal = [r[c] for r in rows for c in cols if c.startswith("s") and c[1:].isdigit()]
+    cal = [r[c] for r in rows for c in seed_cols]
     if cal:
         print(f"calibrated s1..s{a.calibrated_seeds}: {min(cal):+.2f} .. {max(cal):+.2f} %")
     return 0

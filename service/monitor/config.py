@@ -268,8 +268,7 @@ class MonitorConfig(_Cfg):
 
     def resolved(self, name: str) -> float:
         """``name`` (c_lk_gate_p12, c_lk_gate_flow, c_lk_gated_sigma_max, c_lk_gate_adapt,
-        c_lk_cusum_h,
-        i_b_gate_x_u, adapt_nis, adapt_p_sr, p_sr_max_ratio, process.p_sr or
+        c_lk_cusum_h, i_b_gate_x_u, adapt_nis, adapt_p_sr, p_sr_max_ratio, process.p_sr or
         process.p_ch_common) as set, else the model's default
         (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1; process.p_sr: 2e6;
         process.p_ch_common: process.p_ch)."""
