@@ -330,3 +330,20 @@ def test_estimation_suite_several_seeds_in_one_run(tmp_path):
     assert d["seeds"]["1"]["summary"] == d1["summary"]
     bad = _run("estimation_suite.py", "--seeds", "1,1")
     assert bad.returncode == 2 and "--seeds" in bad.stderr
+
+
+def test_above_raise_finds_the_longest_run_by_hand():
+    """bench/suite_member.py's run above the leak raise level: the longest contiguous run,
+    timed first to last sample (as the alarm's persistence is), with its peak and sigmas."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from suite_member import above_raise
+
+    t = np.round(np.arange(20) * 0.01, 2)
+    ratio = np.ones(20)
+    ratio[2:4] = 2.6  # 10 ms
+    ratio[8:13] = [2.5, 2.7, 3.1, 2.6, 2.55]  # 40 ms, the longest
+    sigma = np.linspace(0.1, 0.29, 20)
+    line = above_raise(t, ratio, sigma, 2.5, 0.05)
+    assert "40 ms from 0.080 s (persistence 50 ms)" in line
+    assert "peak 3.10x" in line and "sigma 0.18-0.22x" in line
+    assert "never" in above_raise(t, np.ones(20), sigma, 2.5, 0.05)
