@@ -160,8 +160,9 @@ class MonitorBank:
         # WH: the chamber columns of q hold the differential and the common mode's random
         # walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (service.ukf; equal: uncorrelated)
         q_wh = {"pt1": pn.p_ch, "pt2": c.resolved("process.p_ch_common")} if self.wh else {}
-        q_set = {n: getattr(pn, n) for n in er.STATE_NAMES if n != "p_sr"}
-        q = _by_name(names, **q_set, p_sr=c.resolved("process.p_sr"), **q_wh)
+        q_set = {n: getattr(pn, n) for n in er.STATE_NAMES if n not in ("p_sr", "c_lk")}
+        q = _by_name(names, **q_set, p_sr=c.resolved("process.p_sr"),
+                     c_lk=c.resolved("process.c_lk"), **q_wh)  # fmt: skip
         if c.channels == "reduced":  # parameters not observable from x_J alone
             q[[S_P_SR, S_C_LK, S_I_B]] *= c.reduced_param_q
         self._q = (q / self.scale) ** 2
@@ -209,7 +210,7 @@ class MonitorBank:
             supply_raise=a.supply_raise,
             supply_clear=a.supply_clear,
             hold=a.hold_s,
-            leak_max_sigma=a.leak_max_sigma,
+            leak_max_sigma=c.resolved("alarms.leak_max_sigma"),
             supply_max_sigma=a.supply_max_sigma,
             gate_v=c.c_lk_gate_v / self.scale[S_V_J],
             gate_x_s=_underlaps(1.0, self.rp.x_u) / self.scale[S_X_S],
@@ -230,7 +231,7 @@ class MonitorBank:
             cusum_kick=(c.c_lk_cusum_kick * b.c_lk / self.scale[S_C_LK]) ** 2,
             gate_var_max=(c.resolved("c_lk_gated_sigma_max") * b.c_lk / self.scale[S_C_LK]) ** 2,
             gate_v_flow=c.resolved("c_lk_gate_flow") * b.c_lk / b.area / self.scale[S_V_J],
-            gate_flow_s=c.c_lk_gate_flow_s,
+            gate_flow_s=c.resolved("c_lk_gate_flow_s"),
             gate_flow_v_fast=c.c_lk_gate_flow_v_fast / self.scale[S_V_J],
         )
         self._ws = workspace(self.nx, N_CHANNELS)

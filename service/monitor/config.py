@@ -60,7 +60,12 @@ class ProcessNoise(_Cfg):
         description="supply [Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS: 3e5 on "
         "WH, whose adaptive step frees it on a supply change; 2e6 on the C-types)",
     )
-    c_lk: float = Field(1e-13, gt=0, description="leakage [m^3/s/Pa/sqrt(s)]")
+    c_lk: float | None = Field(
+        None,
+        gt=0,
+        description="leakage [m^3/s/Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS: "
+        "1.2e-13 on WH, 1e-13 on the C-types)",
+    )
     i_b: float = Field(2e-6, gt=0, description="servovalve null bias [A/sqrt(s)]")
     p_ch: float = Field(
         1e6,
@@ -85,8 +90,11 @@ class AlarmConfig(_Cfg):
     supply_raise: float = Field(0.85, gt=0, description="raise when P_SR / rated <= this")
     supply_clear: float = Field(0.90, gt=0, description="clear when P_SR / rated >= this")
     hold_s: float = Field(0.05, ge=0, description="condition must persist this long [s]")
-    leak_max_sigma: float = Field(
-        1.0, gt=0, description="raise a leak alarm only if sigma(C_Lk) / baseline is below this"
+    leak_max_sigma: float | None = Field(
+        None,
+        gt=0,
+        description="raise a leak alarm only if sigma(C_Lk) / baseline is below this (None = "
+        "the model's default, MODEL_DEFAULTS: 0.6 on WH, 1 on the C-types)",
     )
     supply_max_sigma: float = Field(
         0.05, gt=0, description="raise a supply alarm only if sigma(P_SR) / rated is below this"
@@ -125,11 +133,19 @@ MODEL_DEFAULTS: dict[str, dict[str, float]] = {
         "p_sr_max_ratio": 1.05,
         "process.p_sr": 3e5,
         "process.p_ch_common": 1e5,
+        # the ramp alarm's walk, with the alarm and the post-slew gate that keep it from
+        # false alarms (docs/estimation.md, "WH's defaults for the C_Lk walk")
+        "process.c_lk": 1.2e-13,
+        "alarms.leak_max_sigma": 0.6,
+        "c_lk_gate_flow": 5.0,
+        "c_lk_gate_flow_s": 0.3,
     }
 }
 _RESOLVED_FALLBACK: dict[str, float] = {  # the rest: 0 (off)
     "p_sr_max_ratio": 1.0,
     "process.p_sr": 2e6,
+    "process.c_lk": 1e-13,
+    "alarms.leak_max_sigma": 1.0,
 }
 
 
@@ -197,11 +213,11 @@ class MonitorConfig(_Cfg):
         "baseline leak flow C_Lk |P12| (|P12| as the gate's low-pass; 0 = off; None = the "
         "model's default; docs/estimation.md, a speed gate relative to the leak flow)",
     )
-    c_lk_gate_flow_s: float = Field(
-        0.0,
+    c_lk_gate_flow_s: float | None = Field(
+        None,
         ge=0,
         description="... only within this long [s] after the estimated |v_J| last exceeded "
-        "c_lk_gate_flow_v_fast (0 = always)",
+        "c_lk_gate_flow_v_fast (0 = always; None = the model's default, MODEL_DEFAULTS)",
     )
     c_lk_gate_flow_v_fast: float = Field(
         0.03, gt=0, description="fast motion for c_lk_gate_flow_s [m/s]"
@@ -267,12 +283,15 @@ class MonitorConfig(_Cfg):
     )
 
     def resolved(self, name: str) -> float:
-        """``name`` (c_lk_gate_p12, c_lk_gate_flow, c_lk_gated_sigma_max, c_lk_gate_adapt,
-        c_lk_cusum_h, i_b_gate_x_u, adapt_nis, adapt_p_sr, p_sr_max_ratio, process.p_sr or
-        process.p_ch_common) as set, else the model's default
-        (MODEL_DEFAULTS), else off (p_sr_max_ratio: 1; process.p_sr: 2e6;
-        process.p_ch_common: process.p_ch)."""
-        obj, attr = (self.process, name.split(".", 1)[1]) if "." in name else (self, name)
+        """``name`` (c_lk_gate_p12, c_lk_gate_flow, c_lk_gate_flow_s, c_lk_gated_sigma_max,
+        c_lk_gate_adapt, c_lk_cusum_h, i_b_gate_x_u, adapt_nis, adapt_p_sr, p_sr_max_ratio,
+        process.p_sr, process.c_lk, process.p_ch_common or alarms.leak_max_sigma) as set,
+        else the model's default (MODEL_DEFAULTS), else the C-types' value
+        (_RESOLVED_FALLBACK; process.p_ch_common: process.p_ch), else 0 (off)."""
+        obj, attr = self, name
+        if "." in name:
+            group, attr = name.split(".", 1)
+            obj = getattr(self, group)
         v = getattr(obj, attr)
         if v is not None:
             return float(v)
