@@ -30,6 +30,11 @@ issue 10 in brackets):
   above ``c_lk_gate_p12``; ``first_observable``): a monitor that learns C_Lk only where the
   gate is open cannot raise the alarm earlier. A late alarm whose ``obs`` passes the 1 s
   target is marked ``delay(obs)`` (still a miss).
+- ``ind%`` (no target): the C_Lk increase error of the health indicator the prognostics
+  store would record for the last ``IND_WINDOW_S`` seconds as one operating period
+  (``service.prognostics.indicators``: the median of the estimates whose own sigma is under
+  ``obs_sigma_ratio`` x baseline; ``indicator_increase``); "-" where no estimate there is
+  that sure, and the indicator abstains.
 """
 
 from __future__ import annotations
@@ -49,6 +54,30 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from models.dutycycle import DutyCycle, duty_cycle, scale_noise  # noqa: E402
 
 TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "reinit": 0}
+IND_WINDOW_S = 2.0  # the generator keeps the last 2.5 s free of leak and supply changes
+
+
+def indicator_increase(
+    t: np.ndarray,
+    est: np.ndarray,
+    health: np.ndarray,
+    c_lk_base: float,
+    inc_true: float,
+    window_s: float = IND_WINDOW_S,
+) -> float | None:
+    """C_Lk increase error [%] of the health indicator (``periods_of_rows``, its default
+    observability threshold, no settling time) over the last ``window_s`` of the rows taken as
+    one operating period, against the true increase ``inc_true`` [m^3/s/Pa]; None where the
+    indicator has no observable estimate there."""
+    from service.prognostics.indicators import PeriodConfig, periods_of_rows
+
+    w = t >= t[-1] - window_s
+    cfg = PeriodConfig(settle_s=0.0, window_s=float("inf"))
+    (period,) = periods_of_rows("suite/member", c_lk_base, "suite", t[w], est[w], health[w],
+                                config=cfg)  # fmt: skip
+    if not np.isfinite(period.c_lk_mean):
+        return None
+    return 100.0 * ((period.c_lk_mean - c_lk_base) - inc_true) / inc_true
 
 
 def monitor_run(
@@ -160,9 +189,10 @@ def run_one(
     inc_true = float(c_true[-1] - c0)
     if dc.leak_shape is not None:
         out["inc%"] = 100.0 * ((c_mean - base.c_lk) - inc_true) / inc_true
+        out["ind%"] = indicator_increase(t, rows.est, rows.health, base.c_lk, inc_true)
         out["bias%"] = None
     else:
-        out["inc%"] = None
+        out["inc%"] = out["ind%"] = None
         out["bias%"] = 100.0 * (c_mean - base.c_lk) / base.c_lk
     worst = None
     ends = [c[1] for c in dc.supply_changes]
@@ -238,7 +268,7 @@ def _f(v, spec: str, width: int) -> str:
 
 
 def print_table(rows: list[dict]) -> None:
-    hdr = (f"{'scenario':<11}{'kind':<19}{'leak x':>7}{'noise':>6}{'inc%':>7}{'bias%':>7}"
+    hdr = (f"{'scenario':<11}{'kind':<19}{'leak x':>7}{'noise':>6}{'inc%':>7}{'ind%':>7}{'bias%':>7}"
            f"{'psr%':>7}{'psr_all':>8}{'delay':>7}{'obs':>7}{'false':>6}{'nis%':>6}{'reinit':>7}"
            "  fails")  # fmt: skip
     print(hdr)
@@ -246,7 +276,8 @@ def print_table(rows: list[dict]) -> None:
     for r in rows:
         print(
             f"{r['name']:<11}{r['kind']:<19}{r['leak_ratio']:>7.2f}{r['noise_scale']:>6.2f}"
-            f"{_f(r['inc%'], '+.1f', 7)}{_f(r['bias%'], '+.1f', 7)}{_f(r['psr%'], '+.2f', 7)}"
+            f"{_f(r['inc%'], '+.1f', 7)}{_f(r.get('ind%'), '+.1f', 7)}{_f(r['bias%'], '+.1f', 7)}"
+            f"{_f(r['psr%'], '+.2f', 7)}"
             f"{_f(r.get('psr_all%'), '+.2f', 8)}"
             f"{_f(r['delay'], '.3f', 7)}{_f(r.get('obs'), '.3f', 7)}{r['false']:>6d}{r['nis%']:>6.1f}{r['reinit']:>7d}  "
             f"{','.join(failures(r)) or 'ok'}"
@@ -258,6 +289,7 @@ def summary(rows: list[dict]) -> dict:
     out = {}
     for key, worst_of in (
         ("inc%", lambda a: a[np.argmax(np.abs(a))]),
+        ("ind%", lambda a: a[np.argmax(np.abs(a))]),
         ("bias%", lambda a: a[np.argmax(np.abs(a))]),
         ("psr%", lambda a: a[np.argmax(np.abs(a))]),
         ("psr_all%", lambda a: a[np.argmax(np.abs(a))]),
@@ -267,12 +299,12 @@ def summary(rows: list[dict]) -> dict:
         ("nis%", np.min),
         ("reinit", np.max),
     ):
-        v = np.array([r[key] for r in rows if r[key] is not None], float)
+        v = np.array([r[key] for r in rows if r.get(key) is not None], float)
         if len(v) == 0:
             continue
         med = (
             float(np.median(np.abs(v)))
-            if key in ("inc%", "bias%", "psr%", "psr_all%")
+            if key in ("inc%", "ind%", "bias%", "psr%", "psr_all%")
             else float(np.median(v))
         )
         out[key] = {"n": len(v), "median": med, "worst": float(worst_of(v))}
@@ -285,8 +317,9 @@ def summary(rows: list[dict]) -> dict:
 def print_summary(s: dict) -> None:
     print("\nfigure   n   median    worst   target")
     tgt = {"inc%": "|.|<=10", "psr%": "|.|<=5", "delay": "<=1 s", "false": "0", "nis%": ">=90",
-           "reinit": "0 healthy", "bias%": "-", "psr_all%": "-", "obs": "-"}  # fmt: skip
-    for key in ("inc%", "bias%", "psr%", "psr_all%", "delay", "obs", "false", "nis%", "reinit"):
+           "reinit": "0 healthy", "bias%": "-", "psr_all%": "-", "obs": "-", "ind%": "-"}  # fmt: skip
+    for key in ("inc%", "ind%", "bias%", "psr%", "psr_all%", "delay", "obs", "false", "nis%",
+                "reinit"):  # fmt: skip
         if key in s:
             d = s[key]
             print(f"{key:<7}{d['n']:>4}{d['median']:>9.3f}{d['worst']:>9.3f}   {tgt[key]}")
@@ -375,12 +408,20 @@ def recap(by_seed: dict[int, list[dict]]) -> dict:
     for bad in failing.values():
         for fig in bad:
             per_figure[fig] = per_figure.get(fig, 0) + 1
+    leaks = [r for rows in by_seed.values() for r in rows if r.get("inc%") is not None]
+    read = [r["ind%"] for r in leaks if r.get("ind%") is not None]
     return {
         "members": sum(len(rows) for rows in by_seed.values()),
         "missing": len(failing),
         "per_seed": per_seed,
         "per_figure": dict(sorted(per_figure.items())),
         "failing": failing,
+        "indicator": {
+            "leaks": len(leaks),
+            "inc_misses": sum(abs(r["inc%"]) > TARGETS["inc%"] for r in leaks),
+            "read": len(read),
+            "read_misses": sum(abs(v) > TARGETS["inc%"] for v in read),
+        },
     }
 
 
@@ -390,6 +431,13 @@ def print_recap(r: dict) -> None:
     print("  per figure: " + (", ".join(f"{k} {v}" for k, v in r["per_figure"].items()) or "-"))
     for name, bad in r["failing"].items():
         print(f"  {name}: {', '.join(bad)}")
+    ind = r["indicator"]
+    print(
+        f"leak members: {ind['leaks']}, C_Lk increase off by more than 10 %: "
+        f"{ind['inc_misses']}; the health indicator of the last {IND_WINDOW_S:g} s reads "
+        f"{ind['read']} of them (abstains on {ind['leaks'] - ind['read']}), "
+        f"{ind['read_misses']} off by more than 10 %"
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FIGURES = {"inc%", "bias%", "psr%", "psr_all%", "nis%", "reinit", "false", "delay", "obs"}
+FIGURES = {"inc%", "ind%", "bias%", "psr%", "psr_all%", "nis%", "reinit", "false", "delay", "obs"}
 
 
 def _run(script: str, *argv: str) -> subprocess.CompletedProcess:
@@ -43,7 +43,7 @@ def test_estimation_suite_option_delegates_to_the_suite(tmp_path):
         assert 0.0 <= row["nis%"] <= 100.0
         assert isinstance(row["reinit"], int) and row["reinit"] >= 0
         assert isinstance(row["false"], int) and row["false"] >= 0
-        for k in ("inc%", "bias%", "psr%", "delay"):
+        for k in ("inc%", "ind%", "bias%", "psr%", "delay"):
             assert row[k] is None or math.isfinite(row[k]) or row[k] == math.inf
     # summary: distribution (median) and worst case over the 2 duty cycles
     assert s["nis%"]["n"] == 2 and s["reinit"]["n"] == 2 and s["false"]["n"] == 2
@@ -292,20 +292,48 @@ def test_seed_list_and_recap_by_hand():
         with pytest.raises(argparse.ArgumentTypeError):
             seed_list(bad)
 
-    def row(name, inc=None, delay=None, obs=None, false=0, kind="leak"):
+    def row(name, inc=None, delay=None, obs=None, false=0, kind="leak", ind=None):
         return {"name": name, "kind": kind, "inc%": inc, "psr%": None, "delay": delay,
-                "obs": obs, "false": false, "nis%": 95.0, "reinit": 0}  # fmt: skip
+                "obs": obs, "false": false, "nis%": 95.0, "reinit": 0, "ind%": ind}  # fmt: skip
 
     by_seed = {
         1: [row("dc1_000", kind="healthy"), row("dc1_001", inc=12.0, delay=1.5, obs=1.2)],
         4: [row("dc4_000", false=1, kind="healthy"), row("dc4_001", inc=-3.0, delay=1.2,
-                                                          obs=0.3)],
+                                                          obs=0.3, ind=-11.0),
+            row("dc4_003", inc=20.0, ind=4.0)],
     }  # fmt: skip
     r = recap(by_seed)
-    assert r["members"] == 4 and r["missing"] == 3
-    assert r["per_seed"] == {1: 1, 4: 2}
-    assert r["per_figure"] == {"delay": 1, "delay(obs)": 1, "false": 1, "inc%": 1}
+    assert r["members"] == 5 and r["missing"] == 4
+    assert r["per_seed"] == {1: 1, 4: 3}
+    assert r["per_figure"] == {"delay": 1, "delay(obs)": 1, "false": 1, "inc%": 2}
     assert r["failing"]["dc1_001"] == ["inc%", "delay(obs)"]
+    # three leak members, two of them off; the indicator reads two (one off), abstains on one
+    assert r["indicator"] == {"leaks": 3, "inc_misses": 2, "read": 2, "read_misses": 1}
+
+
+def test_indicator_increase_by_hand():
+    """The health indicator of the last 2 s: the samples before the window and those whose
+    sigma is above 0.25 x baseline are left out, the rest decimated to 20 Hz and their median
+    taken. Here the window's second half reads 1.40, 1.41, ... 1.59 x baseline in its twenty
+    50 ms bins: median 1.495 x, an increase of 0.495 against a true 0.5, -1 %."""
+    sys.path.insert(0, str(ROOT))
+    from bench.estimation_suite import indicator_increase
+    from service.monitor import EST_KEYS, HEALTH_KEYS
+
+    c0 = 2e-13
+    t = np.arange(3000) / 1000.0
+    est = np.zeros((len(t), len(EST_KEYS)))
+    c, cs = est[:, EST_KEYS.index("c_lk")], est[:, EST_KEYS.index("c_lk_sigma")]
+    health = np.zeros((len(t), len(HEALTH_KEYS)))
+    c[:], cs[:] = 10 * c0, 0.1 * c0  # before the window: sure, and far off
+    mid = (t >= 1.0) & (t < 2.0)
+    c[mid], cs[mid] = 3 * c0, 0.5 * c0  # in it, but not observable
+    late = t >= 2.0
+    k = np.floor(t[late] * 20.0) - 40.0  # the 50 ms bin, 0..19
+    c[late], cs[late] = (1.4 + 0.01 * k) * c0, 0.1 * c0
+    assert indicator_increase(t, est, health, c0, 0.5 * c0) == pytest.approx(-1.0, abs=1e-9)
+    cs[late] = 0.3 * c0  # nothing observable left: the indicator abstains
+    assert indicator_increase(t, est, health, c0, 0.5 * c0) is None
 
 
 def test_estimation_suite_several_seeds_in_one_run(tmp_path):
