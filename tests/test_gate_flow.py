@@ -40,7 +40,9 @@ def test_a_tiny_ratio_holds_c_lk_wherever_the_jack_moves():
     # ... and only within c_lk_gate_flow_s of fast motion when that is set: here the
     # estimated jack passes 30 mm/s only in the first few ms (the filter's start; the sines
     # reach 3.8 mm/s), so C_Lk is held until 0.3 s after that and learnt from then on
-    after_fast = MonitorConfig(model="WH", c_lk_gate_flow=1e-6, c_lk_gate_flow_s=0.3)
+    after_fast = MonitorConfig(
+        model="WH", c_lk_gate_flow=1e-6, c_lk_gate_flow_s=0.3, c_lk_gate_flow_v_fast=0.03
+    )
     rows = bank_rows(meas, after_fast, base)
     fast = rows.t[np.abs(rows.est[:, EST_KEYS.index("v_j")]) > 0.03]
     assert len(fast) > 0 and fast[-1] < 0.05
@@ -78,3 +80,21 @@ def test_it_removes_the_spike_after_a_slew_onto_a_low_load_hold():
     assert len(raised["off, C-type alarm"]) == 1 and 6.3 < raised["off, C-type alarm"][0] < 7.5
     assert raised["off"] == [] and raised["WH defaults"] == []
     assert peaks["WH defaults"] < 2.0
+
+
+def test_a_ramp_is_not_a_slew():
+    """Suite member dc5_001: a 3.21x leak ramp crosses the raise level while the jack starts
+    to follow a 30 mm/s position ramp. Counted as fast motion (c_lk_gate_flow_v_fast at
+    30 mm/s, the setting before) the ramp keeps the post-slew gate shut and the alarm comes
+    2.8 s after the crossing; at WH's default, 0.1 m/s, a slew to a step and not a commanded
+    ramp, within 1 s."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from estimation_suite import run_one
+
+    from models.dutycycle import duty_cycle
+
+    dc = duty_cycle(5, 1)
+    before = run_one(dc, model="WH", overrides={"c_lk_gate_flow_v_fast": 0.03})
+    now = run_one(dc, model="WH")
+    assert before["delay"] > 2.0 and before["false"] == 0
+    assert 0.0 < now["delay"] <= 1.0 and now["false"] == 0

@@ -220,7 +220,10 @@ class MonitorConfig(_Cfg):
         "c_lk_gate_flow_v_fast (0 = always; None = the model's default, MODEL_DEFAULTS)",
     )
     c_lk_gate_flow_v_fast: float = Field(
-        0.03, gt=0, description="fast motion for c_lk_gate_flow_s [m/s]"
+        0.1,
+        gt=0,
+        description="fast motion for c_lk_gate_flow_s [m/s]: a slew to a step, faster than "
+        "the jack follows a commanded ramp (docs/estimation.md, WH's defaults for the C_Lk walk)",
     )
     c_lk_gate_adapt: float | None = Field(
         None,
