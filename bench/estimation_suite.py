@@ -6,6 +6,7 @@
     .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --only 3,7   # a few members
     .venv/bin/python bench/estimation_suite.py --seed 6 --only 5 --noise-scale 0.1  # diagnostic
     .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2  # 210 members, recap
+    .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2 --png suite.png  # drawn
 
 Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
 (``service.monitor.MonitorBank``, full channel set, the WH process model unless ``--model``,
@@ -483,6 +484,12 @@ def main(argv: list[str] | None = None) -> int:
         "what a perfectly known friction would change)",
     )
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
+    ap.add_argument(
+        "--png",
+        default=None,
+        metavar="F",
+        help="also draw every member (all seeds) against the C_Lk increase and alarm targets",
+    )
     a = ap.parse_args(argv)
     idx = [int(x) for x in a.only.split(",")] if a.only else list(range(a.suite))
     overrides = parse_overrides(ap, a.model, a.set)
@@ -514,6 +521,14 @@ def main(argv: list[str] | None = None) -> int:
         doc = out[a.seed]
     if a.json:
         Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
+    if a.png:
+        from service.plots import plot_suite
+
+        every = [r for d in out.values() for r in d["rows"]]
+        missing = sum(bool(failures(r)) for r in every)
+        title = (f"duty-cycle suite, seeds {','.join(map(str, seeds))}, {a.model}: "
+                 f"{missing} of {len(every)} members miss a target")  # fmt: skip
+        print(f"wrote {plot_suite(every, a.png, title)}")
     return 0
 
 

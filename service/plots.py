@@ -17,6 +17,7 @@ __all__ = [
     "plot_comparison",
     "plot_member",
     "plot_readings",
+    "plot_suite",
 ]
 
 _SIGNALS = (
@@ -174,4 +175,68 @@ def plot_readings(
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="upper right")
     ax.set_title(title)
+    return _save(fig, path)
+
+
+def plot_suite(
+    rows: Sequence[Mapping[str, object]],
+    path: str | Path,
+    title: str = "",
+    inc_target_pct: float = 10.0,
+    delay_target_s: float = 1.0,
+) -> Path:
+    """The duty-cycle suite's members against issue 10's targets (bench/estimation_suite.py
+    rows): left, the C_Lk increase error [%] of the filter's last second (dots, red where it
+    misses) and of the health indicator (rings; none where it abstains) against the true
+    leak ratio, with the +-``inc_target_pct`` band; right, the leak alarm's delay after the
+    true crossing [s] against the first observable window (``obs``) [s], with the
+    ``delay_target_s`` lines and delay = obs (no alarm can come before that window).
+    Values past the axes are drawn on their edge as triangles."""
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
+    lim = 5.0 * inc_target_pct
+    leaks = [r for r in rows if r.get("inc%") is not None]
+    x = np.array([float(r["leak_ratio"]) for r in leaks])
+    inc = np.array([float(r["inc%"]) for r in leaks])
+    miss = np.abs(inc) > inc_target_pct
+    ax1.axhspan(-inc_target_pct, inc_target_pct, color="C2", alpha=0.15,
+                label=f"target +-{inc_target_pct:g} %")  # fmt: skip
+    for sel, colour, label in ((~miss, "C0", "filter, last second"), (miss, "C3", "... missing")):
+        v = inc[sel]
+        out = np.abs(v) > lim
+        ax1.scatter(x[sel][~out], v[~out], s=14, color=colour, label=label)
+        ax1.scatter(x[sel][out], np.sign(v[out]) * lim, s=30, marker="^", color=colour)
+    ind = [(float(r["leak_ratio"]), float(r["ind%"])) for r in leaks if r.get("ind%") is not None]
+    if ind:
+        xi, vi = np.array(ind).T
+        ax1.scatter(xi, np.clip(vi, -lim, lim), s=40, facecolors="none", edgecolors="k",
+                    lw=0.7, label=f"health indicator ({len(ind)} of {len(leaks)} read)")  # fmt: skip
+    ax1.set_ylim(-lim * 1.05, lim * 1.05)
+    ax1.set_xlabel("true leak at the end / nominal C_Lk")
+    ax1.set_ylabel("C_Lk increase error [%]")
+    ax1.grid(True, alpha=0.3)
+    ax1.legend(fontsize=8, loc="upper right")
+    alarms = [r for r in rows if r.get("delay") is not None and r.get("obs") is not None]
+    d_max = 4.0 * delay_target_s
+    ax2.axhline(delay_target_s, color="C3", ls="--", lw=0.8, label="target")
+    ax2.axvline(delay_target_s, color="C1", ls=":", lw=0.8)
+    ax2.plot([0.0, d_max], [0.0, d_max], "k", lw=0.6, label="delay = first window")
+    for name, colour in (("within", "C0"), ("late", "C3"), ("late, no window in time", "C1")):
+        pts = []
+        for r in alarms:
+            d, o = float(r["delay"]), float(r["obs"])
+            kind = ("within" if d <= delay_target_s
+                    else "late, no window in time" if o > delay_target_s else "late")  # fmt: skip
+            if kind == name:
+                pts.append((min(o, d_max), min(d, d_max), d > d_max or o > d_max))
+        if pts:
+            o, d, clipped = (np.array(v) for v in zip(*pts, strict=True))
+            ax2.scatter(o[~clipped], d[~clipped], s=16, color=colour, label=f"{name} ({len(pts)})")
+            ax2.scatter(o[clipped], d[clipped], s=30, marker="^", color=colour)
+    ax2.set_xlim(0.0, d_max * 1.05)
+    ax2.set_ylim(min(-0.3, ax2.get_ylim()[0]), d_max * 1.05)
+    ax2.set_xlabel("first observable window after the crossing [s]")
+    ax2.set_ylabel("leak alarm after the crossing [s]")
+    ax2.grid(True, alpha=0.3)
+    ax2.legend(fontsize=8, loc="upper left")
+    fig.suptitle(title)
     return _save(fig, path)

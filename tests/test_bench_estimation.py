@@ -341,8 +341,10 @@ def test_estimation_suite_several_seeds_in_one_run(tmp_path):
     written with them."""
     out, one = tmp_path / "two.json", tmp_path / "one.json"
     common = ("--suite", "1", "--workers", "1", "--json")
-    r = _run("estimation_suite.py", "--seeds", "2,1", *common, str(out))
+    png = tmp_path / "s.png"
+    r = _run("estimation_suite.py", "--seeds", "2,1", *common, str(out), "--png", str(png))
     assert r.returncode == 0, r.stderr
+    assert r.stdout.rstrip().endswith(f"wrote {png}") and png.read_bytes()[:4] == b"\x89PNG"
     assert "suite seed 2, 1 duty cycles" in r.stdout and "suite seed 1, 1 duty cycles" in r.stdout
     assert "all seeds: " in r.stdout and "of 2 members miss a target" in r.stdout
     d = json.loads(out.read_text())
@@ -375,3 +377,51 @@ def test_above_raise_finds_the_longest_run_by_hand():
     assert "40 ms from 0.080 s (persistence 50 ms)" in line
     assert "peak 3.10x" in line and "sigma 0.18-0.22x" in line
     assert "never" in above_raise(t, np.ones(20), sigma, 2.5, 0.05)
+
+
+def test_plot_suite_draws_every_member_where_it_belongs(tmp_path, monkeypatch):
+    """--png of the suite: the left panel holds each leak member's increase error (red where
+    off by more than 10 %, on the edge as a triangle past +-50 %) and a ring for each
+    indicator reading; the right panel each alarm by kind, clipped at 4 s."""
+    import service.plots as plots
+
+    def row(name, x, inc=None, ind=None, delay=None, obs=None):
+        return {"name": name, "leak_ratio": x, "inc%": inc, "ind%": ind, "delay": delay,
+                "obs": obs}  # fmt: skip
+
+    rows = [
+        row("h", 1.0),  # healthy: in neither panel
+        row("a", 1.6, inc=3.0, ind=2.0),
+        row("b", 1.8, inc=-14.0, ind=None),
+        row("c", 3.5, inc=70.0, ind=8.0, delay=0.2, obs=0.05),
+        row("d", 4.0, inc=1.0, delay=1.4, obs=0.3),
+        row("e", 4.5, inc=-2.0, ind=-1.0, delay=6.2, obs=1.3),
+    ]
+    seen = {}
+
+    def keep(fig, path, dpi=100):
+        seen["axes"] = fig.axes
+        return Path(path)
+
+    monkeypatch.setattr(plots, "_save", keep)
+    plots.plot_suite(rows, tmp_path / "s.png", "t")
+    ax1, ax2 = seen["axes"]
+
+    def points(ax):
+        return {c.get_label(): c.get_offsets().data.tolist() for c in ax.collections}
+
+    left = points(ax1)
+    assert left["filter, last second"] == [[1.6, 3.0], [4.0, 1.0], [4.5, -2.0]]
+    assert left["... missing"] == [[1.8, -14.0]]
+    tri = [p for k, v in left.items() if k.startswith("_") for p in v]
+    assert tri == [[3.5, 50.0]]  # 70 % drawn on the edge
+    assert left["health indicator (3 of 5 read)"] == [[1.6, 2.0], [3.5, 8.0], [4.5, -1.0]]
+    right = points(ax2)
+    assert right["within (1)"] == [[0.05, 0.2]]
+    assert right["late (1)"] == [[0.3, 1.4]]
+    assert [p for k, v in right.items() if k.startswith("_") for p in v] == [[1.3, 4.0]]
+    assert right["late, no window in time (1)"] == []  # 6.2 s: only its triangle, at 4 s
+    # and the file itself, through the real _save
+    monkeypatch.undo()
+    png = plots.plot_suite(rows, tmp_path / "s.png", "t").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
