@@ -37,6 +37,14 @@ def _save(fig, path: str | Path, dpi: int = 100) -> Path:
     return path
 
 
+def _axes(ax, xlabel: str, ylabel: str, legend: str) -> None:
+    """Axis labels, a light grid and a small legend at ``legend``."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc=legend)
+
+
 def plot_characteristic(
     x_s: np.ndarray,
     q_j: Sequence[float],
@@ -170,10 +178,9 @@ def plot_readings(
                 label=f"+-{flow:.2f} / |P12| (a constant flow error)" if sign > 0 else None)  # fmt: skip
     ax.axhline(0.0, color="k", lw=0.6)
     ax.set_ylim(-0.8, 0.8)
-    ax.set_xlabel("|P12| over the last second [MPa]")
-    ax.set_ylabel("settled C_Lk error [nominal C_Lk]")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8, loc="upper right")
+    _axes(
+        ax, "|P12| over the last second [MPa]", "settled C_Lk error [nominal C_Lk]", "upper right"
+    )
     ax.set_title(title)
     return _save(fig, path)
 
@@ -211,10 +218,7 @@ def plot_suite(
         ax1.scatter(xi, np.clip(vi, -lim, lim), s=40, facecolors="none", edgecolors="k",
                     lw=0.7, label=f"health indicator ({len(ind)} of {len(leaks)} read)")  # fmt: skip
     ax1.set_ylim(-lim * 1.05, lim * 1.05)
-    ax1.set_xlabel("true leak at the end / nominal C_Lk")
-    ax1.set_ylabel("C_Lk increase error [%]")
-    ax1.grid(True, alpha=0.3)
-    ax1.legend(fontsize=8, loc="upper right")
+    _axes(ax1, "true leak at the end / nominal C_Lk", "C_Lk increase error [%]", "upper right")
     alarms = [r for r in rows if r.get("delay") is not None and r.get("obs") is not None]
     d_max = 4.0 * delay_target_s
     ax2.axhline(delay_target_s, color="C3", ls="--", lw=0.8, label="target")
@@ -234,9 +238,7 @@ def plot_suite(
             ax2.scatter(o[clipped], d[clipped], s=30, marker="^", color=colour)
     ax2.set_xlim(0.0, d_max * 1.05)
     ax2.set_ylim(min(-0.3, ax2.get_ylim()[0]), d_max * 1.05)
-    ax2.set_xlabel("first observable window after the crossing [s]")
-    ax2.set_ylabel("leak alarm after the crossing [s]")
-    ax2.grid(True, alpha=0.3)
-    ax2.legend(fontsize=8, loc="upper left")
+    _axes(ax2, "first observable window after the crossing [s]",
+          "leak alarm after the crossing [s]", "upper left")  # fmt: skip
     fig.suptitle(title)
     return _save(fig, path)
