@@ -60,7 +60,7 @@ def test_the_cap_removes_the_false_alarms_after_a_long_hold():
     and dc1_013 (a 1.9x ramp, |P12| under the gate for 2 s, then a load ramp): uncapped, the
     first samples after the gate reopens carry C_Lk past 2.5x while the truth is below the
     2x clear level, a false leak alarm; with the cap, none, and dc4_011's true alarm comes at
-    the same time. Both with the C-types' alarm (sigma(C_Lk) below 1x baseline): WH's own
+    the same time (within 5 ms). Both with the C-types' alarm (sigma(C_Lk) below 1x baseline): WH's own
     (below 0.6x) would also keep these alarms down."""
     suite = _suite()
     alarm = {"alarms": {"leak_max_sigma": 1.0}}
@@ -70,5 +70,6 @@ def test_the_cap_removes_the_false_alarms_after_a_long_hold():
         capped = suite.run_one(dc, model="WH", overrides=alarm)
         assert free["false"] == 1 and capped["false"] == 0, (seed, index)
         raised = [a[0] for a in capped["alarms"] if a[1:] == ("leak", "raised")]
-        if seed == 4:
-            assert raised == [a[0] for a in free["alarms"] if a[1:] == ("leak", "raised")][-1:]
+        if seed == 4:  # the true alarm: the free run's last raise, within a few samples
+            free_raised = [a[0] for a in free["alarms"] if a[1:] == ("leak", "raised")][-1:]
+            assert len(raised) == 1 and raised[0] == pytest.approx(free_raised[0], abs=0.005)
