@@ -18,6 +18,7 @@ __all__ = [
     "plot_member",
     "plot_readings",
     "plot_suite",
+    "plot_bound",
 ]
 
 _SIGNALS = (
@@ -241,4 +242,61 @@ def plot_suite(
     _axes(ax2, "first observable window after the crossing [s]",
           "leak alarm after the crossing [s]", "upper left")  # fmt: skip
     fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_bound(
+    rows: Sequence[Mapping[str, object]],
+    path: str | Path,
+    title: str = "",
+    inc_target_pct: float = 10.0,
+    delay_target_s: float = 1.0,
+) -> Path:
+    """The monitor's suite figures beside what its sensors carry (bench/suite_bound.py rows
+    with the monitor's ``inc%`` and ``delay``): left, the increase error [%] of the filter
+    (dots, red where it misses the target) against the leak ratio, over the band of +-3
+    Cramer-Rao sigma an ideal estimator would keep to with the plant unknown (grey bars;
+    ``sigma%``, else ``sigma_known%``); right, the alarm's delay against the ideal test's
+    (``t_ideal``) [s]. Values past the axes are drawn on their edge as triangles."""
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
+    lim = 5.0 * inc_target_pct
+    leaks = [r for r in rows if r.get("d_inc") is not None]
+    ax1.axhspan(-inc_target_pct, inc_target_pct, color="C2", alpha=0.15,
+                label=f"target +-{inc_target_pct:g} %")  # fmt: skip
+    bars = [
+        (float(r["leak_ratio"]), 3.0 * float(r.get("sigma%") or r.get("sigma_known%") or 0.0))
+        for r in leaks
+    ]
+    if bars:
+        xb, hb = np.array(bars).T
+        ax1.vlines(xb, -hb, hb, color="0.4", lw=3, label="ideal estimator, +-3 sigma")
+    read = [r for r in leaks if r.get("inc%") is not None]
+    x = np.array([float(r["leak_ratio"]) for r in read])
+    inc = np.array([float(r["inc%"]) for r in read])
+    miss = np.abs(inc) > inc_target_pct
+    for sel, colour, label in ((~miss, "C0", "monitor"), (miss, "C3", "... missing")):
+        v = inc[sel]
+        out = np.abs(v) > lim
+        ax1.scatter(x[sel][~out], v[~out], s=14, color=colour, label=label)
+        ax1.scatter(x[sel][out], np.sign(v[out]) * lim, s=30, marker="^", color=colour)
+    ax1.set_ylim(-lim * 1.05, lim * 1.05)
+    _axes(ax1, "true leak ratio [x nominal]", "C_Lk increase error [% of the true increase]",
+          "upper left")  # fmt: skip
+    alarms = [r for r in leaks if r.get("t_ideal") is not None and r.get("delay") is not None]
+    d_max = 4.0 * delay_target_s
+    xi = np.array([float(r["t_ideal"]) for r in alarms])
+    dl = np.array([float(r["delay"]) for r in alarms])
+    late = dl > delay_target_s
+    for sel, colour, label in ((~late, "C0", "within"), (late, "C3", "late")):
+        v = dl[sel]
+        out = v > d_max
+        ax2.scatter(xi[sel][~out], v[~out], s=14, color=colour, label=f"{label} ({sel.sum()})")
+        ax2.scatter(xi[sel][out], np.full(out.sum(), d_max), s=30, marker="^", color=colour)
+    ax2.axhline(delay_target_s, color="C2", ls="--", lw=1, label=f"target {delay_target_s:g} s")
+    ax2.axvline(delay_target_s, color="C2", ls=":", lw=1)
+    ax2.set_ylim(top=d_max * 1.05)
+    _axes(ax2, "ideal test's delay after the crossing [s]", "monitor's alarm delay [s]",
+          "upper left")  # fmt: skip
+    if title:
+        fig.suptitle(title)
     return _save(fig, path)
