@@ -130,6 +130,16 @@ def whitened(sim, sensors: SensorNoise) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
+def without(sensors: SensorNoise, drop: tuple[str, ...]) -> SensorNoise:
+    """``sensors`` with the channels ``drop`` (names of ``CHANNELS``; ``p`` for P1 and P2,
+    which share one noise figure) taken out of the bound (their sigma set to 0)."""
+    fields = {f for ch, f in CHANNELS if ch in drop or (ch in ("p1", "p2") and "p" in drop)}
+    unknown = set(drop) - {ch for ch, _ in CHANNELS} - {"p"}
+    if unknown:
+        raise ValueError(f"unknown channel(s) {sorted(unknown)}; expected i, x_s, x_j, p")
+    return sensors.model_copy(update={f: 0.0 for f in fields})
+
+
 def measured_names(sensors: SensorNoise) -> list[str]:
     """The channels of ``whitened``, in its column order."""
     return [ch for ch, f in CHANNELS if float(getattr(sensors, f)) > 0]
@@ -155,7 +165,9 @@ def load_bump(load: Profile, t0: float, t1: float, force_n: float) -> Profile:
     return load.model_copy(update={"periodic": [*load.periodic, bump]})
 
 
-def nuisance_jacobians(dc, h: float = STEP_REL, load_piece_s: float = LOAD_PIECE_S):
+def nuisance_jacobians(
+    dc, h: float = STEP_REL, load_piece_s: float = LOAD_PIECE_S, drop: tuple[str, ...] = ()
+):
     """Whitened sensitivities of the test run and of the calibration run to every unknown of
     the plant: the generator's tolerances (per unit of relative change, central secants of
     relative size ``h``), the supply drops' depth where there are any, and the external load
@@ -182,7 +194,7 @@ def nuisance_jacobians(dc, h: float = STEP_REL, load_piece_s: float = LOAD_PIECE
             )
         out_every = max(1, int(round(1.0 / (scn.sensors.rate_hz * scn.step_s))))
         sim = simulate(scn.model_copy(update=upd), "HF", out_every=out_every)
-        return whitened(sim, scn.sensors)
+        return whitened(sim, without(scn.sensors, drop))
 
     j_test, j_cal, names = [], [], []
     for n in tols:
@@ -240,6 +252,7 @@ def member_bound(
     index: int,
     nuisance: bool = True,
     load_piece_s: float = LOAD_PIECE_S,
+    drop: tuple[str, ...] = (),
 ) -> dict:
     """The bound of the module docstring for member ``index`` of suite ``seed``."""
     from models.dutycycle import duty_cycle
@@ -250,7 +263,7 @@ def member_bound(
     if dc.leak_t is None:
         return row
     sc = dc.test
-    sn = sc.sensors
+    sn = without(sc.sensors, drop)
     out_every = max(1, int(round(1.0 / (sn.rate_hz * sc.step_s))))
     c0 = float(sc.leak.initial)
     t_l, t_end = dc.leak_t
@@ -282,7 +295,7 @@ def member_bound(
     )
     jac = None
     if nuisance:
-        jac = nuisance_jacobians(dc, load_piece_s=load_piece_s)
+        jac = nuisance_jacobians(dc, load_piece_s=load_piece_s, drop=drop)
         j_k = (y_edge[0] - y_edge[1]) / (2.0 * INC_EDGE)  # the secant across the target band
         s_known, s_unknown = crb_scale(j_k, *jac[:2])
         row["sigma_known%"] = 100.0 * s_known
@@ -308,8 +321,9 @@ def member_bound(
     return row
 
 
-def _job(args: tuple[int, int, bool]) -> dict:
-    return member_bound(*args)
+def _job(args: tuple[int, int, bool, tuple[str, ...]]) -> dict:
+    seed, index, nuisance, drop = args
+    return member_bound(seed, index, nuisance, drop=drop)
 
 
 def _f(v, spec: str, width: int) -> str:
@@ -449,6 +463,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--channels", action="store_true", help="also print d' per channel")
     ap.add_argument(
+        "--drop",
+        default="",
+        metavar="CH,CH",
+        help="leave these channels out of the bound (i, x_s, x_j, p), e.g. --drop i,x_s",
+    )
+    ap.add_argument(
         "--known-plant",
         action="store_true",
         help="skip the bound with the plant's tolerances unknown (about 10x faster)",
@@ -477,7 +497,12 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError, KeyError, TypeError) as exc:
             ap.error(f"--suite-json {a.suite_json}: {exc}")
     t0 = time.perf_counter()
-    jobs = [(s, k, not a.known_plant) for s in seeds for k in idx]
+    drop = tuple(c for c in a.drop.split(",") if c)
+    try:
+        without(SensorNoise(), drop)
+    except ValueError as exc:
+        ap.error(f"--drop {a.drop!r}: {exc}")
+    jobs = [(s, k, not a.known_plant, drop) for s in seeds for k in idx]
     print(f"{len(jobs)} members, {a.workers} worker(s) ...", flush=True)
     rows = run_jobs(_job, jobs, a.workers)
     if monitor:

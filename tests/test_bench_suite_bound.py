@@ -201,3 +201,21 @@ def test_plot_bound_draws_the_monitor_over_the_bound(tmp_path, monkeypatch, caps
     with pytest.raises(SystemExit):
         sb.main(["--seed", "1", "--only", "1", "--png", str(tmp_path / "x.png")])
     assert "--suite-json" in capsys.readouterr().err
+
+
+def test_dropped_channels_leave_the_bound():
+    sn = SensorNoise(x_s_m=1e-6, x_j_m=1e-4, p_pa=5e4, current_a=1e-5)
+    assert sb.measured_names(sb.without(sn, ("i", "x_s"))) == ["x_j", "p1", "p2"]
+    assert sb.measured_names(sb.without(sn, ("p",))) == ["i", "x_s", "x_j"]
+    with pytest.raises(ValueError, match="x_k"):
+        sb.without(sn, ("x_k",))
+    y0 = _outputs()
+    y1 = _outputs(i=np.ones(2), x_j=np.array([1e-4, 0.0]))
+    # the current's 1e5 sigma of difference is gone, x_J's 1 sigma stays
+    assert sb.dprime2_series(y0, y1, sb.without(sn, ("i",))).sum() == pytest.approx(1.0)
+
+
+def test_cli_rejects_an_unknown_channel(capsys):
+    with pytest.raises(SystemExit):
+        sb.main(["--seed", "1", "--only", "1", "--drop", "i,q"])
+    assert "--drop" in capsys.readouterr().err
