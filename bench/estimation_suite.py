@@ -52,7 +52,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from models.dutycycle import DutyCycle, duty_cycle, scale_noise  # noqa: E402
+from models.dutycycle import DutyCycle, duty_cycle, ecu_noisy_x_j, scale_noise  # noqa: E402
 
 TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "reinit": 0}
 IND_WINDOW_S = 2.0  # the generator keeps the last 2.5 s free of leak and supply changes
@@ -235,9 +235,11 @@ def run_one(
     return out
 
 
-def _job(args: tuple[int, int, bool, str, dict, float, bool]) -> dict:
-    seed, index, fixed, model, overrides, noise, friction = args
+def _job(args: tuple[int, int, bool, str, dict, float, bool, bool]) -> dict:
+    seed, index, fixed, model, overrides, noise, friction, noisy_loop = args
     dc = scale_noise(duty_cycle(seed, index), noise)  # noise 1: the member as drawn
+    if noisy_loop:
+        dc = ecu_noisy_x_j(dc)
     return run_one(dc, fixed, model, overrides, plant_friction=friction)
 
 
@@ -483,6 +485,12 @@ def main(argv: list[str] | None = None) -> int:
         help="give each calibrated baseline its plant's own friction F_d, F_s (a diagnostic: "
         "what a perfectly known friction would change)",
     )
+    ap.add_argument(
+        "--ecu-noisy-x-j",
+        action="store_true",
+        help="the ECU closes its loop on the noisy x_J reading, as an actuator's does, not on "
+        "the true x_J (a diagnostic: the bench's loop is otherwise noise-free)",
+    )
     ap.add_argument("--json", default=None, help="write rows and summary to this file")
     ap.add_argument(
         "--png",
@@ -495,7 +503,16 @@ def main(argv: list[str] | None = None) -> int:
     overrides = parse_overrides(ap, a.model, a.set)
     seeds = a.seeds or [a.seed]
     jobs = [
-        (seed, i, a.fixed_noise, a.model, overrides, a.noise_scale, a.plant_friction)
+        (
+            seed,
+            i,
+            a.fixed_noise,
+            a.model,
+            overrides,
+            a.noise_scale,
+            a.plant_friction,
+            a.ecu_noisy_x_j,
+        )
         for seed in seeds
         for i in idx
     ]

@@ -287,6 +287,20 @@ def scale_noise(dc: DutyCycle, factor: float) -> DutyCycle:
     )
 
 
+def ecu_noisy_x_j(dc: DutyCycle) -> DutyCycle:
+    """``dc`` with the ECU closing its position loop on the jack LVDT's noisy reading in both
+    segments (``SensorNoise.ecu_noisy_x_j``; the same draws), as an actuator's ECU does,
+    instead of on the true x_J. A diagnostic: the suite's bench leaves the loop noise-free,
+    so its current and spool follow the true jack (docs/estimation.md, "An information
+    bound on the suite's targets")."""
+
+    def noisy_loop(sc: Scenario) -> Scenario:
+        s = sc.sensors
+        return sc.model_copy(update={"sensors": s.model_copy(update={"ecu_noisy_x_j": True})})
+
+    return replace(dc, calibration=noisy_loop(dc.calibration), test=noisy_loop(dc.test))
+
+
 def nominal_plant(dc: DutyCycle, frictionless: bool = False) -> DutyCycle:
     """``dc`` with its plant at the datasheet values (``EHAParams()``, none of ``_plant``'s
     tolerances) in both segments; the duty cycle, faults and noise are kept (the draws are

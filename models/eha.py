@@ -203,11 +203,14 @@ def _piecewise_constant(scenario: Scenario) -> bool:
     return all(not p.periodic and all(e.ramp_s == 0 for e in p.events) for p in profiles)
 
 
-def _segments(scenario: Scenario, params: EHAParams, h: float, n_steps: int):
+def _segments(
+    scenario: Scenario, params: EHAParams, h: float, n_steps: int, per_step: bool = False
+):
     """Yield (k0, n, u): ``n`` steps from global step k0 with inputs ``u`` (one row per step,
-    or a single row when the inputs are constant over the segment). Inputs are the profiles
-    at mid-step, so a step or kink placed on a step boundary is honoured exactly."""
-    if _piecewise_constant(scenario):
+    or a single row when the inputs are constant over the segment and not ``per_step``).
+    Inputs are the profiles at mid-step, so a step or kink placed on a step boundary is
+    honoured exactly."""
+    if _piecewise_constant(scenario) and not per_step:
         cuts = {0, n_steps}
         for prof in (scenario.command, scenario.load, scenario.supply, scenario.leak):
             if prof is None:
@@ -257,13 +260,16 @@ def simulate(
     *,
     out_every: int = 1,
     progress: Callable[[float], None] | None = None,
+    x_fb_noise: NDArray | None = None,
 ) -> SimResult:
     """Run the closed-loop bench over ``scenario`` with valve model ``valve`` (fixed step).
 
     Step = scenario.step_s (substeps from :func:`n_substeps`); params=None uses
     scenario.eha_params(). Inputs are held at their mid-step value. Output every
     ``out_every`` steps from t = 0. ``progress`` receives the fraction done, at most about
-    five times per second and once at the end.
+    five times per second and once at the end. ``x_fb_noise`` [m], one value per output
+    sample: the error of the ECU's position feedback, held from its sample to the next
+    (I_c = K_p (x_cmd - x_J - n), fed as a command of x_cmd - n); None = the true x_J.
     """
     model = _check_valve(valve)
     if out_every < 1:
@@ -279,9 +285,16 @@ def simulate(
     y = initial_state(params, valve, float(u0[2]), float(u0[3]))
     states = np.empty((n_out, kern.N_STATE))
     states[0] = y
+    if x_fb_noise is not None:
+        x_fb_noise = np.asarray(x_fb_noise, float)
+        if x_fb_noise.shape != (n_out,) or not np.all(np.isfinite(x_fb_noise)):
+            raise ValueError(f"x_fb_noise: expected {n_out} finite values, one per output sample")
     wall0 = time.perf_counter()
     last_report = wall0
-    for k0, m, u in _segments(scenario, params, h, n_steps):
+    for k0, m, u in _segments(scenario, params, h, n_steps, per_step=x_fb_noise is not None):
+        if x_fb_noise is not None:
+            u = u.copy()
+            u[:, 0] -= x_fb_noise[(k0 + np.arange(m)) // out_every]
         kern.integrate(y, h, n_sub, k0, m, u, prm, model, out_every, states)
         if progress is not None:
             now = time.perf_counter()

@@ -100,6 +100,11 @@ class SensorNoise(_Strict):
     current_a: float = Field(0.0, ge=0, description="servovalve current [A]")
     rate_hz: float = Field(1000.0, gt=0, description="sampling rate of the measurements [Hz]")
     seed: int = 0
+    ecu_noisy_x_j: bool = Field(
+        False,
+        description="the ECU closes its position loop on the jack LVDT's noisy reading (the "
+        "x_J channel's own draws, held over each sample), not on the true x_J",
+    )
 
 
 class Scenario(_Strict):

@@ -370,6 +370,9 @@ class VirtualActuator:
         x_cmd, f_r, p_sr0, c_lk0 = (u[name].tolist() for name in ("x_cmd", "f_r", "p_sr", "c_lk"))
         noise = self.rng.standard_normal((n, len(SENSOR_CHANNELS)))
         sig = [self.sigma[ch] for ch in SENSOR_CHANNELS]
+        # the ECU's position feedback: the true x_J, or the LVDT's reading (scenario option)
+        c_xj = SENSOR_CHANNELS.index("x_j")
+        fb_gain = sig[c_xj] if self.scenario.sensors.ecu_noisy_x_j else 0.0
         advance = self.stepper.advance
         faults = self.faults
         for i in range(n):
@@ -399,13 +402,14 @@ class VirtualActuator:
                     meas["p_sr"] = float(p_sr) + sig[-1] * float(noise[i, -1])
                     if faults.bias or faults.dropout:
                         faults.corrupt(t, meas)
+                fb = fb_gain * float(noise[i, c_xj])
                 for j in range(j0, j0 + k):
                     if j > j0:
                         t = t_steps[j]
                         leak, supply = faults.leak, faults.supply
                         c_lk = c_lk0[j] if leak is None else faults.c_lk(t, c_lk0[j])
                         p_sr = p_sr0[j] if supply is None else faults.p_sr(t, p_sr0[j])
-                    advance(1, x_cmd[j], f_r[j], p_sr, c_lk)
+                    advance(1, x_cmd[j] - fb, f_r[j], p_sr, c_lk)
                 self.n_steps += k
             if silent:
                 continue

@@ -72,24 +72,33 @@ def measured_run(
     """
     sn = scenario.sensors
     out_every = max(1, int(round(1.0 / (sn.rate_hz * scenario.step_s))))
-    sim = simulate(scenario, valve, out_every=out_every, progress=progress)
+    n = scenario.n_steps() // out_every + 1
     rng = np.random.default_rng(sn.seed)
-    n = len(sim.t)
+    # the draws in channel order, as they were added after the run before the ECU could
+    # read its own: the same seed gives the same noise either way
+    noise = {
+        ch: s * rng.standard_normal(n) if s > 0 else None
+        for ch, s in (("i", sn.current_a), ("x_s", sn.x_s_m), ("x_j", sn.x_j_m),
+                      ("p1", sn.p_pa), ("p2", sn.p_pa))
+    }  # fmt: skip
+    fb = noise["x_j"] if sn.ecu_noisy_x_j else None
+    sim = simulate(scenario, valve, out_every=out_every, progress=progress, x_fb_noise=fb)
 
-    def noisy(y: NDArray, s: float) -> NDArray:
-        return y + s * rng.standard_normal(n) if s > 0 else y.copy()
+    def noisy(ch: str, y: NDArray) -> NDArray:
+        return y + noise[ch] if noise[ch] is not None else y.copy()
 
     meas = {
         "t": sim.t.copy(),
         "x_cmd": sim.x_cmd.copy(),
-        "i": noisy(sim.i, sn.current_a),
-        "x_s": noisy(sim.x_s, sn.x_s_m),
-        "x_j": noisy(sim.x_j, sn.x_j_m),
-        "p1": noisy(sim.p1, sn.p_pa),
-        "p2": noisy(sim.p2, sn.p_pa),
+        "i": noisy("i", sim.i),
+        "x_s": noisy("x_s", sim.x_s),
+        "x_j": noisy("x_j", sim.x_j),
+        "p1": noisy("p1", sim.p1),
+        "p2": noisy("p2", sim.p2),
     }
     if with_supply_sensor:
-        meas["p_sr"] = noisy(sim.p_sr, sn.p_sr_pa)
+        s = sn.p_sr_pa
+        meas["p_sr"] = sim.p_sr + s * rng.standard_normal(n) if s > 0 else sim.p_sr.copy()
     return sim, meas
 
 
