@@ -1,13 +1,17 @@
 """What any monitor could read from a suite member's sensors: an information bound per member
 of the duty-cycle suite (docs/estimation.md, "An information bound on the suite's targets").
 
-    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2
-    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --suite-json s.json
-    .venv/bin/python bench/suite_bound.py --seed 5 --only 11,17 --png bound.png
+    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --known-plant   # 1 min
+    .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2 --json s.json
+    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --suite-json s.json  # 9 min
+    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --suite-json s.json --png b.png
+    .venv/bin/python bench/suite_bound.py --seed 5 --only 11,27 --known-plant --channels
+    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --drop i,x_s
 
 The suite's truth is the HF bench with white Gaussian sensor noise added to its outputs
 (``service.calibration.measured_run``: the ECU acts on the true signals, the noise is the
-transducers'). Two leak profiles are then two noiseless output sets y0, y1, and with the
+transducers'; ``--drop i,x_s`` leaves out the current and the spool, which follow that
+noise-free loop). Two leak profiles are then two noiseless output sets y0, y1, and with the
 noise's sigma per channel the detectability of their difference is
 
     d'^2 = sum over samples and measured channels (i, x_S, x_J, P1, P2) of ((y1 - y0) / sigma)^2
@@ -30,7 +34,8 @@ Per leak member:
   probability at least ``p_miss`` = Phi(-d'+) + Phi(-d'-); ``d_inc`` under 2 means more than
   about 5 %.
 - ``sigma%``: the same question with the plant's tolerances unknown (the generator's mass,
-  friction, four underlaps, bulk modulus, air, and the supply drops' depth), identified
+  friction, four underlaps, bulk modulus, air, the supply drops' depth, and the external
+  load of each run as a free constant per ``LOAD_PIECE_S``), identified
   jointly from the calibration segment and the test: the Cramer-Rao sigma of the increase
   [% of the true increase] from the Fisher matrix of the whitened sensitivities (secants
   across the 10 % band for the leak, over +-``STEP_REL`` for the others). ``sigma_known%`` is
