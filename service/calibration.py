@@ -74,8 +74,8 @@ def measured_run(
     out_every = max(1, int(round(1.0 / (sn.rate_hz * scenario.step_s))))
     n = scenario.n_steps() // out_every + 1
     rng = np.random.default_rng(sn.seed)
-    # the draws in channel order, as they were added after the run before the ECU could
-    # read its own: the same seed gives the same noise either way
+    # drawn before the run, in the order the channels have always been drawn (i, x_S, x_J,
+    # P1, P2, then P_SR): a seed gives the same draws whether or not the ECU reads x_J's
     noise = {
         ch: s * rng.standard_normal(n) if s > 0 else None
         for ch, s in (("i", sn.current_a), ("x_s", sn.x_s_m), ("x_j", sn.x_j_m),
