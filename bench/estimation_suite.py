@@ -7,6 +7,7 @@
     .venv/bin/python bench/estimation_suite.py --seed 6 --only 5 --noise-scale 0.1  # diagnostic
     .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2  # 210 members, recap
     .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2 --png suite.png  # drawn
+    .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2 --ecu-noisy-x-j  # real loop
 
 Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
 (``service.monitor.MonitorBank``, full channel set, the WH process model unless ``--model``,
