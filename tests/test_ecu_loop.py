@@ -85,3 +85,19 @@ def test_the_suite_option_reaches_both_segments():
     assert dc.calibration.sensors.ecu_noisy_x_j and dc.test.sensors.ecu_noisy_x_j
     assert dc.test.sensors.x_j_m == duty_cycle(1, 1).test.sensors.x_j_m
     assert not duty_cycle(1, 1).test.sensors.ecu_noisy_x_j
+
+
+def test_the_measured_run_draws_in_the_published_order():
+    """Every published figure is reproducible from a scenario's seed: the noise is the seed's
+    standard normal draws, one array per channel in the order i, x_S, x_J, P1, P2, then P_SR
+    (a channel without noise draws nothing), times the channel's sigma."""
+    sn = dict(x_j_m=50e-6, x_s_m=0.0, p_pa=5e4, p_sr_pa=2e4, current_a=1e-5, seed=11)
+    sim, m = measured_run(_scenario(**sn), with_supply_sensor=True)
+    n = len(sim.t)
+    z = np.random.default_rng(11).standard_normal((5, n))  # i, x_J, P1, P2, P_SR (no x_S)
+    np.testing.assert_array_equal(m["i"], sim.i + 1e-5 * z[0])
+    np.testing.assert_array_equal(m["x_s"], sim.x_s)
+    np.testing.assert_array_equal(m["x_j"], sim.x_j + 50e-6 * z[1])
+    np.testing.assert_array_equal(m["p1"], sim.p1 + 5e4 * z[2])
+    np.testing.assert_array_equal(m["p2"], sim.p2 + 5e4 * z[3])
+    np.testing.assert_array_equal(m["p_sr"], sim.p_sr + 2e4 * z[4])
