@@ -186,6 +186,21 @@ def plot_readings(
     return _save(fig, path)
 
 
+def _increase_errors(ax, x: np.ndarray, inc: np.ndarray, target_pct: float, label: str) -> float:
+    """The +-``target_pct`` band and the C_Lk increase errors ``inc`` [%] against ``x``: dots
+    labelled ``label`` (red, "... missing", past the target), those past 5 x the target on
+    that edge as triangles. Returns the edge."""
+    lim = 5.0 * target_pct
+    ax.axhspan(-target_pct, target_pct, color="C2", alpha=0.15, label=f"target +-{target_pct:g} %")
+    miss = np.abs(inc) > target_pct
+    for sel, colour, name in ((~miss, "C0", label), (miss, "C3", "... missing")):
+        v = inc[sel]
+        out = np.abs(v) > lim
+        ax.scatter(x[sel][~out], v[~out], s=14, color=colour, label=name)
+        ax.scatter(x[sel][out], np.sign(v[out]) * lim, s=30, marker="^", color=colour)
+    return lim
+
+
 def plot_suite(
     rows: Sequence[Mapping[str, object]],
     path: str | Path,
@@ -201,18 +216,10 @@ def plot_suite(
     ``delay_target_s`` lines and delay = obs (no alarm can come before that window).
     Values past the axes are drawn on their edge as triangles."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
-    lim = 5.0 * inc_target_pct
     leaks = [r for r in rows if r.get("inc%") is not None]
     x = np.array([float(r["leak_ratio"]) for r in leaks])
     inc = np.array([float(r["inc%"]) for r in leaks])
-    miss = np.abs(inc) > inc_target_pct
-    ax1.axhspan(-inc_target_pct, inc_target_pct, color="C2", alpha=0.15,
-                label=f"target +-{inc_target_pct:g} %")  # fmt: skip
-    for sel, colour, label in ((~miss, "C0", "filter, last second"), (miss, "C3", "... missing")):
-        v = inc[sel]
-        out = np.abs(v) > lim
-        ax1.scatter(x[sel][~out], v[~out], s=14, color=colour, label=label)
-        ax1.scatter(x[sel][out], np.sign(v[out]) * lim, s=30, marker="^", color=colour)
+    lim = _increase_errors(ax1, x, inc, inc_target_pct, "filter, last second")
     ind = [(float(r["leak_ratio"]), float(r["ind%"])) for r in leaks if r.get("ind%") is not None]
     if ind:
         xi, vi = np.array(ind).T
@@ -259,10 +266,7 @@ def plot_bound(
     ``sigma%``, else ``sigma_known%``); right, the alarm's delay against the ideal test's
     (``t_ideal``) [s]. Values past the axes are drawn on their edge as triangles."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5))
-    lim = 5.0 * inc_target_pct
     leaks = [r for r in rows if r.get("d_inc") is not None]
-    ax1.axhspan(-inc_target_pct, inc_target_pct, color="C2", alpha=0.15,
-                label=f"target +-{inc_target_pct:g} %")  # fmt: skip
     bars = [
         (float(r["leak_ratio"]), 3.0 * float(r.get("sigma%") or r.get("sigma_known%") or 0.0))
         for r in leaks
@@ -273,12 +277,7 @@ def plot_bound(
     read = [r for r in leaks if r.get("inc%") is not None]
     x = np.array([float(r["leak_ratio"]) for r in read])
     inc = np.array([float(r["inc%"]) for r in read])
-    miss = np.abs(inc) > inc_target_pct
-    for sel, colour, label in ((~miss, "C0", "monitor"), (miss, "C3", "... missing")):
-        v = inc[sel]
-        out = np.abs(v) > lim
-        ax1.scatter(x[sel][~out], v[~out], s=14, color=colour, label=label)
-        ax1.scatter(x[sel][out], np.sign(v[out]) * lim, s=30, marker="^", color=colour)
+    lim = _increase_errors(ax1, x, inc, inc_target_pct, "monitor")
     ax1.set_ylim(-lim * 1.05, lim * 1.05)
     _axes(ax1, "true leak ratio [x nominal]", "C_Lk increase error [% of the true increase]",
           "upper left")  # fmt: skip
