@@ -326,9 +326,9 @@ def member_bound(
     return row
 
 
-def _job(args: tuple[int, int, bool, tuple[str, ...]]) -> dict:
-    seed, index, nuisance, drop = args
-    return member_bound(seed, index, nuisance, drop=drop)
+def _job(args: tuple[int, int, bool, tuple[str, ...], float]) -> dict:
+    seed, index, nuisance, drop, piece = args
+    return member_bound(seed, index, nuisance, drop=drop, load_piece_s=piece)
 
 
 def _f(v, spec: str, width: int) -> str:
@@ -478,6 +478,13 @@ def main(argv: list[str] | None = None) -> int:
         help="leave these channels out of the bound (i, x_s, x_j, p), e.g. --drop i,x_s",
     )
     ap.add_argument(
+        "--load-piece",
+        type=float,
+        default=LOAD_PIECE_S,
+        metavar="S",
+        help=f"the unknown load's piece length [s] (default {LOAD_PIECE_S}; 0: the load known)",
+    )
+    ap.add_argument(
         "--known-plant",
         action="store_true",
         help="skip the bound with the plant's tolerances unknown (about 10x faster)",
@@ -495,6 +502,8 @@ def main(argv: list[str] | None = None) -> int:
         idx = list(range(a.suite))
     if a.suite < 1 or a.workers < 1:
         ap.error("--suite and --workers must be at least 1")
+    if not a.load_piece >= 0:
+        ap.error(f"--load-piece {a.load_piece}: expected a length >= 0 [s]")
     if a.png and not a.suite_json:
         ap.error("--png draws the monitor's figures: give --suite-json too")
     monitor: dict[str, dict] = {}
@@ -511,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
         without(SensorNoise(), drop)
     except ValueError as exc:
         ap.error(f"--drop {a.drop!r}: {exc}")
-    jobs = [(s, k, not a.known_plant, drop) for s in seeds for k in idx]
+    jobs = [(s, k, not a.known_plant, drop, a.load_piece) for s in seeds for k in idx]
     print(f"{len(jobs)} members, {a.workers} worker(s) ...", flush=True)
     rows = run_jobs(_job, jobs, a.workers)
     if monitor:

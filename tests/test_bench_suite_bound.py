@@ -219,3 +219,6 @@ def test_cli_rejects_an_unknown_channel(capsys):
     with pytest.raises(SystemExit):
         sb.main(["--seed", "1", "--only", "1", "--drop", "i,q"])
     assert "--drop" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        sb.main(["--seed", "1", "--only", "1", "--load-piece", "-1"])
+    assert "--load-piece" in capsys.readouterr().err
