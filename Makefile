@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed-stamp
 KERNEL_SRC := $(wildcard models/*.py service/monitor/*.py service/compat/*.py) service/ukf.py service/messages.py service/log/codec.py
 KERNELS := $(VENV)/.kernels-stamp
 
-.PHONY: demo test test-fast lint format bench clean
+.PHONY: demo fleet-page test test-fast lint format bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,13 @@ $(KERNELS): $(STAMP) $(KERNEL_SRC)
 
 demo: $(KERNELS)
 	$(VENV)/bin/servowatch demo
+
+# the fleet page on a simulated fleet: 12 units with hidden wear laws through the real monitor
+# (servowatch fleet-sim), served read only on http://127.0.0.1:8080/ until Ctrl-C
+FLEET_DEMO ?= servowatch-data/fleet-demo.sqlite
+fleet-page: $(KERNELS)
+	test -e $(FLEET_DEMO) || $(VENV)/bin/servowatch fleet-sim --actuators 12 --flights 5 --seed 3 --store $(FLEET_DEMO) --truth servowatch-data/fleet-demo-truth.json
+	$(VENV)/bin/servowatch web --store $(FLEET_DEMO)
 
 test: $(KERNELS)
 	$(PY) -m pytest -q

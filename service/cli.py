@@ -23,6 +23,7 @@ COMMANDS: tuple[str, ...] = (
     "calibrate",
     "baselines",
     "fleet",
+    "web",
     "rul",
     "fleet-sim",
     "actuator",

@@ -1,0 +1,279 @@
+// servowatch fleet page: reads /api/fleet (ranked units) and /api/unit?name= (one unit's
+// history) and draws them. Every value from the store is set as text, never as markup.
+"use strict";
+
+const SVG = "http://www.w3.org/2000/svg";
+const STATUS_LABEL = { critical: "critical", watch: "watch", ok: "ok", uncommissioned: "not commissioned" };
+const BAR_W = 220, BAR_H = 16;
+let fleet = null;
+let selected = null;
+
+const $ = (id) => document.getElementById(id);
+
+function el(tag, attrs, text) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, v);
+  if (text !== undefined && text !== null) e.textContent = String(text);
+  return e;
+}
+
+function svg(tag, attrs, text) {
+  const e = document.createElementNS(SVG, tag);
+  for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, String(v));
+  if (text !== undefined) e.textContent = String(text);
+  return e;
+}
+
+function num(v) { return typeof v === "number" && isFinite(v) ? v : null; }
+function fmt(v, digits, scale) {
+  const n = num(v);
+  return n === null ? "-" : (n * (scale || 1)).toFixed(digits);
+}
+
+function niceTicks(max, n) {
+  // about n round ticks over [0, max]: steps of 1, 2 or 5 x 10^k
+  const raw = max / Math.max(n, 1);
+  const p = Math.pow(10, Math.floor(Math.log10(raw)));
+  const step = [1, 2, 5, 10].map((m) => m * p).find((s) => s >= raw) || raw;
+  const out = [];
+  for (let v = 0; v <= max * (1 + 1e-9); v += step) out.push(v);
+  return { ticks: out, step };
+}
+
+function tickText(v, step) { return v.toFixed(step >= 1 ? 0 : Math.min(3, Math.ceil(-Math.log10(step)))); }
+
+function banner(text) {
+  const b = $("banner");
+  b.hidden = !text;
+  b.textContent = text || "";
+}
+
+async function getJSON(url) {
+  const r = await fetch(url, { cache: "no-store" });
+  let body = null;
+  try { body = await r.json(); } catch (e) { body = null; }
+  if (!r.ok) throw new Error((body && body.error) || `${url}: HTTP ${r.status}`);
+  return body;
+}
+
+function rulText(u) {
+  const iv = u.rul_interval;
+  const rul = u.rul || {};
+  if (!u.rul) return "-";
+  if (rul.status && rul.status !== "ok") return rul.status;
+  if (!iv || num(iv.median_h) === null) return "none predicted";
+  return `${fmt(iv.median_h, 0)} [${fmt(iv.lo_h, 0)}-${fmt(iv.hi_h, 0)}]`;
+}
+
+function flightsText(u) {
+  const iv = u.rul_interval;
+  if (!iv || num(iv.median_flights) === null) return "-";
+  return `${fmt(iv.median_flights, 0)} [${fmt(iv.lo_flights, 0)}-${fmt(iv.hi_flights, 0)}]`;
+}
+
+function intervalBar(u, axisMax, horizon) {
+  // the RUL's 90 % interval on the fleet's common axis [0, axisMax] operating hours
+  const s = svg("svg", { width: BAR_W, height: BAR_H, class: "ivl-svg" });
+  const x = (h) => Math.min(Math.max(h, 0), axisMax) / axisMax * (BAR_W - 2) + 1;
+  s.appendChild(svg("line", { x1: 1, x2: BAR_W - 1, y1: BAR_H / 2, y2: BAR_H / 2, class: "grid" }));
+  if (num(horizon) !== null) {
+    s.appendChild(svg("line", { x1: x(horizon), x2: x(horizon), y1: 0, y2: BAR_H, class: "horizon" }));
+  }
+  const iv = u.rul_interval;
+  if (iv && num(iv.median_h) !== null) {
+    const lo = num(iv.lo_h) === null ? iv.median_h : iv.lo_h;
+    const hi = num(iv.hi_h) === null ? axisMax : iv.hi_h;
+    const r = svg("rect", {
+      x: x(lo), y: 3, width: Math.max(x(hi) - x(lo), 2), height: BAR_H - 6,
+      class: "ivl" + (u.status === "critical" ? " critical" : ""),
+    });
+    r.appendChild(svg("title", {}, `RUL ${rulText(u)} operating hours`));
+    s.appendChild(r);
+    s.appendChild(svg("line", { x1: x(iv.median_h), x2: x(iv.median_h), y1: 1, y2: BAR_H - 1, class: "ivl-med" }));
+  }
+  return s;
+}
+
+function renderCards(data) {
+  const c = $("cards");
+  c.replaceChildren();
+  const card = (cls, n, label) => {
+    const d = el("div", { class: "card " + cls, "data-status": cls });
+    d.appendChild(el("b", {}, n));
+    d.appendChild(el("span", {}, label));
+    c.appendChild(d);
+  };
+  card("all", data.actuators, "units");
+  for (const s of ["critical", "watch", "ok", "uncommissioned"]) card(s, data.counts[s] || 0, STATUS_LABEL[s]);
+  card("rul", data.with_rul, "with a RUL");
+}
+
+function renderTable() {
+  const data = fleet;
+  const tbody = $("fleet").tBodies[0];
+  tbody.replaceChildren();
+  const q = $("filter").value.trim().toLowerCase();
+  const horizon = num(data.horizon_h);
+  // a common axis for every bar: the planning horizon, out to twice it where an interval ends later
+  let axisMax = 100;
+  if (horizon !== null) {
+    const his = data.fleet.map((u) => u.rul_interval && num(u.rul_interval.hi_h)).filter((h) => h !== null && h !== undefined);
+    axisMax = Math.min(2 * horizon, Math.max(horizon, ...his));
+  }
+  $("axis").textContent = `(0-${axisMax.toFixed(0)} h${horizon === null ? "" : `, horizon ${horizon.toFixed(0)} h`})`;
+  let shown = 0;
+  for (const u of data.fleet) {
+    if (q && !u.actuator.toLowerCase().includes(q)) continue;
+    shown += 1;
+    const tr = el("tr", { "data-actuator": u.actuator, "data-rank": u.rank, "data-status": u.status });
+    if (u.actuator === selected) tr.classList.add("selected");
+    const last = u.last || {};
+    const tr_ = u.trend || {};
+    const slope = num(tr_.slope_per_h);
+    tr.appendChild(el("td", { class: "rank" }, u.rank));
+    tr.appendChild(el("td", { class: "unit" }, u.actuator));
+    const st = el("td", { class: "status", title: u.status_reason || "" });
+    st.appendChild(el("span", { class: "badge " + u.status }, STATUS_LABEL[u.status] || u.status));
+    tr.appendChild(st);
+    tr.appendChild(el("td", { class: "ratio" }, fmt(last.c_lk_ratio, 3)));
+    tr.appendChild(el("td", { class: "trend " + (tr_.label || "") },
+      slope === null ? "-" : `${tr_.label} ${(slope * 100 >= 0 ? "+" : "")}${(slope * 100).toFixed(2)}`));
+    tr.appendChild(el("td", { class: "psr" }, fmt(last.p_sr_min, 2, 1e-6)));
+    tr.appendChild(el("td", { class: "rul" }, rulText(u)));
+    const bar = el("td", { class: "bar" });
+    bar.appendChild(intervalBar(u, axisMax, horizon));
+    tr.appendChild(bar);
+    tr.appendChild(el("td", { class: "flights" }, flightsText(u)));
+    tr.appendChild(el("td", { class: "phor" }, u.rul_interval ? fmt(u.rul_interval.p_horizon, 2) : "-"));
+    tr.appendChild(el("td", { class: "alarms" }, Math.max(u.alarms || 0, u.alarm_events || 0)));
+    tr.appendChild(el("td", { class: "oph" }, fmt(u.op_time_s, 1, 1 / 3600)));
+    tr.addEventListener("click", () => { location.hash = "unit=" + encodeURIComponent(u.actuator); });
+    tbody.appendChild(tr);
+  }
+  $("shown").textContent = q ? `${shown} of ${data.fleet.length} shown` : "";
+  $("empty").hidden = data.fleet.length > 0;
+}
+
+async function loadFleet() {
+  try {
+    fleet = await getJSON("/api/fleet");
+    banner("");
+    $("store").textContent = fleet.store;
+    $("updated").textContent = new Date(fleet.generated_s * 1000).toLocaleTimeString();
+    renderCards(fleet);
+    renderTable();
+    document.body.dataset.fleetReady = "1";
+  } catch (e) {
+    // keep the last table, say that it is stale and why
+    banner(`store not reachable, showing the last good data: ${e.message}`);
+    document.body.dataset.fleetError = e.message;
+  }
+}
+
+function chart(unit) {
+  // C_Lk ratio per period against cumulative operating hours, +-1 sigma, the failure
+  // threshold and the RUL's 90 % interval where the trend would meet it
+  const W = 760, H = 290, L = 52, R = 16, T = 24, B = 34;
+  const s = svg("svg", { width: W, height: H, id: "history", role: "img" });
+  const pts = unit.periods.filter((p) => num(p.c_lk_ratio) !== null);
+  const rul = unit.rul || {};
+  const thr = num(rul.threshold_ratio);
+  const tNow = unit.periods.length ? unit.periods[unit.periods.length - 1].t_h : 0;
+  let tMax = Math.max(tNow, 1e-6);
+  if (num(rul.hi_h) !== null) tMax = Math.max(tMax, tNow + rul.hi_h);
+  else if (num(rul.median_h) !== null) tMax = Math.max(tMax, tNow + rul.median_h);
+  tMax *= 1.04;
+  let yMax = 1.2;
+  for (const p of pts) yMax = Math.max(yMax, p.c_lk_ratio + (num(p.c_lk_ratio_sigma) || 0));
+  if (thr !== null) yMax = Math.max(yMax, thr * 1.08);
+  const yMin = 0;
+  const x = (t) => L + (t / tMax) * (W - L - R);
+  const y = (v) => H - B - ((v - yMin) / (yMax - yMin)) * (H - T - B);
+  const yt = niceTicks(yMax, 5);
+  for (const v of yt.ticks) {
+    s.appendChild(svg("line", { x1: L, x2: W - R, y1: y(v), y2: y(v), class: "grid" }));
+    s.appendChild(svg("text", { x: L - 6, y: y(v) + 4, "text-anchor": "end" }, tickText(v, yt.step)));
+  }
+  const xt = niceTicks(tMax, 6);
+  for (const t of xt.ticks) {
+    s.appendChild(svg("line", { x1: x(t), x2: x(t), y1: H - B, y2: H - B + 4, class: "axis" }));
+    s.appendChild(svg("text", { x: x(t), y: H - B + 16, "text-anchor": "middle" }, tickText(t, xt.step)));
+  }
+  s.appendChild(svg("line", { x1: L, x2: W - R, y1: H - B, y2: H - B, class: "axis" }));
+  s.appendChild(svg("line", { x1: L, x2: L, y1: T, y2: H - B, class: "axis" }));
+  s.appendChild(svg("text", { x: (L + W - R) / 2, y: H - 4, "text-anchor": "middle" }, "operating hours"));
+  s.appendChild(svg("text", { x: L, y: T - 10 }, "C_Lk / baseline, per operating period (1 sigma bars; red: alarm)"));
+  s.appendChild(svg("line", { x1: L, x2: W - R, y1: y(1), y2: y(1), class: "baseline" }));
+  if (thr !== null) {
+    s.appendChild(svg("line", { x1: L, x2: W - R, y1: y(thr), y2: y(thr), class: "threshold" }));
+    s.appendChild(svg("text", { x: L + 6, y: y(thr) - 5 }, `failure threshold ${thr.toFixed(2)}`));
+    if (num(rul.median_h) !== null) {
+      const lo = num(rul.lo_h) === null ? rul.median_h : rul.lo_h;
+      const hi = num(rul.hi_h) === null ? rul.median_h : rul.hi_h;
+      s.appendChild(svg("rect", {
+        x: x(tNow + lo), y: y(thr) - 9, width: Math.max(x(tNow + hi) - x(tNow + lo), 2), height: 18, class: "rul-band",
+      }));
+      s.appendChild(svg("line", {
+        x1: x(tNow + rul.median_h), x2: x(tNow + rul.median_h), y1: y(thr) - 11, y2: y(thr) + 11, class: "rul-median",
+      }));
+    }
+  }
+  for (const p of pts) {
+    const sig = num(p.c_lk_ratio_sigma);
+    if (sig !== null && sig > 0) {
+      s.appendChild(svg("line", { x1: x(p.t_h), x2: x(p.t_h), y1: y(p.c_lk_ratio - sig), y2: y(p.c_lk_ratio + sig), class: "err" }));
+    }
+    const c = svg("circle", { cx: x(p.t_h), cy: y(p.c_lk_ratio), r: 3, class: "pt" + (p.alarms ? " alarm" : "") });
+    c.appendChild(svg("title", {}, `${p.t_h.toFixed(2)} h: ${p.c_lk_ratio.toFixed(3)}${p.alarms ? ", alarm" : ""}`));
+    s.appendChild(c);
+  }
+  return s;
+}
+
+async function loadUnit(name) {
+  selected = name;
+  if (fleet) renderTable();
+  const box = $("unit");
+  try {
+    const unit = await getJSON("/api/unit?name=" + encodeURIComponent(name));
+    const row = fleet ? fleet.fleet.find((u) => u.actuator === name) : null;
+    $("unit-name").textContent = unit.actuator;
+    const st = $("unit-status");
+    st.className = "badge " + (row ? row.status : "");
+    st.textContent = row ? (STATUS_LABEL[row.status] || row.status) : "";
+    $("unit-reason").textContent = row ? row.status_reason : "";
+    $("unit-chart").replaceChildren(chart(unit));
+    const facts = $("unit-facts");
+    facts.replaceChildren();
+    const fact = (k, v) => { facts.appendChild(el("dt", {}, k)); facts.appendChild(el("dd", {}, v)); };
+    const obs = unit.periods.filter((p) => num(p.c_lk_ratio) !== null).length;
+    fact("periods", `${unit.periods.length} (${obs} with an observable C_Lk)`);
+    fact("alarm events", unit.alarms.length ? `${unit.alarms.length}, last ${unit.alarms[unit.alarms.length - 1].kind}` : "none");
+    fact("baseline versions", unit.baselines.length ? unit.baselines.map((b) => b.version).join(", ") : "none");
+    const rul = unit.rul || {};
+    fact("RUL model", rul.model ? `${rul.model}, horizon ${fmt(rul.horizon_h, 0)} h` : (rul.status || "not computed"));
+    box.hidden = false;
+    box.dataset.unit = unit.actuator;
+    document.body.dataset.unitReady = unit.actuator;
+    banner("");
+  } catch (e) {
+    box.hidden = true;
+    banner(`${name}: ${e.message}`);
+  }
+}
+
+function fromHash() {
+  const m = /^#unit=(.+)$/.exec(location.hash);
+  if (m) loadUnit(decodeURIComponent(m[1]));
+}
+
+async function main() {
+  const refresh = Number(document.querySelector('meta[name="servowatch-refresh-s"]').content) || 0;
+  $("filter").addEventListener("input", () => { if (fleet) renderTable(); });
+  window.addEventListener("hashchange", fromHash);
+  await loadFleet();
+  fromHash();
+  if (refresh > 0) setInterval(loadFleet, refresh * 1000);
+}
+
+main();

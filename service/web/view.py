@@ -1,0 +1,125 @@
+"""The JSON the fleet page reads, from the health store: the ranked fleet with a status per
+unit, and one unit's indicator history. No HTTP here (``service.web.server`` serves it)."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from service.commands.fleet import rank_fleet
+from service.jsonutil import jsonable
+from service.prognostics.rul import history_of
+from service.store import HealthStore
+from service.store.records import check_actuator
+
+__all__ = ["STATUSES", "unit_status", "fleet_view", "unit_view", "UnknownActuatorError"]
+
+#: page status of a unit, most urgent first
+STATUSES: tuple[str, ...] = ("critical", "watch", "ok", "uncommissioned")
+
+
+class UnknownActuatorError(KeyError):
+    """The store has no actuator of that name."""
+
+
+def _finite(v: Any) -> float | None:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        return None
+    return float(v)
+
+
+def unit_status(row: dict[str, Any]) -> tuple[str, str]:
+    """(status, reason) of one ranked fleet row (``rank_fleet``).
+
+    - ``uncommissioned``: no baseline yet, so no indicator means anything;
+    - ``critical``: the stored RUL warns (probability of crossing the failure threshold within
+      the planning horizon at least ``RulConfig.warn_p``);
+    - ``watch``: alarms recorded, or the C_Lk-ratio trend is rising;
+    - ``ok``: none of these.
+    """
+    if not row.get("commissioned"):
+        return "uncommissioned", "no baseline: run `servowatch calibrate --actuator`"
+    rul = row.get("rul") or {}
+    if rul.get("warning"):
+        p = _finite(rul.get("p_horizon"))
+        hor = _finite(rul.get("horizon_h"))
+        if p is not None and hor is not None:
+            return "critical", f"P(threshold within {hor:.0f} h) = {p:.2f}"
+        return "critical", "RUL warning"
+    alarms = max(int(row.get("alarms") or 0), int(row.get("alarm_events") or 0))
+    if alarms:
+        return "watch", f"{alarms} alarm{'s' if alarms != 1 else ''} recorded"
+    trend = row.get("trend") or {}
+    if trend.get("label") == "rising":
+        return "watch", "C_Lk ratio rising"
+    return "ok", ""
+
+
+def fleet_view(store: HealthStore, now_s: float | None = None) -> dict[str, Any]:
+    """The page's fleet JSON: every unit ranked by urgency (``rank_fleet``, the order of
+    ``servowatch fleet``), each with ``status``/``status_reason``, and counts per status."""
+    ranked = rank_fleet(store.fleet_summary())
+    counts = dict.fromkeys(STATUSES, 0)
+    for r in ranked:
+        r["status"], r["status_reason"] = unit_status(r)
+        counts[r["status"]] += 1
+    horizons = [_finite((r.get("rul") or {}).get("horizon_h")) for r in ranked]
+    horizons = [h for h in horizons if h is not None]
+    return jsonable(
+        {
+            "store": store.where,
+            "generated_s": time.time() if now_s is None else now_s,
+            "actuators": len(ranked),
+            "counts": counts,
+            "with_rul": sum(
+                1 for r in ranked if (r.get("rul_interval") or {}).get("median_h") is not None
+            ),
+            "horizon_h": max(horizons) if horizons else None,
+            "fleet": ranked,
+        }
+    )
+
+
+def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
+    """One unit's history for the page: per period (by start time) the cumulative operating
+    hours at its end ``t_h`` (the RUL's time axis, ``history_of``), the C_Lk ratio and its
+    1-sigma (NaN -> null where unobservable), the lowest supply pressure [Pa] and the alarm
+    count; its alarm events, baseline versions and stored RUL."""
+    check_actuator(actuator)
+    if not store.has_actuator(actuator):
+        raise UnknownActuatorError(actuator)
+    periods = sorted(store.periods(actuator), key=lambda p: p.start_t)
+    hist = history_of(actuator, periods)
+    rows = []
+    for p, t_h, y in zip(periods, hist.t_h, hist.y, strict=True):
+        base = p.c_lk_mean / p.c_lk_ratio if p.c_lk_ratio else math.nan
+        sig = p.c_lk_sigma / base if math.isfinite(base) and base > 0 else math.nan
+        rows.append(
+            {
+                "start_t": p.start_t,
+                "end_t": p.end_t,
+                "t_h": float(t_h),
+                "flight": p.flight,
+                "c_lk_ratio": _finite(float(y)),
+                "c_lk_ratio_sigma": _finite(sig) if math.isfinite(float(y)) else None,
+                "p_sr_min": _finite(p.p_sr_min),
+                "alarms": p.alarms,
+                "source": p.source,
+            }
+        )
+    return jsonable(
+        {
+            "actuator": actuator,
+            "periods": rows,
+            "alarms": [
+                {"t": e.t, "kind": e.kind, "value": e.value, "source": e.source}
+                for e in store.alarms(actuator)
+            ],
+            "baselines": [
+                {"version": b.version, "created_s": b.created_s, "source": b.source}
+                for b in store.baselines(actuator)
+            ],
+            "rul": store.rul(actuator),
+        }
+    )

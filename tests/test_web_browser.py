@@ -1,0 +1,214 @@
+"""The fleet page in a real headless Chromium, served by ``servowatch web`` in its own process
+over SQLite and PostgreSQL stores: the table Chromium renders is the store's ranked fleet,
+a unit's history chart is drawn to scale, store values stay text, and a lost store shows as a
+banner, not a blank page.
+
+Chromium is Debian's ``chromium`` (``.ci/run`` installs it); without it these tests skip, and
+fail instead when ``SERVOWATCH_REQUIRE_CHROMIUM=1`` (as in CI).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import subprocess
+import sys
+import urllib.request
+from html.parser import HTMLParser
+from pathlib import Path
+from urllib.parse import quote
+
+import pytest
+from webfleet import CRITICAL, OK, RANKED, UNCOMMISSIONED, WATCH, fill_store, web_process
+
+from service.store import AlarmEvent, open_store
+from service.web.browser import dump_dom, find_chromium
+
+pytestmark = pytest.mark.slow
+
+if find_chromium() is None:
+    if os.environ.get("SERVOWATCH_REQUIRE_CHROMIUM") == "1":
+        raise RuntimeError("Chromium required (SERVOWATCH_REQUIRE_CHROMIUM=1) but not found")
+    pytest.skip("no Chromium (install Debian's chromium)", allow_module_level=True)
+
+
+class Node:
+    def __init__(self, tag: str, attrs: dict[str, str | None], parent: Node | None) -> None:
+        self.tag, self.attrs, self.parent = tag, attrs, parent
+        self.children: list[Node] = []
+        self.text_parts: list[str] = []
+
+    def text(self) -> str:
+        return "".join(self.text_parts) + "".join(c.text() for c in self.children)
+
+    def iter(self):
+        yield self
+        for c in self.children:
+            yield from c.iter()
+
+    def find_all(self, tag: str, **attrs: str) -> list[Node]:
+        def ok(n: Node) -> bool:
+            if n.tag != tag:
+                return False
+            for k, v in attrs.items():
+                have = n.attrs.get(k.rstrip("_"))
+                if k.rstrip("_") == "class":
+                    if v not in (have or "").split():
+                        return False
+                elif have != v:
+                    return False
+            return True
+
+        return [n for n in self.iter() if ok(n)]
+
+    def find(self, tag: str, **attrs: str) -> Node:
+        found = self.find_all(tag, **attrs)
+        assert found, f"no <{tag} {attrs}>"
+        return found[0]
+
+
+_VOID = {"meta", "link", "input", "br", "img", "hr"}
+
+
+class _Tree(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.root = Node("#root", {}, None)
+        self.cur = self.root
+
+    def handle_starttag(self, tag, attrs):
+        n = Node(tag, dict(attrs), self.cur)
+        self.cur.children.append(n)
+        if tag not in _VOID:
+            self.cur = n
+
+    def handle_startendtag(self, tag, attrs):
+        self.cur.children.append(Node(tag, dict(attrs), self.cur))
+
+    def handle_endtag(self, tag):
+        n = self.cur
+        while n is not None and n.tag != tag:
+            n = n.parent
+        if n is not None and n.parent is not None:
+            self.cur = n.parent
+
+    def handle_data(self, data):
+        self.cur.text_parts.append(data)
+
+
+def render(url: str) -> Node:
+    t = _Tree()
+    t.feed(dump_dom(url))
+    return t.root
+
+
+def _fleet(url: str) -> dict:
+    with urllib.request.urlopen(url + "/api/fleet", timeout=10) as r:
+        return json.loads(r.read())
+
+
+def test_table_is_the_ranked_store(store_url):
+    fill_store(store_url)
+    with web_process(store_url) as url:
+        dom = render(url + "/")
+        api = _fleet(url)
+    body = dom.find("body")
+    assert body.attrs.get("data-fleet-ready") == "1"
+    rows = dom.find("table", id="fleet").find_all("tr")[1:]
+    assert [r.attrs["data-actuator"] for r in rows] == RANKED
+    assert [r.attrs["data-rank"] for r in rows] == ["1", "2", "3", "4"]
+    by = {r.attrs["data-actuator"]: r for r in rows}
+    api_by = {u["actuator"]: u for u in api["fleet"]}
+    for a, r in by.items():
+        assert r.find("td", class_="ratio").text() == f"{api_by[a]['last']['c_lk_ratio']:.3f}"
+        assert r.attrs["data-status"] == api_by[a]["status"]
+    assert by[CRITICAL].find("td", class_="rul").text() == "12 [8-20]"
+    assert by[CRITICAL].find("td", class_="flights").text() == "8 [5-13]"
+    assert by[CRITICAL].find("span", class_="badge").text() == "critical"
+    # the larger of the periods' alarm count (k % 3 over 8 periods) and the alarm events (1)
+    assert by[WATCH].find("td", class_="alarms").text() == str(sum(k % 3 for k in range(8)))
+    assert by[OK].find("td", class_="rul").text() == "none predicted"
+    assert by[UNCOMMISSIONED].find("span", class_="badge").text() == "not commissioned"
+    assert by[UNCOMMISSIONED].find("td", class_="rul").text() == "-"
+    # the interval bar of the critical unit: 8-20 h on a 0-100 h axis of 218 px from x=1
+    rect = by[CRITICAL].find("rect", class_="ivl")
+    assert float(rect.attrs["x"]) == pytest.approx(1 + 8 / 100 * 218, abs=0.01)
+    assert float(rect.attrs["width"]) == pytest.approx(12 / 100 * 218, abs=0.01)
+    cards = {c.attrs["data-status"]: c.find("b").text() for c in dom.find_all("div", class_="card")}
+    assert cards == {
+        "all": "4",
+        "critical": "1",
+        "watch": "1",
+        "ok": "1",
+        "uncommissioned": "1",
+        "rul": "2",
+    }
+    assert dom.find("div", id="banner").attrs.get("hidden") is not None
+
+
+def test_unit_history_chart(tmp_path):
+    db = str(tmp_path / "h.sqlite")
+    fill_store(db)
+    with open_store(db) as s:  # a kind that is markup: the page must show it as text
+        s.add_alarms([AlarmEvent(CRITICAL, 650.0, "<b id=evil>x</b>", 1.0, "log-a")])
+    with web_process(db) as url:
+        dom = render(url + "/#unit=" + quote(CRITICAL, safe=""))
+    assert dom.find("body").attrs.get("data-unit-ready") == CRITICAL
+    assert dom.find("tr", **{"data-actuator": CRITICAL}).attrs["class"] == "selected"
+    chart = dom.find("svg", id="history")
+    pts = chart.find_all("circle", class_="pt")
+    assert len(pts) == 8
+    xs = [float(p.attrs["cx"]) for p in pts]
+    ys = [float(p.attrs["cy"]) for p in pts]
+    assert xs == sorted(xs) and ys == sorted(ys, reverse=True)  # hours on, ratio rising
+    # equal periods: equal steps in x; ratio steps of 0.3: equal steps in y
+    assert max(xs[i + 1] - xs[i] for i in range(7)) == pytest.approx(
+        min(xs[i + 1] - xs[i] for i in range(7)), abs=0.01
+    )
+    assert max(ys[i] - ys[i + 1] for i in range(7)) == pytest.approx(
+        min(ys[i] - ys[i + 1] for i in range(7)), abs=0.01
+    )
+    thr = chart.find("line", class_="threshold")
+    base = chart.find("line", class_="baseline")
+    # threshold 4.0 and baseline 1.0 on the same linear axis as the points (ratio 1.0 at k=0)
+    y1, y4 = float(base.attrs["y1"]), float(thr.attrs["y1"])
+    assert ys[0] == pytest.approx(y1, abs=0.01)
+    assert ys[5] == pytest.approx(y1 + (y4 - y1) * (2.5 - 1.0) / 3.0, abs=0.01)
+    band = chart.find("rect", class_="rul-band")
+    med = chart.find("line", class_="rul-median")
+    lo, hi = float(band.attrs["x"]), float(band.attrs["x"]) + float(band.attrs["width"])
+    assert lo < float(med.attrs["x1"]) < hi
+    assert xs[-1] < lo  # the crossing lies ahead of the last period
+    assert not dom.find_all("b", id="evil")
+    facts = dom.find("dl", id="unit-facts").text()
+    assert "<b id=evil>x</b>" in facts
+
+
+def test_lost_store_shows_a_banner(tmp_path):
+    db = tmp_path / "h.sqlite"
+    fill_store(str(db))
+    with web_process(str(db)) as url:
+        db.rename(tmp_path / "away.sqlite")
+        for side in ("-wal", "-shm"):
+            Path(str(db) + side).unlink(missing_ok=True)
+        dom = render(url + "/")
+    banner = dom.find("div", id="banner")
+    assert banner.attrs.get("hidden") is None
+    assert banner.text().startswith("store not reachable") and "does not exist" in banner.text()
+    assert dom.find("body").attrs.get("data-fleet-error")
+
+
+def test_snapshot_writes_the_page(tmp_path):
+    db = str(tmp_path / "h.sqlite")
+    fill_store(db)
+    out = tmp_path / "page.png"
+    res = subprocess.run(
+        [sys.executable, "-m", "service.cli", "web", "--store", db, "--snapshot", str(out),
+         "--unit", CRITICAL],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    head = out.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n"
+    assert struct.unpack(">II", head[16:24]) == (1500, 1100)

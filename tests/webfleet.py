@@ -1,0 +1,87 @@
+"""A small health store with one unit of each page status, and a ``servowatch web`` process
+serving it (shared by test_web.py and test_web_browser.py)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import replace
+
+from test_store import make_period
+
+from service.store import AlarmEvent, open_store
+
+CRITICAL = "AC001/elevator_L"  # RUL warning: ranked first
+WATCH = "AC001/aileron_R"  # alarms, a long RUL
+OK = "AC002/rudder"  # stable, no crossing predicted
+UNCOMMISSIONED = "AC002/spoiler_3"  # periods but no baseline
+# the order `servowatch fleet` ranks them in: RUL median ascending, then no RUL
+RANKED = [CRITICAL, WATCH, OK, UNCOMMISSIONED]
+
+
+def _rul(actuator: str, median_h, lo_h, hi_h, p_horizon: float, warning: bool) -> dict:
+    return {
+        "actuator": actuator, "status": "ok", "median_h": median_h, "lo_h": lo_h, "hi_h": hi_h,
+        "median_flights": None if median_h is None else median_h / 1.5,
+        "lo_flights": None if lo_h is None else lo_h / 1.5,
+        "hi_flights": None if hi_h is None else hi_h / 1.5,
+        "p_horizon": p_horizon, "warning": warning, "horizon_h": 50.0, "threshold_ratio": 4.0,
+        "model": "linear", "t_now_h": 0.2,
+    }  # fmt: skip
+
+
+def fill_store(url: str) -> None:
+    """Four units, one per status, with hand-set RULs."""
+    with open_store(url) as s:
+        for a in (CRITICAL, WATCH, OK):
+            s.add_baseline(a, {"c_lk": 1e-12}, "test")
+        s.add_periods([make_period(CRITICAL, k, ratio=1.0 + 0.3 * k) for k in range(8)])
+        s.add_periods([make_period(WATCH, k) for k in range(8)])
+        s.add_periods([replace(make_period(OK, k, ratio=1.0), alarms=0) for k in range(8)])
+        s.add_periods(
+            [replace(make_period(UNCOMMISSIONED, k, ratio=1.0), alarms=0) for k in range(3)]
+        )
+        s.add_alarms([AlarmEvent(WATCH, 105.0, "leak", 3e-12, "log-a")])
+        s.put_rul(CRITICAL, _rul(CRITICAL, 12.0, 8.0, 20.0, 0.93, True))
+        s.put_rul(WATCH, _rul(WATCH, 300.0, 120.0, 900.0, 0.01, False))
+        s.put_rul(OK, _rul(OK, None, None, None, 0.0, False))
+
+
+@contextmanager
+def web_process(store: str, *extra: str) -> Iterator[str]:
+    """``servowatch web --store STORE --listen 127.0.0.1:0`` in its own process; yields its
+    base URL once it answers /healthz; SIGTERM at the end (it must exit 0)."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "web", "--store", store,
+         "--listen", "127.0.0.1:0", *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True,
+    )  # fmt: skip
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("serving http://127.0.0.1:"), (line, proc.stderr.read())
+        url = line.split()[1].rstrip("/")
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                with urllib.request.urlopen(url + "/healthz", timeout=2) as r:
+                    if r.status == 200:
+                        break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
+        yield url
+    finally:
+        proc.terminate()
+        try:
+            rc = proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise
+        assert rc == 0, proc.stderr.read()
