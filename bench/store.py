@@ -3,7 +3,9 @@
 Builds N actuators x Y years of operating periods (F flights a day, one period per flight)
 with bulk inserts (``add_periods``: executemany on SQLite, COPY on PostgreSQL), then times
 ``HealthStore.fleet_summary()`` and ``servowatch fleet --json`` as a whole command (a new
-process: interpreter start, import, open, query, JSON out). PostgreSQL runs in a throwaway
+process: interpreter start, import, open, query, JSON out), and beside them the fleet page's
+two requests to a running ``servowatch web`` (``/api/fleet``, the whole ranked fleet, and
+``/api/unit``, one unit's full history). PostgreSQL runs in a throwaway
 cluster (``service.store.pgtemp``) when its server binaries are installed.
 
     .venv/bin/python bench/store.py                       # 1000 actuators x 5 years, both
@@ -125,7 +127,9 @@ def time_queries(url: str, reps: int) -> dict:
         if r.returncode != 0:
             raise RuntimeError(r.stderr.decode())
         n = json.loads(r.stdout)["actuators"]
+    web = time_web(url, reps, rows[0]["actuator"])
     return {
+        **web,
         "actuators": len(rows),
         "fleet_summary_first_s": first,
         "fleet_summary_median_s": statistics.median(times),
@@ -134,6 +138,40 @@ def time_queries(url: str, reps: int) -> dict:
         "fleet_cli_max_s": max(cli),
         "fleet_cli_actuators": n,
     }
+
+
+def time_web(url: str, reps: int, unit: str) -> dict:
+    """Median and max wall time of GET /api/fleet and /api/unit?name=UNIT (the unit with the
+    first name, a full history) on a ``servowatch web`` process serving ``url``."""
+    import urllib.parse
+    import urllib.request
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "web", "--store", url, "--listen", "127.0.0.1:0",
+         "--refresh", "0"],
+        cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        base = proc.stdout.readline().split()[1].rstrip("/")
+        out: dict = {}
+        for name, path in (
+            ("web_fleet", "/api/fleet"),
+            ("web_unit", "/api/unit?name=" + urllib.parse.quote(unit, safe="")),
+        ):
+            times, size = [], 0
+            for _ in range(reps + 1):  # the first warms the imports up
+                t = time.perf_counter()
+                with urllib.request.urlopen(base + path, timeout=60) as r:
+                    size = len(r.read())
+                times.append(time.perf_counter() - t)
+            out[f"{name}_median_s"] = statistics.median(times[1:])
+            out[f"{name}_max_s"] = max(times[1:])
+            out[f"{name}_bytes"] = size
+        return out
+    finally:
+        proc.terminate()
+        proc.wait(10)
 
 
 def main() -> int:
@@ -192,7 +230,10 @@ def main() -> int:
                 f"{b:<10}: {r['periods']} periods built in {r['build_s']:.0f} s; "
                 f"fleet_summary() median {r['fleet_summary_median_s'] * 1e3:.1f} ms "
                 f"(first {r['fleet_summary_first_s'] * 1e3:.1f} ms), "
-                f"`servowatch fleet --json` median {r['fleet_cli_median_s'] * 1e3:.0f} ms"
+                f"`servowatch fleet --json` median {r['fleet_cli_median_s'] * 1e3:.0f} ms; "
+                f"page GET /api/fleet median {r['web_fleet_median_s'] * 1e3:.0f} ms "
+                f"({r['web_fleet_bytes'] / 1e6:.2f} MB), /api/unit median "
+                f"{r['web_unit_median_s'] * 1e3:.0f} ms ({r['web_unit_bytes'] / 1e6:.2f} MB)"
             )
     if a.json:
         print(json.dumps(out))
