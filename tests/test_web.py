@@ -81,6 +81,21 @@ def test_unit_history(filled):
         assert [(e["kind"], e["t"]) for e in watch["alarms"]] == [("leak", 105.0)]
 
 
+def test_live_is_off_without_zenoh(filled):
+    with web_process(filled) as url:
+        status, _, live = _get(url + "/api/live")
+    assert status == 200 and live == {"enabled": False}
+
+
+def test_live_session_that_does_not_open_exits_3(filled, capsys):
+    from service.zenoh_util import free_port, loopback
+
+    rc = main(["web", "--store", filled, "--listen", "127.0.0.1:0",
+               "--connect", loopback(free_port())])  # fmt: skip
+    assert rc == 3
+    assert capsys.readouterr().err.startswith("servowatch: error:")
+
+
 def test_errors_name_the_field(filled):
     with web_process(filled) as url:
         status, _, body = _get(url + "/api/unit?name=not-a-unit")
@@ -116,7 +131,7 @@ def test_page_and_assets(filled):
         assert status == 200 and headers["Content-Type"].startswith("text/html")
         html = body.decode()
         assert '<meta name="servowatch-refresh-s" content="2.5">' in html
-        assert '<script src="/static/fleet.js">' in html and "http" not in html.split("<body>")[1]
+        assert '<script src="/static/fleet.js">' in html and "http" not in html.split("<body")[1]
         for asset, ctype in (("fleet.js", "text/javascript"), ("fleet.css", "text/css")):
             status, headers, body = _request(url + f"/static/{asset}", "GET")
             assert status == 200 and headers["Content-Type"].startswith(ctype) and body

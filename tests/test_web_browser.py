@@ -10,97 +10,31 @@ fail instead when ``SERVOWATCH_REQUIRE_CHROMIUM=1`` (as in CI).
 from __future__ import annotations
 
 import json
-import os
 import struct
 import subprocess
 import sys
 import urllib.request
-from html.parser import HTMLParser
 from pathlib import Path
 from urllib.parse import quote
 
 import pytest
-from webfleet import CRITICAL, OK, RANKED, UNCOMMISSIONED, WATCH, fill_store, web_process
+from webfleet import (
+    CRITICAL,
+    OK,
+    RANKED,
+    UNCOMMISSIONED,
+    WATCH,
+    fill_store,
+    render,
+    require_chromium,
+    web_process,
+)
 
 from service.store import AlarmEvent, open_store
-from service.web.browser import dump_dom, find_chromium
 
 pytestmark = pytest.mark.slow
 
-if find_chromium() is None:
-    if os.environ.get("SERVOWATCH_REQUIRE_CHROMIUM") == "1":
-        raise RuntimeError("Chromium required (SERVOWATCH_REQUIRE_CHROMIUM=1) but not found")
-    pytest.skip("no Chromium (install Debian's chromium)", allow_module_level=True)
-
-
-class Node:
-    def __init__(self, tag: str, attrs: dict[str, str | None], parent: Node | None) -> None:
-        self.tag, self.attrs, self.parent = tag, attrs, parent
-        self.children: list[Node] = []
-        self.text_parts: list[str] = []
-
-    def text(self) -> str:
-        return "".join(self.text_parts) + "".join(c.text() for c in self.children)
-
-    def iter(self):
-        yield self
-        for c in self.children:
-            yield from c.iter()
-
-    def find_all(self, tag: str, **attrs: str) -> list[Node]:
-        def ok(n: Node) -> bool:
-            if n.tag != tag:
-                return False
-            for k, v in attrs.items():
-                have = n.attrs.get(k.rstrip("_"))
-                if k.rstrip("_") == "class":
-                    if v not in (have or "").split():
-                        return False
-                elif have != v:
-                    return False
-            return True
-
-        return [n for n in self.iter() if ok(n)]
-
-    def find(self, tag: str, **attrs: str) -> Node:
-        found = self.find_all(tag, **attrs)
-        assert found, f"no <{tag} {attrs}>"
-        return found[0]
-
-
-_VOID = {"meta", "link", "input", "br", "img", "hr"}
-
-
-class _Tree(HTMLParser):
-    def __init__(self) -> None:
-        super().__init__()
-        self.root = Node("#root", {}, None)
-        self.cur = self.root
-
-    def handle_starttag(self, tag, attrs):
-        n = Node(tag, dict(attrs), self.cur)
-        self.cur.children.append(n)
-        if tag not in _VOID:
-            self.cur = n
-
-    def handle_startendtag(self, tag, attrs):
-        self.cur.children.append(Node(tag, dict(attrs), self.cur))
-
-    def handle_endtag(self, tag):
-        n = self.cur
-        while n is not None and n.tag != tag:
-            n = n.parent
-        if n is not None and n.parent is not None:
-            self.cur = n.parent
-
-    def handle_data(self, data):
-        self.cur.text_parts.append(data)
-
-
-def render(url: str) -> Node:
-    t = _Tree()
-    t.feed(dump_dom(url))
-    return t.root
+require_chromium()
 
 
 def _fleet(url: str) -> dict:

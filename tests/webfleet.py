@@ -1,5 +1,6 @@
-"""A small health store with one unit of each page status, and a ``servowatch web`` process
-serving it (shared by test_web.py and test_web_browser.py)."""
+"""A small health store with one unit of each page status, a ``servowatch web`` process
+serving it, and the page's DOM as headless Chromium renders it (shared by the test_web*
+modules)."""
 
 from __future__ import annotations
 
@@ -11,10 +12,12 @@ import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
+from html.parser import HTMLParser
 
 from test_store import make_period
 
 from service.store import AlarmEvent, open_store
+from service.web.browser import dump_dom, find_chromium
 
 CRITICAL = "AC001/elevator_L"  # RUL warning: ranked first
 WATCH = "AC001/aileron_R"  # alarms, a long RUL
@@ -85,3 +88,84 @@ def web_process(store: str, *extra: str) -> Iterator[str]:
             proc.kill()
             raise
         assert rc == 0, proc.stderr.read()
+
+
+def require_chromium() -> None:
+    """Skip the calling test module without Chromium; fail it when
+    ``SERVOWATCH_REQUIRE_CHROMIUM=1`` (CI)."""
+    import pytest
+
+    if find_chromium() is None:
+        if os.environ.get("SERVOWATCH_REQUIRE_CHROMIUM") == "1":
+            raise RuntimeError("Chromium required (SERVOWATCH_REQUIRE_CHROMIUM=1) but not found")
+        pytest.skip("no Chromium (install Debian's chromium)", allow_module_level=True)
+
+
+class Node:
+    def __init__(self, tag: str, attrs: dict[str, str | None], parent: Node | None) -> None:
+        self.tag, self.attrs, self.parent = tag, attrs, parent
+        self.children: list[Node] = []
+        self.text_parts: list[str] = []
+
+    def text(self) -> str:
+        return "".join(self.text_parts) + "".join(c.text() for c in self.children)
+
+    def iter(self):
+        yield self
+        for c in self.children:
+            yield from c.iter()
+
+    def find_all(self, tag: str, **attrs: str) -> list[Node]:
+        def ok(n: Node) -> bool:
+            if n.tag != tag:
+                return False
+            for k, v in attrs.items():
+                have = n.attrs.get(k.rstrip("_"))
+                if k.rstrip("_") == "class":
+                    if v not in (have or "").split():
+                        return False
+                elif have != v:
+                    return False
+            return True
+
+        return [n for n in self.iter() if ok(n)]
+
+    def find(self, tag: str, **attrs: str) -> Node:
+        found = self.find_all(tag, **attrs)
+        assert found, f"no <{tag} {attrs}>"
+        return found[0]
+
+
+_VOID = {"meta", "link", "input", "br", "img", "hr"}
+
+
+class _Tree(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.root = Node("#root", {}, None)
+        self.cur = self.root
+
+    def handle_starttag(self, tag, attrs):
+        n = Node(tag, dict(attrs), self.cur)
+        self.cur.children.append(n)
+        if tag not in _VOID:
+            self.cur = n
+
+    def handle_startendtag(self, tag, attrs):
+        self.cur.children.append(Node(tag, dict(attrs), self.cur))
+
+    def handle_endtag(self, tag):
+        n = self.cur
+        while n is not None and n.tag != tag:
+            n = n.parent
+        if n is not None and n.parent is not None:
+            self.cur = n.parent
+
+    def handle_data(self, data):
+        self.cur.text_parts.append(data)
+
+
+def render(url: str) -> Node:
+    t = _Tree()
+    t.feed(dump_dom(url))
+    return t.root

@@ -3,7 +3,13 @@
 Prints one line ``serving http://HOST:PORT/ from STORE`` on stdout once it listens (with
 ``--listen 127.0.0.1:0`` the port is a free one, read it there), then serves until SIGINT or
 SIGTERM and exits 0. Exit 2: bad arguments, a non-loopback address without
-``--allow-remote``, or a store that cannot be opened; 3: the address is in use.
+``--allow-remote``, or a store that cannot be opened; 3: the address is in use, or no Zenoh
+session opens (``--connect``/``--config``); 4: the router refused the session at the TLS
+handshake.
+
+With ``--connect`` (or ``--config``, a service TOML with a ``[zenoh]`` table) the page also
+shows which daemon monitors each unit, live, from the daemons' status queryables; the session
+only queries (the read-only ``dashboard`` role of docs/security.md is enough).
 """
 
 from __future__ import annotations
@@ -39,6 +45,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--access-log", action="store_true", help="log every request on stderr")
     p.add_argument(
+        "--connect", action="append", default=None, metavar="ENDPOINT",
+        help="Zenoh router to ask the daemons' live status through, e.g. tcp/127.0.0.1:7447 "
+        "(repeatable); without it and --config the page shows the store only",
+    )  # fmt: skip
+    p.add_argument(
+        "--config", default=None, metavar="F.toml",
+        help="service TOML whose [zenoh] table opens the live-status session "
+        "(e.g. deploy/secure/dashboard.toml)",
+    )  # fmt: skip
+    from service.config import add_tls_arguments
+
+    add_tls_arguments(p)
+    p.add_argument(
         "--snapshot", default=None, metavar="F.png",
         help="serve on a free loopback port, take a PNG of the page with headless Chromium "
         "into F.png and exit (no --listen needed)",
@@ -47,6 +66,41 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--unit", default=None, metavar="AIRCRAFT/ACTUATOR",
         help="with --snapshot: open this unit's history on the page",
     )  # fmt: skip
+
+
+class _Live:
+    """A started ``LiveStatus`` and the Zenoh session it owns."""
+
+    def __init__(self, session, refresh_s: float) -> None:
+        from service.web.live import LiveStatus
+
+        self.session = session
+        self.status = LiveStatus(session, period_s=refresh_s if refresh_s > 0 else 5.0).start()
+
+    def snapshot(self) -> dict:
+        return self.status.snapshot()
+
+    def close(self) -> None:
+        self.status.stop()
+        self.session.close()
+
+
+def _open_live(args: argparse.Namespace) -> tuple[_Live | None, int]:
+    """The live-status session from ``--connect``/``--config``/``--tls-*``; (None, exit code)
+    with the error printed when it does not open."""
+    from service.cliargs import service_config_from_args
+    from service.config import ConfigError, SessionError
+
+    zargs = argparse.Namespace(**{**vars(args), "listen": None, "mode": None})  # HTTP --listen
+    try:
+        cfg = service_config_from_args(zargs)
+    except (ConfigError, ValueError) as e:
+        return None, fail(str(e))
+    try:
+        session = cfg.zenoh.open_session()
+    except SessionError as e:
+        return None, fail(str(e), e.exit_code)
+    return _Live(session, args.refresh), 0
 
 
 def _snapshot(srv, url: str, out: str, unit: str | None) -> int:
@@ -90,18 +144,29 @@ def run(args: argparse.Namespace) -> int:
             where = store.where
     except StoreError as e:
         return fail(str(e))
+    live = None
+    if args.connect or args.config:
+        live, code = _open_live(args)
+        if live is None:
+            return code
     try:
         srv = make_server(
-            str(target), host, port, refresh_s=args.refresh, access_log=args.access_log
+            str(target), host, port, refresh_s=args.refresh, access_log=args.access_log, live=live
         )
     except OSError as e:
+        if live is not None:
+            live.close()
         return fail(f"--listen: cannot listen on {args.listen}: {e}", 3)
     h, p = srv.server_address[:2]
     shown = f"[{h}]" if ":" in h else h
     url = f"http://{shown}:{p}/"
     if args.snapshot:
-        return _snapshot(srv, url, args.snapshot, args.unit)
-    print(f"serving {url} from {where}", flush=True)
+        try:
+            return _snapshot(srv, url, args.snapshot, args.unit)
+        finally:
+            if live is not None:
+                live.close()
+    print(f"serving {url} from {where}" + (" (live status on)" if live else ""), flush=True)
 
     stop = threading.Event()
 
@@ -118,5 +183,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         srv.shutdown()
         srv.server_close()
+        if live is not None:
+            live.close()
     print("servowatch web: stopped", file=sys.stderr)
     return 0

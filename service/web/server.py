@@ -6,6 +6,8 @@ Routes (GET and HEAD only; any other method is answered 405):
 - ``/api/fleet``: ``view.fleet_view`` of the store;
 - ``/api/unit?name=AIRCRAFT/ACTUATOR``: ``view.unit_view`` (400 on a bad name, 404 on an
   unknown one);
+- ``/api/live``: the daemons' live status (``live.LiveStatus``) when the server was given a
+  Zenoh session, else ``{"enabled": false}``;
 - ``/healthz``: ``{"ok": true, "store": ...}`` when the store answers, 503 otherwise.
 
 The store is opened per request (``open_store(create=False)``), so the page follows a store
@@ -26,6 +28,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+from service.jsonutil import jsonable
 from service.store import StoreError, open_store
 from service.web.view import UnknownActuatorError, fleet_view, unit_view
 
@@ -86,6 +89,7 @@ class _Handler(BaseHTTPRequestHandler):
     store_target: str = ""
     refresh_s: float = 10.0
     access_log: bool = False
+    live: Any = None  # a LiveStatus, or None
 
     # -- plumbing ---------------------------------------------------------------------------
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
@@ -121,6 +125,10 @@ class _Handler(BaseHTTPRequestHandler):
             if name == "index.html":
                 body = body.replace(b"{{REFRESH_S}}", f"{self.refresh_s:g}".encode())
             self._send(HTTPStatus.OK, body, ctype, head_only)
+            return
+        if path == "/api/live":
+            live = self.live.snapshot() if self.live is not None else {"enabled": False}
+            self._json(HTTPStatus.OK, jsonable(live), head_only)
             return
         if path not in ("/api/fleet", "/api/unit", "/healthz"):
             self._error(HTTPStatus.NOT_FOUND, f"no such page: {path}", head_only)
@@ -184,13 +192,20 @@ def make_server(
     *,
     refresh_s: float = 10.0,
     access_log: bool = False,
+    live: Any = None,
 ) -> ThreadingHTTPServer:
     """A bound (not yet serving) server of the page on ``host:port`` (port 0: any free one;
-    ``server.server_address`` tells which) over the store at ``store_target``."""
+    ``server.server_address`` tells which) over the store at ``store_target``; ``live``, a
+    started ``LiveStatus``, adds the daemons' live status."""
     handler = type(
         "FleetPageHandler",
         (_Handler,),
-        {"store_target": store_target, "refresh_s": float(refresh_s), "access_log": access_log},
+        {
+            "store_target": store_target,
+            "refresh_s": float(refresh_s),
+            "access_log": access_log,
+            "live": live,
+        },
     )
     cls = ThreadingHTTPServer
     if ":" in host:

@@ -6,6 +6,7 @@ const SVG = "http://www.w3.org/2000/svg";
 const STATUS_LABEL = { critical: "critical", watch: "watch", ok: "ok", uncommissioned: "not commissioned" };
 const BAR_W = 220, BAR_H = 16;
 let fleet = null;
+let live = null;
 let selected = null;
 
 const $ = (id) => document.getElementById(id);
@@ -147,6 +148,7 @@ function renderTable() {
     tr.appendChild(el("td", { class: "phor" }, u.rul_interval ? fmt(u.rul_interval.p_horizon, 2) : "-"));
     tr.appendChild(el("td", { class: "alarms" }, Math.max(u.alarms || 0, u.alarm_events || 0)));
     tr.appendChild(el("td", { class: "oph" }, fmt(u.op_time_s, 1, 1 / 3600)));
+    tr.appendChild(liveCell(u.actuator));
     tr.addEventListener("click", () => { location.hash = "unit=" + encodeURIComponent(u.actuator); });
     tbody.appendChild(tr);
   }
@@ -154,7 +156,59 @@ function renderTable() {
   $("empty").hidden = data.fleet.length > 0;
 }
 
+function liveCell(name) {
+  // which daemon monitors the unit now, from /api/live (hidden when the page has no Zenoh)
+  const td = el("td", { class: "c-live" });
+  const lu = live && live.enabled && live.units ? live.units[name] : null;
+  if (!lu) {
+    td.textContent = live && live.enabled ? "not monitored" : "-";
+    td.dataset.live = "none";
+    return td;
+  }
+  const state = lu.silent ? "silent" : "receiving";
+  td.dataset.live = state;
+  td.appendChild(el("span", { class: "dot " + state }));
+  td.appendChild(document.createTextNode(`${lu.daemon} (${state})`));
+  td.title = `${lu.samples} samples, ${lu.bad || 0} bad, ${lu.dropped || 0} dropped, ${lu.missed || 0} missed` +
+    (lu.alarms.length ? `; alarm ${lu.alarms.join(", ")}` : "");
+  return td;
+}
+
+function renderDaemons() {
+  const box = $("daemons");
+  const on = !!(live && live.enabled);
+  document.body.classList.toggle("live-off", !on);
+  box.hidden = !on;
+  if (!on) return;
+  const list = $("daemon-list");
+  list.replaceChildren();
+  $("live-age").textContent = live.error ? `(status query failed: ${live.error})`
+    : (num(live.age_s) === null ? "(asking...)" : `(asked ${live.age_s.toFixed(0)} s ago)`);
+  if (!live.daemons.length) list.appendChild(el("span", { class: "daemon none" }, "no daemon answers"));
+  for (const d of live.daemons) {
+    const c = el("div", { class: "daemon " + (d.state || ""), "data-daemon": d.name || d.key });
+    c.appendChild(el("b", {}, d.name || d.key));
+    c.appendChild(el("span", { class: "st" }, d.state || "-"));
+    c.appendChild(el("div", {},
+      `${d.units} units, ${d.samples} samples, ${d.dropped} dropped, ${d.bad} bad, ${d.missed} missed` +
+      (num(d.latency_p99_ms) === null ? "" : `, p99 ${d.latency_p99_ms.toFixed(1)} ms`) +
+      (d.silent && d.silent.length ? `, silent: ${d.silent.join(", ")}` : "")));
+    if (d.log_failure) c.appendChild(el("div", { class: "rising" }, `log failed: ${d.log_failure}`));
+    list.appendChild(c);
+  }
+}
+
+async function loadLive() {
+  try {
+    live = await getJSON("/api/live");
+  } catch (e) {
+    live = { enabled: true, daemons: [], units: {}, error: e.message };
+  }
+  renderDaemons();
+}
+
 async function loadFleet() {
+  await loadLive();
   try {
     fleet = await getJSON("/api/fleet");
     banner("");

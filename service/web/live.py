@@ -1,0 +1,111 @@
+"""Live state of the monitoring daemons for the fleet page: a thread asks every daemon's
+status queryable (``monitor/*/*/status``, the same query as ``servowatch status``) every
+``period_s`` and keeps the last answer, slimmed to what the page shows. The page's HTTP
+threads only read that copy, so a slow or absent daemon never holds up a request."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+from service.commands.status import STATUS_SELECTOR, query_status
+
+__all__ = ["LiveStatus", "slim"]
+
+
+def slim(daemons: dict[str, dict[str, Any]], queried_s: float) -> dict[str, Any]:
+    """The page's live JSON from ``query_status``'s ``{key: status}``: one entry per daemon
+    (station, shard, state, counters, latency p99 [ms], silent units, raised alarms) and per
+    unit ``AIRCRAFT/ACTUATOR`` the daemon that monitors it with that unit's samples, silence,
+    bad/dropped/missed counts and raised alarm kinds."""
+    out_d: list[dict[str, Any]] = []
+    units: dict[str, dict[str, Any]] = {}
+    for key, st in sorted(daemons.items()):
+        if not isinstance(st, dict) or "error" in st and len(st) == 1:
+            out_d.append({"key": key, "state": "unreadable"})
+            continue
+        name = f"{st.get('station')}/{st.get('shard')}"
+        acts = st.get("actuators") or {}
+        out_d.append(
+            {
+                "key": key,
+                "name": name,
+                "state": st.get("state"),
+                "model": st.get("model"),
+                "uptime_s": st.get("uptime_s"),
+                "units": len(acts),
+                "samples": st.get("samples"),
+                "dropped": st.get("dropped"),
+                "bad": st.get("bad"),
+                "missed": st.get("missed"),
+                "latency_p99_ms": (st.get("latency_ms") or {}).get("p99"),
+                "log_failure": st.get("log_failure"),
+                "silent": list(st.get("silent") or []),
+            }
+        )
+        for a in acts.values():
+            if not isinstance(a, dict) or "aircraft" not in a or "actuator" not in a:
+                continue
+            unit = f"{a['aircraft']}/{a['actuator']}"
+            units[unit] = {
+                "daemon": name,
+                "samples": a.get("samples"),
+                "silent": bool(a.get("silent")),
+                "bad": a.get("bad"),
+                "dropped": a.get("dropped"),
+                "missed": a.get("missed"),
+                "alarms": sorted({str(x.get("kind")) for x in a.get("alarms") or []}),
+            }
+    return {"enabled": True, "queried_s": queried_s, "daemons": out_d, "units": units}
+
+
+class LiveStatus:
+    """Polls the daemons' status on ``session`` in a daemon thread; ``snapshot()`` is the
+    last ``slim`` answer (with ``age_s``), or an error once a query fails."""
+
+    def __init__(self, session: Any, period_s: float = 5.0, timeout_s: float = 2.0) -> None:
+        self.session = session
+        self.period_s = max(float(period_s), 0.5)
+        self.timeout_s = float(timeout_s)
+        self._lock = threading.Lock()
+        self._last: dict[str, Any] = {
+            "enabled": True,
+            "queried_s": None,
+            "daemons": [],
+            "units": {},
+        }
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="servowatch-web-live", daemon=True)
+
+    def start(self) -> LiveStatus:
+        self._thread.start()
+        return self
+
+    def poll_once(self) -> None:
+        """One query; the result (or its error) replaces the last one."""
+        try:
+            daemons = query_status(self.session, self.timeout_s, STATUS_SELECTOR)
+            snap = slim(daemons, time.time())
+        except Exception as e:  # a closed session, a transport error: say so on the page
+            snap = {**self._last, "error": f"{type(e).__name__}: {e}"}
+        with self._lock:
+            self._last = snap
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            t0 = time.monotonic()
+            self.poll_once()
+            self._stop.wait(max(self.period_s - (time.monotonic() - t0), 0.05))
+
+    def snapshot(self) -> dict[str, Any]:
+        with self._lock:
+            s = dict(self._last)
+        q = s.get("queried_s")
+        s["age_s"] = None if q is None else max(time.time() - q, 0.0)
+        return s
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(self.timeout_s + 1.0)
