@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import http.client
 import json
+import time
 import urllib.error
 import urllib.request
 from pathlib import Path
 
 import pytest
-from webfleet import CRITICAL, OK, RANKED, UNCOMMISSIONED, WATCH, fill_store, web_process
+from webfleet import CRITICAL, OK, RANKED, WATCH, fill_store, web_process
 
 from service.cli import main
 from service.web.server import SECURITY_HEADERS, check_listen
@@ -87,13 +88,32 @@ def test_live_is_off_without_zenoh(filled):
     assert status == 200 and live == {"enabled": False}
 
 
-def test_live_session_that_does_not_open_exits_3(filled, capsys):
-    from service.zenoh_util import free_port, loopback
+def test_page_starts_before_its_router_and_picks_it_up(filled):
+    import zenoh
 
-    rc = main(["web", "--store", filled, "--listen", "127.0.0.1:0",
-               "--connect", loopback(free_port())])  # fmt: skip
-    assert rc == 3
-    assert capsys.readouterr().err.startswith("servowatch: error:")
+    from service.zenoh_util import free_port, loopback, make_config
+
+    ep = loopback(free_port())
+    with web_process(filled, "--connect", ep, "--refresh", "1") as url:
+        deadline = time.monotonic() + 20
+        while "error" not in (live := _get(url + "/api/live")[2]) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert live["enabled"] and live["error"].startswith("no Zenoh session:")
+        assert live["daemons"] == [] and live["units"] == {}
+        status, _, page = _get(url + "/api/fleet")  # the page serves meanwhile
+        assert status == 200 and len(page["fleet"]) == 4
+        router = zenoh.open(make_config("router", [ep]))
+        try:
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline:
+                live = _get(url + "/api/live")[2]
+                if "error" not in live and live["queried_s"] is not None:
+                    break
+                time.sleep(0.2)
+            assert "error" not in live, live
+            assert live["daemons"] == []  # a router, no daemon
+        finally:
+            router.close()
 
 
 def test_errors_name_the_field(filled):
@@ -114,15 +134,69 @@ def test_errors_name_the_field(filled):
 
 def test_read_only(filled):
     with web_process(filled) as url:
-        for method in ("POST", "PUT", "DELETE", "PATCH"):
-            status, headers, body = _request(url + "/api/fleet", method, b'{"x": 1}')
-            assert status == 405 and headers["Allow"] == "GET, HEAD"
+        u = urllib.parse.urlsplit(url)
+        c = http.client.HTTPConnection(u.hostname, u.port, timeout=10)
+        for method in ("POST", "PUT", "DELETE", "PATCH", "TRACE", "BREW"):
+            c.request(method, "/api/fleet", body=b'{"x": 1}')
+            r = c.getresponse()
+            body, headers = r.read(), dict(r.getheaders())
+            assert r.status == 405 and headers["Allow"] == "GET, HEAD", method
             assert json.loads(body)["error"] == f"{method}: the page is read only"
-        status, headers, body = _request(url + "/api/fleet", "HEAD")
-        assert status == 200 and body == b"" and int(headers["Content-Length"]) > 100
-        # the connection still serves after a refused write
-        status, _, page = _get(url + "/api/fleet")
-        assert status == 200 and len(page["fleet"]) == 4
+            assert headers["Content-Security-Policy"] == SECURITY_HEADERS["Content-Security-Policy"]
+            if method == "BREW":  # the base class's refusal closes the connection
+                c.close()
+                c = http.client.HTTPConnection(u.hostname, u.port, timeout=10)
+        # the same connection still serves after a refused write
+        c.request("HEAD", "/api/fleet")
+        r = c.getresponse()
+        assert r.status == 200 and r.read() == b"" and int(r.getheader("Content-Length")) > 100
+        c.request("GET", "/api/fleet")
+        r = c.getresponse()
+        assert r.status == 200 and len(json.loads(r.read())["fleet"]) == 4
+        c.close()
+
+
+def test_malformed_requests_are_answered_and_closed(filled):
+    """Each gets one JSON answer with the security headers, then the server closes the
+    connection: a body it did not read is never parsed as a next request."""
+    import socket
+
+    with web_process(filled) as url:
+        u = urllib.parse.urlsplit(url)
+        for raw, want in (
+            (b"POST /api/fleet HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: abc\r\n\r\n", 405),
+            (b"GET /api/fleet HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 5\r\n\r\nGET /", 200),
+            (b"POST /x HTTP/1.1\r\nHost: 127.0.0.1\r\nTransfer-Encoding: chunked\r\n\r\n0\r\n\r\n", 405),
+            (b"NOT A REQUEST\r\n\r\n", 400),
+        ):  # fmt: skip
+            with socket.create_connection((u.hostname, u.port), timeout=10) as sock:
+                sock.sendall(raw)
+                got = b""
+                while chunk := sock.recv(65536):  # ends when the server closes
+                    got += chunk
+            head, _, body = got.partition(b"\r\n\r\n")
+            assert got.count(b"HTTP/1.") == 1, got  # one answer, no second
+            assert int(head.split()[1]) == want, got
+            assert b"Connection: close" in head and b"Content-Security-Policy" in head
+            doc = json.loads(body)
+            assert doc["fleet"] if want == 200 else doc["status"] == want
+
+
+def test_host_header_must_name_this_server(filled):
+    with web_process(filled) as url:
+        u = urllib.parse.urlsplit(url)
+        for host, want in (("evil.example", 421), (f"evil.example:{u.port}", 421),
+                           (f"localhost:{u.port}", 200), (f"127.0.0.1:{u.port}", 200)):  # fmt: skip
+            c = http.client.HTTPConnection(u.hostname, u.port, timeout=10)
+            c.putrequest("GET", "/api/fleet", skip_host=True)
+            c.putheader("Host", host)
+            c.endheaders()
+            r = c.getresponse()
+            body = json.loads(r.read())
+            assert r.status == want, (host, body)
+            if want == 421:
+                assert body["error"] == "Host: not this server's name"
+            c.close()
 
 
 def test_page_and_assets(filled):
@@ -173,8 +247,9 @@ def test_cli_refuses_bad_arguments(tmp_path, capsys):
     assert main(["web", "--store", str(db), "--listen", "0.0.0.0:8080"]) == 2
     assert "not a loopback address" in capsys.readouterr().err
     assert main(["web", "--store", str(tmp_path / "none.sqlite")]) == 2
-    assert "--store:" in capsys.readouterr().err and True
+    assert "--store:" in capsys.readouterr().err
     assert main(["web", "--store", str(db), "--refresh", "-1"]) == 2
+    assert "--refresh: expected 0-3600 s, got -1" in capsys.readouterr().err
     assert main(["web", "--store", str(db), "--unit", OK]) == 2
     assert "--unit: only with --snapshot" in capsys.readouterr().err
 
@@ -187,4 +262,3 @@ def test_status_rules():
     assert unit_status({**base, "alarm_events": 2}) == ("watch", "2 alarms recorded")
     assert unit_status({**base, "trend": {"label": "rising"}}) == ("watch", "C_Lk ratio rising")
     assert unit_status({**base, "rul": {"warning": False}}) == ("ok", "")
-    assert UNCOMMISSIONED not in (CRITICAL, WATCH, OK)

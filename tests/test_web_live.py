@@ -50,7 +50,7 @@ def _wait_live(url: str, pred, what: str, timeout: float = 30.0) -> dict:
 def test_live_column_follows_the_daemon(net, tmp_path):
     store = tmp_path / "health.sqlite"
     d = _start(net, tmp_path, store, window_s=0.5)
-    net.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "60")
+    net.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "120")
     net.wait(lambda st: _act(st).get("periods", 0) >= 1, what="a period stored")
     with web_process(str(store), "--connect", net.ep, "--refresh", "1") as url:
         lv = _wait_live(url, lambda lv: NAME in lv["units"], "the unit in the live status")

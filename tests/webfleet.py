@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 from collections.abc import Iterator
@@ -66,7 +67,11 @@ def web_process(store: str, *extra: str) -> Iterator[str]:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True,
     )  # fmt: skip
     try:
-        line = proc.stdout.readline()
+        got: list[str] = []
+        reader = threading.Thread(target=lambda: got.append(proc.stdout.readline()), daemon=True)
+        reader.start()
+        reader.join(60)  # a cold start imports numpy and the store; a hang fails here
+        line = got[0] if got else ""
         assert line.startswith("serving http://127.0.0.1:"), (line, proc.stderr.read())
         url = line.split()[1].rstrip("/")
         deadline = time.monotonic() + 10

@@ -3,13 +3,13 @@
 Prints one line ``serving http://HOST:PORT/ from STORE`` on stdout once it listens (with
 ``--listen 127.0.0.1:0`` the port is a free one, read it there), then serves until SIGINT or
 SIGTERM and exits 0. Exit 2: bad arguments, a non-loopback address without
-``--allow-remote``, or a store that cannot be opened; 3: the address is in use, or no Zenoh
-session opens (``--connect``/``--config``); 4: the router refused the session at the TLS
-handshake.
+``--allow-remote``, or a store that cannot be opened; 3: the address is in use.
 
 With ``--connect`` (or ``--config``, a service TOML with a ``[zenoh]`` table) the page also
 shows which daemon monitors each unit, live, from the daemons' status queryables; the session
-only queries (the read-only ``dashboard`` role of docs/security.md is enough).
+only queries (the read-only ``dashboard`` role of docs/security.md is enough). A router that
+does not answer does not stop the page: the live strip says so, and the session is retried
+every refresh period.
 """
 
 from __future__ import annotations
@@ -68,39 +68,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-class _Live:
-    """A started ``LiveStatus`` and the Zenoh session it owns."""
-
-    def __init__(self, session, refresh_s: float) -> None:
-        from service.web.live import LiveStatus
-
-        self.session = session
-        self.status = LiveStatus(session, period_s=refresh_s if refresh_s > 0 else 5.0).start()
-
-    def snapshot(self) -> dict:
-        return self.status.snapshot()
-
-    def close(self) -> None:
-        self.status.stop()
-        self.session.close()
-
-
-def _open_live(args: argparse.Namespace) -> tuple[_Live | None, int]:
-    """The live-status session from ``--connect``/``--config``/``--tls-*``; (None, exit code)
-    with the error printed when it does not open."""
+def _open_live(args: argparse.Namespace, refresh_s: float):
+    """A started ``LiveStatus`` whose session comes from ``--connect``/``--config``/
+    ``--tls-*``, or the exit code 2 with the error printed when those do not parse. The
+    session itself is opened (and retried) by the status thread."""
     from service.cliargs import service_config_from_args
-    from service.config import ConfigError, SessionError
+    from service.config import ConfigError
+    from service.web.live import LiveStatus
 
     zargs = argparse.Namespace(**{**vars(args), "listen": None, "mode": None})  # HTTP --listen
     try:
         cfg = service_config_from_args(zargs)
     except (ConfigError, ValueError) as e:
         return None, fail(str(e))
-    try:
-        session = cfg.zenoh.open_session()
-    except SessionError as e:
-        return None, fail(str(e), e.exit_code)
-    return _Live(session, args.refresh), 0
+    return LiveStatus(cfg.zenoh.open_session, period_s=refresh_s if refresh_s > 0 else 5.0), 0
 
 
 def _snapshot(srv, url: str, out: str, unit: str | None) -> int:
@@ -144,44 +125,44 @@ def run(args: argparse.Namespace) -> int:
             where = store.where
     except StoreError as e:
         return fail(str(e))
+    stop = threading.Event()
+    if not args.snapshot:  # before anything is started, so a SIGTERM always cleans up
+
+        def _stop(*_: object) -> None:
+            stop.set()
+
+        signal.signal(signal.SIGTERM, _stop)
+        signal.signal(signal.SIGINT, _stop)
     live = None
     if args.connect or args.config:
-        live, code = _open_live(args)
+        live, code = _open_live(args, args.refresh)
         if live is None:
             return code
+    shown_listen = f"{host}:{port}"
     try:
         srv = make_server(
-            str(target), host, port, refresh_s=args.refresh, access_log=args.access_log, live=live
-        )
+            str(target), host, port, refresh_s=args.refresh, access_log=args.access_log,
+            live=live, allow_remote=args.allow_remote,
+        )  # fmt: skip
     except OSError as e:
-        if live is not None:
-            live.close()
-        return fail(f"--listen: cannot listen on {args.listen}: {e}", 3)
+        return fail(f"--listen: cannot listen on {shown_listen}: {e}", 3)
     h, p = srv.server_address[:2]
     shown = f"[{h}]" if ":" in h else h
     url = f"http://{shown}:{p}/"
-    if args.snapshot:
-        try:
-            return _snapshot(srv, url, args.snapshot, args.unit)
-        finally:
-            if live is not None:
-                live.close()
-    print(f"serving {url} from {where}" + (" (live status on)" if live else ""), flush=True)
-
-    stop = threading.Event()
-
-    def _stop(*_: object) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGTERM, _stop)
-    signal.signal(signal.SIGINT, _stop)
-    worker = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True)
-    worker.start()
+    if live is not None:
+        live.start()
     try:
+        if args.snapshot:
+            return _snapshot(srv, url, args.snapshot, args.unit)
+        print(f"serving {url} from {where}" + (" (live status on)" if live else ""), flush=True)
+        worker = threading.Thread(
+            target=srv.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True
+        )
+        worker.start()
         while not stop.wait(0.5):
             pass
-    finally:
         srv.shutdown()
+    finally:
         srv.server_close()
         if live is not None:
             live.close()

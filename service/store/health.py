@@ -119,14 +119,17 @@ class _Backend:
 class _SQLite(_Backend):
     name = "sqlite"
 
-    def __init__(self, path: Path, timeout_s: float = 30.0) -> None:
+    def __init__(self, path: Path, timeout_s: float = 30.0, read_only: bool = False) -> None:
         super().__init__()
         self.path = path
         self.conn = sqlite3.connect(str(path), timeout=timeout_s, isolation_level=None)
-        self.conn.execute("PRAGMA journal_mode=WAL")
-        # WAL + NORMAL: a killed process loses nothing committed; power loss may lose the
-        # last transactions but never leaves a half-written one
-        self.conn.execute("PRAGMA synchronous=NORMAL")
+        if read_only:  # a reader: no journal-mode change, and this connection cannot write
+            self.conn.execute("PRAGMA query_only=ON")
+        else:
+            self.conn.execute("PRAGMA journal_mode=WAL")
+            # WAL + NORMAL: a killed process loses nothing committed; power loss may lose the
+            # last transactions but never leaves a half-written one
+            self.conn.execute("PRAGMA synchronous=NORMAL")
         self.conn.execute("PRAGMA foreign_keys=ON")
         self._depth = 0
 
@@ -161,7 +164,7 @@ class _Postgres(_Backend):
     name = "postgresql"
     for_update = " FOR UPDATE"
 
-    def __init__(self, url: str, timeout_s: float = 30.0) -> None:
+    def __init__(self, url: str, timeout_s: float = 30.0, read_only: bool = False) -> None:
         super().__init__()
         try:
             import psycopg
@@ -174,6 +177,8 @@ class _Postgres(_Backend):
             msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             raise StoreError(f"store: cannot connect to {describe_url(url)}: {msg}") from e
         self.cur = self.conn.cursor()
+        if read_only:  # every transaction of this session is read only
+            self.cur.execute("SET default_transaction_read_only = on")
 
     def sql(self, text: str) -> str:
         return text.replace("?", "%s")
@@ -247,12 +252,16 @@ class HealthStore:
     Open with ``open_store``; a context manager (``close()`` on exit).
     """
 
-    def __init__(self, backend: _Backend, url: str) -> None:
+    def __init__(self, backend: _Backend, url: str, read_only: bool = False) -> None:
         self._b = backend
         self.url = url
         self.backend = backend.name
+        self.read_only = read_only
         self._known: set[str] = set()
-        self._migrate()
+        if read_only:
+            self._check_schema()
+        else:
+            self._migrate()
 
     # -- lifecycle ------------------------------------------------------------------------
     def __enter__(self) -> HealthStore:
@@ -306,6 +315,25 @@ class HealthStore:
                     "VALUES (?, ?, ?)",
                     (version, desc, time.time()),
                 )
+
+    def _check_schema(self) -> None:
+        """A reader's check in place of the migrations: the schema is this servowatch's."""
+        try:
+            current = self.schema_version()
+        except Exception as e:  # no schema_migrations table: not a health store (yet)
+            raise StoreError(
+                f"store {describe_url(self.url)}: not a health store yet (no schema): {e}"
+            ) from e
+        if current != LATEST_VERSION:
+            hint = (
+                "upgrade servowatch"
+                if current > LATEST_VERSION
+                else "any servowatch command that writes the store (e.g. `servowatch rul`) migrates it"
+            )
+            raise StoreError(
+                f"store {describe_url(self.url)}: schema version {current}, this servowatch "
+                f"reads {LATEST_VERSION}; {hint}"
+            )
 
     def _recompute_trends(self) -> None:
         rows = self._b.execute("SELECT actuator, recent FROM summary").fetchall()
@@ -687,17 +715,26 @@ class HealthStore:
 
 
 def open_store(
-    url_or_path: str | os.PathLike[str], *, create: bool = True, timeout_s: float = 30.0
+    url_or_path: str | os.PathLike[str],
+    *,
+    create: bool = True,
+    timeout_s: float = 30.0,
+    read_only: bool = False,
 ) -> HealthStore:
     """Open (migrating as needed) the store at a ``postgresql://`` URL or a SQLite file
-    path; a missing SQLite file (and its directory) is created unless ``create`` is False."""
+    path; a missing SQLite file (and its directory) is created unless ``create`` is False.
+    ``read_only``: never create, never migrate, and a connection that cannot write (SQLite
+    ``query_only``, PostgreSQL ``default_transaction_read_only``); a store whose schema is
+    not this servowatch's is a ``StoreError``."""
+    if read_only:
+        create = False
     if isinstance(url_or_path, os.PathLike):
         url_or_path = os.fspath(url_or_path)
     if not isinstance(url_or_path, str) or not url_or_path.strip():
         raise StoreError(f"store: expected a file path or a postgresql:// URL, got {url_or_path!r}")
     text = url_or_path.strip()
     if text.startswith(("postgresql://", "postgres://")):
-        backend: _Backend = _Postgres(text, timeout_s)
+        backend: _Backend = _Postgres(text, timeout_s, read_only)
     elif re.match(r"^[A-Za-z][A-Za-z0-9+.\-]*://", text) and not text.startswith("sqlite:///"):
         scheme = text.split("://", 1)[0]
         raise StoreError(
@@ -712,11 +749,11 @@ def open_store(
             raise StoreError(f"store: {path} does not exist (no health store there yet)")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            backend = _SQLite(path, timeout_s)
+            backend = _SQLite(path, timeout_s, read_only)
         except (OSError, sqlite3.Error) as e:
             raise StoreError(f"store: cannot open SQLite file {path}: {e}") from e
     try:
-        return HealthStore(backend, text)
+        return HealthStore(backend, text, read_only)
     except sqlite3.DatabaseError as e:
         backend.close()
         raise StoreError(f"store: {describe_url(text)} is not a usable health store: {e}") from e

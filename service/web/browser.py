@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 from pathlib import Path
@@ -43,17 +44,26 @@ def _run(args: list[str], timeout_s: float) -> subprocess.CompletedProcess[bytes
         raise BrowserError(
             "no Chromium found (install Debian's chromium, or set SERVOWATCH_CHROMIUM)"
         )
-    with tempfile.TemporaryDirectory(prefix="servowatch-chromium-") as profile:
+    with tempfile.TemporaryDirectory(
+        prefix="servowatch-chromium-", ignore_cleanup_errors=True
+    ) as profile:
         cmd = [
             exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
             "--no-first-run", "--disable-background-networking", "--disable-component-update",
             "--disable-sync", "--disable-extensions", "--disable-dev-shm-usage",
             f"--user-data-dir={profile}", *args,
         ]  # fmt: skip
+        # its own process group, so a timeout ends Chromium's helper processes too
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
+        )
         try:
-            res = subprocess.run(cmd, capture_output=True, timeout=timeout_s, check=False)
+            out, err = proc.communicate(timeout=timeout_s)
         except subprocess.TimeoutExpired as e:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
             raise BrowserError(f"chromium took more than {timeout_s:g} s") from e
+        res = subprocess.CompletedProcess(cmd, proc.returncode, out, err)
     if res.returncode != 0:
         tail = res.stderr.decode(errors="replace").strip().splitlines()[-3:]
         raise BrowserError(f"chromium exited {res.returncode}: {' | '.join(tail)}")

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from service.commands.status import STATUS_SELECTOR, query_status
@@ -61,11 +62,19 @@ def slim(daemons: dict[str, dict[str, Any]], queried_s: float) -> dict[str, Any]
 
 
 class LiveStatus:
-    """Polls the daemons' status on ``session`` in a daemon thread; ``snapshot()`` is the
-    last ``slim`` answer (with ``age_s``), or an error once a query fails."""
+    """Polls the daemons' status in a daemon thread; ``snapshot()`` is the last ``slim``
+    answer (with ``age_s``), or says why there is none.
 
-    def __init__(self, session: Any, period_s: float = 5.0, timeout_s: float = 2.0) -> None:
-        self.session = session
+    ``connect`` opens the Zenoh session. The thread calls it, and again each period until it
+    succeeds, so a page started before its router (or across a router restart at start-up)
+    shows the error and picks the live status up once the router answers. A failed query
+    clears the units: stale "receiving" cells would say more than is known."""
+
+    def __init__(
+        self, connect: Callable[[], Any], period_s: float = 5.0, timeout_s: float = 2.0
+    ) -> None:
+        self.connect = connect
+        self.session: Any = None
         self.period_s = max(float(period_s), 0.5)
         self.timeout_s = float(timeout_s)
         self._lock = threading.Lock()
@@ -82,13 +91,25 @@ class LiveStatus:
         self._thread.start()
         return self
 
+    def _failed(self, error: str) -> None:
+        with self._lock:
+            self._last = {**self._last, "daemons": [], "units": {}, "error": error}
+
     def poll_once(self) -> None:
-        """One query; the result (or its error) replaces the last one."""
+        """Open the session if it is not open yet, then one query; the result (or its
+        error) replaces the last one."""
+        if self.session is None:
+            try:
+                self.session = self.connect()
+            except Exception as e:  # SessionError (3, 4) and the like: retried next period
+                self._failed(f"no Zenoh session: {e}")
+                return
         try:
             daemons = query_status(self.session, self.timeout_s, STATUS_SELECTOR)
             snap = slim(daemons, time.time())
         except Exception as e:  # a closed session, a transport error: say so on the page
-            snap = {**self._last, "error": f"{type(e).__name__}: {e}"}
+            self._failed(f"status query failed: {type(e).__name__}: {e}")
+            return
         with self._lock:
             self._last = snap
 
@@ -105,7 +126,11 @@ class LiveStatus:
         s["age_s"] = None if q is None else max(time.time() - q, 0.0)
         return s
 
-    def stop(self) -> None:
+    def close(self) -> None:
+        """Stop the thread and close the session."""
         self._stop.set()
         if self._thread.is_alive():
-            self._thread.join(self.timeout_s + 1.0)
+            self._thread.join(self.timeout_s + 5.0)
+        if self.session is not None:
+            self.session.close()
+            self.session = None

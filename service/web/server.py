@@ -41,6 +41,7 @@ _FILES = {
     "/static/fleet.js": ("fleet.js", "text/javascript; charset=utf-8"),
     "/static/fleet.css": ("fleet.css", "text/css; charset=utf-8"),
 }
+STORE_TIMEOUT_S = 5.0  # a store that does not answer within this is a 503 [s]
 SECURITY_HEADERS: dict[str, str] = {
     "Content-Security-Policy": (
         "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
@@ -81,108 +82,161 @@ def check_listen(text: str, *, allow_remote: bool = False) -> tuple[str, int]:
     return host, port
 
 
+def _loopback_names(host: str) -> frozenset[str]:
+    return frozenset({"localhost", "127.0.0.1", "::1", host.lower()})
+
+
 class _Handler(BaseHTTPRequestHandler):
     server_version = "servowatch-web"
     sys_version = ""
     protocol_version = "HTTP/1.1"
+    timeout = 30.0  # an idle or stalled connection frees its thread after this long [s]
     # set by make_server on a subclass
     store_target: str = ""
     refresh_s: float = 10.0
     access_log: bool = False
     live: Any = None  # a LiveStatus, or None
+    allowed_hosts: frozenset[str] | None = None  # Host header names; None = any
 
     # -- plumbing ---------------------------------------------------------------------------
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
         if self.access_log:
             sys.stderr.write(f"servowatch web: {self.address_string()} {format % args}\n")
 
-    def _send(self, status: int, body: bytes, ctype: str, head_only: bool = False) -> None:
-        self.send_response(status)
-        self.send_header("Content-Type", ctype)
-        self.send_header("Content-Length", str(len(body)))
-        for k, v in SECURITY_HEADERS.items():
-            self.send_header(k, v)
-        if status == HTTPStatus.METHOD_NOT_ALLOWED:
-            self.send_header("Allow", "GET, HEAD")
-        self.end_headers()
-        if not head_only:
-            self.wfile.write(body)
+    def _send(self, status: int, body: bytes, ctype: str) -> None:
+        head_only = self.command == "HEAD"
+        try:
+            self.send_response(status)
+            self.send_header("Content-Type", ctype)
+            self.send_header("Content-Length", str(len(body)))
+            for k, v in SECURITY_HEADERS.items():
+                self.send_header(k, v)
+            if status == HTTPStatus.METHOD_NOT_ALLOWED:
+                self.send_header("Allow", "GET, HEAD")
+            if self.close_connection:
+                self.send_header("Connection", "close")
+            self.end_headers()
+            if not head_only:
+                self.wfile.write(body)
+        except (ConnectionError, TimeoutError):  # the client went away: nothing to answer
+            self.close_connection = True
 
-    def _json(self, status: int, obj: Any, head_only: bool = False) -> None:
+    def _json(self, status: int, obj: Any) -> None:
         body = json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
-        self._send(status, body, "application/json", head_only)
+        self._send(status, body, "application/json")
 
-    def _error(self, status: int, message: str, head_only: bool = False) -> None:
-        self._json(status, {"error": message, "status": int(status)}, head_only)
+    def _error(self, status: int, message: str) -> None:
+        self._json(status, {"error": message, "status": int(status)})
+
+    def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
+        """The base class's errors (a malformed request line, an unknown method, headers too
+        long) as JSON with the security headers; an unknown method is a 405."""
+        self.close_connection = True
+        if code == HTTPStatus.NOT_IMPLEMENTED:
+            code = HTTPStatus.METHOD_NOT_ALLOWED
+            message = f"{self.command}: the page is read only"
+        if not hasattr(self, "command") or self.command is None:
+            self.command = ""
+        if getattr(self, "request_version", "HTTP/0.9") == "HTTP/0.9":
+            self.request_version = (
+                "HTTP/1.0"  # an unparsed request: answer with headers all the same
+            )
+        self._error(code, message or HTTPStatus(code).phrase)
+
+    def _body_length(self) -> int | None:
+        """The request body's Content-Length (0 without one); None when it is not a
+        non-negative integer, or the body is chunked: the connection cannot be reused."""
+        if self.headers.get("Transfer-Encoding"):
+            return None
+        text = self.headers.get("Content-Length")
+        if text is None:
+            return 0
+        try:
+            n = int(text)
+        except ValueError:
+            return None
+        return n if n >= 0 else None
+
+    def _host_ok(self) -> bool:
+        """The Host header names this server (DNS rebinding: a page of another origin that
+        resolves its name to 127.0.0.1 must not read the fleet)."""
+        if self.allowed_hosts is None:
+            return True
+        host = (self.headers.get("Host") or "").strip().lower()
+        if host.startswith("["):
+            name = host[1 : host.find("]")] if "]" in host else host
+        else:
+            name = host.rsplit(":", 1)[0] if host.count(":") == 1 else host
+        return name in self.allowed_hosts
 
     # -- routes -----------------------------------------------------------------------------
-    def _route(self, head_only: bool) -> None:
+    def _answer(self) -> tuple[int, bytes, str]:
+        """(status, body, content type) of a GET (HEAD) request."""
         url = urlsplit(self.path)
         path = url.path
+
+        def err(status: int, message: str) -> tuple[int, bytes, str]:
+            obj = {"error": message, "status": int(status)}
+            return status, json.dumps(obj).encode(), "application/json"
+
+        def ok(obj: Any) -> tuple[int, bytes, str]:
+            body = json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
+            return HTTPStatus.OK, body, "application/json"
+
+        if not self._host_ok():
+            return err(HTTPStatus.MISDIRECTED_REQUEST, "Host: not this server's name")
         if path in _FILES:
             name, ctype = _FILES[path]
             body = (STATIC / name).read_bytes()
             if name == "index.html":
                 body = body.replace(b"{{REFRESH_S}}", f"{self.refresh_s:g}".encode())
-            self._send(HTTPStatus.OK, body, ctype, head_only)
-            return
+            return HTTPStatus.OK, body, ctype
         if path == "/api/live":
-            live = self.live.snapshot() if self.live is not None else {"enabled": False}
-            self._json(HTTPStatus.OK, jsonable(live), head_only)
-            return
+            return ok(
+                jsonable(self.live.snapshot() if self.live is not None else {"enabled": False})
+            )
         if path not in ("/api/fleet", "/api/unit", "/healthz"):
-            self._error(HTTPStatus.NOT_FOUND, f"no such page: {path}", head_only)
-            return
+            return err(HTTPStatus.NOT_FOUND, f"no such page: {path}")
         query = parse_qs(url.query, keep_blank_values=True)
         try:
-            store = open_store(self.store_target, create=False)
+            store = open_store(self.store_target, read_only=True, timeout_s=STORE_TIMEOUT_S)
         except StoreError as e:
-            self._error(HTTPStatus.SERVICE_UNAVAILABLE, str(e), head_only)
-            return
+            return err(HTTPStatus.SERVICE_UNAVAILABLE, str(e))
         try:
             with store:
                 if path == "/healthz":
                     store.schema_version()
-                    self._json(HTTPStatus.OK, {"ok": True, "store": store.where}, head_only)
-                elif path == "/api/fleet":
-                    self._json(HTTPStatus.OK, fleet_view(store), head_only)
-                else:
-                    names = query.get("name", [])
-                    if len(names) != 1:
-                        self._error(
-                            HTTPStatus.BAD_REQUEST,
-                            "name: expected one ?name=AIRCRAFT/ACTUATOR",
-                            head_only,
-                        )
-                        return
-                    self._json(HTTPStatus.OK, unit_view(store, names[0]), head_only)
+                    return ok({"ok": True, "store": store.where})
+                if path == "/api/fleet":
+                    return ok(fleet_view(store))
+                names = query.get("name", [])
+                if len(names) != 1:
+                    return err(HTTPStatus.BAD_REQUEST, "name: expected one ?name=AIRCRAFT/ACTUATOR")
+                return ok(unit_view(store, names[0]))
         except ValueError as e:
-            self._error(HTTPStatus.BAD_REQUEST, str(e), head_only)
+            return err(HTTPStatus.BAD_REQUEST, str(e))
         except UnknownActuatorError as e:
-            self._error(
-                HTTPStatus.NOT_FOUND, f"name: no actuator {e.args[0]!r} in the store", head_only
-            )
+            return err(HTTPStatus.NOT_FOUND, f"name: no actuator {e.args[0]!r} in the store")
         except Exception as e:  # a store failing mid-request (connection lost, file removed)
-            self._error(
-                HTTPStatus.SERVICE_UNAVAILABLE, f"store: {type(e).__name__}: {e}", head_only
-            )
+            return err(HTTPStatus.SERVICE_UNAVAILABLE, f"store: {type(e).__name__}: {e}")
 
     def do_GET(self) -> None:
-        self._route(head_only=False)
+        if self._body_length() != 0:  # a body on a read: never parse it as the next request
+            self.close_connection = True
+        self._send(*self._answer())
 
-    def do_HEAD(self) -> None:
-        self._route(head_only=True)
+    do_HEAD = do_GET
 
     def _refuse(self) -> None:
-        # drain a body so the connection stays usable, then refuse: the page is read only
-        n = int(self.headers.get("Content-Length") or 0)
-        if 0 < n <= 1 << 20:
+        # drain a small body so the connection stays usable, then refuse: the page is read only
+        n = self._body_length()
+        if n is not None and n <= 1 << 20:
             self.rfile.read(n)
         else:
             self.close_connection = True
         self._error(HTTPStatus.METHOD_NOT_ALLOWED, f"{self.command}: the page is read only")
 
-    do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _refuse
+    do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_TRACE = do_CONNECT = _refuse
 
 
 def make_server(
@@ -193,10 +247,12 @@ def make_server(
     refresh_s: float = 10.0,
     access_log: bool = False,
     live: Any = None,
+    allow_remote: bool = False,
 ) -> ThreadingHTTPServer:
     """A bound (not yet serving) server of the page on ``host:port`` (port 0: any free one;
     ``server.server_address`` tells which) over the store at ``store_target``; ``live``, a
-    started ``LiveStatus``, adds the daemons' live status."""
+    started ``LiveStatus``, adds the daemons' live status. Unless ``allow_remote``, a request
+    whose Host header is not a loopback name of this server is answered 421."""
     handler = type(
         "FleetPageHandler",
         (_Handler,),
@@ -205,6 +261,7 @@ def make_server(
             "refresh_s": float(refresh_s),
             "access_log": access_log,
             "live": live,
+            "allowed_hosts": None if allow_remote else _loopback_names(host),
         },
     )
     cls = ThreadingHTTPServer

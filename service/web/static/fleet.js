@@ -138,7 +138,7 @@ function renderTable() {
     tr.appendChild(st);
     tr.appendChild(el("td", { class: "ratio" }, fmt(last.c_lk_ratio, 3)));
     tr.appendChild(el("td", { class: "trend " + (tr_.label || "") },
-      slope === null ? "-" : `${tr_.label} ${(slope * 100 >= 0 ? "+" : "")}${(slope * 100).toFixed(2)}`));
+      slope === null ? "-" : `${tr_.label || ""} ${(slope * 100 >= 0 ? "+" : "")}${(slope * 100).toFixed(2)}`.trim()));
     tr.appendChild(el("td", { class: "psr" }, fmt(last.p_sr_min, 2, 1e-6)));
     tr.appendChild(el("td", { class: "rul" }, rulText(u)));
     const bar = el("td", { class: "bar" });
@@ -202,7 +202,8 @@ async function loadLive() {
   try {
     live = await getJSON("/api/live");
   } catch (e) {
-    live = { enabled: true, daemons: [], units: {}, error: e.message };
+    // the page's own server did not answer: keep whether live status is on, drop the rest
+    live = { enabled: !!(live && live.enabled), daemons: [], units: {}, error: e.message };
   }
   renderDaemons();
 }
@@ -232,8 +233,11 @@ function chart(unit) {
   const pts = unit.periods.filter((p) => num(p.c_lk_ratio) !== null);
   const rul = unit.rul || {};
   const thr = num(rul.threshold_ratio);
-  const tNow = unit.periods.length ? unit.periods[unit.periods.length - 1].t_h : 0;
-  let tMax = Math.max(tNow, 1e-6);
+  // the RUL counts from the hours the history had when it was computed (t_now_h), which
+  // newer periods may have passed since
+  const tLast = unit.periods.length ? unit.periods[unit.periods.length - 1].t_h : 0;
+  const tNow = num(rul.t_now_h) === null ? tLast : rul.t_now_h;
+  let tMax = Math.max(tLast, tNow, 1e-6);
   if (num(rul.hi_h) !== null) tMax = Math.max(tMax, tNow + rul.hi_h);
   else if (num(rul.median_h) !== null) tMax = Math.max(tMax, tNow + rul.median_h);
   tMax *= 1.04;
@@ -318,16 +322,29 @@ async function loadUnit(name) {
 
 function fromHash() {
   const m = /^#unit=(.+)$/.exec(location.hash);
-  if (m) loadUnit(decodeURIComponent(m[1]));
+  if (!m) return;
+  let name;
+  try {
+    name = decodeURIComponent(m[1]);
+  } catch (e) {
+    banner(`the address names no unit: ${location.hash}`);
+    return;
+  }
+  loadUnit(name);
 }
 
 async function main() {
   const refresh = Number(document.querySelector('meta[name="servowatch-refresh-s"]').content) || 0;
   $("filter").addEventListener("input", () => { if (fleet) renderTable(); });
   window.addEventListener("hashchange", fromHash);
-  await loadFleet();
+  // one reload at a time: the next is planned when the last has ended, so a slow store
+  // never piles requests up or lets an older answer overwrite a newer one
+  const cycle = async () => {
+    await loadFleet();
+    if (refresh > 0) setTimeout(cycle, refresh * 1000);
+  };
+  await cycle();
   fromHash();
-  if (refresh > 0) setInterval(loadFleet, refresh * 1000);
 }
 
 main();
