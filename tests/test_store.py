@@ -238,3 +238,25 @@ def test_migration_2_computes_the_trend_of_a_version_1_store(store_url, monkeypa
         tr = s.fleet_summary()[0]["trend"]
         assert tr["label"] == "rising" and tr["slope_per_h"] == pytest.approx(0.1)
         assert tr["periods"] == 5
+
+
+def test_read_only_open_never_writes(store_url, tmp_path):
+    """``read_only``: the readers' open (the fleet page): no migration, and no write gets
+    through, on both backends."""
+    from service.store import StoreError
+
+    with open_store(store_url) as s:
+        s.add_periods([make_period("AC1/ail_L", k) for k in range(3)])
+    with open_store(store_url, read_only=True) as r:
+        assert r.count_periods("AC1/ail_L") == 3 and r.read_only
+        with pytest.raises(Exception, match="(?i)read.?only|readonly|attempt to write"):
+            r.add_periods([make_period("AC1/ail_L", 9)])
+    with open_store(store_url) as s:
+        assert s.count_periods("AC1/ail_L") == 3  # the refused write left nothing behind
+    empty = tmp_path / "empty.sqlite"
+    empty.touch()
+    with pytest.raises(StoreError, match="not a health store yet"):
+        open_store(str(empty), read_only=True)
+    assert empty.stat().st_size == 0  # and it was not migrated into one
+    with pytest.raises(StoreError, match="does not exist"):
+        open_store(str(tmp_path / "none.sqlite"), read_only=True)
