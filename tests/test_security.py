@@ -159,6 +159,15 @@ def station(tmp_path_factory):
             assert dash.poll() is None, (tmp / "dashboard.err").read_text()[-2000:]
             assert time.monotonic() < deadline
             time.sleep(0.1)
+        # the fleet page with live status through the secure router, as the dashboard role
+        from service.store import open_store
+
+        open_store(tmp / "web.sqlite").close()
+        web = st.popen(
+            ["web", "--store", str(tmp / "web.sqlite"), "--listen", "127.0.0.1:0",
+             "--refresh", "1", "--config", str(SECURE / "dashboard.toml")],
+            "web", env=st.env("dashboard"),
+        )  # fmt: skip
         act = st.popen(
             ["actuator", "--scenario", "healthy_noise", "--aircraft", AC, "--actuator", ACT,
              "--rate", "250", "--json", *st.flags("sim-AC001")],
@@ -235,6 +244,9 @@ def station(tmp_path_factory):
         for k, p in procs.items():
             r[k] = st.result(p, k)
         r["dash_status"] = st.status("dashboard", "dash_status")
+        r["web_live"] = _web_live(tmp / "web.out", web)
+        web.send_signal(signal.SIGTERM)
+        r["web_rc"] = web.wait(15)
         r["status"] = st.status()
         assert act.poll() is None, "the actuator ended before the commands were done"
         act.send_signal(signal.SIGTERM)
@@ -250,6 +262,25 @@ def station(tmp_path_factory):
         yield r
     finally:
         st.close()
+
+
+def _web_live(out: Path, web: subprocess.Popen, timeout: float = 30.0) -> dict:
+    """The page's /api/live once it lists the actuator (or the last answer at ``timeout``)."""
+    import urllib.request
+
+    deadline = time.monotonic() + timeout
+    while "serving http://" not in out.read_text():
+        assert web.poll() is None and time.monotonic() < deadline, "the page did not start"
+        time.sleep(0.1)
+    url = out.read_text().split()[1].rstrip("/") + "/api/live"
+    live: dict = {}
+    while time.monotonic() < deadline:
+        with urllib.request.urlopen(url, timeout=5) as resp:
+            live = json.loads(resp.read())
+        if f"{AC}/{ACT}" in live.get("units", {}):
+            break
+        time.sleep(0.3)
+    return live
 
 
 def _daemon_status(r: dict) -> dict:
@@ -319,3 +350,13 @@ def test_legitimate_paths_end_to_end(station):
     # status, for the operator and the dashboard; a fault command from the operator
     assert station["status"]["rc"] == 0 and station["dash_status"]["rc"] == 0
     assert station["op_inject"]["rc"] == 0 and station["op_inject"]["json"]["ok"] is True
+
+
+def test_fleet_page_reads_live_status_as_the_dashboard(station):
+    """``servowatch web --config deploy/secure/dashboard.toml`` with the dashboard's
+    certificate: the read-only role is enough for the page's live status."""
+    live = station["web_live"]
+    assert live.get("enabled") and "error" not in live, live
+    assert live["units"][f"{AC}/{ACT}"]["daemon"] == "ground1/0"
+    assert live["units"][f"{AC}/{ACT}"]["samples"] > 0
+    assert station["web_rc"] == 0
