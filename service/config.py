@@ -251,6 +251,21 @@ class ClockSettings(BaseModel):
     )
 
 
+class GroupSettings(BaseModel):
+    """A monitor group (``service.daemon.group``): daemons of one ``name`` share the units
+    their ``key_expr`` receives, each unit monitored by exactly one live member."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: str = Field(..., pattern=r"^[A-Za-z0-9_.\-]+$", description="group name")
+    join_s: float = Field(
+        1.0, gt=0, le=60, description="wait this long for the other members before owning [s]"
+    )
+    takeover_s: float = Field(
+        2.0, ge=0, le=60, description="messages of others' units kept for a takeover [s]"
+    )
+
+
 class ServiceConfig(BaseModel):
     """Settings of ``servowatch run`` (and defaults for demo and replay)."""
 
@@ -283,6 +298,9 @@ class ServiceConfig(BaseModel):
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
     monitor: MonitorConfig = Field(default_factory=MonitorConfig)
     clock: ClockSettings = Field(default_factory=ClockSettings)
+    group: GroupSettings | None = Field(
+        None, description="share the units with the other daemons of a monitor group"
+    )
 
 
 def _loc(err: Mapping[str, Any]) -> str:

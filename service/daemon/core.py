@@ -121,6 +121,17 @@ class Daemon:
         self.publish_every = config.publish_every
         self.log_every = config.log_every
         self.silence_s = config.silence_s
+        self.group_config = config.group
+        self.group = None
+        if config.group is not None:
+            from service.daemon.group import MonitorGroup
+
+            self.group = MonitorGroup(
+                config.group.name,
+                f"{self.station}/{self.shard}",
+                self.submit,
+                takeover_s=config.group.takeover_s,
+            )
         self.queue_size = config.queue_size
         self.max_bytes = config.max_bytes
         self.clock = ClockCheck(**config.clock.model_dump())
@@ -229,7 +240,10 @@ class Daemon:
     def _on_zenoh_sample(self, sample) -> None:
         try:
             key = str(sample.key_expr)
-            self.submit(key, sample.payload.to_bytes())
+            if self.group is not None:  # a unit of another member is held, not queued
+                self.group.admit(key, sample.payload.to_bytes(), time.monotonic())
+            else:
+                self.submit(key, sample.payload.to_bytes())
             si = sample.source_info
             if si is not None and si.source_id is not None:
                 self._sources[str(si.source_id)] = key
@@ -480,7 +494,10 @@ class Daemon:
                 row = self.bank.ids.get(key) if hasattr(self.bank, "ids") else None
                 if row in self._rows:  # the actuator's operating period ends
                     self.fanout.flush(row)
-                self._service_event(st, "silent", st.last_t, value=now - last)
+                # a unit another group member took over is released, not silent
+                released = self.group is not None and not self.group.owns_key(key)
+                self._service_event(st, "released" if released else "silent", st.last_t,
+                                    value=now - last)  # fmt: skip
         return out
 
     def _run_worker(self) -> None:
@@ -541,6 +558,36 @@ class Daemon:
         except Exception:
             self.errors += 1
 
+    def _start_group(self, session) -> None:
+        """Hold this member's group token, watch the others', own after ``join_s``."""
+        import zenoh
+
+        from service.daemon.group import GROUP_TOKENS, group_token
+
+        g = self.group
+        self._decl.append(
+            session.liveliness().declare_token(group_token(self.station, self.shard, g.name))
+        )
+
+        def on_member(sample) -> None:
+            try:
+                name = g.member_name_of_token(str(sample.key_expr))
+                if name is not None:
+                    g.member_event(name, sample.kind == zenoh.SampleKind.PUT)
+            except Exception:
+                self.errors += 1
+
+        self._decl.append(
+            session.liveliness().declare_subscriber(
+                GROUP_TOKENS.format(group=g.name), on_member, history=True
+            )
+        )
+        timer = threading.Timer(self.group_config.join_s, g.join)
+        timer.daemon = True
+        timer.start()
+        log.info("member %s of monitor group %s, owning after %.1f s", g.me, g.name,
+                 self.group_config.join_s)  # fmt: skip
+
     def _on_status_query(self, query) -> None:
         try:
             key = m.KEY_STATUS.format(station=self.station, shard=self.shard)
@@ -574,6 +621,8 @@ class Daemon:
             self._decl.append(
                 session.liveliness().declare_token(f"monitor/{self.station}/{self.shard}/alive")
             )
+            if self.group is not None:
+                self._start_group(session)
             try:  # actuators' liveliness tokens (virtual actuators hold one)
                 self._decl.append(
                     session.liveliness().declare_subscriber(

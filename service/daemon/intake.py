@@ -68,6 +68,7 @@ class ActuatorState:
     outputs: int = 0  # monitor outputs
     published: int = 0
     bad: dict[str, int] = field(default_factory=dict)  # reason -> count
+    first_seq: int | None = None  # sequence number of the first accepted sample
     last_seq: int | None = None
     last_t: float | None = None
     last_recv: float | None = None  # time.monotonic() of the last message
@@ -106,6 +107,7 @@ class ActuatorState:
             "published": self.published,
             "bad": dict(self.bad),
             "bad_total": sum(self.bad.values()),
+            "first_seq": self.first_seq,
             "last_seq": self.last_seq,
             "last_t": self.last_t,
             "age_s": None if self.last_recv is None else now - self.last_recv,
@@ -247,6 +249,8 @@ def accept(
             st.restarts += 1
             on_restart(st, float(t[j0]), s0, False)
     st.refused = 0
+    if st.first_seq is None:
+        st.first_seq = s0
     st.gaps += int(seq[j1 - 1]) - s0 - (j1 - 1 - j0)  # holes inside the message
     if j1 - j0 > 1:
         p = float(t[j1 - 1] - t[j0]) / float(seq[j1 - 1] - s0)

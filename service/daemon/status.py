@@ -41,6 +41,12 @@ def snapshot(d: Daemon) -> dict[str, Any]:
         try:
             with d._lock:
                 acts = {k: st.snapshot(now) for k, st in list(d.actuators.items())}
+            released: list[str] = []
+            if d.group is not None:  # units another member monitors now: listed, not shown
+                for k in list(acts):
+                    if not d.group.owns_key(k):
+                        a = acts.pop(k)
+                        released.append(a["aircraft"] + "/" + a["actuator"])
             for k, a in acts.items():
                 a["monitor"] = d.monitor_counters(k)
                 a.update(d.prognostics_of(k))
@@ -93,5 +99,6 @@ def snapshot(d: Daemon) -> dict[str, Any]:
             "alive_tokens": sorted(k for k, v in d.alive_tokens.items() if v),
             "lost_tokens": sorted(k for k, v in d.alive_tokens.items() if not v),
             "silent": [a["aircraft"] + "/" + a["actuator"] for a in acts.values() if a["silent"]],
+            "group": None if d.group is None else {**d.group.status(), "released_units": released},
         }
     )

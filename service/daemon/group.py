@@ -1,0 +1,187 @@
+"""A monitor group: daemons that share the fleet's actuators among themselves.
+
+Every member holds a liveliness token ``monitor/{station}/{shard}/group/{group}`` and watches
+the others'. Each actuator belongs to one live member, chosen by rendezvous hashing (highest
+random weight: the member whose hash of (member, unit) is highest): every member computes
+the same owner from the same member set, with no coordination message, and when a member
+leaves only its own units move, spread over the others; when one joins it takes about 1/N
+of every other member's units and nothing else moves.
+
+A member keeps the last ``takeover_s`` seconds of the messages of units it does not own.
+When a unit becomes its own (its owner's token vanished: a crash, a lost link, a stop), it
+feeds those first, so the samples the old owner received but may not have processed are not
+lost to the new one. Messages of owned units pass straight on. Ownership and the hand-over
+are decided under one lock, so a hand-over never reorders a unit's messages.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from service import messages as m
+
+__all__ = ["owner_of", "group_token", "GROUP_TOKENS", "MonitorGroup"]
+
+GROUP_TOKEN = "monitor/{station}/{shard}/group/{group}"
+GROUP_TOKENS = "monitor/*/*/group/{group}"
+
+
+def group_token(station: str, shard: str, group: str) -> str:
+    """The liveliness token a member of ``group`` holds."""
+    return GROUP_TOKEN.format(station=station, shard=shard, group=group)
+
+
+def _weight(member: str, unit: str) -> int:
+    h = hashlib.blake2b(f"{member}\x00{unit}".encode(), digest_size=8).digest()
+    return int.from_bytes(h, "big")
+
+
+def owner_of(unit: str, members: Iterable[str]) -> str | None:
+    """The member that owns ``unit`` (``AIRCRAFT/ACTUATOR``): the highest rendezvous weight,
+    ties (not met in practice) broken by name; None without members."""
+    best: tuple[int, str] | None = None
+    for mem in members:
+        w = (_weight(mem, unit), mem)
+        if best is None or w > best:
+            best = w
+    return None if best is None else best[1]
+
+
+def _unit_of_key(key: str) -> str | None:
+    try:
+        return "/".join(m.parse_meas_key(key))
+    except m.MessageError:
+        return None
+
+
+class MonitorGroup:
+    """Ownership of one member (``me``, ``station/shard``) of group ``name``.
+
+    ``submit(key, payload, t_recv)`` is the daemon's queue; ``admit`` is called for every
+    received message instead of it. Until ``join()`` (the daemon calls it ``join_s`` after
+    declaring its token and subscriber, when the other members' tokens have arrived) nothing
+    is owned and everything is held, so a starting member never monitors a unit another one
+    owns."""
+
+    def __init__(
+        self,
+        name: str,
+        me: str,
+        submit: Callable[[str, bytes, float], Any],
+        takeover_s: float = 2.0,
+    ) -> None:
+        self.name = name
+        self.me = me
+        self.submit = submit
+        self.takeover_s = float(takeover_s)
+        self.members: set[str] = {me}
+        self.joined = False
+        self._lock = threading.Lock()
+        self._owner: dict[str, str | None] = {}  # meas key -> owner, for the current members
+        self._held: dict[str, deque] = {}  # meas key -> (payload, t_recv) of a unit not owned
+        self.takeovers = 0  # units that became this member's after it had joined
+        self.released = 0  # units that became another member's
+        self.handed_over = 0  # held messages fed on a takeover
+        self.changes = 0  # membership changes seen
+
+    # -- ownership ------------------------------------------------------------------------
+    def _owner_of_key(self, key: str) -> str | None:
+        o = self._owner.get(key, "")
+        if o == "":
+            unit = _unit_of_key(key)
+            o = None if unit is None else owner_of(unit, self.members)
+            self._owner[key] = o
+        return o
+
+    def owns_key(self, key: str) -> bool:
+        """Whether this member monitors the unit of meas key ``key`` now (a key that names
+        no unit passes, so the daemon counts it as bad input)."""
+        with self._lock:
+            return self.joined and self._owner_of_key(key) in (self.me, None)
+
+    # -- the daemon's inflow --------------------------------------------------------------
+    def admit(self, key: str, payload: bytes, t_recv: float) -> None:
+        """A received message: to the daemon's queue if its unit is ours, else held."""
+        with self._lock:
+            if self.joined and self._owner_of_key(key) in (self.me, None):
+                self.submit(key, payload, t_recv)
+                return
+            q = self._held.get(key)
+            if q is None:
+                q = self._held[key] = deque()
+            q.append((payload, t_recv))
+            while q and t_recv - q[0][1] > self.takeover_s:
+                q.popleft()
+
+    # -- membership -----------------------------------------------------------------------
+    def join(self) -> None:
+        """Start owning: the units that are ours now are fed their held messages."""
+        with self._lock:
+            self.joined = True
+            self._reassign(count=False)
+
+    def member_event(self, member: str, present: bool) -> None:
+        """A member's token appeared (``present``) or vanished; this member's own token is
+        always counted as present."""
+        with self._lock:
+            if member == self.me:
+                return
+            if present == (member in self.members):
+                return
+            (self.members.add if present else self.members.discard)(member)
+            self.changes += 1
+            before = dict(self._owner)
+            self._owner.clear()
+            if not self.joined:
+                return
+            self._reassign(count=True, before=before)
+
+    def _reassign(self, count: bool, before: dict[str, str | None] | None = None) -> None:
+        """Under the lock: feed the held messages of every unit that is ours now, count the
+        units that moved."""
+        now = time.monotonic()
+        for key in list(self._held):
+            if self._owner_of_key(key) != self.me:
+                continue
+            q = self._held.pop(key)
+            fresh = [(p, t) for p, t in q if now - t <= self.takeover_s]
+            for p, t in fresh:
+                self.submit(key, p, t)
+            self.handed_over += len(fresh)
+            if count:
+                self.takeovers += 1
+        if before:
+            for key, o in before.items():
+                if o == self.me and self._owner_of_key(key) != self.me:
+                    self.released += 1
+
+    def member_name_of_token(self, token_key: str) -> str | None:
+        """``station/shard`` of a group token key, None when it is not one of this group."""
+        parts = token_key.split("/")
+        if len(parts) != 5 or parts[0] != "monitor" or parts[3] != "group":
+            return None
+        if parts[4] != self.name:
+            return None
+        return f"{parts[1]}/{parts[2]}"
+
+    def status(self) -> dict[str, Any]:
+        """The group part of the daemon's status."""
+        with self._lock:
+            held = {k: len(q) for k, q in self._held.items() if q}
+            return {
+                "name": self.name,
+                "me": self.me,
+                "joined": self.joined,
+                "members": sorted(self.members),
+                "takeovers": self.takeovers,
+                "released": self.released,
+                "handed_over": self.handed_over,
+                "membership_changes": self.changes,
+                "held_units": len(held),
+                "held_messages": sum(held.values()),
+            }
