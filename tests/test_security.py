@@ -360,3 +360,46 @@ def test_fleet_page_reads_live_status_as_the_dashboard(station):
     assert live["units"][f"{AC}/{ACT}"]["daemon"] == "ground1/0"
     assert live["units"][f"{AC}/{ACT}"]["samples"] > 0
     assert station["web_rc"] == 0
+
+
+def test_monitor_group_forms_through_the_secure_router(tmp_path):
+    """Two daemons of one monitor group, each with the monitor certificate, find each other
+    through the secured router: its access control lets the group's liveliness tokens
+    (``monitor/*/*/group/*``) through."""
+    st = Station(tmp_path)
+    try:
+        base = (SECURE / "monitor.toml").read_text()
+        for shard in ("0", "1"):
+            cfg = tmp_path / f"m{shard}.toml"
+            text = base.replace('shard = "0"', f'shard = "{shard}"').replace(
+                'log_dir = "/var/lib/servowatch/logs"', f'log_dir = "{tmp_path}"'
+            )
+            # top-level keys before the first table
+            cfg.write_text(
+                text.replace("[zenoh]", 'store = "off"\n\n[group]\nname = "fleet"\n\n[zenoh]', 1)
+            )
+            st.popen(["run", "--config", str(cfg), "--no-rotate", "--json", "--plain-logs"],
+                     f"m{shard}", env=st.env("monitor"))  # fmt: skip
+        deadline = time.monotonic() + 90
+        groups: dict = {}
+        while time.monotonic() < deadline:
+            s = st.status()
+            if s["rc"] == 0:
+                groups = {k: v.get("group") for k, v in s["json"]["daemons"].items()}
+                if len(groups) == 2 and all(
+                    g and g["members"] == ["ground1/0", "ground1/1"] for g in groups.values()
+                ):
+                    break
+            time.sleep(0.5)
+        assert len(groups) == 2 and all(
+            g["members"] == ["ground1/0", "ground1/1"] and g["joined"] for g in groups.values()
+        ), groups
+        # the router traces what is not allowed per key at each declaration; none of it may
+        # be what a member does with the group's tokens
+        denied = [
+            ln for ln in st.router_log().splitlines() if "unauthorized" in ln and "/group/" in ln
+        ]
+        for what in ("Liveliness Token", "Declare Liveliness Subscriber (ingress)"):
+            assert not [ln for ln in denied if f"unauthorized to {what}" in ln], what
+    finally:
+        st.close()

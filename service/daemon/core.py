@@ -253,7 +253,10 @@ class Daemon:
     def _on_miss(self, miss) -> None:
         """Samples that the advanced subscriber could not recover, counted per actuator."""
         try:
-            st = self._state_for_key(self._sources.get(str(miss.source), ""))
+            key = self._sources.get(str(miss.source), "")
+            if self.group is not None and key and not self.group.owns_key(key):
+                return  # another member's unit: its misses are that member's to count
+            st = self._state_for_key(key)
             if st is not None:
                 st.missed += int(miss.nb)
             else:

@@ -42,7 +42,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
             with d._lock:
                 acts = {k: st.snapshot(now) for k, st in list(d.actuators.items())}
             released: list[str] = []
-            if d.group is not None:  # units another member monitors now: listed, not shown
+            if d.group is not None:  # units it monitored, another member has now: listed only
                 for k in list(acts):
                     if not d.group.owns_key(k):
                         a = acts.pop(k)
