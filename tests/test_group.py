@@ -68,21 +68,105 @@ def test_hold_then_hand_over_in_order():
 
 def test_held_messages_older_than_takeover_are_dropped():
     got: list[bytes] = []
-    g = MonitorGroup("g", "gA/0", lambda k, p, t: got.append(p), takeover_s=1.0)
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: got.append(p), takeover_s=2.0)
     g.member_event("gB/0", True)
     g.join()
     theirs = next(u for u in UNITS if owner_of(u, g.members) == "gB/0")
     now = time.monotonic()
-    for i, age in enumerate((5.0, 3.0, 0.5, 0.1)):
+    for i, age in enumerate((9.0, 5.0, 0.2, 0.0)):  # 1.8 s of margin for a stalled thread
         g.admit(_key(theirs), bytes([i]), now - age)
     g.member_event("gB/0", False)
     assert got == [bytes([2]), bytes([3])]
 
 
+def test_before_the_join_everything_is_kept():
+    """A member that starts is handed its units by the others as soon as they see its token;
+    it must not lose what came in before its own join, however long that took."""
+    got: list[bytes] = []
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: got.append(p), takeover_s=0.5)
+    mine = next(u for u in UNITS if owner_of(u, ["gA/0"]) == "gA/0")
+    now = time.monotonic()
+    for i, age in enumerate((3.0, 2.0, 1.0, 0.0)):
+        g.admit(_key(mine), bytes([i]), now - age)
+    g.join()
+    assert got == [bytes([0]), bytes([1]), bytes([2]), bytes([3])]
+
+
+def test_a_restarted_member_is_not_removed_by_its_old_token():
+    g = MonitorGroup("g", "gA/0", lambda *a: None)
+    g.member_event("gB/0", True, "zid-old")
+    g.member_event("gB/0", True, "zid-new")  # restarted before the old token went
+    g.member_event("gB/0", False, "zid-old")
+    assert g.members == {"gA/0", "gB/0"}
+    g.member_event("gB/0", False, "zid-new")
+    assert g.members == {"gA/0"}
+
+
+def test_held_memory_is_bounded():
+    g = MonitorGroup("g", "gA/0", lambda *a: None, max_units=3, max_held=5, max_bytes=10)
+    g.member_event("gB/0", True)
+    g.join()
+    theirs = [u for u in UNITS if owner_of(u, g.members) == "gB/0"][:5]
+    t = time.monotonic()
+    for u in theirs:
+        for _ in range(8):
+            g.admit(_key(u), b"x", t)
+    g.admit(_key(theirs[0]), b"y" * 11, t)  # oversize: not held
+    st = g.status()
+    assert st["held_units"] == 3 and st["held_messages"] == 15
+    assert st["not_held"] == 2 * 8 + 1
+    g.sweep(t + 10.0)  # all aged out
+    assert g.status()["held_units"] == 0
+
+
+def test_a_key_that_names_no_unit_passes_to_the_daemon():
+    got: list[str] = []
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: got.append(k))
+    g.admit("fleet/bad key/x/meas", b"x", time.monotonic())  # before the join, too
+    assert got == ["fleet/bad key/x/meas"]
+
+
 def test_token_names():
     g = MonitorGroup("fleetA", "gA/0", lambda *a: None)
-    tok = group_token("gB", "1", "fleetA")
-    assert tok == "monitor/gB/1/group/fleetA"
-    assert g.member_name_of_token(tok) == "gB/1"
-    assert g.member_name_of_token("monitor/gB/1/group/other") is None
-    assert g.member_name_of_token("monitor/gB/1/alive") is None
+    tok = group_token("gB", "1", "fleetA", "abc123")
+    assert tok == "monitor/gB/1/group/fleetA/abc123"
+    assert g.member_of_token(tok) == ("gB/1", "abc123")
+    assert g.member_of_token("monitor/gB/1/group/other/abc") is None
+    assert g.member_of_token("monitor/gB/1/alive") is None
+
+
+def test_daemon_releases_and_takes_back_a_unit_afresh():
+    """The daemon side: a unit another member takes over ends its period and is forgotten;
+    when it comes back it starts afresh, with no false gap."""
+    from test_daemon import make, sample
+
+    from service import messages as m
+
+    d, lg, _ = make(group={"name": "g", "takeover_s": 5.0})
+    g = d.group
+    me = g.me  # ground1/0, the default station and shard
+    unit = next(
+        u for u in UNITS
+        if owner_of(u, [me, "gB/0"]) == me and owner_of(u, [me, "gB/0", "gX/0"]) == "gX/0"
+    )  # fmt: skip
+    key = _key(unit)
+    g.member_event("gB/0", True, "z1")
+    g.join()
+    g.admit(key, m.encode_meas([sample(k) for k in range(10)]), time.monotonic())
+    assert d.process_pending() == 10
+    g.member_event("gX/0", True, "z2")  # gX joins and takes the unit
+    assert not g.owns_key(key)
+    assert d.release_units() == [unit] and d.release_units() == []
+    st = d.status()
+    assert st["group"]["released_units"] == [unit] and key not in st["actuators"]
+    assert lg.topic(f"/{unit}/service")[-1][2]["kind"] == "released"
+    g.admit(key, m.encode_meas([sample(k) for k in range(10, 20)]), time.monotonic())
+    assert d.process_pending() == 0  # held for gX, not ours
+    # gX goes: the unit is ours again, its held message first, as a new stream
+    g.member_event("gX/0", False, "z2")
+    g.admit(key, m.encode_meas([sample(k) for k in range(1000, 1010)]), time.monotonic())
+    assert d.process_pending() == 20
+    a = d.status()["actuators"][key]
+    assert a["first_seq"] == 10 and a["samples"] == 30
+    # 10..19 then 1000..1009: the only gap is the one really missing from the stream
+    assert a["gaps"] == 1000 - 20

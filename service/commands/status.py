@@ -51,6 +51,13 @@ def format_status(daemons: dict) -> str:
         )
         if st.get("log_failure"):
             lines.append(f"  DEGRADED: the MCAP log failed: {st['log_failure']}")
+        g = st.get("group")
+        if g:
+            lines.append(
+                f"  group {g.get('name')}: members {', '.join(g.get('members') or [])}"
+                f"{'' if g.get('joined') else ' (joining)'}; {g.get('takeovers')} units taken "
+                f"over, {g.get('released')} released, {g.get('held_units')} held"
+            )
         for _name, a in sorted(st.get("actuators", {}).items()):
             est = ", ".join(
                 f"{k}={_fmt(v)}"

@@ -131,7 +131,11 @@ class Daemon:
                 f"{self.station}/{self.shard}",
                 self.submit,
                 takeover_s=config.group.takeover_s,
+                max_units=MAX_ACTUATORS,
+                max_bytes=config.max_bytes,
             )
+        self._group_token = None
+        self._join_timer: threading.Timer | None = None
         self.queue_size = config.queue_size
         self.max_bytes = config.max_bytes
         self.clock = ClockCheck(**config.clock.model_dump())
@@ -503,6 +507,27 @@ class Daemon:
                                     value=now - last)  # fmt: skip
         return out
 
+    def release_units(self) -> list[str]:
+        """Units another group member took over: their operating period ends and their
+        stream state is forgotten, so one that comes back starts afresh (no false gaps, a new
+        period); the monitor re-initialises itself on the time gap. Returns their names."""
+        g = self.group
+        g.sweep(time.monotonic())
+        out = []
+        for key in g.pop_released():
+            st = self.actuators.get(key)
+            if st is None:
+                continue
+            row = self.bank.ids.get(key) if hasattr(self.bank, "ids") else None
+            if row in self._rows:
+                self.fanout.flush(row)
+            st.first_seq = st.last_seq = st.last_t = st.period = st.resync = None
+            st.refused = 0
+            st.silent = True
+            self._service_event(st, "released", None)
+            out.append(st.name)
+        return out
+
     def _run_worker(self) -> None:
         while True:
             stopping = self._stop.is_set()
@@ -513,7 +538,8 @@ class Daemon:
                 now = time.monotonic()
                 if now - self._last_silence_check > 0.2:
                     self._last_silence_check = now
-                    if self.check_silence(now):
+                    released = self.release_units() if self.group is not None else []
+                    if self.check_silence(now) or released:
                         self.logger.commit()
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now
@@ -568,15 +594,17 @@ class Daemon:
         from service.daemon.group import GROUP_TOKENS, group_token
 
         g = self.group
-        self._decl.append(
-            session.liveliness().declare_token(group_token(self.station, self.shard, g.name))
+        zid = str(session.info.zid())
+        self._group_token = session.liveliness().declare_token(
+            group_token(self.station, self.shard, g.name, zid)
         )
+        self._decl.append(self._group_token)
 
         def on_member(sample) -> None:
             try:
-                name = g.member_name_of_token(str(sample.key_expr))
-                if name is not None:
-                    g.member_event(name, sample.kind == zenoh.SampleKind.PUT)
+                who = g.member_of_token(str(sample.key_expr))
+                if who is not None:
+                    g.member_event(who[0], sample.kind == zenoh.SampleKind.PUT, who[1])
             except Exception:
                 self.errors += 1
 
@@ -585,9 +613,9 @@ class Daemon:
                 GROUP_TOKENS.format(group=g.name), on_member, history=True
             )
         )
-        timer = threading.Timer(self.group_config.join_s, g.join)
-        timer.daemon = True
-        timer.start()
+        self._join_timer = threading.Timer(self.group_config.join_s, g.join)
+        self._join_timer.daemon = True
+        self._join_timer.start()
         log.info("member %s of monitor group %s, owning after %.1f s", g.me, g.name,
                  self.group_config.join_s)  # fmt: skip
 
@@ -619,13 +647,13 @@ class Daemon:
             )
             self._decl.append(sub)
             self._decl.append(sub.sample_miss_listener(self._on_miss))
+            if self.group is not None:  # before the status answers: a member is one at once
+                self._start_group(session)
             skey = m.KEY_STATUS.format(station=self.station, shard=self.shard)
             self._decl.append(session.declare_queryable(skey, self._on_status_query))
             self._decl.append(
                 session.liveliness().declare_token(f"monitor/{self.station}/{self.shard}/alive")
             )
-            if self.group is not None:
-                self._start_group(session)
             try:  # actuators' liveliness tokens (virtual actuators hold one)
                 self._decl.append(
                     session.liveliness().declare_subscriber(
@@ -659,6 +687,13 @@ class Daemon:
         with self._notify_lock:
             self._stop.set()
             sd_notify("STOPPING=1")
+        # a group member leaves the group first: the others take its units over while it
+        # drains what it has (overlap, not loss)
+        if self._join_timer is not None:
+            self._join_timer.cancel()
+        if self._group_token is not None:
+            with contextlib.suppress(Exception):
+                self._group_token.undeclare()
         # stop the inflow first: the subscriber goes, queued messages are still processed
         for d in self._decl[:1]:
             with contextlib.suppress(Exception):

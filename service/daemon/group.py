@@ -1,7 +1,8 @@
 """A monitor group: daemons that share the fleet's actuators among themselves.
 
-Every member holds a liveliness token ``monitor/{station}/{shard}/group/{group}`` and watches
-the others'. Each actuator belongs to one live member, chosen by rendezvous hashing (highest
+Every member holds a liveliness token ``monitor/{station}/{shard}/group/{group}/{zid}`` (the
+session id tells two incarnations of one member apart, so the old token's late removal never
+removes a restarted member) and watches the others'. Each actuator belongs to one live member, chosen by rendezvous hashing (highest
 random weight: the member whose hash of (member, unit) is highest): every member computes
 the same owner from the same member set, with no coordination message, and when a member
 leaves only its own units move, spread over the others; when one joins it takes about 1/N
@@ -10,8 +11,16 @@ of every other member's units and nothing else moves.
 A member keeps the last ``takeover_s`` seconds of the messages of units it does not own.
 When a unit becomes its own (its owner's token vanished: a crash, a lost link, a stop), it
 feeds those first, so the samples the old owner received but may not have processed are not
-lost to the new one. Messages of owned units pass straight on. Ownership and the hand-over
-are decided under one lock, so a hand-over never reorders a unit's messages.
+lost to the new one. Until it has joined, a member keeps everything it receives, so a member
+that starts (or restarts) loses nothing of the units the others hand it. Messages of owned
+units pass straight on. Ownership and the hand-over are decided under one lock, so a
+hand-over never reorders a unit's messages.
+
+Memory is bounded: at most ``max_units`` held units, ``max_held`` messages each, no payload
+larger than ``max_bytes`` (the owner counts those), and ``sweep`` drops what has aged out.
+
+Lock order: the group's lock, then the daemon's queue (``submit``; on a full queue its drop
+counter takes the daemon's lock). Nothing calls into the group while holding the daemon's lock.
 """
 
 from __future__ import annotations
@@ -27,13 +36,13 @@ from service import messages as m
 
 __all__ = ["owner_of", "group_token", "GROUP_TOKENS", "MonitorGroup"]
 
-GROUP_TOKEN = "monitor/{station}/{shard}/group/{group}"
-GROUP_TOKENS = "monitor/*/*/group/{group}"
+GROUP_TOKEN = "monitor/{station}/{shard}/group/{group}/{zid}"
+GROUP_TOKENS = "monitor/*/*/group/{group}/*"
 
 
-def group_token(station: str, shard: str, group: str) -> str:
-    """The liveliness token a member of ``group`` holds."""
-    return GROUP_TOKEN.format(station=station, shard=shard, group=group)
+def group_token(station: str, shard: str, group: str, zid: str) -> str:
+    """The liveliness token a member of ``group`` holds (``zid``: its session id)."""
+    return GROUP_TOKEN.format(station=station, shard=shard, group=group, zid=zid)
 
 
 def _weight(member: str, unit: str) -> int:
@@ -74,16 +83,26 @@ class MonitorGroup:
         me: str,
         submit: Callable[[str, bytes, float], Any],
         takeover_s: float = 2.0,
+        *,
+        max_units: int = 10_000,
+        max_held: int = 20_000,
+        max_bytes: int = 65536,
     ) -> None:
         self.name = name
         self.me = me
         self.submit = submit
         self.takeover_s = float(takeover_s)
+        self.max_units = int(max_units)
+        self.max_held = int(max_held)
+        self.max_bytes = int(max_bytes)
         self.members: set[str] = {me}
+        self._incarnations: dict[str, set[str]] = {}  # member -> session ids of its tokens
+        self._released_keys: list[str] = []  # units that became another member's, for the daemon
         self.joined = False
         self._lock = threading.Lock()
         self._owner: dict[str, str | None] = {}  # meas key -> owner, for the current members
         self._held: dict[str, deque] = {}  # meas key -> (payload, t_recv) of a unit not owned
+        self.not_held = 0  # others' messages not kept (too many units, oversize)
         self.takeovers = 0  # units that became this member's after it had joined
         self.released = 0  # units that became another member's
         self.handed_over = 0  # held messages fed on a takeover
@@ -106,17 +125,47 @@ class MonitorGroup:
 
     # -- the daemon's inflow --------------------------------------------------------------
     def admit(self, key: str, payload: bytes, t_recv: float) -> None:
-        """A received message: to the daemon's queue if its unit is ours, else held."""
+        """A received message: to the daemon's queue if its unit is ours (or it names no
+        unit: the daemon counts it as bad input), else held."""
         with self._lock:
-            if self.joined and self._owner_of_key(key) in (self.me, None):
+            owner = self._owner_of_key(key)
+            if owner is None or (self.joined and owner == self.me):
                 self.submit(key, payload, t_recv)
+                return
+            if len(payload) > self.max_bytes:  # its owner counts it as oversize
+                self.not_held += 1
                 return
             q = self._held.get(key)
             if q is None:
-                q = self._held[key] = deque()
+                if len(self._held) >= self.max_units:
+                    self.not_held += 1
+                    return
+                q = self._held[key] = deque(maxlen=self.max_held)
             q.append((payload, t_recv))
-            while q and t_recv - q[0][1] > self.takeover_s:
-                q.popleft()
+            if self.joined:  # before the join everything is kept (start-up hand-over)
+                while q and t_recv - q[0][1] > self.takeover_s:
+                    q.popleft()
+
+    def sweep(self, now: float) -> None:
+        """Drop held messages older than ``takeover_s`` (``now``: time.monotonic()), and the
+        units left with none: a unit that stopped publishing holds nothing for long."""
+        with self._lock:
+            if not self.joined:
+                return
+            for key in list(self._held):
+                q = self._held[key]
+                while q and now - q[0][1] > self.takeover_s:
+                    q.popleft()
+                if not q:
+                    del self._held[key]
+
+    def pop_released(self) -> list[str]:
+        """The meas keys that became another member's since the last call (the daemon ends
+        their periods and forgets their stream state, so a unit that comes back starts
+        afresh)."""
+        with self._lock:
+            out, self._released_keys = self._released_keys, []
+            return out
 
     # -- membership -----------------------------------------------------------------------
     def join(self) -> None:
@@ -125,15 +174,20 @@ class MonitorGroup:
             self.joined = True
             self._reassign(count=False)
 
-    def member_event(self, member: str, present: bool) -> None:
-        """A member's token appeared (``present``) or vanished; this member's own token is
-        always counted as present."""
+    def member_event(self, member: str, present: bool, zid: str = "") -> None:
+        """Token ``zid`` of ``member`` appeared (``present``) or vanished. A member is present
+        while any of its tokens is; this member itself always is."""
         with self._lock:
             if member == self.me:
                 return
-            if present == (member in self.members):
+            zids = self._incarnations.setdefault(member, set())
+            (zids.add if present else zids.discard)(zid)
+            now_present = bool(zids)
+            if not zids:
+                del self._incarnations[member]
+            if now_present == (member in self.members):
                 return
-            (self.members.add if present else self.members.discard)(member)
+            (self.members.add if now_present else self.members.discard)(member)
             self.changes += 1
             before = dict(self._owner)
             self._owner.clear()
@@ -149,7 +203,8 @@ class MonitorGroup:
             if self._owner_of_key(key) != self.me:
                 continue
             q = self._held.pop(key)
-            fresh = [(p, t) for p, t in q if now - t <= self.takeover_s]
+            # at the join: everything since the start; later: the last takeover_s
+            fresh = [(p, t) for p, t in q if not count or now - t <= self.takeover_s]
             for p, t in fresh:
                 self.submit(key, p, t)
             self.handed_over += len(fresh)
@@ -159,15 +214,17 @@ class MonitorGroup:
             for key, o in before.items():
                 if o == self.me and self._owner_of_key(key) != self.me:
                     self.released += 1
+                    self._released_keys.append(key)
 
-    def member_name_of_token(self, token_key: str) -> str | None:
-        """``station/shard`` of a group token key, None when it is not one of this group."""
+    def member_of_token(self, token_key: str) -> tuple[str, str] | None:
+        """(``station/shard``, session id) of a group token key, None when it is not one of
+        this group's."""
         parts = token_key.split("/")
-        if len(parts) != 5 or parts[0] != "monitor" or parts[3] != "group":
+        if len(parts) != 6 or parts[0] != "monitor" or parts[3] != "group":
             return None
         if parts[4] != self.name:
             return None
-        return f"{parts[1]}/{parts[2]}"
+        return f"{parts[1]}/{parts[2]}", parts[5]
 
     def status(self) -> dict[str, Any]:
         """The group part of the daemon's status."""
@@ -184,4 +241,5 @@ class MonitorGroup:
                 "membership_changes": self.changes,
                 "held_units": len(held),
                 "held_messages": sum(held.values()),
+                "not_held": self.not_held,
             }
