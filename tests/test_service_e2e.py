@@ -259,6 +259,9 @@ def test_kill_9_of_the_daemon_alone_loses_nothing_it_received(net, tmp_path):
     d = start_daemon(net, log)
     net.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "30")
     st = net.wait(lambda st: act_samples(st) > RATE * 3, what="3 s of data")
+    # the status counts a tick's samples when they are accepted, and the tick forwards them
+    # to the log process when it ends: let the tick the status saw end before the kill
+    time.sleep(0.3)
     d.send_signal(signal.SIGKILL)
     d.wait(10)
     deadline = time.monotonic() + 20.0  # the log process writes its backlog, then the footer
