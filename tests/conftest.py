@@ -75,6 +75,17 @@ def store_url(request, tmp_path) -> str:
     return cluster.create_database()
 
 
+@pytest.fixture
+def net():
+    """A Zenoh router in the test process and a client session through it
+    (``tests.test_service_e2e.Net``), closed with every process it started."""
+    from tests.test_service_e2e import Net
+
+    n = Net()
+    yield n
+    n.close()
+
+
 def pytest_terminal_summary(terminalreporter) -> None:
     if _PG["skipped"]:
         terminalreporter.write_sep(

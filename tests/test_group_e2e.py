@@ -23,13 +23,6 @@ A, B = "gA/0", "gB/0"
 RATE = 200  # Hz per actuator: four of them and two daemons on a 2-core machine
 
 
-@pytest.fixture
-def net():
-    n = Net()
-    yield n
-    n.close()
-
-
 def _units() -> list[str]:
     """Four unit names, two owned by each member (rendezvous is deterministic)."""
     mine = {A: [], B: []}

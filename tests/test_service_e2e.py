@@ -84,13 +84,6 @@ class Net:
         self.router.close()
 
 
-@pytest.fixture
-def net():
-    n = Net()
-    yield n
-    n.close()
-
-
 def act_samples(st: dict) -> int:
     a = st["actuators"].get(f"fleet/{AC}/{ACT}/meas")
     return 0 if a is None else a["samples"]

@@ -21,13 +21,6 @@ zenoh = pytest.importorskip("zenoh")
 NAME = f"{AC}/{ACT}"
 
 
-@pytest.fixture
-def net():
-    n = Net()
-    yield n
-    n.close()
-
-
 def _start(net: Net, tmp_path, store, window_s: float, **kw):
     cfg = tmp_path / "servowatch.toml"
     cfg.write_text(f"[prognostics]\nperiod_window_s = {window_s}\n")

@@ -14,7 +14,7 @@ import pytest
 from webfleet import render, require_chromium, web_process
 
 from service.web.live import slim
-from tests.test_service_e2e import AC, ACT, RATE, Net
+from tests.test_service_e2e import AC, ACT, RATE
 from tests.test_store_e2e import _act, _start
 
 pytestmark = pytest.mark.slow
@@ -23,13 +23,6 @@ zenoh = pytest.importorskip("zenoh")
 require_chromium()
 
 NAME = f"{AC}/{ACT}"
-
-
-@pytest.fixture
-def net():
-    n = Net()
-    yield n
-    n.close()
 
 
 def _live(url: str) -> dict:

@@ -20,7 +20,10 @@ from service.store.cli import add_store_argument, open_store_arg
 NAME = "fleet"
 HELP = "every actuator in the health store ranked by urgency (RUL, alarms, C_Lk ratio)"
 
-__all__ = ["NAME", "HELP", "add_arguments", "run", "rank_fleet", "rul_interval", "format_fleet"]
+__all__ = [
+    "NAME", "HELP", "add_arguments", "run", "rank_fleet", "rul_interval", "format_fleet",
+    "finite_or_none",
+]  # fmt: skip
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,7 +55,8 @@ def fail(message: str, code: int = 2) -> int:
     return code
 
 
-def _num(v: Any) -> float | None:
+def finite_or_none(v: Any) -> float | None:
+    """``v`` as a float if it is a finite number (not a bool), else None."""
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
         return None
     return float(v)
@@ -64,7 +68,7 @@ def rul_interval(rul: dict[str, Any] | None) -> dict[str, float | None] | None:
     if not rul:
         return None
     keys = ("median_h", "lo_h", "hi_h", "median_flights", "lo_flights", "hi_flights", "p_horizon")
-    return {k: _num(rul.get(k)) for k in keys}
+    return {k: finite_or_none(rul.get(k)) for k in keys}
 
 
 def _alarm_count(row: dict[str, Any]) -> int:
@@ -73,7 +77,7 @@ def _alarm_count(row: dict[str, Any]) -> int:
 
 def _ratio(row: dict[str, Any]) -> float | None:
     last = row.get("last") or {}
-    return _num(last.get("c_lk_ratio"))
+    return finite_or_none(last.get("c_lk_ratio"))
 
 
 def rank_fleet(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -92,7 +96,7 @@ def rank_fleet(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def _f(v: Any, spec: str, scale: float = 1.0) -> str:
-    n = _num(v)
+    n = finite_or_none(v)
     return "-" if n is None else format(n * scale, spec)
 
 
@@ -107,7 +111,7 @@ def format_fleet(ranked: list[dict[str, Any]]) -> str:
     for r in ranked:
         last = r.get("last") or {}
         tr = r.get("trend") or {}
-        slope = _num(tr.get("slope_per_h"))
+        slope = finite_or_none(tr.get("slope_per_h"))
         trend = "-" if slope is None else f"{tr.get('label', '')} {slope * 100:+.2f}"
         iv = r.get("rul_interval")
         if iv and iv["median_h"] is not None:

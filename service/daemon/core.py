@@ -498,14 +498,15 @@ class Daemon:
             if not st.silent and last is not None and now - last > self.silence_s:
                 st.silent = True
                 out.append(st.name)
-                row = self.bank.ids.get(key) if hasattr(self.bank, "ids") else None
-                if row in self._rows:  # the actuator's operating period ends
-                    self.fanout.flush(row)
-                # a unit another group member took over is released, not silent
-                released = self.group is not None and not self.group.owns_key(key)
-                self._service_event(st, "released" if released else "silent", st.last_t,
-                                    value=now - last)  # fmt: skip
+                self._end_period(key)
+                self._service_event(st, "silent", st.last_t, value=now - last)
         return out
+
+    def _end_period(self, key: str) -> None:
+        """The actuator's open operating period ends (silent, released)."""
+        row = self.bank.ids.get(key) if hasattr(self.bank, "ids") else None
+        if row in self._rows:
+            self.fanout.flush(row)
 
     def release_units(self) -> list[str]:
         """Units another group member took over: their operating period ends and their
@@ -518,13 +519,11 @@ class Daemon:
             st = self.actuators.get(key)
             if st is None:
                 continue
-            row = self.bank.ids.get(key) if hasattr(self.bank, "ids") else None
-            if row in self._rows:
-                self.fanout.flush(row)
+            self._end_period(key)
+            self._service_event(st, "released", st.last_t)  # at its last sample, as "silent"
             st.first_seq = st.last_seq = st.last_t = st.period = st.resync = None
             st.refused = 0
             st.silent = True
-            self._service_event(st, "released", None)
             out.append(st.name)
         return out
 

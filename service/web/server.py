@@ -82,6 +82,20 @@ def check_listen(text: str, *, allow_remote: bool = False) -> tuple[str, int]:
     return host, port
 
 
+def _json_answer(status: int, obj: Any) -> tuple[int, bytes, str]:
+    """(status, body, content type) of a JSON answer."""
+    return (
+        status,
+        json.dumps(obj, allow_nan=False, separators=(",", ":")).encode(),
+        "application/json",
+    )
+
+
+def _error_answer(status: int, message: str) -> tuple[int, bytes, str]:
+    """A JSON error answer naming what was wrong."""
+    return _json_answer(status, {"error": message, "status": int(status)})
+
+
 def _loopback_names(host: str) -> frozenset[str]:
     return frozenset({"localhost", "127.0.0.1", "::1", host.lower()})
 
@@ -121,12 +135,8 @@ class _Handler(BaseHTTPRequestHandler):
         except (ConnectionError, TimeoutError):  # the client went away: nothing to answer
             self.close_connection = True
 
-    def _json(self, status: int, obj: Any) -> None:
-        body = json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
-        self._send(status, body, "application/json")
-
     def _error(self, status: int, message: str) -> None:
-        self._json(status, {"error": message, "status": int(status)})
+        self._send(*_error_answer(status, message))
 
     def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
         """The base class's errors (a malformed request line, an unknown method, headers too
@@ -174,14 +184,10 @@ class _Handler(BaseHTTPRequestHandler):
         """(status, body, content type) of a GET (HEAD) request."""
         url = urlsplit(self.path)
         path = url.path
-
-        def err(status: int, message: str) -> tuple[int, bytes, str]:
-            obj = {"error": message, "status": int(status)}
-            return status, json.dumps(obj).encode(), "application/json"
+        err = _error_answer
 
         def ok(obj: Any) -> tuple[int, bytes, str]:
-            body = json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
-            return HTTPStatus.OK, body, "application/json"
+            return _json_answer(HTTPStatus.OK, obj)
 
         if not self._host_ok():
             return err(HTTPStatus.MISDIRECTED_REQUEST, "Host: not this server's name")

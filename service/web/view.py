@@ -7,6 +7,7 @@ import math
 import time
 from typing import Any
 
+from service.commands.fleet import finite_or_none as _finite
 from service.commands.fleet import rank_fleet
 from service.jsonutil import jsonable
 from service.prognostics.rul import history_of
@@ -21,12 +22,6 @@ STATUSES: tuple[str, ...] = ("critical", "watch", "ok", "uncommissioned")
 
 class UnknownActuatorError(KeyError):
     """The store has no actuator of that name."""
-
-
-def _finite(v: Any) -> float | None:
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        return None
-    return float(v)
 
 
 def unit_status(row: dict[str, Any]) -> tuple[str, str]:
