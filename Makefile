@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed-stamp
 KERNEL_SRC := $(wildcard models/*.py service/monitor/*.py service/compat/*.py) service/ukf.py service/messages.py service/log/codec.py
 KERNELS := $(VENV)/.kernels-stamp
 
-.PHONY: demo fleet-page test test-fast lint format bench clean
+.PHONY: demo fleet-page test test-fast lint format bench evaluate clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -49,8 +49,12 @@ format: $(STAMP)
 bench: $(KERNELS)
 	$(PY) bench/models.py
 	$(PY) bench/estimation.py
-	$(PY) bench/estimation_seeds.py --seeds 8
 	$(PY) bench/service.py
+
+# the monitor against the HF bench: process models over noise seeds, the duty-cycle suite
+evaluate: $(KERNELS)
+	$(PY) -m evaluation.seeds --models C5,WH --seeds 8 --workers 2
+	$(PY) -m evaluation.suite --seeds 1-7 --workers 2
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -7,11 +7,8 @@ NASA ProgPy 1.9's UnscentedKalmanFilter on the same model as a PrognosticsModel)
     .venv/bin/python bench/estimation.py --skip-accuracy # speed only
     .venv/bin/python bench/estimation.py --json out.json # also write the figures as JSON
     .venv/bin/python bench/estimation.py --model C5,WH   # process models side by side
-    .venv/bin/python bench/estimation.py --suite 30 --seed 1 --workers 2  # randomized suite
 
-``--suite N`` runs N seeded random duty cycles instead (issue 10): the whole command line goes
-to ``bench/estimation_suite.py`` (its options: ``--seed --seeds --workers --only --fixed-noise
---model --set --json``), which prints every figure per duty cycle, then its median and worst case.
+The randomized duty-cycle suite is ``python -m evaluation.suite`` (docs/estimation.md).
 
 The truth is the HF bench with the scenarios' seeded sensor noise. ProgPy is optional
 (``pip install 'progpy==1.9.*'``, the ``bench`` extra); without it that column reads
@@ -33,32 +30,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from evaluation.scenarios import SCENARIOS, SCENARIOS_WH, bundled_scenario  # noqa: E402
+from evaluation.suite import parse_overrides  # noqa: E402
 from models import eha_reduced as er  # noqa: E402
 from service.calibration import measured_run  # noqa: E402
 from service.monitor import Baseline, Monitor, MonitorBank, MonitorConfig  # noqa: E402
 from service.scenarios import load_scenario  # noqa: E402
 from service.ukf import ukf_step_batch  # noqa: E402
 
-SCENARIOS = ("healthy_noise", "leak_ramp", "leak_step", "supply_drop", "combined")
-# outside the C-types' domain (docs/models.md section 4; full channel set only)
-SCENARIOS_WH = ("est_overload", "est_large_steps", "est_load_reversal")
-
 
 # -- accuracy ------------------------------------------------------------------------------
-def bundled_scenario(name: str, duration: float | None = None, leak: float | None = None):
-    """Bundled scenario ``name``, optionally ``duration`` [s] long, or with a leak step to
-    ``leak`` [m^3/s/Pa] at 1.5 s (e.g. 2x nominal = an increase of 1x) in place of its own."""
-    from models.scenario import Event, Profile
-
-    sc = load_scenario(name)
-    if duration is not None:
-        sc = sc.model_copy(update={"duration_s": duration, "name": f"{name}_{duration:g}s"})
-    if leak is not None:
-        prof = Profile(initial=2e-13, events=[Event(t=1.5, value=leak)])
-        sc = sc.model_copy(update={"leak": prof, "name": f"{name}_{leak / 2e-13:g}x"})
-    return sc
-
-
 def _one(args) -> dict:
     model, overrides, name, channels, duration, *leak = args
     from service.commands.estimate import evaluate
@@ -389,24 +370,8 @@ def print_speed(sp: dict, fleet: int) -> None:
     )
 
 
-def _suite_requested(argv: list[str]) -> bool:
-    return any(a == "--suite" or a.startswith("--suite=") for a in argv)
-
-
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    if _suite_requested(argv):  # the randomized suite, and nothing else
-        from bench import estimation_suite
-
-        return estimation_suite.main(argv)
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument(
-        "--suite",
-        type=int,
-        metavar="N",
-        help="run N seeded random duty cycles instead (bench/estimation_suite.py: --seed, "
-        "--seeds, --workers, --only, --fixed-noise, --model, --set, --json)",
-    )
     ap.add_argument("--healthy-s", type=float, default=600.0, help="false-alarm run length [s]")
     ap.add_argument("--skip-accuracy", action="store_true")
     ap.add_argument("--skip-speed", action="store_true")
@@ -428,13 +393,7 @@ def main(argv: list[str] | None = None) -> int:
         "process.p_sr=5e5",
     )
     args = ap.parse_args(argv)
-    if args.suite is not None:  # "--sui N": argparse's abbreviation of --suite
-        from bench import estimation_suite
-
-        return estimation_suite.main(argv)
     models = tuple(m.strip() for m in args.model.split(",") if m.strip())
-    from bench.estimation_suite import parse_overrides
-
     overrides = {}
     for m in models:  # the same overrides, checked against every model's config
         overrides = parse_overrides(ap, m, args.set)

@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/restart.py [--link actuator|daemon] [--down 1.0] [--rate 250] [--runs 3]
 
-Every piece runs in its own process on loopback (service.restart_harness); prints one JSON
+Every piece runs in its own process on loopback (evaluation.restart); prints one JSON
 line per run: ``resume_s`` from the restarted router listening to the daemon holding a sample
 published after that, ``lost`` sequence numbers never logged, ``missed`` messages Zenoh
 reported unrecoverable.
@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from service.restart_harness import run_restart  # noqa: E402
+from evaluation.restart import run_restart  # noqa: E402
 
 
 def main() -> None:

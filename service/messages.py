@@ -137,7 +137,7 @@ class MeasSample(BaseModel):
 
 def _make(seq: int, t: float, vals: Sequence[float | None]) -> MeasSample:
     """A MeasSample from already-validated values, bypassing validation (what
-    ``model_construct`` does, at about half its cost: ``bench/pydantic_construct.py``)."""
+    ``model_construct`` does, at about half its cost: ``research/pydantic_construct.py``)."""
     d: dict[str, Any] = {"seq": seq, "t": t}
     d.update(zip(CHANNELS, vals, strict=True))
     return construct_unchecked(MeasSample, d)

@@ -1,17 +1,16 @@
-"""The filter on large duty cycles with the WH process model (docs/estimation.md, "WH on the
-duty-cycle suite"): the lands' hydraulic null, adaptive process noise, the |P12| gate, the
+"""The filter on large duty cycles with the WH process model (docs/estimation.md, "WH
+process model"): the lands' hydraulic null, adaptive process noise, the |P12| gate, the
 null refinement of the calibration, and suite members that meet every target of issue 10."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from evaluation.dutycycle import duty_cycle
 from models import eha_reduced_wh as erw
-from models.dutycycle import duty_cycle
 from service.calibration import bank_rows, calibrate, identify_noise, measured_run
 from service.monitor import EST_KEYS, MODEL_DEFAULTS, Baseline, MonitorBank, MonitorConfig
 from service.scenarios import load_scenario
@@ -21,12 +20,9 @@ C_LK = EST_KEYS.index("c_lk")
 
 
 def _suite_module():
-    spec = importlib.util.spec_from_file_location(
-        "estimation_suite", ROOT / "bench/estimation_suite.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from evaluation import suite
+
+    return suite
 
 
 def test_wh_lands_see_the_spool_from_its_hydraulic_null():
@@ -47,7 +43,7 @@ def test_wh_lands_see_the_spool_from_its_hydraulic_null():
 
 def test_land_skew_sets_the_chamber_pressures_at_null():
     """At null, with the jack held, each chamber sits at P_R + f P_SR, f = k^2 / (1 + k^2),
-    k = (1 + skew) / (1 - skew) (docs/estimation.md, "WH on the duty-cycle suite"): run the
+    k = (1 + skew) / (1 - skew) (docs/estimation.md, "WH's calibration: land skew"): run the
     numpy model to rest from mid-supply and compare, at two supplies (f does not move). The
     orifices only: the lands' clearance leak, the same on every open land, pulls towards
     mid-supply and is off here."""
@@ -200,7 +196,7 @@ def test_null_refinement_reads_nominal_on_a_mismatched_plant():
 @pytest.mark.slow
 def test_suite_members_meet_every_target_of_issue_10():
     """Four members of the seed-1 suite (healthy, leak step, supply drop, slow leak growth)
-    meet every target with the default WH monitor (bench/estimation_suite.py)."""
+    meet every target with the default WH monitor (evaluation/suite.py)."""
     suite = _suite_module()
     for index in (0, 1, 10, 21):
         r = suite.run_one(duty_cycle(1, index), model="WH")

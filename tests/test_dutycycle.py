@@ -1,11 +1,11 @@
-"""Seeded random duty cycles (models/dutycycle.py): determinism, bounds, validation."""
+"""Seeded random duty cycles (evaluation/dutycycle.py): determinism, bounds, validation."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from models.dutycycle import (
+from evaluation.dutycycle import (
     MAX_LOAD_N,
     SETTLE_S,
     STROKE_FRACTION,

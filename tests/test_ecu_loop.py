@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.dutycycle import duty_cycle, ecu_noisy_x_j
+from evaluation.dutycycle import duty_cycle, ecu_noisy_x_j
 from models.eha import simulate
 from models.scenario import Event, Profile, Scenario, SensorNoise
 from service.actuator import VirtualActuator

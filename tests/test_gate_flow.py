@@ -5,7 +5,6 @@ times the baseline leak flow C_Lk |P12|."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -59,10 +58,8 @@ def test_it_removes_the_spike_after_a_slew_onto_a_low_load_hold():
     raised: a false alarm. WH's alarm (sigma below 0.6x) does not raise on it, and with
     WH's default gate (5x the leak flow within 0.3 s of a slew) C_Lk stays under the 2x
     clear level (1.65x; 1.39x at the 1e-13 walk)."""
-    sys.path.insert(0, str(ROOT / "bench"))
-    from estimation_suite import monitor_run
-
-    from models.dutycycle import duty_cycle
+    from evaluation.dutycycle import duty_cycle
+    from evaluation.suite import monitor_run
 
     runs = {
         "off, C-type alarm": {"c_lk_gate_flow": 0.0, "alarms": {"leak_max_sigma": 1.0}},
@@ -88,10 +85,8 @@ def test_a_ramp_is_not_a_slew():
     30 mm/s, the setting before) the ramp keeps the post-slew gate shut and the alarm comes
     2.8 s after the crossing; at WH's default, 0.1 m/s, a slew to a step and not a commanded
     ramp, within 1 s."""
-    sys.path.insert(0, str(ROOT / "bench"))
-    from estimation_suite import run_one
-
-    from models.dutycycle import duty_cycle
+    from evaluation.dutycycle import duty_cycle
+    from evaluation.suite import run_one
 
     dc = duty_cycle(5, 1)
     before = run_one(dc, model="WH", overrides={"c_lk_gate_flow_v_fast": 0.03})

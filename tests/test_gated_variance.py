@@ -4,13 +4,12 @@ the gate holds it")."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from models.dutycycle import duty_cycle
+from evaluation.dutycycle import duty_cycle
 from service.calibration import bank_rows, measured_run
 from service.monitor import EST_KEYS, MODEL_DEFAULTS, Baseline, MonitorConfig
 from service.scenarios import load_scenario
@@ -49,10 +48,9 @@ def test_held_variance_grows_to_the_cap_and_no_further():
 
 
 def _suite():
-    spec = importlib.util.spec_from_file_location("suite", ROOT / "bench/estimation_suite.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from evaluation import suite
+
+    return suite
 
 
 def test_the_cap_removes_the_false_alarms_after_a_long_hold():

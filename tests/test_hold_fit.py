@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.optimize import fsolve
 
-from models.dutycycle import CAL_HOLD_END_S, CAL_HOLD_SWAP_S, CAL_SINE_END_S, duty_cycle
+from evaluation.dutycycle import CAL_HOLD_END_S, CAL_HOLD_SWAP_S, CAL_SINE_END_S, duty_cycle
 from models.eha_reduced_wh import land_flows
 from models.hf_valve import hf_static_hold
 from models.params import EHAParams

@@ -59,7 +59,7 @@ def test_mask_settings_are_validated():
 def test_walks_the_filter_uses():
     """The C_Lk and chamber walks of the louder setting tried in docs/estimation.md reach the
     filter as set; the defaults are the model's (q = (walk / state scale)^2; WH's louder C_Lk
-    walk: docs/estimation.md, "The C_Lk walk")."""
+    walk: docs/decisions/0002-wh-c-lk-walk.md)."""
     from service.monitor import MonitorBank
 
     s_c, s_p = 1e-13, 1e6  # filter units of C_Lk and of the chamber states
@@ -82,8 +82,8 @@ def test_no_false_leak_alarm_at_a_supply_drop_during_a_hold():
     hold) on the louder C_Lk walk of docs/estimation.md ("WH against C5 over noise seeds"):
     C_Lk read 2.7x for 70 ms before P_SR followed and, unmasked, raised a false leak alarm
     (the truth never passes the clear level)."""
-    from bench.estimation_suite import run_one
-    from models.dutycycle import duty_cycle
+    from evaluation.dutycycle import duty_cycle
+    from evaluation.suite import run_one
 
     dc = duty_cycle(1, 7)
     loud = {"process": {"c_lk": 1.5e-13, "p_ch": 1.5e6, "p_ch_common": 7e4}}

@@ -5,10 +5,8 @@ unchanged."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,7 +145,7 @@ def test_unknown_model_rejected_and_wh_config():
     assert bank._cst[0] == pytest.approx(1e-3 / 3)  # h_max: 3 RK4 substeps per 1 ms sample
 
 
-# bench/outputs_hash.py --duration-s 1.0 on the branch base (before the WH process model)
+# evaluation/outputs_hash.py --duration-s 1.0 on the branch base (before the WH process model)
 C5_HASHES_1S = {
     "leak_step": "f38cf6ed25e9932b58355e98e8d0a1dbe21acd996bd9aa710e02bea2d6a095b2",
     "supply_drop": "8aaafa986abda11002f57047e74fa61e8cafa7bd7df10ae6e35189811c5b19c2",
@@ -155,10 +153,7 @@ C5_HASHES_1S = {
 
 
 def test_c_type_outputs_unchanged():
-    spec = importlib.util.spec_from_file_location(
-        "outputs_hash", Path(__file__).resolve().parent.parent / "bench" / "outputs_hash.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    from evaluation import outputs_hash as mod
+
     for name in ("leak_step", "supply_drop"):
         assert mod.scenario_hash(name, 1.0)[0] == C5_HASHES_1S[name]

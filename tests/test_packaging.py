@@ -20,12 +20,13 @@ def test_every_package_directory_is_installed():
     found = set(find_packages(str(ROOT), include=_setuptools()["packages"]["find"]["include"]))
     on_disk = {
         ".".join(p.parent.relative_to(ROOT).parts)
-        for top in ("models", "service")
+        for top in ("models", "service", "evaluation")
         for p in (ROOT / top).rglob("__init__.py")
     }
-    assert "service.web" in on_disk and "service.store" in on_disk
+    assert "service.web" in on_disk and "service.store" in on_disk and "evaluation" in on_disk
     assert on_disk <= found, sorted(on_disk - found)
-    assert not any(p.startswith("tests") for p in found)
+    # benchmarks, one-off investigations and tests are scripts, not packages
+    assert not any(p.split(".")[0] in ("tests", "bench", "research") for p in found)
 
 
 def test_the_page_files_are_package_data():

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from service.restart_harness import run_restart
+from evaluation.restart import run_restart
 
 pytestmark = pytest.mark.slow
 

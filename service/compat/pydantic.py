@@ -5,7 +5,7 @@
 writing pydantic's four instance slots (``BaseModel.__slots__``: ``__dict__``,
 ``__pydantic_fields_set__``, ``__pydantic_extra__``, ``__pydantic_private__``) itself. It
 gives what the public ``Model.model_construct(**values)`` gives (equal objects, same
-``model_fields_set``), at about half its cost: ``bench/pydantic_construct.py`` measured
+``model_fields_set``), at about half its cost: ``research/pydantic_construct.py`` measured
 ``model_construct`` 1.7-1.9x slower per ``MeasSample``, and decoding builds one per sample.
 """
 

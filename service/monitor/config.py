@@ -120,7 +120,7 @@ class AlarmConfig(_Cfg):
 
 # settings whose default depends on the process model (tuned on WH, which follows the
 # chamber transients they act on; the C-types keep the filter of the bundled scenarios;
-# docs/estimation.md, "WH on the duty-cycle suite")
+# docs/decisions/0009-c-types-keep-the-bundled-filter.md)
 MODEL_DEFAULTS: dict[str, dict[str, float]] = {
     "WH": {
         "adapt_nis": 1.5,
@@ -134,7 +134,7 @@ MODEL_DEFAULTS: dict[str, dict[str, float]] = {
         "process.p_sr": 3e5,
         "process.p_ch_common": 1e5,
         # the ramp alarm's walk, with the alarm and the post-slew gate that keep it from
-        # false alarms (docs/estimation.md, "WH's defaults for the C_Lk walk")
+        # false alarms (docs/decisions/0002-wh-c-lk-walk.md)
         "process.c_lk": 1.2e-13,
         "alarms.leak_max_sigma": 0.6,
         "c_lk_gate_flow": 5.0,
@@ -223,7 +223,7 @@ class MonitorConfig(_Cfg):
         0.1,
         gt=0,
         description="fast motion for c_lk_gate_flow_s [m/s]: a slew to a step, faster than "
-        "the jack follows a commanded ramp (docs/estimation.md, WH's defaults for the C_Lk walk)",
+        "the jack follows a commanded ramp (docs/decisions/0002-wh-c-lk-walk.md)",
     )
     c_lk_gate_adapt: float | None = Field(
         None,
@@ -432,6 +432,6 @@ _DEFAULT_CALIBRATION: dict[str, dict[str, float]] = dict.fromkeys(LAW_NAMES, _CA
 # fixes WH's null pressure coefficient only to about 1 % of C_Lk, and over 8 sensor-noise
 # seeds its law reads -0.56 to +3.18 % of C_Lk at the HF plant's static holds (rated and 0.7
 # of rated supply, 1-5x leak) against +0.02 to +0.20 % for the datasheet values
-# (``bench/hold_readings.py --calibrated-seeds 8``; docs/estimation.md,
+# (``evaluation/holds.py --calibrated-seeds 8``; docs/estimation.md,
 # "WH's default baseline: the datasheet values"). A unit is still calibrated on its own run
 # (``servowatch calibrate --model WH``), which fits its null where the run holds.

@@ -246,7 +246,7 @@ def step_one(
     for r in range(mask.shape[1]):
         if mask[j, r]:
             dof += 1.0
-    # adaptive process noise (docs/estimation.md, "WH on the duty-cycle suite"): keep the prior,
+    # adaptive process noise (docs/estimation.md, "Adaptive process noise"): keep the prior,
     # and if this sample's NIS/dof passes adapt_nis, redo the step with the plant states'
     # process noise (not the parameters') scaled by NIS/dof / adapt_nis
     thr = cst_k[C_ADAPT_NIS]

@@ -1,10 +1,10 @@
 """The C_Lk a monitor's valve law reads at the HF plant's static holds (docs/estimation.md,
-"Stiction in the WH process model" and "What the remaining misses are made of").
+"The laws at the HF plant's static holds" and "Stiction in the WH process model").
 
-    .venv/bin/python bench/hold_readings.py                       # a few seconds
-    .venv/bin/python bench/hold_readings.py --supply 1,0.7 --leak 1,5 --load 4000
-    .venv/bin/python bench/hold_readings.py --baseline wh.json     # a saved WH baseline
-    .venv/bin/python bench/hold_readings.py --calibrated-seeds 8   # a few seconds
+    .venv/bin/python -m evaluation.holds                       # a few seconds
+    .venv/bin/python -m evaluation.holds --supply 1,0.7 --leak 1,5 --load 4000
+    .venv/bin/python -m evaluation.holds --baseline wh.json     # a saved WH baseline
+    .venv/bin/python -m evaluation.holds --calibrated-seeds 8   # a few seconds
 
 A hold: the HF valve (``models.hf_valve.hf_static_pressures``) at the spool position where,
 with the jack still, its static P12 carries the load (P12 = F_R / A) at supply P_SR and
@@ -27,18 +27,15 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from scipy.optimize import brentq
 
-from scipy.optimize import brentq  # noqa: E402
-
-from models.eha_reduced import p12_state  # noqa: E402
-from models.hf_valve import hf_static_hold  # noqa: E402
-from models.params import EHAParams  # noqa: E402
-from service.calibration import hold_reading  # noqa: E402
-from service.monitor import Baseline  # noqa: E402
-from service.monitor.config import MONITOR_MODELS  # noqa: E402
+from models.eha_reduced import p12_state
+from models.hf_valve import hf_static_hold
+from models.params import EHAParams
+from service.calibration import hold_reading
+from service.monitor import Baseline
+from service.monitor.config import MONITOR_MODELS
 
 
 def law_reading(base: Baseline, x_s: float, p1: float, p2: float, p_sr: float) -> float:

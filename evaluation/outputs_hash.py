@@ -1,8 +1,8 @@
 """Fingerprint of the monitor's outputs: one sha256 per bundled scenario over everything
 ``MonitorBank.update_arrays`` (the production path of the daemon and replay) returns.
 
-    .venv/bin/python bench/outputs_hash.py            # about 1 min (the HF runs)
-    .venv/bin/python bench/outputs_hash.py --json     # the hashes as one JSON object
+    .venv/bin/python -m evaluation.outputs_hash            # about 1 min (the HF runs)
+    .venv/bin/python -m evaluation.outputs_hash --json     # the hashes as one JSON object
 
 ``--fleet`` feeds the same blocks through a ``MonitorFleet`` (one bank per distinct baseline;
 every actuator on the default here), which must give the same hashes as the plain bank.
@@ -22,19 +22,15 @@ import argparse
 import hashlib
 import json
 import os
-import sys
-from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from service.calibration import measured_run  # noqa: E402
-from service.messages import CHANNELS  # noqa: E402
-from service.monitor import MonitorBank, MonitorFleet  # noqa: E402
-from service.scenarios import load_scenario  # noqa: E402
+from service.calibration import measured_run
+from service.messages import CHANNELS
+from service.monitor import MonitorBank, MonitorFleet
+from service.scenarios import load_scenario
 
 SCENARIOS = ("leak_step", "supply_drop", "combined", "healthy_noise")
 BLOCKS = (1, 2, 3, 64, 250, 17, 500, 5)  # cycled: block sizes of the interleaved stream

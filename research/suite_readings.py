@@ -1,11 +1,11 @@
 """Where the monitor's settled C_Lk reading errs on the duty-cycle suite, by operating point
-(docs/estimation.md, "Where the settled C_Lk reading errs").
+(docs/decisions/0005-information-bound.md).
 
-    .venv/bin/python bench/suite_readings.py --seeds 1,2,3,4,5 --workers 2   # about 2 min
-    .venv/bin/python bench/suite_readings.py --seeds 1 --suite 4 --json r.json --png r.png
+    .venv/bin/python research/suite_readings.py --seeds 1,2,3,4,5 --workers 2   # about 2 min
+    .venv/bin/python research/suite_readings.py --seeds 1 --suite 4 --json r.json --png r.png
 
-Every member of each suite seed (``models.dutycycle``), calibrated on its own healthy segment
-and run as ``bench/estimation_suite.py`` runs it (``monitor_run``). Per member, ``err`` is the
+Every member of each suite seed (``evaluation.dutycycle``), calibrated on its own healthy segment
+and run as ``evaluation/suite.py`` runs it (``monitor_run``). Per member, ``err`` is the
 error of the last-second mean C_Lk reading in units of the plant's own nominal C_Lk: the
 estimated minus the true increase over the baseline (so for a leak member err = inc% x the
 true increase / 100, and on a plant with no leak err = bias% / 100). Beside it, the last
@@ -25,12 +25,14 @@ import json
 import os
 import sys
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from service.plots import _axes, _save, plt  # noqa: E402
 
 P12_BINS_MPA = (0.0, 1.0, 2.0, 4.0, 6.0, np.inf)
 SUPPLY_BINS = (0.0, 0.7, 0.9, 1.1)
@@ -48,13 +50,12 @@ def reading(
 ) -> dict:
     """One member's settled C_Lk reading error and the operating point it was read at
     (``overrides``: MonitorConfig fields, as ``--set``; ``noise``: the sensors' noise times
-    this, ``models.dutycycle.scale_noise``; ``nominal``: the plant without tolerances,
-    ``models.dutycycle.nominal_plant``; ``datasheet``: the monitor on the datasheet baseline,
+    this, ``evaluation.dutycycle.scale_noise``; ``nominal``: the plant without tolerances,
+    ``evaluation.dutycycle.nominal_plant``; ``datasheet``: the monitor on the datasheet baseline,
     not calibrated; ``frictionless``: a nominal plant without Coulomb or breakaway friction,
     and the baseline without them too)."""
-    from estimation_suite import gate_open, monitor_run
-
-    from models.dutycycle import duty_cycle, nominal_plant, scale_noise
+    from evaluation.dutycycle import duty_cycle, nominal_plant, scale_noise
+    from evaluation.suite import gate_open, monitor_run
     from service.monitor import EST_KEYS
 
     dc = scale_noise(duty_cycle(seed, index), noise)  # noise 1: the member as drawn
@@ -141,8 +142,33 @@ def binned(rows: list[dict]) -> list[tuple[str, str, int, float, float, float, f
     return out
 
 
+def plot_readings(
+    rows: Sequence[Mapping[str, object]], flow: float, path: str | Path, title: str = ""
+) -> Path:
+    """Settled C_Lk reading errors of suite members (docs/decisions/0005-information-bound.md): err [nominal C_Lk] against the last second's |P12| [MPa], one dot a
+    member, coloured by the supply at the end (share of rated), with +-``flow`` / |P12|, the
+    error a constant flow error of ``flow`` [nominal x MPa] gives."""
+    p12 = np.abs([float(r["p12_mpa"]) for r in rows])
+    err = np.array([float(r["err"]) for r in rows])
+    sup = np.array([float(r["supply"]) for r in rows])
+    fig, ax = plt.subplots(figsize=(8, 5))
+    sc = ax.scatter(p12, err, c=sup, cmap="viridis", vmin=0.5, vmax=1.0, s=14)
+    fig.colorbar(sc, ax=ax, label="supply at the end / rated")
+    x = np.linspace(0.5, max(float(p12.max()), 1.0), 200)
+    for sign in (1.0, -1.0):
+        ax.plot(x, sign * flow / x, "C3", ls="--", lw=0.8,
+                label=f"+-{flow:.2f} / |P12| (a constant flow error)" if sign > 0 else None)  # fmt: skip
+    ax.axhline(0.0, color="k", lw=0.6)
+    ax.set_ylim(-0.8, 0.8)
+    _axes(
+        ax, "|P12| over the last second [MPa]", "settled C_Lk error [nominal C_Lk]", "upper right"
+    )
+    ax.set_title(title)
+    return _save(fig, path)
+
+
 def main(argv: list[str] | None = None) -> int:
-    from estimation_suite import noise_factor, parse_overrides, run_jobs
+    from evaluation.suite import noise_factor, parse_overrides, run_jobs
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="1", help="comma-separated suite seeds")
@@ -154,14 +180,14 @@ def main(argv: list[str] | None = None) -> int:
         action="append",
         default=[],
         metavar="FIELD=VALUE",
-        help="override a MonitorConfig field, as bench/estimation_suite.py --set",
+        help="override a MonitorConfig field, as evaluation/suite.py --set",
     )
     ap.add_argument(
         "--noise-scale",
         type=noise_factor,
         default=1.0,
         metavar="F",
-        help="every sensor's noise times F, as bench/estimation_suite.py --noise-scale",
+        help="every sensor's noise times F, as evaluation/suite.py --noise-scale",
     )
     ap.add_argument(
         "--nominal-plant",
@@ -233,8 +259,6 @@ def main(argv: list[str] | None = None) -> int:
           "settled / in the last second:"
           + "".join(f"\n  {m} {e:+.1%}  {_obs(by_name[m])}" for m, e in miss))  # fmt: skip
     if a.png:
-        from service.plots import plot_readings
-
         flow = next(b[6] for b in bins if b[0] == "all")
         title = f"settled C_Lk reading, seeds {a.seeds}, {len(rows)} members, {a.model}"
         print(f"wrote {plot_readings(rows, flow, a.png, title)}")

@@ -1,18 +1,18 @@
-"""One member of the randomized estimation suite, as time windows (docs/estimation.md, "WH on
-the duty-cycle suite"): where its C_Lk and P_SR estimates stand against the truth, and what the
+"""One member of the randomized estimation suite, as time windows (docs/estimation.md, "Large
+duty cycles (issue 10)"): where its C_Lk and P_SR estimates stand against the truth, and what the
 jack does meanwhile.
 
-    .venv/bin/python bench/suite_member.py --seed 1 --index 11                # WH
-    .venv/bin/python bench/suite_member.py --seed 1 --index 11 --supply-sensor
-    .venv/bin/python bench/suite_member.py --seed 1 --index 13 --model C5 --window 1.0
-    .venv/bin/python bench/suite_member.py --seed 2 --index 17 --png member.png
+    .venv/bin/python research/suite_member.py --seed 1 --index 11                # WH
+    .venv/bin/python research/suite_member.py --seed 1 --index 11 --supply-sensor
+    .venv/bin/python research/suite_member.py --seed 1 --index 13 --model C5 --window 1.0
+    .venv/bin/python research/suite_member.py --seed 2 --index 17 --png member.png
 
 Per window: mean C_Lk estimate and truth (x nominal), mean P_SR error [%], mean |P12| [MPa],
 |v_J| [mm/s] and the largest |x_S| [um] of the truth. Then the longest run of the C_Lk
 estimate at or above the leak raise level (its length against the alarm's persistence, peak
 and sigma). Last line: the C_Lk increase error and the P_SR error over the last second
 (means against the truth at the end). ``--png F``
-also draws the run (``service.plots.plot_member``): C_Lk with its 1-sigma band, P_SR, and
+also draws the run (``plot_member``): C_Lk with its 1-sigma band, P_SR, and
 |P12|, |v_J| against the gates that hold C_Lk.
 """
 
@@ -20,14 +20,16 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.estimation_suite import monitor_run, parse_overrides  # noqa: E402
-from models.dutycycle import duty_cycle  # noqa: E402
+from evaluation.dutycycle import duty_cycle  # noqa: E402
+from evaluation.suite import monitor_run, parse_overrides  # noqa: E402
+from service.plots import _save, plt  # noqa: E402
 
 
 def above_raise(t: np.ndarray, ratio: np.ndarray, sigma: np.ndarray, raise_at: float,
@@ -46,6 +48,48 @@ def above_raise(t: np.ndarray, ratio: np.ndarray, sigma: np.ndarray, raise_at: f
             f"{1e3 * (t[b] - t[a]):.0f} ms from {t[a]:.3f} s (persistence {1e3 * hold_s:.0f} ms), "
             f"peak {np.max(ratio[a:b + 1]):.2f}x, sigma {np.min(sigma[a:b + 1]):.2f}"
             f"-{np.max(sigma[a:b + 1]):.2f}x")  # fmt: skip
+
+
+def plot_member(
+    t: np.ndarray,
+    est: Mapping[str, np.ndarray],
+    truth: Mapping[str, np.ndarray],
+    gates: Mapping[str, float],
+    alarms: Sequence[tuple[float, str, str]],
+    path: str | Path,
+    title: str = "",
+) -> Path:
+    """One monitor run against its truth (docs/estimation.md, "Large duty cycles (issue 10)"):
+    C_Lk / nominal with its 1-sigma band and the leak alarm level, P_SR [MPa], |P12| [MPa]
+    and |v_J| [mm/s] of the truth with the observability gates (``gates``: p12 [Pa], v_j
+    [m/s], leak_raise [x nominal]); alarms as (t, kind, state) lines."""
+    c0 = float(truth["c_lk"][0])
+    fig, ax = plt.subplots(4, 1, figsize=(9, 10), sharex=True)
+    c, sd = est["c_lk"] / c0, est["c_lk_sigma"] / c0
+    ax[0].fill_between(t, c - sd, c + sd, color="C0", alpha=0.25, lw=0, label="1 sigma")
+    ax[0].plot(t, c, "C0", lw=0.8, label="estimate")
+    ax[0].plot(t, truth["c_lk"] / c0, "k", lw=1.2, label="truth")
+    ax[0].axhline(gates["leak_raise"], color="C3", ls="--", lw=0.8, label="alarm level")
+    ax[0].set_ylabel("C_Lk / nominal")
+    ax[1].plot(t, est["p_sr"] * 1e-6, "C0", lw=0.8, label="estimate")
+    ax[1].plot(t, truth["p_sr"] * 1e-6, "k", lw=1.2, label="truth")
+    ax[1].set_ylabel("P_SR [MPa]")
+    ax[2].plot(t, np.abs(truth["p12"]) * 1e-6, "C2", lw=0.8)
+    ax[2].axhline(gates["p12"] * 1e-6, color="C3", ls="--", lw=0.8, label="C_Lk gate")
+    ax[2].set_ylabel("|P12| [MPa]")
+    ax[3].plot(t, np.abs(truth["v_j"]) * 1e3, "C2", lw=0.8)
+    ax[3].axhline(gates["v_j"] * 1e3, color="C3", ls="--", lw=0.8, label="C_Lk gate")
+    ax[3].set_ylabel("|v_J| [mm/s]")
+    ax[3].set_xlabel("t [s]")
+    for tt, kind, state in alarms:
+        for a in ax[:2]:
+            a.axvline(tt, color="C3" if state == "raised" else "C1", lw=0.6, alpha=0.7)
+        ax[0].text(tt, ax[0].get_ylim()[1], f" {kind} {state}", fontsize=7, va="top")
+    for a in ax:
+        a.grid(True, alpha=0.3)
+        a.legend(fontsize=7, loc="upper left")
+    fig.suptitle(title)
+    return _save(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -99,8 +143,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(f"last second: C_Lk increase error {inc}, P_SR error {p_err:+.2f} %")
     if a.png:
-        from service.plots import plot_member
-
         est = {k: rows.est[:, EST_KEYS.index(k)] for k in ("c_lk", "c_lk_sigma", "p_sr")}
         alarms = [(e.t, e.kind, e.state) for evs in rows.events for e in evs]
         gates = {

@@ -1,24 +1,19 @@
-"""``bench/suite_bound.py``: the information bound on the duty-cycle suite's targets."""
+"""``evaluation/bound.py``: the information bound on the duty-cycle suite's targets."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from evaluation import bound as sb
 from models.scenario import SensorNoise
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
-_spec = importlib.util.spec_from_file_location("suite_bound", ROOT / "bench/suite_bound.py")
-sb = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(sb)
 
 
 def _outputs(**ch):
@@ -62,7 +57,7 @@ def test_leak_profile_edits():
 
 
 def test_a_load_bump_adds_a_constant_on_its_piece_only():
-    from models.dutycycle import duty_cycle
+    from evaluation.dutycycle import duty_cycle
 
     load = duty_cycle(1, 1).test.load
     t = np.array([1.99, 2.0, 2.1, 2.2499, 2.25, 2.3])
@@ -166,7 +161,7 @@ def test_plot_bound_draws_the_monitor_over_the_bound(tmp_path, monkeypatch, caps
     """--png: left, each leak member's +-3 sigma bar and the monitor's increase error (red
     where it misses, on the edge past +-50 %); right, each alarm's delay against the ideal
     test's, clipped at 4 s."""
-    import service.plots as plots
+    import evaluation.plots as plots
 
     rows = [
         {"name": "a", "leak_ratio": 1.6, "d_inc": 30.0, "sigma%": 0.5, "inc%": 3.0},

@@ -1,12 +1,12 @@
 """What any monitor could read from a suite member's sensors: an information bound per member
 of the duty-cycle suite (docs/estimation.md, "An information bound on the suite's targets").
 
-    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --known-plant   # 1 min
-    .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2 --json s.json
-    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --suite-json s.json  # 9 min
-    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --suite-json s.json --png b.png
-    .venv/bin/python bench/suite_bound.py --seed 5 --only 11,27 --known-plant --channels
-    .venv/bin/python bench/suite_bound.py --seeds 1-7 --workers 2 --drop i,x_s
+    .venv/bin/python -m evaluation.bound --seeds 1-7 --workers 2 --known-plant   # 1 min
+    .venv/bin/python -m evaluation.suite --seeds 1-7 --workers 2 --json s.json
+    .venv/bin/python -m evaluation.bound --seeds 1-7 --workers 2 --suite-json s.json  # 9 min
+    .venv/bin/python -m evaluation.bound --seeds 1-7 --workers 2 --suite-json s.json --png b.png
+    .venv/bin/python -m evaluation.bound --seed 5 --only 11,27 --known-plant --channels
+    .venv/bin/python -m evaluation.bound --seeds 1-7 --workers 2 --drop i,x_s
 
 The suite's truth is the HF bench with white Gaussian sensor noise added to its outputs
 (``service.calibration.measured_run``: the ECU acts on the true signals, the noise is the
@@ -43,7 +43,7 @@ Per leak member:
   makes the outputs jump.
 - ``dn(1s)``: the alarm's d' within 1 s of the crossing once every difference the unknown
   tolerances could also make is projected out (``projected_dprime``).
-- with ``--suite-json`` (the output of ``bench/estimation_suite.py --json``, same seeds):
+- with ``--suite-json`` (the output of ``evaluation/suite.py --json``, same seeds):
   the monitor's ``delay`` and ``inc%`` beside them, and which misses are beyond the bound.
 """
 
@@ -52,18 +52,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from estimation_suite import TARGETS, run_jobs, seed_list  # noqa: E402
-
-from models.scenario import Event, Periodic, Profile, SensorNoise  # noqa: E402
+from evaluation.suite import TARGETS, run_jobs, seed_list
+from models.scenario import Event, Periodic, Profile, SensorNoise
 
 CHANNELS = (("i", "current_a"), ("x_s", "x_s_m"), ("x_j", "x_j_m"), ("p1", "p_pa"), ("p2", "p_pa"))
 D_ALARM = 3.09  # z of a 0.1 % false-alarm rate: an ideal test detects half the leaks there
@@ -260,7 +255,7 @@ def member_bound(
     drop: tuple[str, ...] = (),
 ) -> dict:
     """The bound of the module docstring for member ``index`` of suite ``seed``."""
-    from models.dutycycle import duty_cycle
+    from evaluation.dutycycle import duty_cycle
     from models.eha import simulate
 
     dc = duty_cycle(seed, index)
@@ -351,7 +346,7 @@ def alarm_out_of_reach(r: dict) -> bool:
 
 
 def judge(rows: list[dict], monitor: dict[str, dict]) -> None:
-    """Add the monitor's figures (rows of ``bench/estimation_suite.py --json``, by name) and
+    """Add the monitor's figures (rows of ``evaluation/suite.py --json``, by name) and
     whether each of its misses is beyond the bound (the known plant's, and where computed the
     one with the plant's tolerances unknown)."""
     for r in rows:
@@ -465,7 +460,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--suite", type=int, default=30, help="members per seed")
     ap.add_argument("--only", default=None, help="member indices, 3,7 (one seed)")
     ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--suite-json", default=None, help="bench/estimation_suite.py --json output")
+    ap.add_argument("--suite-json", default=None, help="evaluation/suite.py --json output")
     ap.add_argument("--json", default=None, help="write the rows and summary here")
     ap.add_argument(
         "--png", default=None, help="draw the monitor against the bound (needs --suite-json)"
@@ -532,7 +527,7 @@ def main(argv: list[str] | None = None) -> int:
     print_summary(s)
     print(f"\n{len(jobs)} members in {time.perf_counter() - t0:.1f} s")
     if a.png:
-        from service.plots import plot_bound
+        from evaluation.plots import plot_bound
 
         plot_bound(rows, a.png, f"suite seeds {','.join(map(str, seeds))}: monitor and bound")
         print(f"wrote {a.png}")

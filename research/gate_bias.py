@@ -2,11 +2,11 @@
 sample's own measured P1 - P2 against its 50 ms low-pass over the samples before
 (docs/estimation.md, "Observability gate": the selection bias of a gate on noisy data).
 
-    .venv/bin/python bench/gate_bias.py
-    .venv/bin/python bench/gate_bias.py --seed 3 --index 12 --p12 0.9,1.0,1.1,1.2,1.5 --noise-seeds 3
+    .venv/bin/python research/gate_bias.py
+    .venv/bin/python research/gate_bias.py --seed 3 --index 12 --p12 0.9,1.0,1.1,1.2,1.5 --noise-seeds 3
 
 The plant, its sensor noise and the monitor's baseline are those of suite member (seed,
-index), calibrated on its own healthy segment as ``bench/estimation_suite.py`` does; the test
+index), calibrated on its own healthy segment as ``evaluation/suite.py`` does; the test
 run holds the jack at mid stroke for ``--duration`` s under the load that gives each |P12|.
 Printed per |P12| and noise seed: the mean C_Lk estimate over the last 2 s (x the baseline)
 with the per-sample gate (``c_lk_gate_p12_tau_s`` = 0) and with the low-passed gate (the
@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from models.dutycycle import duty_cycle  # noqa: E402
+from evaluation.dutycycle import duty_cycle  # noqa: E402
 from models.params import EHAParams  # noqa: E402
 from models.scenario import Profile  # noqa: E402
 

@@ -2,7 +2,7 @@
 against the hand-written construction in ``service.messages`` (which writes pydantic's
 instance slots itself), side by side in one run.
 
-    .venv/bin/python bench/pydantic_construct.py [--rounds 15] [--n 20000] [--json]
+    .venv/bin/python research/pydantic_construct.py [--rounds 15] [--n 20000] [--json]
 
 Rows, microseconds per object (median over ``--rounds`` interleaved rounds of ``--n``
 objects each; ratio = median of the per-round ratios to the first row):

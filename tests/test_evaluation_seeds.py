@@ -1,4 +1,4 @@
-"""``bench/estimation_seeds.py``: two process models compared over sensor-noise seeds, paired
+"""``evaluation/seeds.py``: two process models compared over sensor-noise seeds, paired
 (issue 11), with its Student-t interval checked by hand."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.estimation_seeds import RUNS, compare, paired
+from evaluation.seeds import RUNS, compare, paired
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -62,7 +62,7 @@ def test_compare_rows_by_scenario_and_figure():
 
 def _run(*argv: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, str(ROOT / "bench" / "estimation_seeds.py"), *argv],
+        [sys.executable, "-m", "evaluation.seeds", *argv],
         capture_output=True,
         text=True,
         timeout=240,
@@ -112,9 +112,8 @@ def test_two_seeds_end_to_end(tmp_path):
 def test_plant_overrides_join_the_scenario_params():
     """--plant adds EHAParams overrides to every scenario (its own kept) and, when set,
     calibrates each model on healthy_noise with that plant."""
-    sys.path.insert(0, str(ROOT))
-    from bench.estimation import bundled_scenario
-    from bench.estimation_seeds import plant_baselines, plant_scenario
+    from evaluation.scenarios import bundled_scenario
+    from evaluation.seeds import plant_baselines, plant_scenario
     from service.monitor import Baseline
 
     sc = plant_scenario("leak_step", {"c_r": 2.5e-7}, leak=4e-13)

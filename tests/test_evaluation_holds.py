@@ -1,23 +1,20 @@
-"""``bench/hold_readings.py``: the C_Lk a law reads at the HF plant's static holds."""
+"""``evaluation/holds.py``: the C_Lk a law reads at the HF plant's static holds."""
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
+from evaluation import holds as hr
 from models.eha_reduced import p12_state
 from models.hf_valve import hf_static_hold
 from models.params import EHAParams
 from service.monitor import Baseline
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("hold_readings", ROOT / "bench/hold_readings.py")
-hr = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(hr)
 
 
 def test_the_geometric_wh_law_reads_the_hf_holds():
@@ -43,7 +40,7 @@ def test_a_c_type_reading_gives_the_holds_p12_back():
 
 
 def test_cli_prints_the_table_and_refuses_a_zero_load():
-    run = [sys.executable, str(ROOT / "bench/hold_readings.py")]
+    run = [sys.executable, "-m", "evaluation.holds"]
     out = subprocess.run([*run, "--supply", "1", "--leak", "5", "--load", "4000"],
                          capture_output=True, text=True, timeout=60, cwd=ROOT)  # fmt: skip
     assert out.returncode == 0, out.stderr
@@ -66,7 +63,7 @@ def test_cli_adds_one_column_per_calibration_seed():
     column each, and the range over them; a calibration is not the datasheet (each seed's
     noise moves the law: its reading differs from the datasheet column)."""
     out = subprocess.run(
-        [sys.executable, str(ROOT / "bench/hold_readings.py"), "--calibrated-seeds", "2",
+        [sys.executable, "-m", "evaluation.holds", "--calibrated-seeds", "2",
          "--supply", "1", "--leak", "1", "--load", "4000", "--models", "WH"],
         capture_output=True, text=True, timeout=120, cwd=ROOT,
     )  # fmt: skip

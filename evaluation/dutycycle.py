@@ -268,8 +268,8 @@ def duty_cycle(seed: int, index: int) -> DutyCycle:
 def scale_noise(dc: DutyCycle, factor: float) -> DutyCycle:
     """``dc`` with every sensor's noise (calibration segment and test) times ``factor``, the
     noise seeds kept: the same draws, scaled. A diagnostic: an error that stays when the
-    noise is a tenth is the model's, not the sensors' (docs/estimation.md, "What the
-    remaining misses are made of")."""
+    noise is a tenth is the model's, not the sensors'
+    (docs/decisions/0005-information-bound.md)."""
     if not factor >= 0.0:
         raise ValueError(f"noise factor must be >= 0, got {factor!r}")
 
@@ -306,7 +306,7 @@ def nominal_plant(dc: DutyCycle, frictionless: bool = False) -> DutyCycle:
     tolerances) in both segments; the duty cycle, faults and noise are kept (the draws are
     made all the same). ``frictionless``: and no Coulomb or breakaway friction (F_d = F_s =
     0; the viscous c_v stays). A diagnostic: what stays is not the plants' tolerances
-    (docs/estimation.md, "What limits the settled reading")."""
+    (docs/decisions/0005-information-bound.md)."""
     params = {"f_d": 0.0, "f_s": 0.0} if frictionless else {}
     return replace(
         dc,

@@ -1,13 +1,13 @@
 """Randomized estimation suite (issue 10, deliverable 3): seeded duty cycles
-(``models.dutycycle``), each plant calibrated on its own healthy segment, then judged.
+(``evaluation.dutycycle``), each plant calibrated on its own healthy segment, then judged.
 
-    .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --workers 2
-    .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --json suite.json
-    .venv/bin/python bench/estimation_suite.py --suite 30 --seed 1 --only 3,7   # a few members
-    .venv/bin/python bench/estimation_suite.py --seed 6 --only 5 --noise-scale 0.1  # diagnostic
-    .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2  # 210 members, recap
-    .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2 --png suite.png  # drawn
-    .venv/bin/python bench/estimation_suite.py --seeds 1-7 --workers 2 --ecu-noisy-x-j  # real loop
+    .venv/bin/python -m evaluation.suite --suite 30 --seed 1 --workers 2
+    .venv/bin/python -m evaluation.suite --suite 30 --seed 1 --json suite.json
+    .venv/bin/python -m evaluation.suite --suite 30 --seed 1 --only 3,7   # a few members
+    .venv/bin/python -m evaluation.suite --seed 6 --only 5 --noise-scale 0.1  # diagnostic
+    .venv/bin/python -m evaluation.suite --seeds 1-7 --workers 2  # 210 members, recap
+    .venv/bin/python -m evaluation.suite --seeds 1-7 --workers 2 --png suite.png  # drawn
+    .venv/bin/python -m evaluation.suite --seeds 1-7 --workers 2 --ecu-noisy-x-j  # real loop
 
 Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
 (``service.monitor.MonitorBank``, full channel set, the WH process model unless ``--model``,
@@ -44,16 +44,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from models.dutycycle import DutyCycle, duty_cycle, ecu_noisy_x_j, scale_noise  # noqa: E402
+from evaluation.dutycycle import DutyCycle, duty_cycle, ecu_noisy_x_j, scale_noise
 
 TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "reinit": 0}
 IND_WINDOW_S = 2.0  # the generator keeps the last 2.5 s free of leak and supply changes
@@ -97,7 +94,7 @@ def monitor_run(
     Coulomb and breakaway friction (F_d, F_s), which a real monitor does not know.
     ``datasheet_baseline`` (a diagnostic): no calibration, the model's datasheet values
     (``Baseline.nominal``; exact for WH on a plant without tolerances,
-    ``models.dutycycle.nominal_plant``); the sensor noise is still identified."""
+    ``evaluation.dutycycle.nominal_plant``); the sensor noise is still identified."""
     from service.calibration import calibrate, identify_noise, meas_channels, measured_run
     from service.monitor import Baseline, MonitorBank, MonitorConfig
 
@@ -366,7 +363,7 @@ def parse_overrides(ap: argparse.ArgumentParser, model: str, items: list[str]) -
 
 
 def noise_factor(text: str) -> float:
-    """argparse type of ``--noise-scale``: a factor >= 0 (``models.dutycycle.scale_noise``)."""
+    """argparse type of ``--noise-scale``: a factor >= 0 (``evaluation.dutycycle.scale_noise``)."""
     try:
         f = float(text)
     except ValueError:
@@ -540,7 +537,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.json:
         Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
     if a.png:
-        from service.plots import plot_suite
+        from evaluation.plots import plot_suite
 
         every = [r for d in out.values() for r in d["rows"]]
         missing = sum(bool(failures(r)) for r in every)

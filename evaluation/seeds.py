@@ -9,9 +9,9 @@ for each scenario and figure the mean of each model, the mean paired difference 
 95 % interval (Student t over the N pairs) and a verdict: "B worse" or "B better" when the
 interval lies wholly on one side of zero, else "-" (no difference seen at this N).
 
-    .venv/bin/python bench/estimation_seeds.py --models C5,WH --seeds 8 --workers 2
-    .venv/bin/python bench/estimation_seeds.py --seeds 4 --only leak_step,est_overload --json s.json
-    .venv/bin/python bench/estimation_seeds.py --seeds 8 --only combined --plant c_r=2.5e-7
+    .venv/bin/python -m evaluation.seeds --models C5,WH --seeds 8 --workers 2
+    .venv/bin/python -m evaluation.seeds --seeds 4 --only leak_step,est_overload --json s.json
+    .venv/bin/python -m evaluation.seeds --seeds 8 --only combined --plant c_r=2.5e-7
 
 ``--plant FIELD=VALUE`` changes the HF plant of every scenario (an ``EHAParams`` field); each
 model's baseline is then calibrated on healthy_noise with that plant (``calibrate``) instead
@@ -33,10 +33,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from bench.estimation import SCENARIOS, SCENARIOS_WH, bundled_scenario  # noqa: E402
-from bench.estimation_suite import numeric_items, parse_overrides  # noqa: E402
+from evaluation.scenarios import SCENARIOS, SCENARIOS_WH, bundled_scenario
+from evaluation.suite import numeric_items, parse_overrides
 
 # the full-channel rows of bench/estimation.py: (row name, scenario, leak step to [m^3/s/Pa])
 RUNS: tuple[tuple[str, str, float | None], ...] = (
