@@ -186,6 +186,40 @@ def test_the_scan_sees_the_citations_it_is_meant_to_check():
     assert {"1", "2", "3", "4", "5", "6"} <= {n for _, spec in cites for n in _numbers(spec)}
 
 
+ARCHIVE = re.compile(r"(?<![\w\-])((?:\.{1,2}/|docs/)*archive/[\w\-./]*)")
+
+
+def archive_citations(text: str) -> list[str]:
+    """The paths into docs/archive/ that ``text`` cites (a file in it, or the folder)."""
+    return [m.group(1) for m in ARCHIVE.finditer(text)]
+
+
+def test_nothing_cites_the_archive():
+    """docs/archive/ holds history: no code, test or current doc cites it (the reference and
+    the decision records do), so it can be deleted without breaking a reference."""
+    archive = ROOT / "docs" / "archive"
+    problems = [
+        f"{f.relative_to(ROOT)}: cites {c}"
+        for f in source_files(ROOT)
+        if not f.is_relative_to(archive)
+        for c in archive_citations(f.read_text(encoding="utf-8"))
+        if f != Path(__file__).resolve()
+    ]
+    assert not problems, "\n".join(problems)
+
+
+def test_archive_citations_found_by_hand():
+    text = (
+        f"see docs/archive/estimation-notebook{MD} and [old](archive/notes{MD}), "
+        f"or ../archive/x{MD}; not an_archive/y{MD} nor archived things"
+    )
+    assert archive_citations(text) == [
+        f"docs/archive/estimation-notebook{MD}",
+        f"archive/notes{MD}",
+        f"../archive/x{MD}",
+    ]
+
+
 # -- the checker on made-up files (it must be able to fail) -------------------------------
 def _tree(tmp_path: Path) -> Path:
     (tmp_path / "docs").mkdir()
