@@ -1,11 +1,16 @@
-"""Degradation models of the C_Lk ratio y against operating hours t, Bayesian with a fleet prior.
+"""Degradation models of the C_Lk ratio y against a life axis t, Bayesian with a fleet prior.
 
-Every model is linear in its weights w given at most one nonlinear parameter eta on a grid,
-y = Phi(t; eta) w + e, e ~ N(0, sigma^2) (docs/prognostics.md, "Degradation models"):
+The life axis is whatever the history supports (flights, or operating hours; ``rul``); the
+models see it scaled, u = t / T with T the fleet's typical history span (``FleetPrior.t_scale``,
+learned; default: the history's own span), so that no prior or grid assumes the length of a
+period or a unit of time. Every model is linear in its weights w given at most one nonlinear
+parameter eta on a grid, y = Phi(u; eta) w + e, e ~ N(0, sigma^2) (docs/prognostics.md,
+"Degradation models"):
 
 - ``none``        Phi = [1]                                   (no wear)
 - ``linear``      Phi = [1, t]
-- ``exponential`` Phi = [1, (exp(beta t) - 1) / beta], eta = beta > 0 on a log grid
+- ``exponential`` Phi = [1, (exp(beta u) - 1) / beta], eta = beta > 0 on a log grid of
+  beta u_now in [``BETA_SPAN`` range] (relative to the history's own span u_now)
   (MATLAB's exponential degradation model y = phi + theta exp(beta t) with phi = w0 - w1/beta,
   theta = w1/beta; w1 is the initial wear rate, so beta -> 0 is the linear model)
 - ``step``        Phi = [1, H(t - tau), (t - tau)+], eta = tau on the observed times
@@ -23,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,11 +44,13 @@ __all__ = [
     "sample_paths",
     "learn_fleet_prior",
     "BETA_GRID",
+    "BETA_SPAN",
 ]
 
 MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step")
-BETA_GRID = np.geomspace(1e-4, 0.5, 240)
-"""Exponential rates beta [1/h] of the grid."""
+BETA_SPAN = np.geomspace(1e-2, 6.0, 120)
+"""Exponential rates of the grid times the history's span, beta u_now (dimensionless)."""
+BETA_GRID = BETA_SPAN  # kept name: the grid at u_now = 1
 
 
 @dataclass(frozen=True)
@@ -55,11 +62,13 @@ class ModelPrior:
 
 
 def _default_priors() -> dict[str, ModelPrior]:
+    # weights per unit of u (one typical history span): wear rates up to ~10 ratio units
+    # per span (the failure threshold is ~11) are plausible a priori
     return {
         "none": ModelPrior((1.0,), (0.3,)),
-        "linear": ModelPrior((1.0, 0.0), (0.3, 0.2)),
-        "exponential": ModelPrior((1.0, 0.0), (0.3, 0.2)),
-        "step": ModelPrior((1.0, 0.0, 0.0), (0.3, 2.0, 0.2)),
+        "linear": ModelPrior((1.0, 0.0), (0.3, 8.0)),
+        "exponential": ModelPrior((1.0, 0.0), (0.3, 8.0)),
+        "step": ModelPrior((1.0, 0.0, 0.0), (0.3, 2.0, 8.0)),
     }
 
 
@@ -74,6 +83,7 @@ class FleetPrior:
     sigma: float = 0.03
     sigma_strength: float = 5.0
     units: int = 0
+    t_scale: float | None = None  # T of u = t / T (None: each history's own span)
 
     def as_dict(self) -> dict:
         """Plain dict (JSON)."""
@@ -84,6 +94,7 @@ class FleetPrior:
             },
             "sigma": self.sigma,
             "units": self.units,
+            "t_scale": self.t_scale,
         }
 
 
@@ -94,6 +105,7 @@ class Fit:
 
     t_now: float
     sigma: float
+    t_scale: float
     p_model: dict[str, float]
     grids: dict[str, NDArray]
     post: dict[str, NDArray]
@@ -107,7 +119,7 @@ class Fit:
 
     def mean_path(self, t: NDArray) -> NDArray:
         """Posterior-mean indicator at times ``t`` (model-averaged)."""
-        t = np.asarray(t, float)
+        t = np.asarray(t, float) / self.t_scale
         y = np.zeros_like(t)
         for m in MODELS:
             for g, pw in enumerate(self.post[m]):
@@ -143,7 +155,7 @@ def noise_sigma(y: NDArray) -> float:
 
 def _grid(model: str, t: NDArray) -> NDArray:
     if model == "exponential":
-        return BETA_GRID
+        return BETA_SPAN / max(float(t[-1]), 1e-9)
     if model == "step":
         # change points between observations, at least two points after and one before
         if len(t) < 4:
@@ -180,8 +192,9 @@ def _fit_model(model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPri
 
 
 def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | None = None) -> Fit:
-    """Posterior of the four models (module docstring) for one unit's history: ``t_h``
-    cumulative operating hours, ``y`` the C_Lk ratio (NaN entries are ignored)."""
+    """Posterior of the four models (module docstring) for one unit's history: ``t_h`` its
+    life axis (flights or operating hours, increasing), ``y`` the C_Lk ratio (NaN entries are
+    ignored)."""
     prior = prior or FleetPrior()
     t = np.asarray(t_h, float)
     y = np.asarray(y, float)
@@ -189,6 +202,9 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
     t, y = t[ok], y[ok]
     if len(t) == 0:
         raise ValueError("fit_history: no finite point")
+    t_now = float(t[-1])
+    scale = prior.t_scale if prior.t_scale else max(t_now, 1e-9)
+    t = t / scale
     s_u = noise_sigma(y)
     k0 = prior.sigma_strength
     n_d = max(len(y) - 3, 0) if math.isfinite(s_u) else 0
@@ -217,7 +233,7 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
         else:
             p_model[m] = math.exp(logz[m] + math.log(prior.p_model[m]) - mx) / norm
         post[m] = post[m] * p_model[m]
-    return Fit(float(t[-1]), sigma, p_model, grids, post, means, covs, logz)
+    return Fit(t_now, sigma, float(scale), p_model, grids, post, means, covs, logz)
 
 
 def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> NDArray:
@@ -247,7 +263,7 @@ def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> N
 def sample_crossing(
     fit: Fit, threshold: float, n: int = 4000, rng: np.random.Generator | None = None
 ) -> NDArray:
-    """Draws of the time [h] at which the indicator path reaches ``threshold`` (inf: never),
+    """Draws of the life-axis time at which the indicator path reaches ``threshold`` (inf: never),
     from the model-averaged posterior of ``fit``."""
     rng = rng or np.random.default_rng(0)
     keys, probs = [], []
@@ -263,7 +279,8 @@ def sample_crossing(
         if c == 0:
             continue
         w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c), method="cholesky")
-        out.append(_crossing(m, w, float(fit.grids[m][g]), threshold, fit.t_now))
+        u_now = fit.t_now / fit.t_scale
+        out.append(_crossing(m, w, float(fit.grids[m][g]), threshold, u_now) * fit.t_scale)
     return np.concatenate(out)
 
 
@@ -278,6 +295,14 @@ def learn_fleet_prior(
     and its sd the pooled spread (floored at the base sd / 4, inflated x 2 for units not yet
     seen). The noise sigma is the median of the units' robust estimates."""
     base = base or FleetPrior()
+    spans = [
+        float(np.asarray(t, float)[np.isfinite(np.asarray(t, float))].max())
+        for t, _ in histories
+        if np.isfinite(np.asarray(t, float)).any()
+    ]
+    spans = [s for s in spans if s > 0]
+    if base.t_scale is None and spans:
+        base = replace(base, t_scale=float(np.median(spans)))
     counts = dict.fromkeys(MODELS, 1.0)
     ws: dict[str, list[NDArray]] = {m: [] for m in MODELS}
     sig = []
@@ -319,6 +344,7 @@ def learn_fleet_prior(
         sigma=max(sigma, 1e-3),
         sigma_strength=base.sigma_strength,
         units=used,
+        t_scale=base.t_scale,
     )
 
 
@@ -340,5 +366,5 @@ def sample_paths(
     for (m, g), c in zip(keys, counts, strict=True):
         if c:
             w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c))
-            out.append(w @ _basis(m, t, float(fit.grids[m][g])).T)
+            out.append(w @ _basis(m, t / fit.t_scale, float(fit.grids[m][g])).T)
     return np.concatenate(out)

@@ -62,8 +62,10 @@ function rulText(u) {
   const rul = u.rul || {};
   if (!u.rul) return "-";
   if (rul.status && rul.status !== "ok") return rul.status;
-  if (!iv || num(iv.median_h) === null) return "none predicted";
-  return `${fmt(iv.median_h, 0)} [${fmt(iv.lo_h, 0)}-${fmt(iv.hi_h, 0)}]`;
+  if (!iv || num(iv.median) === null) return "none predicted";
+  const unit = iv.unit === "flights" ? "flights" : "h";
+  const days = num(iv.median_days) === null ? "" : ` (~${fmt(iv.median_days, 0)} d)`;
+  return `${fmt(iv.median, 0)} [${fmt(iv.lo, 0)}-${fmt(iv.hi, 0)}] ${unit}${days}`;
 }
 
 function flightsText(u) {
