@@ -15,6 +15,15 @@ parameter eta on a grid, y = Phi(u; eta) w + e, e ~ N(0, sigma^2) (docs/prognost
   theta = w1/beta; w1 is the initial wear rate, so beta -> 0 is the linear model)
 - ``step``        Phi = [1, H(t - tau), (t - tau)+], eta = tau on the observed times
   (a step of the indicator followed by linear growth)
+- ``power``       Phi = [1, u^p], eta = p on ``POWER_GRID`` (wear that accelerates slower
+  than an exponential)
+
+Residual correlation: when the residuals about the posterior-mean path are positively
+correlated (lag-one autocorrelation rho > 0, a sign that no model describes the path
+exactly), sigma is inflated by sqrt((1 + rho) / (1 - rho)) (the variance of a trend fitted
+to AR(1) errors) and the posterior computed again, so the intervals widen rather than trust
+a misfitting model. The path's diffusion about the model (``diffusion``) spreads each
+draw's crossing time to first order (a drifted random walk's first passage).
 
 Prior: w ~ N(m0, V0) (per model, learned from the fleet, ``FleetPrior``), eta uniform on its
 grid, sigma^2 fixed per unit (its robust first-difference estimate shrunk toward the fleet's).
@@ -47,7 +56,9 @@ __all__ = [
     "BETA_SPAN",
 ]
 
-MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step")
+MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power")
+POWER_GRID = np.geomspace(1.25, 4.0, 16)
+"""Exponents p of the ``power`` model's grid."""
 BETA_SPAN = np.geomspace(1e-2, 6.0, 120)
 """Exponential rates of the grid times the history's span, beta u_now (dimensionless)."""
 BETA_GRID = BETA_SPAN  # kept name: the grid at u_now = 1
@@ -69,6 +80,7 @@ def _default_priors() -> dict[str, ModelPrior]:
         "linear": ModelPrior((1.0, 0.0), (0.3, 8.0)),
         "exponential": ModelPrior((1.0, 0.0), (0.3, 8.0)),
         "step": ModelPrior((1.0, 0.0, 0.0), (0.3, 2.0, 8.0)),
+        "power": ModelPrior((1.0, 0.0), (0.3, 8.0)),
     }
 
 
@@ -77,13 +89,21 @@ class FleetPrior:
     """Fleet-level prior: model probabilities, weight priors per model, indicator noise."""
 
     p_model: dict[str, float] = field(
-        default_factory=lambda: {"none": 0.4, "linear": 0.2, "exponential": 0.2, "step": 0.2}
+        default_factory=lambda: {
+            "none": 0.4,
+            "linear": 0.15,
+            "exponential": 0.15,
+            "step": 0.15,
+            "power": 0.15,
+        }  # fmt: skip
     )
     weights: dict[str, ModelPrior] = field(default_factory=_default_priors)
     sigma: float = 0.03
     sigma_strength: float = 5.0
     units: int = 0
-    t_scale: float | None = None  # T of u = t / T (None: each history's own span)
+    t_scale: float | None = None
+    q2_rel: float = 0.0  # fleet's path diffusion, q^2 t_scale (ratio^2 per history span)
+    cv2: float = 0.0  # fleet's usage spread per observation step (``usage_spread``)  # T of u = t / T (None: each history's own span)
 
     def as_dict(self) -> dict:
         """Plain dict (JSON)."""
@@ -95,6 +115,8 @@ class FleetPrior:
             "sigma": self.sigma,
             "units": self.units,
             "t_scale": self.t_scale,
+            "q2_rel": self.q2_rel,
+            "cv2": self.cv2,
         }
 
 
@@ -112,6 +134,9 @@ class Fit:
     means: dict[str, NDArray]
     covs: dict[str, NDArray]
     log_evidence: dict[str, float]
+    q2: float = 0.0  # diffusion of the path about the model [ratio^2 per unit of t]
+    cv2: float = 0.0  # squared coefficient of variation of the wear per step (usage spread)
+    dt: float = 1.0  # mean spacing of the observations [units of t]
 
     def best(self) -> str:
         """The model with the largest posterior probability."""
@@ -140,6 +165,8 @@ def _basis(model: str, t: NDArray, eta: float) -> NDArray:
     if model == "step":
         d = t - eta
         return np.stack([one, (d > 0).astype(float), np.maximum(d, 0.0)], axis=1)
+    if model == "power":
+        return np.stack([one, np.maximum(t, 0.0) ** eta], axis=1)
     raise ValueError(f"unknown model {model!r}")
 
 
@@ -161,6 +188,8 @@ def _grid(model: str, t: NDArray) -> NDArray:
         if len(t) < 4:
             return np.zeros(0)
         return 0.5 * (t[:-3] + t[1:-2])
+    if model == "power":
+        return POWER_GRID
     return np.zeros(1)
 
 
@@ -210,6 +239,55 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
     n_d = max(len(y) - 3, 0) if math.isfinite(s_u) else 0
     s2 = (k0 * prior.sigma**2 + n_d * (s_u**2 if n_d else 0.0)) / (k0 + n_d)
     sigma = max(math.sqrt(s2), 1e-4)
+    fit = _posterior(t, y, sigma, prior, t_now, scale)
+    rho = _lag1(y - fit.mean_path(t * scale))
+    if rho > 0:
+        fit = _posterior(t, y, sigma * math.sqrt((1 + rho) / (1 - rho)), prior, t_now, scale)
+    # path diffusion about the model: the unit's estimate shrunk toward the fleet's (weight
+    # of the fleet: sigma_strength points)
+    q2_u, n_q = diffusion(t * scale, y - fit.mean_path(t * scale))
+    q2_f = prior.q2_rel / scale
+    fit.q2 = (k0 * q2_f + n_q * q2_u) / (k0 + n_q) if n_q else q2_f
+    cv2_u, n_c = usage_spread(t * scale, y, fit, sigma)
+    fit.cv2 = (k0 * prior.cv2 + n_c * cv2_u) / (k0 + n_c) if n_c else prior.cv2
+    fit.dt = float(np.mean(np.diff(t * scale))) if len(t) > 1 else 1.0
+    return fit
+
+
+def usage_spread(t: NDArray, y: NDArray, fit: Fit, sigma: float) -> tuple[float, int]:
+    """Squared coefficient of variation cv^2 of the wear per step of the life axis (units
+    that fly longer or harder some flights wear more in them): the increments y_k+1 - y_k
+    against the posterior-mean path's e_k = y_k+1 - y_k - s_k (s_k the path's increment
+    over dt_k) have E[e_k^2] = 2 sigma^2 + cv^2 s_k^2 / dt_k; cv^2 by least squares through
+    the origin, floored at 0, and the number of increments it rests on (0: too few)."""
+    if len(t) < 6:
+        return 0.0, 0
+    dt = np.diff(t)
+    ok = dt > 0
+    if ok.sum() < 5:
+        return 0.0, 0
+    mp = fit.mean_path(t)
+    e = np.diff(y)[ok] - np.diff(mp)[ok]
+    x = np.diff(mp)[ok] ** 2 / dt[ok]
+    den = float(x @ x)
+    if den <= 0:
+        return 0.0, 0
+    return max(float((e**2 - 2 * sigma**2) @ x) / den, 0.0), int(ok.sum())
+
+
+def _lag1(r: NDArray, max_rho: float = 0.9) -> float:
+    """Lag-one autocorrelation of residuals, in [0, max_rho] (0 below 6 points)."""
+    if len(r) < 6:
+        return 0.0
+    r = r - r.mean()
+    den = float(r @ r)
+    if den <= 0:
+        return 0.0
+    return min(max(float(r[1:] @ r[:-1]) / den, 0.0), max_rho)
+
+
+def _posterior(t, y, sigma, prior, t_now, scale) -> Fit:
+    """The models' posteriors at a fixed sigma (``fit_history``)."""
     grids, post, means, covs, logz = {}, {}, {}, {}, {}
     tot = []
     for m in MODELS:
@@ -236,6 +314,28 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
     return Fit(t_now, sigma, float(scale), p_model, grids, post, means, covs, logz)
 
 
+def diffusion(t: NDArray, r: NDArray, max_lag: int = 8) -> tuple[float, int]:
+    """Diffusion q^2 of a random walk in the residuals ``r`` about the model at times ``t``
+    (var(r_j - r_i) = 2 s^2 + q^2 (t_j - t_i): the robust variance of the index-lag-l
+    differences against their mean time lag, l = 1..``max_lag``, slope by least squares,
+    floored at 0) and the number of differences it rests on (0: too few points)."""
+    t, r = np.asarray(t, float), np.asarray(r, float)
+    n = len(r)
+    if n < 6:
+        return 0.0, 0
+    lags = range(1, min(max_lag, n // 2) + 1)
+    v, dt = [], []
+    for lag in lags:
+        d = r[lag:] - r[:-lag]
+        v.append((1.4826 * np.median(np.abs(d - np.median(d)))) ** 2)
+        dt.append(float(np.mean(t[lag:] - t[:-lag])))
+    v, dt = np.asarray(v), np.asarray(dt)
+    if len(v) < 2 or np.ptp(dt) <= 0:
+        return 0.0, 0
+    slope = float(np.polyfit(dt, v, 1)[0])
+    return max(slope, 0.0), n - 1
+
+
 def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> NDArray:
     """Crossing times of the noise-free paths Phi(t; eta) w = thr after t_now (inf if none);
     t_now where the path is already above."""
@@ -252,6 +352,10 @@ def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> N
             level = a + c * np.expm1(eta * t_now) / eta
             arg = 1.0 + eta * (thr - a) / c
             tc = np.where((c > 0) & (arg > 0), np.log(arg) / eta, np.inf)
+        elif model == "power":
+            c = w[:, 1]
+            level = a + c * max(t_now, 0.0) ** eta
+            tc = np.where((c > 0) & (thr > a), ((thr - a) / c) ** (1.0 / eta), np.inf)
         else:  # step, eta = tau < t_now
             s, c = w[:, 1], w[:, 2]
             level = a + s + c * max(t_now - eta, 0.0)
@@ -280,8 +384,42 @@ def sample_crossing(
             continue
         w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c), method="cholesky")
         u_now = fit.t_now / fit.t_scale
-        out.append(_crossing(m, w, float(fit.grids[m][g]), threshold, u_now) * fit.t_scale)
+        eta = float(fit.grids[m][g])
+        uc = _crossing(m, w, eta, threshold, u_now)
+        tc = uc * fit.t_scale
+        if fit.q2 > 0:
+            # first passage of the path plus a random walk of diffusion q2 (inverse-Gaussian
+            # spread about the crossing, to first order): dt = q W(tc - t_now) / slope(tc)
+            slope = _slope(m, w, eta, uc) / fit.t_scale
+            ahead = np.isfinite(tc) & (tc > fit.t_now) & (slope > 0)
+            z = rng.standard_normal(len(tc))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d = np.sqrt(fit.q2 * np.maximum(tc - fit.t_now, 0.0)) * z / slope
+            tc = np.where(ahead, np.maximum(tc + np.where(ahead, d, 0.0), fit.t_now), tc)
+        if fit.cv2 > 0:
+            # usage spread: the steps needed for the remaining wear vary, sd cv sqrt(n dt)
+            ahead = np.isfinite(tc) & (tc > fit.t_now)
+            n_left = np.where(ahead, tc - fit.t_now, 0.0)
+            z = rng.standard_normal(len(tc))
+            tc = np.where(ahead, np.maximum(tc + np.sqrt(fit.cv2 * n_left * fit.dt) * z,
+                                            fit.t_now), tc)  # fmt: skip
+        out.append(tc)
     return np.concatenate(out)
+
+
+def _slope(model: str, w: NDArray, eta: float, u: NDArray) -> NDArray:
+    """d(path)/du at ``u`` (per draw)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if model == "linear":
+            return w[:, 1]
+        if model == "exponential":
+            return w[:, 1] * np.exp(eta * np.where(np.isfinite(u), u, 0.0))
+        if model == "step":
+            return w[:, 2]
+        if model == "power":
+            uu = np.where(np.isfinite(u), np.maximum(u, 0.0), 0.0)
+            return w[:, 1] * eta * uu ** (eta - 1.0)
+    return np.zeros(len(w))
 
 
 def learn_fleet_prior(
@@ -306,6 +444,8 @@ def learn_fleet_prior(
     counts = dict.fromkeys(MODELS, 1.0)
     ws: dict[str, list[NDArray]] = {m: [] for m in MODELS}
     sig = []
+    q2s: list[float] = []
+    cv2s: list[float] = []
     used = 0
     for t, y in histories:
         t, y = np.asarray(t, float), np.asarray(y, float)
@@ -318,6 +458,12 @@ def learn_fleet_prior(
         if math.isfinite(s):
             sig.append(s)
         f = fit_history(t, y, base)
+        c2, n_c = usage_spread(t, y, f, f.sigma)
+        if n_c and f.best() not in ("none",):
+            cv2s.append(c2)
+        q2_u, n_q = diffusion(t, y - f.mean_path(t))
+        if n_q:
+            q2s.append(q2_u * base.t_scale if base.t_scale else q2_u * float(t[-1]))
         best = f.best()
         counts[best] += 1.0
         g = int(np.argmax(f.post[best]))
@@ -345,6 +491,8 @@ def learn_fleet_prior(
         sigma_strength=base.sigma_strength,
         units=used,
         t_scale=base.t_scale,
+        q2_rel=float(np.median(q2s)) if q2s else base.q2_rel,
+        cv2=float(np.median(cv2s)) if cv2s else base.cv2,
     )
 
 
