@@ -123,9 +123,6 @@ def run(args: argparse.Namespace) -> int:
             return fail(str(e))
     if args.flight is not None and (args.flight < 0 or len(logs) > 1):
         return fail("--flight: an integer >= 0, for one log only")
-    gap = FLIGHT_GAP_S if args.flight_gap_s is None else args.flight_gap_s
-    if not gap > 0 or gap != gap:
-        return fail("--flight-gap-s must be > 0")
     if args.start_unix is not None and (len(logs) > 1 or args.start_unix != args.start_unix):
         return fail("--start-unix: a finite number, for one log only")
     try:
@@ -145,6 +142,11 @@ def run(args: argparse.Namespace) -> int:
     from service.prognostics import PeriodConfig
 
     store = store_target(args.store or (cfg.store if cfg is not None else None))
+    gap = args.flight_gap_s
+    if gap is None:
+        gap = cfg.prognostics.flight_gap_s if cfg is not None else FLIGHT_GAP_S
+    if not gap > 0 or gap != gap:
+        return fail("--flight-gap-s must be > 0")
     pc = None
     if cfg is not None:
         pr = cfg.prognostics
