@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["FLIGHT_RECORD", "FlightRecord", "flight_records", "write_flight_log"]
+__all__ = ["FLIGHT_RECORD", "FlightRecord", "flight_records", "write_flight_log", "log_units"]
 
 FLIGHT_RECORD = "servowatch.flight"
 
@@ -86,25 +86,59 @@ class FlightRecord:
 
 def flight_records(path: str | Path) -> list[FlightRecord]:
     """The ``servowatch.flight`` records of an MCAP file in file order ([] if none or the file
-    is unreadable; a malformed record raises ValueError)."""
+    is unreadable; a malformed record raises ValueError): through the summary's metadata
+    index, or by a scan of the records when the file has no summary (truncated)."""
+    from mcap.reader import SeekingReader
     from mcap.records import Metadata
     from mcap.stream_reader import StreamReader
 
-    out = []
     try:
         fh = open(path, "rb")  # noqa: SIM115 - closed below
     except OSError:
         return []
     with fh:
+        mds = None
         try:
-            for rec in StreamReader(fh, skip_magic=False, emit_chunks=True).records:
-                if isinstance(rec, Metadata) and rec.name == FLIGHT_RECORD:
-                    out.append(FlightRecord.from_metadata(rec.metadata))
-        except ValueError:
-            raise
-        except Exception:  # a truncated file: the records read so far
-            pass
-    return out
+            rd = SeekingReader(fh)
+            if rd.get_summary() is not None:
+                mds = [md for md in rd.iter_metadata() if md.name == FLIGHT_RECORD]
+        except Exception:
+            mds = None
+        if mds is None:
+            mds = []
+            fh.seek(0)
+            try:
+                for rec in StreamReader(fh, skip_magic=False, emit_chunks=True).records:
+                    if isinstance(rec, Metadata) and rec.name == FLIGHT_RECORD:
+                        mds.append(rec)
+            except Exception:  # a truncated file: the records read so far
+                pass
+    return [FlightRecord.from_metadata(md.metadata) for md in mds]
+
+
+def log_units(path: str | Path) -> list[str]:
+    """``{aircraft}/{actuator}`` of each ``/fleet/{aircraft}/{actuator}/meas`` topic of an
+    MCAP log (from its summary's channels; a scan of the records when it has none)."""
+    from mcap.reader import make_reader
+
+    topics: set[str] = set()
+    try:
+        with open(path, "rb") as fh:
+            summ = make_reader(fh).get_summary()
+        if summ is not None:
+            topics = {c.topic for c in summ.channels.values()}
+    except Exception:
+        topics = set()
+    if not topics:
+        from service.log import read_log
+
+        topics = {topic for topic, _, _ in read_log(path)}
+    out = set()
+    for topic in topics:
+        parts = topic.split("/")
+        if len(parts) == 5 and parts[0] == "" and parts[1] == "fleet" and parts[4] == "meas":
+            out.add(f"{parts[2]}/{parts[3]}")
+    return sorted(out)
 
 
 def write_flight_log(

@@ -571,14 +571,23 @@ def replay_many(
     *,
     on_log: Callable[[Path, ReplaySummary | None, Exception | None], None] | None = None,
     flight_gap_s: float = FLIGHT_GAP_S,
+    jobs: int = 1,
+    tick: Callable[[], None] | None = None,
     **kw: Any,
 ) -> list[ReplaySummary]:
-    """Ingest ``logs`` (in the given order: ``log_order``) into ``store`` in this process,
-    one store connection and one flight stamper for all; ``kw`` as ``replay`` takes them (a
+    """Ingest ``logs`` (in the given order: ``log_order``) into ``store`` (one store
+    connection and one flight stamper per process); ``kw`` as ``replay`` takes them (a
     ``flight`` is not: each log has its own). A log that cannot be read is reported to
-    ``on_log(path, None, error)`` and skipped; the others to ``on_log(path, summary, None)``."""
+    ``on_log(path, None, error)`` and skipped; the others to ``on_log(path, summary, None)``;
+    ``tick()`` is called as each log is done (a progress bar).
+
+    ``jobs`` > 1 (a store path or URL only): the logs are split into groups that share no
+    actuator (``_groups``), each group in its given order in one of ``jobs`` worker
+    processes, so every actuator's logs still go in order through one monitor."""
     if "flight" in kw:
         raise ValueError("replay_many: flight numbers come from each log (or the gap rule)")
+    if jobs > 1 and isinstance(store, str | Path) and len(logs) > 1:
+        return _replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw)
     hs, own = store, False
     if isinstance(store, str | Path):
         from service.store import open_store
@@ -593,6 +602,10 @@ def replay_many(
             except (OSError, ValueError) as e:
                 if on_log is not None:
                     on_log(p, None, e)
+                s = None
+            if tick is not None:
+                tick()
+            if s is None:
                 continue
             out.append(s)
             if on_log is not None:
@@ -601,3 +614,74 @@ def replay_many(
     finally:
         if own:
             hs.close()
+
+
+def _groups(logs: list[Path]) -> list[list[Path]]:
+    """``logs`` split into groups that share no actuator (by the logs' meas topics), each in
+    the given order."""
+    from service.flightrec import log_units
+
+    parent: dict[str, str] = {}
+
+    def find(a: str) -> str:
+        while parent.setdefault(a, a) != a:
+            a = parent[a]
+        return a
+
+    names = []
+    for p in logs:
+        units = log_units(rotated_files(p)[0]) if rotated_files(p) else []
+        units = units or ["?"]  # a log without a unit: one group for all of them
+        for u in units[1:]:
+            parent[find(u)] = find(units[0])
+        names.append(units[0])
+    groups: dict[str, list[Path]] = {}
+    for p, n in zip(logs, names, strict=True):
+        groups.setdefault(find(n), []).append(p)
+    return sorted(groups.values(), key=len, reverse=True)
+
+
+def _group_job(args) -> list[tuple[str, dict | None, str | None]]:
+    logs, store, gap, kw, q = args
+    out = []
+
+    def on_log(p, s, e) -> None:
+        out.append((str(p), None if s is None else s.to_dict(), None if e is None else str(e)))
+
+    replay_many(logs, store, on_log=on_log, flight_gap_s=gap, tick=lambda: q.put(1), **kw)
+    return out
+
+
+def _replay_parallel(logs, store, on_log, tick, gap, jobs, kw) -> list[ReplaySummary]:
+    import multiprocessing as mp
+    import queue
+    from concurrent.futures import ProcessPoolExecutor, wait
+
+    from service.store import open_store
+
+    open_store(store).close()  # migrate once, before the workers open it
+    groups = _groups(logs)
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as man:
+        q = man.Queue()
+        with ProcessPoolExecutor(min(jobs, len(groups)), mp_context=ctx) as ex:
+            futs = [ex.submit(_group_job, (g, str(store), gap, kw, q)) for g in groups]
+            pending = set(futs)
+            while pending:
+                _, pending = wait(pending, timeout=0.2)
+                try:
+                    while True:
+                        q.get_nowait()
+                        if tick is not None:
+                            tick()
+                except queue.Empty:
+                    pass
+            results = [r for f in futs for r in f.result()]
+    out = []
+    for p, d, err in results:
+        s = ReplaySummary(**d) if d is not None else None
+        if s is not None:
+            out.append(s)
+        if on_log is not None:
+            on_log(Path(p), s, None if err is None else OSError(err))
+    return out

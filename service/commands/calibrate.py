@@ -49,28 +49,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def log_actuators(path: str) -> list[str]:
-    """``{aircraft}/{actuator}`` of each ``/fleet/{aircraft}/{actuator}/meas`` topic of an
-    MCAP log (from its summary's channels; the records when it has no summary)."""
-    from mcap.reader import make_reader
+    """``{aircraft}/{actuator}`` of each ``/fleet/{aircraft}/{actuator}/meas`` topic of a log."""
+    from service.flightrec import log_units
 
-    topics: set[str] = set()
-    try:
-        with open(path, "rb") as fh:
-            summ = make_reader(fh).get_summary()
-        if summ is not None:
-            topics = {c.topic for c in summ.channels.values()}
-    except Exception:
-        summ = None
-    if not topics:
-        from service.log import read_log
-
-        topics = {topic for topic, _, _ in read_log(path)}
-    out = set()
-    for topic in topics:
-        parts = topic.split("/")
-        if len(parts) == 5 and parts[0] == "" and parts[1] == "fleet" and parts[4] == "meas":
-            out.add(f"{parts[2]}/{parts[3]}")
-    return sorted(out)
+    return log_units(path)
 
 
 def meas_from_log(path: str, actuator: str | None = None) -> dict[str, np.ndarray]:

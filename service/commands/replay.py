@@ -71,6 +71,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="health store (SQLite path or postgresql:// URL; default: the config's store, "
         "else none): per-actuator baselines from it, operating periods written to it",
     )  # fmt: skip
+    p.add_argument(
+        "--jobs", type=int, default=None, metavar="N",
+        help="several logs: worker processes, each taking whole actuators "
+        "(default 1)",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
 
@@ -158,6 +163,10 @@ def run(args: argparse.Namespace) -> int:
             open_store(store).close()  # fail fast, naming --store
         except StoreError as e:
             return fail(f"--store: {e}")
+    if args.jobs is None:
+        args.jobs = 1
+    if args.jobs < 1:
+        return fail("--jobs must be >= 1")
     if len(logs) > 1:
         if store is None:
             return fail("several logs go into a store: give --store")
@@ -217,7 +226,6 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
     units: dict[str, set] = {}
 
     def on_log(p, s, err) -> None:
-        bar.update(1)
         if err is not None:
             failed.append({"log": str(p), "error": str(err)})
             return
@@ -231,7 +239,8 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
 
     try:
         replay_many(logs, store, on_log=on_log, flight_gap_s=gap, monitor_config=monitor_config,
-                    baseline=baseline, period_config=pc)  # fmt: skip
+                    baseline=baseline, period_config=pc, jobs=args.jobs,
+                    tick=lambda: bar.update(1))  # fmt: skip
     finally:
         bar.close()
     wall = time.perf_counter() - w0
