@@ -509,6 +509,7 @@ def evaluate(
             cov_mid = [x[2] <= eol - x[0] <= x[3] for x in before
                        if x[2] is not None and x[0] >= t_s + 0.5 * (eol - t_s)]  # fmt: skip
             cov_all.extend(cov)
+            by_law.setdefault(tr["law"], {"acc": [], "ra": [], "ph": [], "cov": []})
             by_law[tr["law"]]["acc"].extend(s.accurate)
             by_law[tr["law"]]["ra"].append(s.relative_accuracy[0])
             by_law[tr["law"]]["ph"].append(s.horizon_frac)
@@ -527,7 +528,7 @@ def evaluate(
         v = [max(x, 0.0) for x in v]  # a missed prediction (inf) scores 0, not -inf
         return 100.0 * float(np.mean(v)) if v else None
 
-    laws = [law for law in WEAR_LAWS if law != "none"]
+    laws = [law for law in by_law if law != "none"]
     acc = [x for law in laws for x in by_law[law]["acc"]]
     ra = [x for law in laws for x in by_law[law]["ra"]]
     ph = [x for law in laws for x in by_law[law]["ph"]]
