@@ -103,7 +103,8 @@ class FleetPrior:
     units: int = 0
     t_scale: float | None = None
     q2_rel: float = 0.0  # fleet's path diffusion, q^2 t_scale (ratio^2 per history span)
-    cv2: float = 0.0  # fleet's usage spread per observation step (``usage_spread``)  # T of u = t / T (None: each history's own span)
+    cv2: float = 0.0  # fleet's usage spread per observation step (``usage_spread``)
+    kappa: float = 1.0  # interval widening learned by hindcasts on the fleet (``hindcast``)  # T of u = t / T (None: each history's own span)
 
     def as_dict(self) -> dict:
         """Plain dict (JSON)."""
@@ -117,6 +118,7 @@ class FleetPrior:
             "t_scale": self.t_scale,
             "q2_rel": self.q2_rel,
             "cv2": self.cv2,
+            "kappa": self.kappa,
         }
 
 
@@ -493,7 +495,35 @@ def learn_fleet_prior(
         t_scale=base.t_scale,
         q2_rel=float(np.median(q2s)) if q2s else base.q2_rel,
         cv2=float(np.median(cv2s)) if cv2s else base.cv2,
+        kappa=hindcast(histories, replace(base, units=used), min_points=2 * min_points),
     )
+
+
+def hindcast(
+    histories: Sequence[tuple[NDArray, NDArray]], prior: FleetPrior, min_points: int = 10
+) -> float:
+    """How much wider the predictions must be to hold what the fleet did next: each history
+    of ``min_points`` or more is fitted on all but its last quarter (at least 2 points), its
+    posterior-predictive paths (parameter draws plus sigma) are compared with the held-back
+    points, and kappa^2 = median(z^2) / 0.455 (0.455: the median of chi-square with one
+    degree of freedom) over the standardised errors z of every unit, floored at 1."""
+    z2: list[float] = []
+    rng = np.random.default_rng(0)
+    for t, y in histories:
+        t, y = np.asarray(t, float), np.asarray(y, float)
+        ok = np.isfinite(t) & np.isfinite(y)
+        t, y = t[ok], y[ok]
+        n = len(t)
+        if n < min_points:
+            continue
+        m = max(2, n // 4)
+        f = fit_history(t[: n - m], y[: n - m], prior)
+        paths = sample_paths(f, t[n - m :], 300, rng)
+        sd = np.sqrt(paths.var(axis=0) + f.sigma**2)
+        z2.extend((((y[n - m :] - paths.mean(axis=0)) / sd) ** 2).tolist())
+    if len(z2) < 6:
+        return 1.0
+    return max(1.0, math.sqrt(float(np.median(z2)) / 0.455))
 
 
 def sample_paths(

@@ -79,7 +79,7 @@ class FleetSimConfig:
     calibration_s: float = 4.0
     threshold_ratio: float | None = None
     eval_every: int = 1
-    min_history: int = 5
+    min_history: int = 8
     prior_every: int = 5
     horizon_h: float = 50.0
     horizon_flights: float = 20.0

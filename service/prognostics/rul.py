@@ -56,7 +56,7 @@ class RulConfig:
     horizon_flights: float = 20.0
     warn_p: float = 0.2
     n_samples: int = 4000
-    min_periods: int = 4
+    min_periods: int = 8
     seed: int = 0
 
     def threshold(self) -> float:
@@ -194,6 +194,13 @@ def rul_of_history(
     rng = np.random.default_rng(cfg.seed)
     cross = sample_crossing(fit, thr, cfg.n_samples, rng)
     rul = np.maximum(cross - h.t_now(), 0.0)  # periods after the last observable one count
+    kappa = prior.kappa if prior is not None else 1.0
+    fin = np.isfinite(rul) & (rul > 0)
+    if kappa > 1.0 and fin.sum() > 1:
+        # the fleet's hindcast widening, about the median in log space (stays > 0)
+        lm = float(np.median(np.log(rul[fin])))
+        rul = rul.copy()
+        rul[fin] = np.exp(lm + kappa * (np.log(rul[fin]) - lm))
     q = dict(zip(("lo", "median", "hi"),
                  np.quantile(rul, [0.05, 0.5, 0.95], method="inverted_cdf"), strict=True))  # fmt: skip
     p_h = float(np.mean(rul <= cfg.horizon(axis)))
