@@ -7,7 +7,7 @@ tuned on this fleet.
 
 Wear laws (true C_Lk ratio against the unit's cumulative operating hours h, or cycles):
 
-- ``healthy``: 1;
+- ``none``: 1 (healthy);
 - ``quadratic``: 1 + a h + b h^2;
 - ``two_rate``: 1 + a h, then four to eight times faster after a knee;
 - ``sqrt_then_exp``: 1 + a sqrt(h) + c (exp(g h) - 1) (early running-in, late runaway);
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-LAWS = ("healthy", "quadratic", "two_rate", "sqrt_then_exp", "cycles")
+LAWS = ("none", "quadratic", "two_rate", "sqrt_then_exp", "cycles")
 C_LK0 = 2e-13
 
 
@@ -44,7 +44,7 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
         c = np.concatenate(([0.0], np.cumsum(cyc)[:-1]))
         life = rng.uniform(0.5, 1.3) * float(np.sum(hours[:flights]))  # hours to the threshold
         x = h / life  # 1 at the end of life (hours laws)
-        if law == "healthy":
+        if law == "none":
             r = np.ones(n)
         elif law == "quadratic":
             f = rng.uniform(0.1, 0.6)  # share of the linear term at the end of life
@@ -71,7 +71,7 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
             day += 1
         above = np.flatnonzero(r >= thr)
         eol = math.inf
-        if law != "healthy" and len(above) and above[0] > 0:
+        if law != "none" and len(above) and above[0] > 0:
             j = int(above[0])
             eol = j + (thr - r[j - 1]) / (r[j] - r[j - 1])
         out.append({

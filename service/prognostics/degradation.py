@@ -505,8 +505,8 @@ def hindcast(
     """How much wider the predictions must be to hold what the fleet did next: each history
     of ``min_points`` or more is fitted on all but its last quarter (at least 2 points), its
     posterior-predictive paths (parameter draws plus sigma) are compared with the held-back
-    points, and kappa^2 = median(z^2) / 0.455 (0.455: the median of chi-square with one
-    degree of freedom) over the standardised errors z of every unit, floored at 1."""
+    points, and kappa^2 = mean(z^2) over the standardised errors z of every unit (the ratio
+    of the errors' variance to the predicted one), floored at 1."""
     z2: list[float] = []
     rng = np.random.default_rng(0)
     for t, y in histories:
@@ -523,7 +523,7 @@ def hindcast(
         z2.extend((((y[n - m :] - paths.mean(axis=0)) / sd) ** 2).tolist())
     if len(z2) < 6:
         return 1.0
-    return max(1.0, math.sqrt(float(np.median(z2)) / 0.455))
+    return max(1.0, math.sqrt(float(np.mean(z2))))
 
 
 def sample_paths(

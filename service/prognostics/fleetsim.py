@@ -482,9 +482,7 @@ def evaluate(
             taus.append(tau)
         if progress:
             progress((step + 1) / len(ks))
-    by_law: dict[str, dict[str, list]] = {
-        law: {"acc": [], "ra": [], "ph": [], "cov": []} for law in WEAR_LAWS
-    }
+    by_law: dict[str, dict[str, list]] = {}
     units = []
     healthy = false_warn = 0
     healthy_p: list[float] = []
