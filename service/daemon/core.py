@@ -441,7 +441,28 @@ class Daemon:
         if self.store is not None:
             if periods:
                 periods = self._stamper().stamp(periods)
+                self._record_flights(periods)
             self.store.submit(periods, alarms)
+
+    def _record_flights(self, periods: list) -> None:
+        """Each new flight of a unit as a ``servowatch.flight`` record in the daemon's log
+        (a later replay of the log finds the same flights); a process logger has none."""
+        add = getattr(self.logger, "add_metadata", None)
+        if add is None:
+            return
+        from service.flightrec import FLIGHT_RECORD, FlightRecord
+
+        seen = self.__dict__.setdefault("_flights_logged", {})
+        for p in periods:
+            if seen.get(p.actuator) == p.flight:
+                continue
+            seen[p.actuator] = p.flight
+            ac, act = p.actuator.split("/", 1)
+            rec = FlightRecord(ac, act, int(p.flight), p.start_unix, p.start_t)
+            try:
+                add(FLIGHT_RECORD, rec.to_metadata())
+            except Exception as e:  # the log's failure is reported by its own path
+                log.warning("log: flight record of %s: %s", p.actuator, e)
 
     def _stamper(self):
         """Flight and calendar time of each period (``service.prognostics.life``: the live
