@@ -170,3 +170,24 @@ def test_calibrate_checks_the_logs_actuator(tmp_path, meas, capsys):
     assert main(["calibrate", "--log", str(two), "--store", str(store)]) == 2
     assert "name one" in capsys.readouterr().err
     assert not math.isnan(out["baseline"]["c_lk"])
+
+
+@pytest.mark.slow
+def test_acceptance_fleet_through_calibrate_and_replay(tmp_path, capsys):
+    """The held-apart acceptance fleet, small: every log goes in by the user's commands and
+    comes out as one period per flight; the healthy units stay under 5 % within the
+    horizon; the metrics are computed (their targets are figures of docs/prognostics.md)."""
+    from tests.acceptance_fleet import run
+
+    ev = run(seed=7, units=5, flights=14, work=tmp_path)
+    capsys.readouterr()
+    assert ev["healthy_units"] == 1
+    assert ev["healthy_max_p_horizon"] is not None and ev["healthy_max_p_horizon"] <= 0.05
+    with open_store(tmp_path / "acceptance.sqlite") as st:
+        for a in st.actuators():
+            ps = st.periods(a)
+            assert sorted(p.flight for p in ps) == list(range(len(ps)))
+            assert all(p.start_unix is not None for p in ps)
+            assert st.latest_baseline(a) is not None
+    for k in ("alpha_lambda_pct", "interval_coverage_pct", "kendall_tau"):
+        assert k in ev
