@@ -60,7 +60,8 @@ def matlab_exp_learn(histories) -> dict:
 
 
 def matlab_exp_predict(h, prior: dict, rc: RulConfig, n: int = 2000):
-    """``update`` + ``predictRUL``: (median RUL [h] or inf, warning) or None."""
+    """``update`` + ``predictRUL``: (median RUL on the history's axis or inf, warning) or
+    None."""
     t, y = h.observed()
     if len(t) < rc.min_periods:
         return None
@@ -76,14 +77,15 @@ def matlab_exp_predict(h, prior: dict, rc: RulConfig, n: int = 2000):
     with np.errstate(divide="ignore", invalid="ignore"):
         tc = (math.log(rc.threshold() - PHI) - w[:, 0] + 0.5 * s2) / w[:, 1]
     tc = np.where((w[:, 1] > 0) & np.isfinite(tc), tc, np.inf)
-    rul = np.maximum(tc - float(h.t_h[-1]), 0.0)
+    rul = np.maximum(tc - h.t_now(), 0.0)
     med = float(np.quantile(rul, 0.5, method="inverted_cdf"))
-    return med, bool(np.mean(rul <= rc.horizon_h) >= rc.warn_p)
+    return med, bool(np.mean(rul <= rc.horizon(h.axis)) >= rc.warn_p)
 
 
 def _row(name: str, ev: dict) -> str:
     f = lambda v: "     -" if v is None else f"{v:6.1f}"  # noqa: E731
-    bl = ev["by_law"]
+    bl = {law: ev["by_law"].get(law, {"alpha_lambda_pct": None})
+          for law in ("linear", "exponential", "step")}  # fmt: skip
     return (
         f"{name:<22}{f(ev['alpha_lambda_pct'])}{f(ev['relative_accuracy_pct'])}"
         f"{f(ev['prognostic_horizon_pct'])}{ev['scored_units']:>6}"

@@ -220,6 +220,9 @@ class PrognosticsSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     period_window_s: float = Field(600.0, gt=0, description="close a period after this long [s]")
+    flight_gap_s: float = Field(
+        1800.0, gt=0, description="gap rule: a longer gap between periods starts a new flight [s]"
+    )
     period_silence_s: float = Field(
         5.0, gt=0, description="a sample gap longer than this closes a period [s]"
     )

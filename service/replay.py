@@ -13,7 +13,11 @@ baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` 
 With a health store (``store``), each actuator runs on its latest baseline from the store
 (``service.monitor.MonitorFleet``; none: the default, ``commissioned: false``), and the
 fan-out's operating periods and alarm raises are written to the store at the end, named by
-the log's identity (``log_source``), so replaying the same log again adds nothing.
+the log's identity (``log_source``), so replaying the same log again adds nothing. Each
+period is stamped with its flight and calendar time (``service.prognostics.life``: the log's
+``servowatch.flight`` record, the caller's ``flight``/``start_unix``, or the gap rule).
+
+``replay_many`` ingests many logs into one store in one process, in life order (``log_order``).
 """
 
 from __future__ import annotations
@@ -56,8 +60,19 @@ from service.monitor import (
     RowEvents,
 )
 from service.prognostics import PeriodConfig
+from service.prognostics.life import FLIGHT_GAP_S, FlightStamper
+from service.store.records import Period
 
-__all__ = ["ReplaySummary", "replay", "INPUT_KEYS", "read_metadata", "log_source"]
+__all__ = [
+    "ReplaySummary",
+    "replay",
+    "replay_many",
+    "log_order",
+    "expand_logs",
+    "INPUT_KEYS",
+    "read_metadata",
+    "log_source",
+]
 
 log = logging.getLogger("servowatch.replay")
 
@@ -93,6 +108,8 @@ class ReplaySummary:
     periods: int = 0  # periods closed
     periods_new: int = 0  # of which new in the store
     commissioned: dict[str, int | None] = field(default_factory=dict)  # baseline versions
+    first_t: dict[str, float] = field(default_factory=dict)  # each actuator's first sample
+    flights: dict[str, list[int]] = field(default_factory=dict)  # flights of its periods
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types (non-finite floats as None)."""
@@ -221,6 +238,7 @@ def _read_stage(files: list[Path], stats: LogReadStats, summary: ReplaySummary) 
         if n_keep < len(keep):
             t, ch, vals = t[keep], ch[keep], vals[keep]
         last_t[name] = float(t[-1])
+        summary.first_t.setdefault(name, float(t[0]))
         summary.samples += n_keep
         if summary.t_start is None:
             summary.t_start = float(t[0])
@@ -338,8 +356,12 @@ def replay(
     publish_every: int = 10,
     log_every: int = 1,
     progress: Callable[[ReplaySummary], None] | None = None,
-    store: str | Path | None = None,
+    store: str | Path | Any | None = None,
     period_config: PeriodConfig | None = None,
+    flight: int | None = None,
+    start_unix: float | None = None,
+    flight_gap_s: float = FLIGHT_GAP_S,
+    stamper: FlightStamper | None = None,
 ) -> ReplaySummary:
     """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
 
@@ -359,8 +381,12 @@ def replay(
     monitor_config, baseline : None takes the log's ``servowatch`` metadata (``monitor_config``,
         ``baseline`` JSON) when present, else ``MonitorConfig()`` and ``Baseline.default()``.
 
-    store : a health store (path or URL): per-actuator baselines from it, and the operating
-        periods and alarm raises written to it (``period_config`` cuts the periods).
+    store : a health store (path, URL or an open ``HealthStore``): per-actuator baselines
+        from it, and the operating periods and alarm raises written to it (``period_config``
+        cuts the periods).
+    flight, start_unix, flight_gap_s : the periods' flight number and the calendar time of the
+        log's first sample, else from the log's flight records, else the gap rule with this
+        gap (``service.prognostics.life``); ``stamper`` carries a batch's state.
 
     A truncated log is replayed up to its last complete chunk; the summary says so in
     ``truncated`` and ``warnings``.
@@ -382,21 +408,45 @@ def replay(
     base = baseline or Baseline.default(cfg.model)
     summary = ReplaySummary(log=str(log_path), out=str(out) if out is not None else None)
     summary.files = [str(f) for f in files]
-    hs = None
-    if store is not None:
+    if flight is not None and (isinstance(flight, bool) or int(flight) < 0):
+        raise ValueError(f"flight must be an integer >= 0, got {flight!r}")
+    hs, own = None, False
+    if isinstance(store, str | Path):
         from service.store import open_store
 
-        hs = open_store(store)
+        hs, own = open_store(store), True
+    elif store is not None:
+        hs = store
+    life = None
+    if hs is not None:
+        from service.flightrec import flight_records
+
+        records = [r for f in files for r in flight_records(f)]
+        st = stamper or FlightStamper(_last_period(hs), flight_gap_s)
+        life = (st, records, flight, start_unix)
     try:
         return _replay(files, log_path, summary, cfg, base, hs, speed, out, publish,
-                       publish_every, log_every, progress, period_config)  # fmt: skip
+                       publish_every, log_every, progress, period_config, life)  # fmt: skip
     finally:
-        if hs is not None:
+        if own and hs is not None:
             hs.close()
 
 
+def _last_period(hs) -> Callable[[str], Period | None]:
+    """The latest stored period of a unit in life order (flight, then start time)."""
+
+    def last(name: str) -> Period | None:
+        if name not in hs.actuators():
+            return None
+        ps = hs.periods(name)
+        return max(ps, key=lambda p: (p.flight if p.flight is not None else -1, p.start_t),
+                   default=None)  # fmt: skip
+
+    return last
+
+
 def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publish_every,
-            log_every, progress, period_config) -> ReplaySummary:  # fmt: skip
+            log_every, progress, period_config, life=None) -> ReplaySummary:  # fmt: skip
     """``replay`` once the log, the configuration and the store (``hs``) are resolved."""
     closed: list = []
     alarms: list = []
@@ -443,6 +493,13 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
             if writer is not None:
                 writer.close()
     if hs is not None:
+        st, records, flight, start_unix = life
+        closed = st.stamp(closed, records=records, first_t=summary.first_t, flight=flight,
+                          start_unix=start_unix)  # fmt: skip
+        for p in closed:
+            fl = summary.flights.setdefault(p.actuator, [])
+            if p.flight not in fl:
+                fl.append(p.flight)
         summary.periods = len(closed)
         summary.periods_new = hs.add_periods(closed)
         hs.add_alarms(alarms)
@@ -461,3 +518,170 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
     if summary.samples == 0:
         summary.warnings.append(f"{log_path}: no /fleet/*/*/meas samples")
     return summary
+
+
+def expand_logs(items: list[str | Path]) -> list[Path]:
+    """Log paths of ``items``: a file, a folder (its ``*.mcap`` files, recursively), a glob
+    pattern, or a rotation set's base name; each path once. FileNotFoundError names an item
+    that matches nothing."""
+    import glob
+
+    out: list[Path] = []
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(p.rglob("*.mcap"))
+        elif p.is_file():
+            found = [p]
+        elif any(c in str(item) for c in "*?["):
+            found = sorted(Path(f) for f in glob.glob(str(item), recursive=True))
+            found = [f for f in found if f.is_file()]
+        else:
+            found = [p] if rotated_files(p) else []
+        if not found:
+            raise FileNotFoundError(f"{item}: no such log, folder or matching file")
+        out.extend(found)
+    seen: set[Path] = set()
+    return [f for f in out if not (f.resolve() in seen or seen.add(f.resolve()))]
+
+
+def log_order(paths: list[Path]) -> list[Path]:
+    """``paths`` in life order: logs with a flight record by its calendar start, then by its
+    flight number, then the rest by name (digits compared as numbers)."""
+    import re
+
+    from service.flightrec import flight_records
+
+    def key(p: Path) -> tuple:
+        recs = flight_records(rotated_files(p)[0]) if rotated_files(p) else []
+        natural = [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", str(p))]
+        natural = [(0, s, "") if isinstance(s, int) else (1, 0, s) for s in natural]
+        if recs and recs[0].start_unix is not None:
+            return (0, recs[0].start_unix, recs[0].flight, natural)
+        if recs:
+            return (1, 0.0, recs[0].flight, natural)
+        return (2, 0.0, 0, natural)
+
+    return sorted(paths, key=key)
+
+
+def replay_many(
+    logs: list[Path],
+    store: str | Path | Any,
+    *,
+    on_log: Callable[[Path, ReplaySummary | None, Exception | None], None] | None = None,
+    flight_gap_s: float = FLIGHT_GAP_S,
+    jobs: int = 1,
+    tick: Callable[[], None] | None = None,
+    **kw: Any,
+) -> list[ReplaySummary]:
+    """Ingest ``logs`` (in the given order: ``log_order``) into ``store`` (one store
+    connection and one flight stamper per process); ``kw`` as ``replay`` takes them (a
+    ``flight`` is not: each log has its own). A log that cannot be read is reported to
+    ``on_log(path, None, error)`` and skipped; the others to ``on_log(path, summary, None)``;
+    ``tick()`` is called as each log is done (a progress bar).
+
+    ``jobs`` > 1 (a store path or URL only): the logs are split into groups that share no
+    actuator (``_groups``), each group in its given order in one of ``jobs`` worker
+    processes, so every actuator's logs still go in order through one monitor."""
+    if "flight" in kw:
+        raise ValueError("replay_many: flight numbers come from each log (or the gap rule)")
+    if jobs > 1 and isinstance(store, str | Path) and len(logs) > 1:
+        return _replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw)
+    hs, own = store, False
+    if isinstance(store, str | Path):
+        from service.store import open_store
+
+        hs, own = open_store(store), True
+    try:
+        st = FlightStamper(_last_period(hs), flight_gap_s)
+        out = []
+        for p in logs:
+            try:
+                s = replay(p, store=hs, stamper=st, **kw)
+            except (OSError, ValueError) as e:
+                if on_log is not None:
+                    on_log(p, None, e)
+                s = None
+            if tick is not None:
+                tick()
+            if s is None:
+                continue
+            out.append(s)
+            if on_log is not None:
+                on_log(p, s, None)
+        return out
+    finally:
+        if own:
+            hs.close()
+
+
+def _groups(logs: list[Path]) -> list[list[Path]]:
+    """``logs`` split into groups that share no actuator (by the logs' meas topics), each in
+    the given order."""
+    from service.flightrec import log_units
+
+    parent: dict[str, str] = {}
+
+    def find(a: str) -> str:
+        while parent.setdefault(a, a) != a:
+            a = parent[a]
+        return a
+
+    names = []
+    for p in logs:
+        units = log_units(rotated_files(p)[0]) if rotated_files(p) else []
+        units = units or ["?"]  # a log without a unit: one group for all of them
+        for u in units[1:]:
+            parent[find(u)] = find(units[0])
+        names.append(units[0])
+    groups: dict[str, list[Path]] = {}
+    for p, n in zip(logs, names, strict=True):
+        groups.setdefault(find(n), []).append(p)
+    return sorted(groups.values(), key=len, reverse=True)
+
+
+def _group_job(args) -> list[tuple[str, dict | None, str | None]]:
+    logs, store, gap, kw, q = args
+    out = []
+
+    def on_log(p, s, e) -> None:
+        out.append((str(p), None if s is None else s.to_dict(), None if e is None else str(e)))
+
+    replay_many(logs, store, on_log=on_log, flight_gap_s=gap, tick=lambda: q.put(1), **kw)
+    return out
+
+
+def _replay_parallel(logs, store, on_log, tick, gap, jobs, kw) -> list[ReplaySummary]:
+    import multiprocessing as mp
+    import queue
+    from concurrent.futures import ProcessPoolExecutor, wait
+
+    from service.store import open_store
+
+    open_store(store).close()  # migrate once, before the workers open it
+    groups = _groups(logs)
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as man:
+        q = man.Queue()
+        with ProcessPoolExecutor(min(jobs, len(groups)), mp_context=ctx) as ex:
+            futs = [ex.submit(_group_job, (g, str(store), gap, kw, q)) for g in groups]
+            pending = set(futs)
+            while pending:
+                _, pending = wait(pending, timeout=0.2)
+                try:
+                    while True:
+                        q.get_nowait()
+                        if tick is not None:
+                            tick()
+                except queue.Empty:
+                    pass
+            results = [r for f in futs for r in f.result()]
+    out = []
+    for p, d, err in results:
+        s = ReplaySummary(**d) if d is not None else None
+        if s is not None:
+            out.append(s)
+        if on_log is not None:
+            on_log(Path(p), s, None if err is None else OSError(err))
+    return out

@@ -112,23 +112,26 @@ def test_fit_selects_the_generating_model(law):
 
 
 def test_fit_recovers_parameters():
+    # weights and rates are per unit of u = t / t_scale (the history's span by default)
     t, y = _hist("linear")
     f = fit_history(t, y)
+    assert f.t_scale == pytest.approx(t[-1])
     g = int(np.argmax(f.post["linear"]))
     a, b = f.means["linear"][g]
+    b = b / f.t_scale
     assert a == pytest.approx(1.0, abs=0.03) and b == pytest.approx(0.05, rel=0.03)
     assert f.sigma == pytest.approx(0.02, rel=0.35)
     t, y = _hist("exponential")
     f = fit_history(t, y)
-    beta = f.grids["exponential"][int(np.argmax(f.post["exponential"]))]
+    beta = f.grids["exponential"][int(np.argmax(f.post["exponential"]))] / f.t_scale
     assert beta == pytest.approx(0.025, rel=0.3)
     t, y = _hist("step")
     f = fit_history(t, y)
     g = int(np.argmax(f.post["step"]))
-    tau = f.grids["step"][g]
+    tau = f.grids["step"][g] * f.t_scale
     assert 38.0 <= tau <= 42.0
     assert f.means["step"][g][1] == pytest.approx(0.8, abs=0.08)
-    assert f.means["step"][g][2] == pytest.approx(0.05, rel=0.1)
+    assert f.means["step"][g][2] / f.t_scale == pytest.approx(0.05, rel=0.1)
 
 
 def test_rul_median_matches_the_analytic_crossing():
@@ -167,9 +170,10 @@ def test_fleet_prior_learns_model_mix_and_rates():
         hist.append((t, 1 + 0.02 * np.random.default_rng(10 + i).standard_normal(30)))
     pr = learn_fleet_prior(hist)
     assert pr.units == 9
-    assert pr.p_model["linear"] == pytest.approx(7 / 13)  # 6 linear + 1 (Dirichlet) of 9 + 4
-    assert pr.p_model["none"] == pytest.approx(4 / 13)
-    assert pr.weights["linear"].mean[1] == pytest.approx(0.065, rel=0.1)
+    assert pr.p_model["linear"] == pytest.approx(7 / 14)  # 6 linear + 1 (Dirichlet) of 9 + 5
+    assert pr.p_model["none"] == pytest.approx(4 / 14)
+    assert pr.t_scale == pytest.approx(60.0)  # the median span; weights per unit of t / t_scale
+    assert pr.weights["linear"].mean[1] / pr.t_scale == pytest.approx(0.065, rel=0.1)
     assert pr.sigma == pytest.approx(0.02, rel=0.35)
 
 
@@ -284,12 +288,14 @@ def test_rul_through_sqlite_store(tmp_path):
         assert stored["median_h"] == by["AC0/eha"]["median_h"]
         h = history_of("AC3/eha", st.periods("AC3/eha"))
         assert h.hours_per_flight == pytest.approx(2.0)
-        # AC3: 1 + 0.07 t crosses 11 at 142.9 h; 60 h flown; the horizon catches it only
-        # once fewer than 50 h remain
-        r = rul_of_history(h, prior, RulConfig(threshold_ratio=11.0, horizon_h=50.0))
+        # AC3: 1 + 0.07 t crosses 11 at 142.9 h; 60 h flown (41.4 flights of 2 h remain);
+        # the history counts flights, so the horizon is in flights
+        assert h.axis == "flights" and by["AC3/eha"]["axis"] == "flights"
+        r = rul_of_history(h, prior, RulConfig(threshold_ratio=11.0, horizon_flights=25.0))
         assert r["median_h"] == pytest.approx(82.9, rel=0.05)
+        assert r["median_flights"] == pytest.approx(41.4, rel=0.05)
         assert r["p_horizon"] < 0.05
-        r = rul_of_history(h, prior, RulConfig(threshold_ratio=11.0, horizon_h=100.0))
+        r = rul_of_history(h, prior, RulConfig(threshold_ratio=11.0, horizon_flights=50.0))
         assert r["p_horizon"] > 0.95 and r["warning"]
 
 

@@ -234,7 +234,7 @@ def test_migration_2_computes_the_trend_of_a_version_1_store(store_url, monkeypa
             with s._b.transaction():
                 s._b.execute("UPDATE summary SET recent = ?", (json.dumps(recent),))
     with open_store(store_url) as s:
-        assert s.schema_version() == 2
+        assert s.schema_version() == LATEST_VERSION
         tr = s.fleet_summary()[0]["trend"]
         assert tr["label"] == "rising" and tr["slope_per_h"] == pytest.approx(0.1)
         assert tr["periods"] == 5

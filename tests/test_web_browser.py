@@ -57,7 +57,7 @@ def test_table_is_the_ranked_store(store_url):
     for a, r in by.items():
         assert r.find("td", class_="ratio").text() == f"{api_by[a]['last']['c_lk_ratio']:.3f}"
         assert r.attrs["data-status"] == api_by[a]["status"]
-    assert by[CRITICAL].find("td", class_="rul").text() == "12 [8-20]"
+    assert by[CRITICAL].find("td", class_="rul").text() == "12 [8-20] h"  # an hours history
     assert by[CRITICAL].find("td", class_="flights").text() == "8 [5-13]"
     assert by[CRITICAL].find("span", class_="badge").text() == "critical"
     # the larger of the periods' alarm count (k % 3 over 8 periods) and the alarm events (1)

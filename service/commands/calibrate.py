@@ -6,6 +6,8 @@ topic ending in ``/meas`` carries t, x_cmd, i, x_s, x_j, p1, p2 (as written by
 
 ``--out`` writes the baseline JSON; ``--actuator AC/ACT`` records it as that actuator's next
 baseline version in the health store (``--store``, default servowatch-data/health.sqlite).
+A log's topics ``/fleet/{aircraft}/{actuator}/meas`` name its actuators: ``--actuator`` must be
+one of them (else exit 2), and without ``--actuator`` a log of one actuator names it.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from service.store.cli import add_store_argument, open_store_arg
 NAME = "calibrate"
 HELP = "identify the monitor's nominal (baseline) parameters from a healthy run"
 
-__all__ = ["NAME", "HELP", "add_arguments", "run", "meas_from_log"]
+__all__ = ["NAME", "HELP", "add_arguments", "run", "meas_from_log", "log_actuators"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -46,12 +48,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
-def meas_from_log(path: str) -> dict[str, np.ndarray]:
-    """Measured arrays from the first ``.../meas`` topic of an MCAP log."""
+def log_actuators(path: str) -> list[str]:
+    """``{aircraft}/{actuator}`` of each ``/fleet/{aircraft}/{actuator}/meas`` topic of a log."""
+    from service.flightrec import log_units
+
+    return log_units(path)
+
+
+def meas_from_log(path: str, actuator: str | None = None) -> dict[str, np.ndarray]:
+    """Measured arrays from the ``.../meas`` topic of ``actuator`` (``AC/ACT``; None: the
+    first ``.../meas`` topic) of an MCAP log."""
     from service.log import read_log
 
     rows: list[dict] = []
-    topic0 = None
+    topic0 = None if actuator is None else f"/fleet/{actuator}/meas"
     for topic, t, msg in read_log(path):
         if not topic.endswith("/meas"):
             continue
@@ -73,6 +83,20 @@ def run(args: argparse.Namespace) -> int:
         return fail(f"unknown model {args.model!r}; expected one of {', '.join(MONITOR_MODELS)}")
     if args.passes < 0:
         return fail("--passes must be >= 0")
+    if args.log is not None:
+        try:
+            named = log_actuators(args.log)
+        except (OSError, ValueError) as e:
+            return fail(f"{args.log}: cannot read a healthy run: {e}")
+        if args.actuator is not None and named and args.actuator not in named:
+            return fail(
+                f"--actuator {args.actuator}: the log {args.log} holds "
+                f"{', '.join(named)}, not {args.actuator} (a baseline of another actuator)"
+            )
+        if args.actuator is None and len(named) == 1:
+            args.actuator = named[0]
+        elif args.actuator is None and len(named) > 1 and args.store is not None:
+            return fail(f"--actuator: the log holds {', '.join(named)}; name one")
     if args.store is not None and args.actuator is None:
         return fail("--store needs --actuator AC/ACT (the actuator the baseline belongs to)")
     if args.out is None and args.actuator is None:
@@ -105,7 +129,7 @@ def _run(args: argparse.Namespace, store) -> int:
         source = f"scenario {scenario.name}"
     else:
         try:
-            meas = meas_from_log(args.log)
+            meas = meas_from_log(args.log, args.actuator if _named(args.log) else None)
         except (OSError, ValueError) as e:
             return fail(f"{args.log}: cannot read a healthy run: {e}")
         source = f"log {args.log}"
@@ -152,3 +176,7 @@ def _run(args: argparse.Namespace, store) -> int:
         stick = f"breakaway F_s {base.f_s:.0f} N" if base.f_s > 0 else "no stiction (F_s 0)"
         print(f"  friction (datasheet): Coulomb F_d {base.f_d:.0f} N, {stick}")
     return 0
+
+
+def _named(path: str) -> bool:
+    return bool(log_actuators(path))

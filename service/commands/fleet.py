@@ -63,12 +63,19 @@ def finite_or_none(v: Any) -> float | None:
 
 
 def rul_interval(rul: dict[str, Any] | None) -> dict[str, float | None] | None:
-    """``median_h``/``lo_h``/``hi_h`` (operating hours), the same in flights and
-    ``p_horizon`` from a stored RUL summary (``put_rul``); None without one."""
+    """From a stored RUL summary (``put_rul``; None without one): ``median``/``lo``/``hi`` in
+    ``unit``, the unit the history supports (``flights`` when it counts flights, else ``h``
+    operating hours), the same as ``*_flights``, ``*_h`` and ``*_days`` (calendar) where
+    known, and ``p_horizon``."""
     if not rul:
         return None
-    keys = ("median_h", "lo_h", "hi_h", "median_flights", "lo_flights", "hi_flights", "p_horizon")
-    return {k: finite_or_none(rul.get(k)) for k in keys}
+    keys = [f"{q}_{u}" for u in ("h", "flights", "days") for q in ("median", "lo", "hi")]
+    out: dict[str, Any] = {k: finite_or_none(rul.get(k)) for k in [*keys, "p_horizon"]}
+    unit = "flights" if rul.get("axis") == "flights" else "h"
+    out["unit"] = unit
+    for q in ("median", "lo", "hi"):
+        out[q] = out[f"{q}_{unit}"]
+    return out
 
 
 def _alarm_count(row: dict[str, Any]) -> int:
@@ -85,7 +92,7 @@ def rank_fleet(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
     def key(r: dict[str, Any]) -> tuple[float, int, float, str]:
         iv = rul_interval(r.get("rul"))
-        med = iv["median_h"] if iv and iv["median_h"] is not None else math.inf
+        med = iv["median"] if iv and iv["median"] is not None else math.inf
         ratio = _ratio(r)
         return (med, -_alarm_count(r), -(ratio if ratio is not None else -math.inf), r["actuator"])
 
@@ -104,7 +111,7 @@ def format_fleet(ranked: list[dict[str, Any]]) -> str:
     """A fixed-width table of the ranked fleet."""
     head = (
         f"{'#':>4} {'actuator':<22} {'comm':<4} {'periods':>7} {'op h':>8} {'C_Lk/base':>9} "
-        f"{'trend /100h':>15} {'P_SR min MPa':>12} {'RUL h median [90%]':>24} "
+        f"{'trend /100h':>15} {'P_SR min MPa':>12} {'RUL median [90%] unit':>30} "
         f"{'P(hor)':>6} {'alarms':>6}"
     )
     lines = [head, "-" * len(head)]
@@ -114,14 +121,16 @@ def format_fleet(ranked: list[dict[str, Any]]) -> str:
         slope = finite_or_none(tr.get("slope_per_h"))
         trend = "-" if slope is None else f"{tr.get('label', '')} {slope * 100:+.2f}"
         iv = r.get("rul_interval")
-        if iv and iv["median_h"] is not None:
-            rul = f"{iv['median_h']:.0f} [{_f(iv['lo_h'], '.0f')}-{_f(iv['hi_h'], '.0f')}]"
+        if iv and iv["median"] is not None:
+            rul = f"{iv['median']:.0f} [{_f(iv['lo'], '.0f')}-{_f(iv['hi'], '.0f')}] {iv['unit']}"
+            if iv["median_days"] is not None:
+                rul += f" ~{iv['median_days']:.0f} d"
         else:
             rul = "-"
         lines.append(
             f"{r['rank']:>4} {r['actuator']:<22} {'yes' if r['commissioned'] else 'NO':<4} "
             f"{r['periods']:>7} {r['op_time_s'] / 3600:>8.1f} {_f(last.get('c_lk_ratio'), '.3f'):>9} "
-            f"{trend:>15} {_f(last.get('p_sr_min'), '.2f', 1e-6):>12} {rul:>24} "
+            f"{trend:>15} {_f(last.get('p_sr_min'), '.2f', 1e-6):>12} {rul:>30} "
             f"{_f(iv and iv['p_horizon'], '.2f'):>6} {_alarm_count(r):>6}"
         )
     return "\n".join(lines)

@@ -1,6 +1,7 @@
-"""``servowatch fleet-sim``: a simulated fleet with hidden wear laws, through the HF bench and
-the real monitor, into the health store; ``--evaluate`` scores the RUL predictions against
-the truth with Saxena et al.'s PHM metrics (``service.prognostics.fleetsim``,
+"""``servowatch fleet-sim``: a simulated fleet with hidden wear laws as MCAP logs (HF bench),
+ingested by the replay's code into the health store; ``--evaluate`` scores the RUL
+predictions against the truth with Saxena et al.'s PHM metrics, interval coverage, Kendall's
+tau and the healthy units' crossing probability (``service.prognostics.fleetsim``,
 docs/prognostics.md).
 """
 
@@ -32,6 +33,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--eval-every", type=int, default=1, help="predict every k-th flight")
     p.add_argument("--segment-s", type=finite_float, default=2.0, help="bench seconds per flight")
     p.add_argument("--horizon-h", type=finite_float, default=50.0, help="planning horizon [h]")
+    p.add_argument(
+        "--horizon-flights", type=finite_float, default=20.0,
+        help="planning horizon [flights] (default 20)",
+    )  # fmt: skip
+    p.add_argument("--logs", default=None, metavar="DIR", help="keep the logs in DIR")
+    p.add_argument("--model", default="C5", help="the monitor's process model (default C5)")
     p.add_argument("--threshold", type=finite_float, default=None, help="C_Lk ratio at failure")
     p.add_argument("--workers", type=int, default=0, help="processes (default min(2, cores))")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -50,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = FleetSimConfig(
         actuators=args.actuators, flights=args.flights, seed=args.seed,
         segment_s=args.segment_s, threshold_ratio=args.threshold, eval_every=args.eval_every,
-        horizon_h=args.horizon_h, workers=args.workers,
+        horizon_h=args.horizon_h, horizon_flights=args.horizon_flights, workers=args.workers,
+        model=args.model, log_dir=args.logs,
     )  # fmt: skip
     t0 = time.perf_counter()
     try:
@@ -62,8 +70,10 @@ def run(args: argparse.Namespace) -> int:
         sim = run_fleet_sim(cfg, store, progress=prog)
         prog.done()
         compute_rul(
-            store, None, RulConfig(threshold_ratio=cfg.threshold(), horizon_h=cfg.horizon_h)
-        )
+            store, None,
+            RulConfig(threshold_ratio=cfg.threshold(), horizon_h=cfg.horizon_h,
+                      horizon_flights=cfg.horizon_flights),
+        )  # fmt: skip
         url = store.url
     units = sim["units"]
     truth = {
@@ -80,6 +90,8 @@ def run(args: argparse.Namespace) -> int:
         "flights": cfg.flights,
         "segments": sum(u["segments"] for u in units),
         "sim_wall_s": sim["wall_s"],
+        "logs": sim["logs"],
+        "ingest_wall_s": sim["ingest_wall_s"],
         "threshold_ratio": cfg.threshold(),
         "store": url,
         "truth": args.truth,
@@ -88,6 +100,9 @@ def run(args: argparse.Namespace) -> int:
         "alpha_lambda_pct": None,
         "relative_accuracy_pct": None,
         "prognostic_horizon_pct": None,
+        "interval_coverage_pct": None,
+        "kendall_tau": None,
+        "healthy_max_p_horizon": None,
         "false_rul_warnings": None,
     }
     if args.evaluate:

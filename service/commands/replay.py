@@ -1,4 +1,10 @@
-"""``servowatch replay``: feed a logged run through the monitor again (service.replay)."""
+"""``servowatch replay``: feed logged runs through the monitor again (service.replay).
+
+One log: the replay's summary (as before). Several logs (files, folders, glob patterns) go
+into ``--store`` in one process, in life order (``service.replay.log_order``), with a progress
+bar on stderr; each period is stamped with its flight (``--flight``, the log's flight record
+or the gap rule, ``--flight-gap-s``) and calendar time (docs/prognostics.md).
+"""
 
 from __future__ import annotations
 
@@ -26,8 +32,25 @@ def _speed(text: str) -> float | None:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "log", help="MCAP log of `servowatch run` or the demo (or a rotation set's base name)"
-    )
+        "log", nargs="+",
+        help="MCAP log(s) of `servowatch run`, an acquisition or the demo: files, folders "
+        "(their *.mcap), glob patterns or a rotation set's base name; several need --store",
+    )  # fmt: skip
+    p.add_argument(
+        "--flight", type=int, default=None, metavar="N",
+        help="the log's flight (cycle) number, for every actuator in it (one log only; "
+        "default: the log's servowatch.flight record, else the gap rule)",
+    )  # fmt: skip
+    p.add_argument(
+        "--start-unix", type=float, default=None, metavar="S",
+        help="calendar time of the log's first sample [Unix s] (default: the flight record's, "
+        "or the sample time when it is a Unix time)",
+    )  # fmt: skip
+    p.add_argument(
+        "--flight-gap-s", type=float, default=None, metavar="S",
+        help="gap rule: a gap longer than this between two periods of a unit starts a new "
+        "flight (default 1800)",
+    )  # fmt: skip
     p.add_argument(
         "--speed", type=_speed, default=None, metavar="max|X",
         help="max (default): as fast as possible; X: X times real time",
@@ -47,6 +70,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--store", default=None, metavar="PATH|URL",
         help="health store (SQLite path or postgresql:// URL; default: the config's store, "
         "else none): per-actuator baselines from it, operating periods written to it",
+    )  # fmt: skip
+    p.add_argument(
+        "--jobs", type=int, default=None, metavar="N",
+        help="several logs: worker processes, each taking whole actuators "
+        "(default 1)",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
@@ -84,9 +112,24 @@ def run(args: argparse.Namespace) -> int:
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     from service.log import rotated_files
+    from service.prognostics.life import FLIGHT_GAP_S
+    from service.replay import expand_logs
 
-    if not rotated_files(args.log):
-        return fail(f"{args.log}: no such log (nor a rotation set {Path(args.log).stem}-*)")
+    if len(args.log) == 1 and not any(c in args.log[0] for c in "*?[") \
+            and not Path(args.log[0]).is_dir():  # fmt: skip
+        if not rotated_files(args.log[0]):
+            return fail(f"{args.log[0]}: no such log (nor a rotation set "
+                        f"{Path(args.log[0]).stem}-*)")  # fmt: skip
+        logs = [Path(args.log[0])]
+    else:
+        try:
+            logs = expand_logs(args.log)
+        except FileNotFoundError as e:
+            return fail(str(e))
+    if args.flight is not None and (args.flight < 0 or len(logs) > 1):
+        return fail("--flight: an integer >= 0, for one log only")
+    if args.start_unix is not None and (len(logs) > 1 or args.start_unix != args.start_unix):
+        return fail("--start-unix: a finite number, for one log only")
     try:
         cfg = load_config(args.config) if args.config else None
     except ConfigError as e:
@@ -104,6 +147,11 @@ def run(args: argparse.Namespace) -> int:
     from service.prognostics import PeriodConfig
 
     store = store_target(args.store or (cfg.store if cfg is not None else None))
+    gap = args.flight_gap_s
+    if gap is None:
+        gap = cfg.prognostics.flight_gap_s if cfg is not None else FLIGHT_GAP_S
+    if not gap > 0 or gap != gap:
+        return fail("--flight-gap-s must be > 0")
     pc = None
     if cfg is not None:
         pr = cfg.prognostics
@@ -115,6 +163,16 @@ def run(args: argparse.Namespace) -> int:
             open_store(store).close()  # fail fast, naming --store
         except StoreError as e:
             return fail(f"--store: {e}")
+    if args.jobs is None:
+        args.jobs = 1
+    if args.jobs < 1:
+        return fail("--jobs must be >= 1")
+    if len(logs) > 1:
+        if store is None:
+            return fail("several logs go into a store: give --store")
+        if args.out or args.publish or args.speed is not None:
+            return fail("--out, --publish and --speed take one log")
+        return _run_many(args, logs, store, monitor_config, baseline, pc, gap)
     session = None
     if args.publish:
         import zenoh
@@ -131,10 +189,10 @@ def run(args: argparse.Namespace) -> int:
             return fail(f"cannot reach a Zenoh router at {args.connect}: {e}", 1)
     try:
         s = replay(
-            args.log, speed=args.speed, out=args.out, publish=session,
+            logs[0], speed=args.speed, out=args.out, publish=session,
             monitor_config=monitor_config, baseline=baseline, log_every=args.log_every,
             publish_every=cfg.publish_every if cfg is not None else 10, store=store,
-            period_config=pc,
+            period_config=pc, flight=args.flight, start_unix=args.start_unix, flight_gap_s=gap,
         )  # fmt: skip
     except (OSError, ValueError) as e:
         return fail(str(e))
@@ -146,6 +204,56 @@ def run(args: argparse.Namespace) -> int:
     else:
         _print_summary(s)
     if s.truncated:
-        print(f"servowatch: warning: {args.log} was truncated; replayed up to its last "
+        print(f"servowatch: warning: {logs[0]} was truncated; replayed up to its last "
               "complete chunk", file=sys.stderr)  # fmt: skip
     return 0
+
+
+def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
+    """Several logs into ``store`` in one process (module docstring)."""
+    import time
+
+    from service.replay import log_order, replay_many
+
+    w0 = time.perf_counter()
+    logs = log_order(logs)
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(logs), desc="replay", unit="log", file=sys.stderr,
+               disable=None if not args.json else True)  # fmt: skip
+    failed: list[dict] = []
+    totals = {"samples": 0, "periods": 0, "periods_new": 0, "alarms": 0, "truncated": 0}
+    units: dict[str, set] = {}
+
+    def on_log(p, s, err) -> None:
+        if err is not None:
+            failed.append({"log": str(p), "error": str(err)})
+            return
+        totals["samples"] += s.samples
+        totals["periods"] += s.periods
+        totals["periods_new"] += s.periods_new
+        totals["alarms"] += len(s.alarms)
+        totals["truncated"] += int(s.truncated)
+        for a, fl in s.flights.items():
+            units.setdefault(a, set()).update(fl)
+
+    try:
+        replay_many(logs, store, on_log=on_log, flight_gap_s=gap, monitor_config=monitor_config,
+                    baseline=baseline, period_config=pc, jobs=args.jobs,
+                    tick=lambda: bar.update(1))  # fmt: skip
+    finally:
+        bar.close()
+    wall = time.perf_counter() - w0
+    out = {"logs": len(logs), "failed": failed, **totals, "wall_s": wall,
+           "actuators": {a: {"flights": len(f), "first": min(f), "last": max(f)}
+                         for a, f in sorted(units.items())}}  # fmt: skip
+    if args.json:
+        emit_json(out)
+    else:
+        print(f"replayed {len(logs)} logs into {store} in {wall:.1f} s: {totals['samples']} "
+              f"samples, {totals['periods_new']} new periods of {len(units)} actuator(s)")  # fmt: skip
+        for a, d in out["actuators"].items():
+            print(f"  {a}: flights {d['first']}-{d['last']} ({d['flights']})")
+        for f in failed:
+            print(f"  failed: {f['log']}: {f['error']}")
+    return 1 if failed else 0

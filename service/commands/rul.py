@@ -1,8 +1,9 @@
 """``servowatch rul``: remaining useful life of each actuator in the health store.
 
-Fits each actuator's C_Lk-ratio history against operating hours under a fleet prior learned
-from the store (``service.prognostics.degradation``), gives the RUL to the failure threshold
-(median and 90 % interval, operating hours and flights) and the probability of crossing
+Fits each actuator's C_Lk-ratio history against its life axis (flights when the history
+counts them, else operating hours) under a fleet prior learned from the store
+(``service.prognostics.degradation``), gives the RUL to the failure threshold (median and
+90 % interval in flights, calendar days and operating hours as far as the history has them) and the probability of crossing
 within the planning horizon, and writes each summary back with ``put_rul`` (read by
 ``servowatch fleet``). docs/prognostics.md has the models and the threshold.
 """
@@ -42,7 +43,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--horizon-h",
         type=finite_float,
         default=50.0,
-        help="planning horizon [operating hours] (default 50)",
+        help="planning horizon [operating hours] for histories without flights (default 50)",
+    )
+    p.add_argument(
+        "--horizon-flights",
+        type=finite_float,
+        default=20.0,
+        help="planning horizon [flights] for histories that count flights (default 20)",
     )
     p.add_argument("--no-save", action="store_true", help="do not write the RUL to the store")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -57,8 +64,8 @@ def run(args: argparse.Namespace) -> int:
     from service.prognostics.rul import RulConfig, compute_rul, history_of
     from service.prognostics.threshold import leak_threshold
 
-    if args.horizon_h <= 0:
-        return fail("--horizon-h must be > 0")
+    if args.horizon_h <= 0 or args.horizon_flights <= 0:
+        return fail("--horizon-h and --horizon-flights must be > 0")
     if args.threshold is not None and args.threshold <= 1.0:
         return fail("--threshold must be > 1 (a C_Lk ratio)")
     thr = args.threshold
@@ -67,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
             thr = leak_threshold(tolerance_m=args.tolerance_m).ratio
         except ValueError as e:
             return fail(f"--tolerance-m: {e}")
-    cfg = RulConfig(threshold_ratio=thr, horizon_h=args.horizon_h)
+    cfg = RulConfig(threshold_ratio=thr, horizon_h=args.horizon_h,
+                    horizon_flights=args.horizon_flights)  # fmt: skip
     t0 = time.perf_counter()
     try:
         store = open_store_arg(args, create=False)
@@ -92,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
                 "store": store.url,
                 "threshold_ratio": cfg.threshold(),
                 "horizon_h": cfg.horizon_h,
+                "horizon_flights": cfg.horizon_flights,
                 "prior": prior.as_dict(),
                 "actuators": results,
                 "png": png,
@@ -99,16 +108,19 @@ def run(args: argparse.Namespace) -> int:
             }
         )
         return 0
-    print(f"threshold C_Lk ratio {cfg.threshold():.2f}, horizon {cfg.horizon_h:g} h")
+    print(f"threshold C_Lk ratio {cfg.threshold():.2f}, horizon {cfg.horizon_flights:g} flights "
+          f"(histories with flight numbers) or {cfg.horizon_h:g} h")  # fmt: skip
     print(
-        f"{'actuator':<24}{'ratio':>7}{'model':>13}{'RUL h':>9}{'90 % h':>19}{'flights':>9}{'P(H)':>7}"
+        f"{'actuator':<24}{'ratio':>7}{'model':>13}{'RUL median [90 %]':>28}{'days':>8}{'P(H)':>7}"
     )
     for r in results:
-        iv = f"[{_fmt(r['lo_h'])}, {_fmt(r['hi_h'])}]"
+        u = "flights" if r.get("axis") == "flights" else "h"
+        iv = (
+            f"{_fmt(r.get(f'median_{u}'))} [{_fmt(r.get(f'lo_{u}'))}, {_fmt(r.get(f'hi_{u}'))}] {u}"
+        )
         print(
             f"{r['actuator']:<24}{_fmt(r['last_ratio'], '.2f'):>7}{r.get('model', '-'):>13}"
-            f"{_fmt(r['median_h']):>9}{iv:>19}{_fmt(r['median_flights']):>9}"
-            f"{_fmt(r['p_horizon'], '.2f'):>7}"
+            f"{iv:>28}{_fmt(r.get('median_days')):>8}{_fmt(r['p_horizon'], '.2f'):>7}"
         )
     if png:
         print(f"wrote {png}")
@@ -117,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _most_urgent(results: list[dict]) -> str:
     def key(r: dict):
-        m = r.get("median_h")
+        m = r.get("median_flights" if r.get("axis") == "flights" else "median_h")
         return (m is None, m if m is not None else 0.0, -(r.get("last_ratio") or 0.0))
 
     return sorted(results, key=key)[0]["actuator"]

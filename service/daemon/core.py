@@ -144,6 +144,8 @@ class Daemon:
         self.max_batch = max_batch
         self.store_url = store_target(config.store)
         self.store = None  # StoreWriter
+        self._life = None  # FlightStamper, on the first closed period
+        self.config_flight_gap_s = config.prognostics.flight_gap_s
         if self.store_url is not None:
             from service.store.writer import StoreWriter
 
@@ -437,7 +439,54 @@ class Daemon:
 
     def _on_periods(self, periods: list, alarms: list) -> None:
         if self.store is not None:
+            if periods:
+                periods = self._stamper().stamp(periods)
+                self._record_flights(periods)
             self.store.submit(periods, alarms)
+
+    def _record_flights(self, periods: list) -> None:
+        """Each new flight of a unit as a ``servowatch.flight`` record in the daemon's log
+        (a later replay of the log finds the same flights); a process logger has none."""
+        add = getattr(self.logger, "add_metadata", None)
+        if add is None:
+            return
+        from service.flightrec import FLIGHT_RECORD, FlightRecord
+
+        seen = self.__dict__.setdefault("_flights_logged", {})
+        for p in periods:
+            if seen.get(p.actuator) == p.flight:
+                continue
+            seen[p.actuator] = p.flight
+            ac, act = p.actuator.split("/", 1)
+            rec = FlightRecord(ac, act, int(p.flight), p.start_unix, p.start_t)
+            try:
+                add(FLIGHT_RECORD, rec.to_metadata())
+            except Exception as e:  # the log's failure is reported by its own path
+                log.warning("log: flight record of %s: %s", p.actuator, e)
+
+    def _stamper(self):
+        """Flight and calendar time of each period (``service.prognostics.life``: the live
+        sample times are Unix times; flights by the gap rule, continuing the stored ones)."""
+        if getattr(self, "_life", None) is None:
+            from service.prognostics.life import FlightStamper
+            from service.store import open_store
+
+            url = self.store_url
+
+            def last(name: str):
+                try:
+                    with open_store(url, read_only=True) as st:
+                        if name not in st.actuators():
+                            return None
+                        ps = st.periods(name)
+                except Exception as e:  # a store the writer cannot read: count from 0
+                    log.warning("store: last period of %s: %s", name, e)
+                    return None
+                key = lambda p: (p.flight if p.flight is not None else -1, p.start_t)  # noqa: E731
+                return max(ps, key=key, default=None)
+
+            self._life = FlightStamper(last, self.config_flight_gap_s)
+        return self._life
 
     def prognostics_of(self, key: str) -> dict[str, Any]:
         """Status fields of meas key ``key``: commissioning, stored periods, last RUL."""

@@ -127,6 +127,7 @@ class McapLogger:
         }[compression]
         self.zstd_level = int(zstd_level)
         self._metadata = dict(metadata or {})
+        self._records: dict[str, dict[str, str]] = {}  # add_metadata, repeated in each file
         self.paths: list[Path] = []
         self.message_count = 0
         self.flush_count = 0
@@ -170,6 +171,8 @@ class McapLogger:
         self._writer.start(profile="", library=_LIBRARY)
         if self._metadata:
             self._writer.add_metadata("servowatch", self._metadata)
+        for name, md in self._records.items():
+            self._writer.add_metadata(name, md)
         self._channels.clear()
         self._seq.clear()
         self._opened_at = time.monotonic()
@@ -219,6 +222,19 @@ class McapLogger:
         self._channels[topic] = cid
         self._seq[cid] = 0
         return cid
+
+    def add_metadata(self, name: str, metadata: Mapping[str, str]) -> None:
+        """Write an MCAP metadata record ``name`` now (and again at the start of each later
+        rotated file); a later record of the same name replaces it for those files."""
+        md = {str(k): str(v) for k, v in metadata.items()}
+        with self._lock:
+            self._records[name] = md
+            if self._writer is not None and self.failure is None:
+                try:
+                    self._writer.add_metadata(name, md)
+                except Exception as e:
+                    self._failed("metadata", e)
+                    raise
 
     def log(self, topic: str, t: float, msg: Mapping[str, Any]) -> None:
         """Append ``msg`` (flat JSON-serialisable mapping) on ``topic`` at sample time ``t`` [s].

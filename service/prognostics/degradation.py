@@ -1,15 +1,29 @@
-"""Degradation models of the C_Lk ratio y against operating hours t, Bayesian with a fleet prior.
+"""Degradation models of the C_Lk ratio y against a life axis t, Bayesian with a fleet prior.
 
-Every model is linear in its weights w given at most one nonlinear parameter eta on a grid,
-y = Phi(t; eta) w + e, e ~ N(0, sigma^2) (docs/prognostics.md, "Degradation models"):
+The life axis is whatever the history supports (flights, or operating hours; ``rul``); the
+models see it scaled, u = t / T with T the fleet's typical history span (``FleetPrior.t_scale``,
+learned; default: the history's own span), so that no prior or grid assumes the length of a
+period or a unit of time. Every model is linear in its weights w given at most one nonlinear
+parameter eta on a grid, y = Phi(u; eta) w + e, e ~ N(0, sigma^2) (docs/prognostics.md,
+"Degradation models"):
 
 - ``none``        Phi = [1]                                   (no wear)
 - ``linear``      Phi = [1, t]
-- ``exponential`` Phi = [1, (exp(beta t) - 1) / beta], eta = beta > 0 on a log grid
+- ``exponential`` Phi = [1, (exp(beta u) - 1) / beta], eta = beta > 0 on a log grid of
+  beta u_now in [``BETA_SPAN`` range] (relative to the history's own span u_now)
   (MATLAB's exponential degradation model y = phi + theta exp(beta t) with phi = w0 - w1/beta,
   theta = w1/beta; w1 is the initial wear rate, so beta -> 0 is the linear model)
 - ``step``        Phi = [1, H(t - tau), (t - tau)+], eta = tau on the observed times
   (a step of the indicator followed by linear growth)
+- ``power``       Phi = [1, u^p], eta = p on ``POWER_GRID`` (wear that accelerates slower
+  than an exponential)
+
+Residual correlation: when the residuals about the posterior-mean path are positively
+correlated (lag-one autocorrelation rho > 0, a sign that no model describes the path
+exactly), sigma is inflated by sqrt((1 + rho) / (1 - rho)) (the variance of a trend fitted
+to AR(1) errors) and the posterior computed again, so the intervals widen rather than trust
+a misfitting model. The path's diffusion about the model (``diffusion``) spreads each
+draw's crossing time to first order (a drifted random walk's first passage).
 
 Prior: w ~ N(m0, V0) (per model, learned from the fleet, ``FleetPrior``), eta uniform on its
 grid, sigma^2 fixed per unit (its robust first-difference estimate shrunk toward the fleet's).
@@ -23,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,11 +53,15 @@ __all__ = [
     "sample_paths",
     "learn_fleet_prior",
     "BETA_GRID",
+    "BETA_SPAN",
 ]
 
-MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step")
-BETA_GRID = np.geomspace(1e-4, 0.5, 240)
-"""Exponential rates beta [1/h] of the grid."""
+MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power")
+POWER_GRID = np.geomspace(1.25, 4.0, 16)
+"""Exponents p of the ``power`` model's grid."""
+BETA_SPAN = np.geomspace(1e-2, 6.0, 120)
+"""Exponential rates of the grid times the history's span, beta u_now (dimensionless)."""
+BETA_GRID = BETA_SPAN  # kept name: the grid at u_now = 1
 
 
 @dataclass(frozen=True)
@@ -55,11 +73,14 @@ class ModelPrior:
 
 
 def _default_priors() -> dict[str, ModelPrior]:
+    # weights per unit of u (one typical history span): wear rates up to ~10 ratio units
+    # per span (the failure threshold is ~11) are plausible a priori
     return {
         "none": ModelPrior((1.0,), (0.3,)),
-        "linear": ModelPrior((1.0, 0.0), (0.3, 0.2)),
-        "exponential": ModelPrior((1.0, 0.0), (0.3, 0.2)),
-        "step": ModelPrior((1.0, 0.0, 0.0), (0.3, 2.0, 0.2)),
+        "linear": ModelPrior((1.0, 0.0), (0.3, 8.0)),
+        "exponential": ModelPrior((1.0, 0.0), (0.3, 8.0)),
+        "step": ModelPrior((1.0, 0.0, 0.0), (0.3, 2.0, 8.0)),
+        "power": ModelPrior((1.0, 0.0), (0.3, 8.0)),
     }
 
 
@@ -68,12 +89,22 @@ class FleetPrior:
     """Fleet-level prior: model probabilities, weight priors per model, indicator noise."""
 
     p_model: dict[str, float] = field(
-        default_factory=lambda: {"none": 0.4, "linear": 0.2, "exponential": 0.2, "step": 0.2}
+        default_factory=lambda: {
+            "none": 0.4,
+            "linear": 0.15,
+            "exponential": 0.15,
+            "step": 0.15,
+            "power": 0.15,
+        }  # fmt: skip
     )
     weights: dict[str, ModelPrior] = field(default_factory=_default_priors)
     sigma: float = 0.03
     sigma_strength: float = 5.0
     units: int = 0
+    t_scale: float | None = None
+    q2_rel: float = 0.0  # fleet's path diffusion, q^2 t_scale (ratio^2 per history span)
+    cv2: float = 0.0  # fleet's usage spread per observation step (``usage_spread``)
+    kappa: float = 1.0  # interval widening learned by hindcasts on the fleet (``hindcast``)  # T of u = t / T (None: each history's own span)
 
     def as_dict(self) -> dict:
         """Plain dict (JSON)."""
@@ -84,6 +115,10 @@ class FleetPrior:
             },
             "sigma": self.sigma,
             "units": self.units,
+            "t_scale": self.t_scale,
+            "q2_rel": self.q2_rel,
+            "cv2": self.cv2,
+            "kappa": self.kappa,
         }
 
 
@@ -94,12 +129,16 @@ class Fit:
 
     t_now: float
     sigma: float
+    t_scale: float
     p_model: dict[str, float]
     grids: dict[str, NDArray]
     post: dict[str, NDArray]
     means: dict[str, NDArray]
     covs: dict[str, NDArray]
     log_evidence: dict[str, float]
+    q2: float = 0.0  # diffusion of the path about the model [ratio^2 per unit of t]
+    cv2: float = 0.0  # squared coefficient of variation of the wear per step (usage spread)
+    dt: float = 1.0  # mean spacing of the observations [units of t]
 
     def best(self) -> str:
         """The model with the largest posterior probability."""
@@ -107,7 +146,7 @@ class Fit:
 
     def mean_path(self, t: NDArray) -> NDArray:
         """Posterior-mean indicator at times ``t`` (model-averaged)."""
-        t = np.asarray(t, float)
+        t = np.asarray(t, float) / self.t_scale
         y = np.zeros_like(t)
         for m in MODELS:
             for g, pw in enumerate(self.post[m]):
@@ -128,6 +167,8 @@ def _basis(model: str, t: NDArray, eta: float) -> NDArray:
     if model == "step":
         d = t - eta
         return np.stack([one, (d > 0).astype(float), np.maximum(d, 0.0)], axis=1)
+    if model == "power":
+        return np.stack([one, np.maximum(t, 0.0) ** eta], axis=1)
     raise ValueError(f"unknown model {model!r}")
 
 
@@ -143,12 +184,14 @@ def noise_sigma(y: NDArray) -> float:
 
 def _grid(model: str, t: NDArray) -> NDArray:
     if model == "exponential":
-        return BETA_GRID
+        return BETA_SPAN / max(float(t[-1]), 1e-9)
     if model == "step":
         # change points between observations, at least two points after and one before
         if len(t) < 4:
             return np.zeros(0)
         return 0.5 * (t[:-3] + t[1:-2])
+    if model == "power":
+        return POWER_GRID
     return np.zeros(1)
 
 
@@ -180,8 +223,9 @@ def _fit_model(model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPri
 
 
 def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | None = None) -> Fit:
-    """Posterior of the four models (module docstring) for one unit's history: ``t_h``
-    cumulative operating hours, ``y`` the C_Lk ratio (NaN entries are ignored)."""
+    """Posterior of the four models (module docstring) for one unit's history: ``t_h`` its
+    life axis (flights or operating hours, increasing), ``y`` the C_Lk ratio (NaN entries are
+    ignored)."""
     prior = prior or FleetPrior()
     t = np.asarray(t_h, float)
     y = np.asarray(y, float)
@@ -189,11 +233,63 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
     t, y = t[ok], y[ok]
     if len(t) == 0:
         raise ValueError("fit_history: no finite point")
+    t_now = float(t[-1])
+    scale = prior.t_scale if prior.t_scale else max(t_now, 1e-9)
+    t = t / scale
     s_u = noise_sigma(y)
     k0 = prior.sigma_strength
     n_d = max(len(y) - 3, 0) if math.isfinite(s_u) else 0
     s2 = (k0 * prior.sigma**2 + n_d * (s_u**2 if n_d else 0.0)) / (k0 + n_d)
     sigma = max(math.sqrt(s2), 1e-4)
+    fit = _posterior(t, y, sigma, prior, t_now, scale)
+    rho = _lag1(y - fit.mean_path(t * scale))
+    if rho > 0:
+        fit = _posterior(t, y, sigma * math.sqrt((1 + rho) / (1 - rho)), prior, t_now, scale)
+    # path diffusion about the model: the unit's estimate shrunk toward the fleet's (weight
+    # of the fleet: sigma_strength points)
+    q2_u, n_q = diffusion(t * scale, y - fit.mean_path(t * scale))
+    q2_f = prior.q2_rel / scale
+    fit.q2 = (k0 * q2_f + n_q * q2_u) / (k0 + n_q) if n_q else q2_f
+    cv2_u, n_c = usage_spread(t * scale, y, fit, sigma)
+    fit.cv2 = (k0 * prior.cv2 + n_c * cv2_u) / (k0 + n_c) if n_c else prior.cv2
+    fit.dt = float(np.mean(np.diff(t * scale))) if len(t) > 1 else 1.0
+    return fit
+
+
+def usage_spread(t: NDArray, y: NDArray, fit: Fit, sigma: float) -> tuple[float, int]:
+    """Squared coefficient of variation cv^2 of the wear per step of the life axis (units
+    that fly longer or harder some flights wear more in them): the increments y_k+1 - y_k
+    against the posterior-mean path's e_k = y_k+1 - y_k - s_k (s_k the path's increment
+    over dt_k) have E[e_k^2] = 2 sigma^2 + cv^2 s_k^2 / dt_k; cv^2 by least squares through
+    the origin, floored at 0, and the number of increments it rests on (0: too few)."""
+    if len(t) < 6:
+        return 0.0, 0
+    dt = np.diff(t)
+    ok = dt > 0
+    if ok.sum() < 5:
+        return 0.0, 0
+    mp = fit.mean_path(t)
+    e = np.diff(y)[ok] - np.diff(mp)[ok]
+    x = np.diff(mp)[ok] ** 2 / dt[ok]
+    den = float(x @ x)
+    if den <= 0:
+        return 0.0, 0
+    return max(float((e**2 - 2 * sigma**2) @ x) / den, 0.0), int(ok.sum())
+
+
+def _lag1(r: NDArray, max_rho: float = 0.9) -> float:
+    """Lag-one autocorrelation of residuals, in [0, max_rho] (0 below 6 points)."""
+    if len(r) < 6:
+        return 0.0
+    r = r - r.mean()
+    den = float(r @ r)
+    if den <= 0:
+        return 0.0
+    return min(max(float(r[1:] @ r[:-1]) / den, 0.0), max_rho)
+
+
+def _posterior(t, y, sigma, prior, t_now, scale) -> Fit:
+    """The models' posteriors at a fixed sigma (``fit_history``)."""
     grids, post, means, covs, logz = {}, {}, {}, {}, {}
     tot = []
     for m in MODELS:
@@ -217,7 +313,29 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
         else:
             p_model[m] = math.exp(logz[m] + math.log(prior.p_model[m]) - mx) / norm
         post[m] = post[m] * p_model[m]
-    return Fit(float(t[-1]), sigma, p_model, grids, post, means, covs, logz)
+    return Fit(t_now, sigma, float(scale), p_model, grids, post, means, covs, logz)
+
+
+def diffusion(t: NDArray, r: NDArray, max_lag: int = 8) -> tuple[float, int]:
+    """Diffusion q^2 of a random walk in the residuals ``r`` about the model at times ``t``
+    (var(r_j - r_i) = 2 s^2 + q^2 (t_j - t_i): the robust variance of the index-lag-l
+    differences against their mean time lag, l = 1..``max_lag``, slope by least squares,
+    floored at 0) and the number of differences it rests on (0: too few points)."""
+    t, r = np.asarray(t, float), np.asarray(r, float)
+    n = len(r)
+    if n < 6:
+        return 0.0, 0
+    lags = range(1, min(max_lag, n // 2) + 1)
+    v, dt = [], []
+    for lag in lags:
+        d = r[lag:] - r[:-lag]
+        v.append((1.4826 * np.median(np.abs(d - np.median(d)))) ** 2)
+        dt.append(float(np.mean(t[lag:] - t[:-lag])))
+    v, dt = np.asarray(v), np.asarray(dt)
+    if len(v) < 2 or np.ptp(dt) <= 0:
+        return 0.0, 0
+    slope = float(np.polyfit(dt, v, 1)[0])
+    return max(slope, 0.0), n - 1
 
 
 def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> NDArray:
@@ -236,6 +354,10 @@ def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> N
             level = a + c * np.expm1(eta * t_now) / eta
             arg = 1.0 + eta * (thr - a) / c
             tc = np.where((c > 0) & (arg > 0), np.log(arg) / eta, np.inf)
+        elif model == "power":
+            c = w[:, 1]
+            level = a + c * max(t_now, 0.0) ** eta
+            tc = np.where((c > 0) & (thr > a), ((thr - a) / c) ** (1.0 / eta), np.inf)
         else:  # step, eta = tau < t_now
             s, c = w[:, 1], w[:, 2]
             level = a + s + c * max(t_now - eta, 0.0)
@@ -247,7 +369,7 @@ def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> N
 def sample_crossing(
     fit: Fit, threshold: float, n: int = 4000, rng: np.random.Generator | None = None
 ) -> NDArray:
-    """Draws of the time [h] at which the indicator path reaches ``threshold`` (inf: never),
+    """Draws of the life-axis time at which the indicator path reaches ``threshold`` (inf: never),
     from the model-averaged posterior of ``fit``."""
     rng = rng or np.random.default_rng(0)
     keys, probs = [], []
@@ -263,8 +385,43 @@ def sample_crossing(
         if c == 0:
             continue
         w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c), method="cholesky")
-        out.append(_crossing(m, w, float(fit.grids[m][g]), threshold, fit.t_now))
+        u_now = fit.t_now / fit.t_scale
+        eta = float(fit.grids[m][g])
+        uc = _crossing(m, w, eta, threshold, u_now)
+        tc = uc * fit.t_scale
+        if fit.q2 > 0:
+            # first passage of the path plus a random walk of diffusion q2 (inverse-Gaussian
+            # spread about the crossing, to first order): dt = q W(tc - t_now) / slope(tc)
+            slope = _slope(m, w, eta, uc) / fit.t_scale
+            ahead = np.isfinite(tc) & (tc > fit.t_now) & (slope > 0)
+            z = rng.standard_normal(len(tc))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d = np.sqrt(fit.q2 * np.maximum(tc - fit.t_now, 0.0)) * z / slope
+            tc = np.where(ahead, np.maximum(tc + np.where(ahead, d, 0.0), fit.t_now), tc)
+        if fit.cv2 > 0:
+            # usage spread: the steps needed for the remaining wear vary, sd cv sqrt(n dt)
+            ahead = np.isfinite(tc) & (tc > fit.t_now)
+            n_left = np.where(ahead, tc - fit.t_now, 0.0)
+            z = rng.standard_normal(len(tc))
+            tc = np.where(ahead, np.maximum(tc + np.sqrt(fit.cv2 * n_left * fit.dt) * z,
+                                            fit.t_now), tc)  # fmt: skip
+        out.append(tc)
     return np.concatenate(out)
+
+
+def _slope(model: str, w: NDArray, eta: float, u: NDArray) -> NDArray:
+    """d(path)/du at ``u`` (per draw)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if model == "linear":
+            return w[:, 1]
+        if model == "exponential":
+            return w[:, 1] * np.exp(eta * np.where(np.isfinite(u), u, 0.0))
+        if model == "step":
+            return w[:, 2]
+        if model == "power":
+            uu = np.where(np.isfinite(u), np.maximum(u, 0.0), 0.0)
+            return w[:, 1] * eta * uu ** (eta - 1.0)
+    return np.zeros(len(w))
 
 
 def learn_fleet_prior(
@@ -278,9 +435,19 @@ def learn_fleet_prior(
     and its sd the pooled spread (floored at the base sd / 4, inflated x 2 for units not yet
     seen). The noise sigma is the median of the units' robust estimates."""
     base = base or FleetPrior()
+    spans = [
+        float(np.asarray(t, float)[np.isfinite(np.asarray(t, float))].max())
+        for t, _ in histories
+        if np.isfinite(np.asarray(t, float)).any()
+    ]
+    spans = [s for s in spans if s > 0]
+    if base.t_scale is None and spans:
+        base = replace(base, t_scale=float(np.median(spans)))
     counts = dict.fromkeys(MODELS, 1.0)
     ws: dict[str, list[NDArray]] = {m: [] for m in MODELS}
     sig = []
+    q2s: list[float] = []
+    cv2s: list[float] = []
     used = 0
     for t, y in histories:
         t, y = np.asarray(t, float), np.asarray(y, float)
@@ -293,6 +460,12 @@ def learn_fleet_prior(
         if math.isfinite(s):
             sig.append(s)
         f = fit_history(t, y, base)
+        c2, n_c = usage_spread(t, y, f, f.sigma)
+        if n_c and f.best() not in ("none",):
+            cv2s.append(c2)
+        q2_u, n_q = diffusion(t, y - f.mean_path(t))
+        if n_q:
+            q2s.append(q2_u * base.t_scale if base.t_scale else q2_u * float(t[-1]))
         best = f.best()
         counts[best] += 1.0
         g = int(np.argmax(f.post[best]))
@@ -319,7 +492,38 @@ def learn_fleet_prior(
         sigma=max(sigma, 1e-3),
         sigma_strength=base.sigma_strength,
         units=used,
+        t_scale=base.t_scale,
+        q2_rel=float(np.median(q2s)) if q2s else base.q2_rel,
+        cv2=float(np.median(cv2s)) if cv2s else base.cv2,
+        kappa=hindcast(histories, replace(base, units=used), min_points=2 * min_points),
     )
+
+
+def hindcast(
+    histories: Sequence[tuple[NDArray, NDArray]], prior: FleetPrior, min_points: int = 10
+) -> float:
+    """How much wider the predictions must be to hold what the fleet did next: each history
+    of ``min_points`` or more is fitted on all but its last quarter (at least 2 points), its
+    posterior-predictive paths (parameter draws plus sigma) are compared with the held-back
+    points, and kappa^2 = mean(z^2) over the standardised errors z of every unit (the ratio
+    of the errors' variance to the predicted one), floored at 1."""
+    z2: list[float] = []
+    rng = np.random.default_rng(0)
+    for t, y in histories:
+        t, y = np.asarray(t, float), np.asarray(y, float)
+        ok = np.isfinite(t) & np.isfinite(y)
+        t, y = t[ok], y[ok]
+        n = len(t)
+        if n < min_points:
+            continue
+        m = max(2, n // 4)
+        f = fit_history(t[: n - m], y[: n - m], prior)
+        paths = sample_paths(f, t[n - m :], 300, rng)
+        sd = np.sqrt(paths.var(axis=0) + f.sigma**2)
+        z2.extend((((y[n - m :] - paths.mean(axis=0)) / sd) ** 2).tolist())
+    if len(z2) < 6:
+        return 1.0
+    return max(1.0, math.sqrt(float(np.mean(z2))))
 
 
 def sample_paths(
@@ -340,5 +544,5 @@ def sample_paths(
     for (m, g), c in zip(keys, counts, strict=True):
         if c:
             w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c))
-            out.append(w @ _basis(m, t, float(fit.grids[m][g])).T)
+            out.append(w @ _basis(m, t / fit.t_scale, float(fit.grids[m][g])).T)
     return np.concatenate(out)

@@ -1,41 +1,48 @@
 """Fleet simulator for validating the prognostics (docs/prognostics.md, "Fleet simulator").
 
-Each unit gets a hidden wear law of its true C_Lk ratio r(t) against cumulative operating
-hours t (C_Lk = r C_Lk,nominal):
+The simulator makes what a user has, a folder of measurement logs, and takes them the user's
+way: one MCAP log per unit and flight (``/fleet/{aircraft}/{actuator}/meas`` with its
+``servowatch.flight`` record, ``service.flightrec``), the unit's baseline calibrated on its
+flight 0 (``service.calibration.calibrate``, as ``servowatch calibrate --log``), and every
+log ingested by ``service.replay.replay_many`` (the code of ``servowatch replay``: monitor,
+periods, flights, calendar time, alarms). No period is written any other way.
 
-- ``none``: r = 1;  ``linear``: r = 1 + k t;  ``exponential``: r = 1 + a (exp(b t) - 1);
-- ``step``: r = 1 before t_s, r = 1 + s + k (t - t_s) after (a step at a random flight,
-  then growth);
+Each unit gets a hidden wear law of its true C_Lk ratio r against its damage d (operating
+hours; for ``load`` hours times the flight's load factor squared), C_Lk = r C_Lk,nominal:
+
+- ``none``: r = 1;  ``linear``: r = 1 + k d;  ``exponential``: r = 1 + a (exp(b d) - 1);
+- ``step``: r = 1 before d_s, r = 1 + s + k (d - d_s) after;
+- ``power``: r = 1 + k d^p, p in [1.5, 3] (outside the RUL's model set);
+- ``load``: r = 1 + k sum(hours x load^2) (wear that speeds up with load; outside it too);
 
 with the rates drawn so that the end of life (r reaching the fleet threshold) falls between
-0.4 and 1.2 times the simulated hours, and unit-to-unit plant variation (mass, viscous and
-dry friction, land underlap at a fixed port width, oil bulk modulus). Every flight is a short
-segment of the duty cycle of ``scenarios/healthy_noise.toml`` on the HF bench at that flight's
-leakage, with the scenario's sensor noise (seeded per unit and flight), through the real
-monitor (``MonitorBank.update_arrays``, the unit's own baseline calibrated on its first flight
-by ``service.calibration.calibrate``) and ``PeriodAccumulator``; one period per flight, whose
-``op_time_s`` is the flight's operating time (the segment stands for the whole flight).
-Units are independent, so they are simulated in parallel worker processes.
+0.4 and 1.2 times the simulated hours. What varies between units and flights: plant
+(mass, viscous and dry friction, land underlap, oil bulk modulus), sensor noise (x 0.8-1.5),
+operating hours per flight, load (x 0.6-1.4 of the scenario's 4 kN) and command amplitude
+per flight, 1-3 flights a day with a fifth of the days missed, and the log length (the
+typical ``segment_s``, a short ground test, or three times longer). Every log is the duty
+cycle of ``scenarios/healthy_noise.toml`` on the HF bench at the flight's leakage.
+Units are independent, so their logs are simulated in parallel worker processes.
 
-``evaluate`` predicts the RUL at every ``eval_every``-th flight from the history so far (the
-fleet prior learned from every unit's history up to the same flight) and scores it with
-``metrics.score_unit`` against the truth.
+``evaluate`` predicts the RUL after each flight from the stored history so far and scores it
+against the truth on the life axis of flights.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import tempfile
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
+from pathlib import Path
 
 import numpy as np
 
 from service.prognostics.metrics import LAMBDAS, score_unit
-from service.store.records import AlarmEvent, Period
 
 __all__ = [
     "FleetSimConfig",
@@ -44,18 +51,26 @@ __all__ = [
     "simulate_unit",
     "run_fleet_sim",
     "evaluate",
+    "kendall_tau",
     "WEAR_LAWS",
+    "MODEL_LAWS",
 ]
 
-WEAR_LAWS: tuple[str, ...] = ("none", "linear", "exponential", "step")
+WEAR_LAWS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power", "load")
+MODEL_LAWS: tuple[str, ...] = ("none", "linear", "exponential", "step")
+"""The wear laws that are also models of the RUL (``degradation.MODELS``)."""
 C_LK_NOMINAL = 2e-13
-FLIGHT_GAP_S = 60.0  # sample-time gap between two flights' segments (closes the period)
+EPOCH0 = 1.7e9  # calendar time of the fleet's first day [Unix s]
+F_R_NOMINAL = 4000.0  # the scenario's load [N]
 
 
 @dataclass(frozen=True)
 class FleetSimConfig:
-    """Fleet size, flights, seed, segment length [s], the fleet threshold (C_Lk ratio; None
-    = ``threshold.leak_threshold``), evaluation cadence and horizon, worker processes."""
+    """Fleet size, flights, seed, typical log length per flight [s] (each flight's log is
+    drawn from a few seconds to several times it), the calibration flight's [s], the fleet
+    threshold (C_Lk ratio; None = ``threshold.leak_threshold``), evaluation cadence, horizon
+    (flights), worker processes, the monitor's process model, where the logs go (None: a
+    temporary folder)."""
 
     actuators: int = 6
     flights: int = 20
@@ -64,12 +79,15 @@ class FleetSimConfig:
     calibration_s: float = 4.0
     threshold_ratio: float | None = None
     eval_every: int = 1
-    min_history: int = 5
-    prior_every: int = 10
+    min_history: int = 8
+    prior_every: int = 5
     horizon_h: float = 50.0
+    horizon_flights: float = 20.0
     warn_p: float = 0.2
     n_samples: int = 2000
     workers: int = 0  # 0: min(2, cpu count)
+    model: str = "C5"
+    log_dir: str | None = None
 
     def threshold(self) -> float:
         """The fleet threshold in use."""
@@ -82,9 +100,11 @@ class FleetSimConfig:
 
 @dataclass
 class UnitTruth:
-    """The hidden truth of one unit: wear law and its parameters, plant overrides, hours of
-    each flight, true C_Lk ratio at each flight, end of life (hours and flights, inf if not
-    reached at any time)."""
+    """The hidden truth of one unit: wear law and parameters, plant overrides, per flight
+    (simulated ones and a schedule beyond, for the end of life) its operating hours, load
+    factor, calendar start, log length, the true C_Lk ratio at each flown flight, and the end
+    of life on the life axis of flights (the crossing between two flights, interpolated; inf
+    if none within the schedule) and in hours."""
 
     actuator: str
     index: int
@@ -92,33 +112,62 @@ class UnitTruth:
     wear: dict[str, float]
     plant: dict[str, float]
     flight_hours: list[float]
+    flight_load: list[float] = field(default_factory=list)
+    flight_start_unix: list[float] = field(default_factory=list)
+    log_s: list[float] = field(default_factory=list)
+    noise: float = 1.0
     ratio: list[float] = field(default_factory=list)
     eol_h: float = math.inf
     eol_flight: float = math.inf
     flown: int = 0
 
-    def ratio_at(self, t_h: float) -> float:
-        """True C_Lk ratio at cumulative operating hours ``t_h``."""
+    def damage(self) -> np.ndarray:
+        """Damage before each flight of the schedule: operating hours (``load``: hours times
+        the load factor squared)."""
+        h = np.asarray(self.flight_hours, float)
+        if self.law == "load":
+            h = h * np.asarray(self.flight_load, float) ** 2
+        return np.concatenate(([0.0], np.cumsum(h)[:-1]))
+
+    def ratio_at(self, d: float) -> float:
+        """True C_Lk ratio at damage ``d`` (operating hours for every law but ``load``)."""
         w = self.wear
-        if self.law == "linear":
-            return 1.0 + w["k"] * t_h
+        if self.law in ("linear", "load"):
+            return 1.0 + w["k"] * d
         if self.law == "exponential":
-            return 1.0 + w["a"] * math.expm1(w["b"] * t_h)
+            return 1.0 + w["a"] * math.expm1(w["b"] * d)
+        if self.law == "power":
+            return 1.0 + w["k"] * d ** w["p"]
         if self.law == "step":
-            if t_h < w["t_s"]:
+            if d < w["t_s"]:
                 return 1.0
-            return 1.0 + w["s"] + w["k"] * (t_h - w["t_s"])
+            return 1.0 + w["s"] + w["k"] * (d - w["t_s"])
         return 1.0
 
+    def ratios(self) -> np.ndarray:
+        """True ratio at each flight of the schedule."""
+        return np.array([self.ratio_at(float(d)) for d in self.damage()])
 
-def _eol_hours(law: str, w: dict[str, float], thr: float) -> float:
+
+def _draw_wear(law: str, rng: np.random.Generator, thr: float, total: float, lsq: float):
+    t_eol = rng.uniform(0.4, 1.2) * total
+    w: dict[str, float] = {}
     if law == "linear":
-        return (thr - 1.0) / w["k"]
-    if law == "exponential":
-        return math.log1p((thr - 1.0) / w["a"]) / w["b"]
-    if law == "step":
-        return w["t_s"] + (thr - 1.0 - w["s"]) / w["k"]
-    return math.inf
+        w["k"] = (thr - 1.0) / t_eol
+    elif law == "exponential":
+        w["b"] = rng.uniform(2.0, 4.0) / t_eol
+        w["a"] = (thr - 1.0) / math.expm1(w["b"] * t_eol)
+    elif law == "power":
+        w["p"] = rng.uniform(1.5, 3.0)
+        w["k"] = (thr - 1.0) / t_eol ** w["p"]
+    elif law == "load":
+        w["k"] = (thr - 1.0) / (t_eol * lsq)
+    elif law == "step":
+        w["t_s"] = rng.uniform(0.15, 0.45) * total
+        t_eol = max(t_eol, w["t_s"] + 0.25 * total)
+        w["s"] = rng.uniform(0.5, 2.5)
+        w["k"] = (thr - 1.0 - w["s"]) / (t_eol - w["t_s"])
+    return w
 
 
 def draw_units(cfg: FleetSimConfig) -> list[UnitTruth]:
@@ -129,23 +178,28 @@ def draw_units(cfg: FleetSimConfig) -> list[UnitTruth]:
     thr = cfg.threshold()
     p0 = EHAParams()
     units = []
+    n_sched = 4 * cfg.flights  # the schedule beyond the simulated flights (end of life)
     for i in range(cfg.actuators):
         law = WEAR_LAWS[i % len(WEAR_LAWS)] if i < len(WEAR_LAWS) else str(rng.choice(WEAR_LAWS))
         hpf = rng.uniform(1.0, 3.0)
-        hours = (hpf * rng.uniform(0.8, 1.2, cfg.flights)).tolist()
-        total = float(np.sum(hours))
-        t_eol = rng.uniform(0.4, 1.2) * total
-        w: dict[str, float] = {}
-        if law == "linear":
-            w["k"] = (thr - 1.0) / t_eol
-        elif law == "exponential":
-            w["b"] = rng.uniform(2.0, 4.0) / t_eol
-            w["a"] = (thr - 1.0) / math.expm1(w["b"] * t_eol)
-        elif law == "step":
-            w["t_s"] = rng.uniform(0.15, 0.45) * total
-            t_eol = max(t_eol, w["t_s"] + 0.25 * total)
-            w["s"] = rng.uniform(0.5, 2.5)
-            w["k"] = (thr - 1.0 - w["s"]) / (t_eol - w["t_s"])
+        hours = hpf * rng.uniform(0.8, 1.2, n_sched)
+        load = rng.uniform(0.6, 1.4, n_sched)
+        total = float(np.sum(hours[: cfg.flights]))
+        w = _draw_wear(law, rng, thr, total, float(np.mean(load**2)))
+        # calendar: 1-3 flights a day, a fifth of the days without a flight
+        per_day = int(rng.integers(1, 4))
+        starts, day = [], 0
+        while len(starts) < n_sched:
+            if rng.uniform() >= 0.2:
+                starts += [EPOCH0 + 86400.0 * day + 3600.0 * (6 + 4 * j) for j in range(per_day)]
+            day += 1
+        # log length: mostly the typical one, some ground-test short, some long
+        kind = rng.choice(3, n_sched, p=[0.6, 0.25, 0.15])
+        log_s = np.where(
+            kind == 0, cfg.segment_s,
+            np.where(kind == 1, max(1.5, 0.5 * cfg.segment_s), 3.0 * cfg.segment_s),
+        )  # fmt: skip
+        log_s[0] = cfg.calibration_s
         fr = rng.uniform(0.8, 1.3)
         u = p0.x_ss * rng.uniform(0.9, 1.2)
         plant = {
@@ -160,99 +214,103 @@ def draw_units(cfg: FleetSimConfig) -> list[UnitTruth]:
             "w": p0.w_eff,
             "beta_l": p0.beta_l * rng.uniform(0.75, 1.1),
         }
-        unit = UnitTruth(f"FS{cfg.seed}-{i:03d}/eha", i, law, w, plant, hours)
-        unit.eol_h = _eol_hours(law, w, thr)
+        unit = UnitTruth(
+            f"FS{cfg.seed}-{i:03d}/eha", i, law, w, plant, hours.tolist(), load.tolist(),
+            starts[:n_sched], log_s.tolist(), float(rng.uniform(0.8, 1.5)),
+        )  # fmt: skip
+        _set_eol(unit, thr)
         units.append(unit)
     return units
 
 
+def _set_eol(unit: UnitTruth, thr: float) -> None:
+    """End of life on the flights axis (flight k is at k + 1, its ratio read before it) and
+    in operating hours (the same interpolation on cumulative hours)."""
+    r = unit.ratios()
+    above = np.flatnonzero(r >= thr)
+    if unit.law == "none" or len(above) == 0:
+        return
+    j = int(above[0])
+    cum_h = np.concatenate(([0.0], np.cumsum(unit.flight_hours)[:-1]))
+    if j == 0:
+        unit.eol_flight, unit.eol_h = 1.0, 0.0
+        return
+    f = (thr - r[j - 1]) / (r[j] - r[j - 1])
+    unit.eol_flight = float(j + f)  # between x = j (flight j-1) and x = j + 1 (flight j)
+    unit.eol_h = float(cum_h[j - 1] + f * (cum_h[j] - cum_h[j - 1]))
+
+
 def _segment(unit: UnitTruth, flight: int, ratio: float, cfg: FleetSimConfig):
-    """Measured signals of one flight's segment (HF bench + the scenario's sensor noise)."""
+    """Measured signals of one flight's log (HF bench at the flight's leakage, load and
+    command amplitude, with the scenario's sensor noise times the unit's factor)."""
     from models.scenario import Profile
     from service.calibration import measured_run
     from service.scenarios import load_scenario
 
     base = load_scenario("healthy_noise")
     seed = int(np.random.SeedSequence([cfg.seed, unit.index, flight]).generate_state(1)[0])
+    load = unit.flight_load[flight] if flight > 0 else 1.0
+    sens = base.sensors
+    noisy = {k: getattr(sens, k) * unit.noise for k in ("x_s_m", "x_j_m", "p_pa", "p_sr_pa",
+                                                          "current_a")}  # fmt: skip
+    amp = 0.75 + 0.5 * ((flight * 0.618034) % 1.0) if flight > 0 else 1.0
+    cmd = base.command.model_copy(
+        update={"periodic": [p.model_copy(update={"amplitude": p.amplitude * amp})
+                             for p in base.command.periodic]}
+    )  # fmt: skip
     sc = base.model_copy(
         update={
             "name": f"{unit.actuator}#{flight}",
-            "duration_s": cfg.calibration_s if flight == 0 else cfg.segment_s,
+            "duration_s": float(unit.log_s[flight]),
             "params": dict(unit.plant),
             "leak": Profile(initial=ratio * C_LK_NOMINAL),
-            "sensors": base.sensors.model_copy(update={"seed": seed}),
+            "load": Profile(initial=F_R_NOMINAL * load),
+            "command": cmd,
+            "sensors": sens.model_copy(update={"seed": seed, **noisy}),
         }
     )
     return measured_run(sc)[1]
 
 
-def simulate_unit(unit: UnitTruth, cfg: FleetSimConfig) -> dict:
-    """All flights of one unit (stops after the flight in which it reaches its end of life):
-    periods (dicts), alarm events (dicts), the baseline, the truth, counts and wall time."""
-    from service.calibration import calibrate, meas_channels
-    from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, MonitorBank, MonitorConfig
-    from service.prognostics.indicators import PeriodAccumulator
+def simulate_unit(unit: UnitTruth, cfg: FleetSimConfig, log_dir: str) -> dict:
+    """One unit's flights as MCAP logs, one per flight with its ``servowatch.flight`` record
+    (stops after the flight in which it reaches its end of life), and its baseline calibrated
+    on flight 0 (``service.calibration.calibrate``, as ``servowatch calibrate --log``)."""
+    from service.calibration import calibrate
+    from service.flightrec import FlightRecord, write_flight_log
 
     w0 = time.perf_counter()
-    source = f"fleet-sim:{cfg.seed}"
     thr = cfg.threshold()
-    cum = np.cumsum(unit.flight_hours)
+    ratios = unit.ratios()
+    ac, act = unit.actuator.split("/")
+    folder = Path(log_dir) / ac
+    folder.mkdir(parents=True, exist_ok=True)
     baseline = None
-    bank = acc = None
-    key = unit.actuator
-    periods: list[dict] = []
-    events: list[dict] = []
-    false_alarms = 0
+    logs: list[str] = []
     truth_ratio: list[float] = []
     for k in range(cfg.flights):
-        ratio = unit.ratio_at(float(cum[k] - cum[0]))
+        ratio = float(ratios[k])
         truth_ratio.append(ratio)
         meas = _segment(unit, k, ratio, cfg)
         if baseline is None:
-            baseline = calibrate(meas)
-            bank = MonitorBank(MonitorConfig(), baseline, capacity=1)
-            row = bank.index_of(key)
-            acc = PeriodAccumulator(key, baseline.c_lk, source, EST_KEYS, HEALTH_KEYS, RES_KEYS)
-        n = len(meas["t"])
-        ch = meas_channels(meas)
-        t = meas["t"] + k * (cfg.calibration_s + FLIGHT_GAP_S)
-        rows = bank.update_arrays(np.full(n, row, np.int64), t, ch)
-        acc.add_rows(
-            rows.t, rows.est, rows.health, rows.res, counters=bank.counters_of(key), flight=k
-        )
-        for p in acc.flush():
-            periods.append(replace(p, op_time_s=unit.flight_hours[k] * 3600.0).to_dict())
-        clear = bank.config.alarms.leak_clear
-        for ev in acc.alarm_events():
-            events.append(asdict(ev))
-            if ev.kind != "leak" or ratio < clear:
-                false_alarms += 1
+            baseline = calibrate(meas, cfg.model)
+        rec = FlightRecord(ac, act, k, unit.flight_start_unix[k])
+        ch = {c: v for c, v in meas.items() if c != "t"}
+        logs.append(str(write_flight_log(folder / f"{act}-f{k:04d}.mcap", rec, meas["t"], ch)))
         if ratio >= thr:
             break
     unit.ratio = truth_ratio
     unit.flown = len(truth_ratio)
-    if math.isfinite(unit.eol_h):
-        unit.eol_h += float(cum[0])
-        j = int(np.searchsorted(cum, unit.eol_h))
-        prev = float(cum[j - 1]) if j > 0 else 0.0
-        if j < len(cum):
-            unit.eol_flight = j + (unit.eol_h - prev) / unit.flight_hours[j]
-        else:
-            unit.eol_flight = len(cum) + (unit.eol_h - float(cum[-1])) / float(
-                np.mean(unit.flight_hours)
-            )
     return {
         "truth": asdict(unit),
-        "periods": periods,
-        "events": events,
+        "logs": logs,
         "baseline": baseline.model_dump() if baseline is not None else None,
-        "false_alarms": false_alarms,
         "segments": unit.flown,
         "wall_s": time.perf_counter() - w0,
     }
 
 
-def _sim_job(args: tuple[UnitTruth, FleetSimConfig]) -> dict:
+def _sim_job(args: tuple[UnitTruth, FleetSimConfig, str]) -> dict:
     return simulate_unit(*args)
 
 
@@ -261,36 +319,91 @@ def run_fleet_sim(
     store=None,
     progress: Callable[[float], None] | None = None,
 ) -> dict:
-    """Simulate the fleet; periods, baselines and alarms go to ``store`` (a ``HealthStore``)
-    when given. Returns {"units": [simulate_unit results], "wall_s": ...}."""
-    w0 = time.perf_counter()
-    units = draw_units(cfg)
-    workers = cfg.workers or min(2, os.cpu_count() or 1)
-    results: list[dict] = []
-    jobs = [(u, cfg) for u in units]
+    """Simulate the fleet into MCAP logs (``cfg.log_dir``), record each unit's baseline and
+    ingest every log through ``service.replay.replay_many`` (the replay's code: periods,
+    flights, calendar times and alarms) into ``store`` (a ``HealthStore``; None: a temporary
+    SQLite store). Returns {"units": [simulate_unit results with the stored "periods" (dicts)
+    and "false_alarms"], "wall_s", "ingest_wall_s", "logs"}."""
+    from service.monitor import MonitorConfig
+    from service.replay import log_order, replay_many
+    from service.store import open_store
 
-    def done(r: dict) -> None:  # each unit is stored as soon as it is simulated
-        results.append(r)
-        if store is not None:
+    w0 = time.perf_counter()
+    tmp = tempfile.TemporaryDirectory(prefix="fleet-sim-")
+    log_dir = cfg.log_dir or tmp.name
+    own = store is None
+    if own:
+        store = open_store(Path(tmp.name) / "fleet.sqlite")
+    try:
+        units = draw_units(cfg)
+        workers = cfg.workers or min(2, os.cpu_count() or 1)
+        jobs = [(u, cfg, log_dir) for u in units]
+        results: list[dict] = []
+        if workers <= 1 or len(units) <= 1:
+            for job in jobs:
+                results.append(_sim_job(job))
+                if progress:
+                    progress(0.5 * len(results) / len(jobs))
+        else:
+            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
+                for r in ex.map(_sim_job, jobs):
+                    results.append(r)
+                    if progress:
+                        progress(0.5 * len(results) / len(jobs))
+        for r in results:
             a = r["truth"]["actuator"]
             store.ensure_actuator(a)
             last = store.latest_baseline(a)
             if r["baseline"] is not None and (last is None or last.baseline != r["baseline"]):
-                store.add_baseline(a, r["baseline"], f"fleet-sim:{cfg.seed} first flight")
-            store.add_periods([Period.from_dict(p) for p in r["periods"]])
-            if r["events"]:
-                store.add_alarms([AlarmEvent(**e) for e in r["events"]])
-        if progress:
-            progress(len(results) / len(jobs))
+                store.add_baseline(a, r["baseline"], f"fleet-sim:{cfg.seed} flight 0")
+        logs = log_order([Path(p) for r in results for p in r["logs"]])
+        w1 = time.perf_counter()
+        done = [0]
 
-    if workers <= 1 or len(units) <= 1:
-        for job in jobs:
-            done(_sim_job(job))
-    else:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
-            for r in ex.map(_sim_job, jobs):
-                done(r)
-    return {"units": results, "wall_s": time.perf_counter() - w0}
+        def on_log(p, s, err) -> None:
+            if err is not None:
+                raise err
+            done[0] += 1
+            if progress:
+                progress(0.5 + 0.5 * done[0] / len(logs))
+
+        replay_many(logs, store, on_log=on_log, monitor_config=MonitorConfig(model=cfg.model))
+        ingest = time.perf_counter() - w1
+        clear = MonitorConfig().alarms.leak_clear
+        for r in results:
+            a = r["truth"]["actuator"]
+            r["periods"] = [p.to_dict() for p in store.periods(a)]
+            ratio = r["truth"]["ratio"]
+            flight_of = {p["source"]: p["flight"] for p in r["periods"]}  # one log, one flight
+            fa = 0
+            for ev in store.alarms(a):
+                fl = flight_of.get(ev.source)
+                true = ratio[fl] if fl is not None and fl < len(ratio) else ratio[-1]
+                if ev.kind != "leak" or true < clear:
+                    fa += 1
+            r["false_alarms"] = fa
+    finally:
+        if own:
+            store.close()
+        if cfg.log_dir is None:
+            tmp.cleanup()
+    return {"units": results, "wall_s": time.perf_counter() - w0, "ingest_wall_s": ingest,
+            "logs": len(logs)}  # fmt: skip
+
+
+def kendall_tau(pred: list[float], true: list[float]) -> float | None:
+    """Kendall's tau-b of two orders (inf allowed: "none predicted" / "never"); None below
+    three units or when either order is all ties."""
+    from scipy.stats import kendalltau
+
+    if len(pred) < 3:
+        return None
+    big = 1e12
+    p = np.where(np.isfinite(pred), pred, big)
+    t = np.where(np.isfinite(true), true, big)
+    if len(set(p.tolist())) < 2 or len(set(t.tolist())) < 2:
+        return None
+    return float(kendalltau(p, t).statistic)
 
 
 def evaluate(
@@ -300,85 +413,110 @@ def evaluate(
     learn: Callable | None = None,
     predict: Callable | None = None,
 ) -> dict:
-    """RUL predictions at every ``eval_every``-th flight from the history so far, scored
-    against the truth (module docstring). ``learn(histories) -> prior`` (default
-    ``learn_fleet_prior``) gets every unit's observable (t_h, y) up to the same flight;
-    ``predict(history, prior, rul_config) -> (median RUL [h] or inf, warning) | None``
-    (default ``rul_of_history``): another method can be scored on the same histories
-    (bench/prognostics.py). Returns the metrics and per-unit details."""
+    """RUL predictions after every ``eval_every``-th flight from the stored history up to it
+    (the fleet prior learned from every unit's history up to the same flight, every
+    ``prior_every`` flights), on the life axis of flights, scored against the truth:
+    alpha-lambda (+-20 %) and relative accuracy at lambda 0.5-0.9 (``metrics.score_unit``),
+    the share of 90 % intervals that hold the true RUL from mid-life on (and over all
+    predictions before the end of life), Kendall's tau of the fleet's order (median RUL,
+    ``servowatch fleet``'s key) against the true RUL at each checkpoint with at least three
+    units, and the healthy units' largest probability of crossing within the horizon.
+    ``learn(histories) -> prior`` (default ``learn_fleet_prior``) gets every unit's
+    observable (flights, y); ``predict(history, prior, rul_config)`` returns
+    ``rul_of_history``'s dict (default) or (median RUL in flights or inf, warning) | None
+    (another method, bench/prognostics.py; no interval then)."""
     from service.prognostics.degradation import learn_fleet_prior
     from service.prognostics.rul import RulConfig, history_of, rul_of_history
+    from service.store.records import Period
 
     rcfg = RulConfig(
-        threshold_ratio=cfg.threshold(), horizon_h=cfg.horizon_h, warn_p=cfg.warn_p,
-        n_samples=cfg.n_samples, min_periods=cfg.min_history,
+        threshold_ratio=cfg.threshold(), horizon_h=cfg.horizon_h,
+        horizon_flights=cfg.horizon_flights, warn_p=cfg.warn_p, n_samples=cfg.n_samples,
+        min_periods=cfg.min_history,
     )  # fmt: skip
-
-    def _ours(h, prior, rc):
-        res = rul_of_history(h, prior, rc)
-        if res["status"] != "ok":
-            return None
-        med = res["median_h"] if res["median_h"] is not None else math.inf
-        return med, bool(res["warning"])
-
     learn = learn or learn_fleet_prior
-    predict = predict or _ours
+    predict = predict or rul_of_history
     hist = {}
     for r in results:
         a = r["truth"]["actuator"]
         hist[a] = history_of(a, [Period.from_dict(p) for p in r["periods"]])
     truths = {r["truth"]["actuator"]: r["truth"] for r in results}
-    preds: dict[str, list[tuple[float, float, bool]]] = {a: [] for a in hist}
+    # per unit: (t_now, median, lo, hi, p_horizon, warning)
+    preds: dict[str, list[tuple]] = {a: [] for a in hist}
+    taus: list[float] = []
+    max_f = max(int(np.nanmax(h.flight)) for h in hist.values() if len(h.y))
+    ks = list(range(cfg.min_history - 1, max_f + 1, max(1, cfg.eval_every)))
     prior = None
-    max_k = max(len(h.t_h) for h in hist.values())
-    ks = list(range(cfg.min_history - 1, max_k, max(1, cfg.eval_every)))
-    every = max(1, cfg.prior_every // max(1, cfg.eval_every))
     for step, k in enumerate(ks):
-        if prior is None or step % every == 0:
-            obs = []
-            for h in hist.values():
-                ok = np.isfinite(h.y[: k + 1])
-                obs.append((h.t_h[: k + 1][ok], h.y[: k + 1][ok]))
-            prior = learn(obs)
+        heads = {}
         for a, h in hist.items():
-            if k >= len(h.t_h):
+            n = int(np.sum(h.flight <= k))
+            if n and (h.flight[n - 1] == k):
+                heads[a] = h.head(n)
+        if not heads:
+            continue
+        if prior is None or step % max(1, cfg.prior_every // max(1, cfg.eval_every)) == 0:
+            prior = learn([h.observed() for h in hist_heads(hist, k)])
+        row_p, row_t = [], []
+        for a, h in heads.items():
+            res = predict(h, prior, rcfg)
+            if res is None or (isinstance(res, dict) and res["status"] != "ok"):
                 continue
-            sub = replace(h, t_h=h.t_h[: k + 1], y=h.y[: k + 1])
-            res = predict(sub, prior, rcfg)
-            if res is None:
-                continue
-            preds[a].append((float(sub.t_h[-1]), float(res[0]), bool(res[1])))
+            if isinstance(res, dict):
+                med = res["median_flights"]
+                med = math.inf if med is None else med
+                lo = res["lo_flights"] if res["lo_flights"] is not None else math.inf
+                hi = res["hi_flights"] if res["hi_flights"] is not None else math.inf
+                ph, warn = res["p_horizon"], bool(res["warning"])
+            else:
+                med, warn = float(res[0]), bool(res[1])
+                lo = hi = ph = None
+            t_now = h.t_now()
+            preds[a].append((t_now, med, lo, hi, ph, warn))
+            eol = truths[a]["eol_flight"]
+            if t_now < eol:
+                row_p.append(med)
+                row_t.append(eol - t_now)
+        tau = kendall_tau(row_p, row_t)
+        if tau is not None:
+            taus.append(tau)
         if progress:
             progress((step + 1) / len(ks))
-    by_law: dict[str, dict[str, list]] = {law: {"acc": [], "ra": [], "ph": []} for law in WEAR_LAWS}
+    by_law: dict[str, dict[str, list]] = {}
     units = []
-    healthy = 0
-    false_warn = 0
+    healthy = false_warn = 0
+    healthy_p: list[float] = []
+    cov_all: list[bool] = []
     for a, p in preds.items():
         tr = truths[a]
-        warned = any(w for _, _, w in p)
-        row = {
-            "actuator": a,
-            "law": tr["law"],
-            "eol_h": tr["eol_h"],
-            "predictions": len(p),
-            "warned": warned,
-        }
+        warned = any(x[5] for x in p)
+        row = {"actuator": a, "law": tr["law"], "eol_flight": tr["eol_flight"],
+               "predictions": len(p), "warned": warned}  # fmt: skip
+        eol = tr["eol_flight"]
         if tr["law"] == "none":
             healthy += 1
             false_warn += int(warned)
-        elif (
-            p
-            and tr["eol_h"] <= float(np.sum(tr["flight_hours"][: tr["flown"]]))
-            and p[0][0] < tr["eol_h"]
-        ):
-            s = score_unit([x[0] for x in p], [x[1] for x in p], tr["eol_h"])
+            ps = [x[4] for x in p if x[4] is not None]
+            healthy_p.extend(ps)
+            row["max_p_horizon"] = max(ps) if ps else None
+        elif p and eol <= tr["flown"] + 1 and p[0][0] < eol:
+            before = [x for x in p if x[0] < eol]
+            s = score_unit([x[0] for x in before], [x[1] for x in before], eol)
+            t_s = before[0][0]
+            cov = [x[2] <= eol - x[0] <= x[3] for x in before if x[2] is not None]
+            cov_mid = [x[2] <= eol - x[0] <= x[3] for x in before
+                       if x[2] is not None and x[0] >= t_s + 0.5 * (eol - t_s)]  # fmt: skip
+            cov_all.extend(cov)
+            by_law.setdefault(tr["law"], {"acc": [], "ra": [], "ph": [], "cov": []})
             by_law[tr["law"]]["acc"].extend(s.accurate)
             by_law[tr["law"]]["ra"].append(s.relative_accuracy[0])
             by_law[tr["law"]]["ph"].append(s.horizon_frac)
-            row.update(
-                accurate=list(s.accurate), ra_05=s.relative_accuracy[0], ph_frac=s.horizon_frac
-            )
+            by_law[tr["law"]]["cov"].extend(cov_mid)
+            row.update(accurate=list(s.accurate), ra_05=s.relative_accuracy[0],
+                       ph_frac=s.horizon_frac,
+                       coverage_mid_pct=100.0 * float(np.mean(cov_mid)) if cov_mid else None,
+                       last=[round(x, 2) if math.isfinite(x) else None
+                             for x in (before[-1][0], before[-1][1], eol - before[-1][0])])  # fmt: skip
         units.append(row)
 
     def pct(v: list) -> float | None:
@@ -388,21 +526,30 @@ def evaluate(
         v = [max(x, 0.0) for x in v]  # a missed prediction (inf) scores 0, not -inf
         return 100.0 * float(np.mean(v)) if v else None
 
-    target = ("linear", "exponential")
-    acc_t = [x for law in target for x in by_law[law]["acc"]]
-    ra_t = [x for law in target for x in by_law[law]["ra"]]
-    ph_t = [x for law in target for x in by_law[law]["ph"]]
+    laws = [law for law in by_law if law != "none"]
+    acc = [x for law in laws for x in by_law[law]["acc"]]
+    ra = [x for law in laws for x in by_law[law]["ra"]]
+    ph = [x for law in laws for x in by_law[law]["ph"]]
+    cov = [x for law in laws for x in by_law[law]["cov"]]
     return {
-        "alpha_lambda_pct": pct(acc_t),
-        "relative_accuracy_pct": ra_pct(ra_t),
-        "prognostic_horizon_pct": pct(ph_t),
-        "scored_units": len(ra_t),
+        "axis": "flights",
+        "alpha_lambda_pct": pct(acc),
+        "relative_accuracy_pct": ra_pct(ra),
+        "prognostic_horizon_pct": pct(ph),
+        "interval_coverage_pct": pct(cov),
+        "interval_coverage_all_pct": pct(cov_all),
+        "kendall_tau": float(np.mean(taus)) if taus else None,
+        "kendall_tau_min": float(np.min(taus)) if taus else None,
+        "kendall_checkpoints": len(taus),
+        "healthy_max_p_horizon": max(healthy_p) if healthy_p else None,
+        "scored_units": len(ra),
         "by_law": {
             law: {
                 "units": len(v["ra"]),
                 "alpha_lambda_pct": pct(v["acc"]),
                 "relative_accuracy_pct": ra_pct(v["ra"]),
                 "prognostic_horizon_pct": pct(v["ph"]),
+                "interval_coverage_pct": pct(v["cov"]),
             }
             for law, v in by_law.items()
             if law != "none"
@@ -412,3 +559,13 @@ def evaluate(
         "lambdas": list(LAMBDAS),
         "units": units,
     }
+
+
+def hist_heads(hist: dict, k: int) -> list:
+    """Every unit's history up to flight ``k`` (for the fleet prior)."""
+    out = []
+    for h in hist.values():
+        n = int(np.sum(h.flight <= k))
+        if n:
+            out.append(h.head(n))
+    return out

@@ -1,8 +1,10 @@
 """Remaining useful life of each actuator from its period history (ISO 13374 "prognostic
-assessment"): the C_Lk-ratio history against cumulative operating hours, fitted by
+assessment"): the C_Lk-ratio history against its life axis (flights when every period has
+a flight number, else cumulative operating hours: ``History``), fitted by
 ``degradation.fit_history`` under a fleet prior learned from the store, and the RUL to the
-failure threshold (``threshold.leak_threshold``) as a median and a 90 % interval in operating
-hours and in flights, with the probability of crossing within a planning horizon.
+failure threshold (``threshold.leak_threshold``) as a median and a 90 % interval in flights,
+calendar days and operating hours as far as the history supports them, with the probability
+of crossing within a planning horizon.
 """
 
 from __future__ import annotations
@@ -44,15 +46,17 @@ def default_threshold_ratio() -> float:
 
 @dataclass(frozen=True)
 class RulConfig:
-    """Threshold (C_Lk ratio; None = derived), planning horizon [operating hours], the
-    probability of crossing within it that counts as a warning, Monte-Carlo draws, and the
-    fewest observable periods a RUL is computed from."""
+    """Threshold (C_Lk ratio; None = derived), planning horizons (in flights, used when the
+    history counts flights; in operating hours otherwise), the probability of crossing within
+    it that counts as a warning, Monte-Carlo draws, and the fewest observable periods a RUL is
+    computed from."""
 
     threshold_ratio: float | None = None
     horizon_h: float = 50.0
+    horizon_flights: float = 20.0
     warn_p: float = 0.2
     n_samples: int = 4000
-    min_periods: int = 4
+    min_periods: int = 8
     seed: int = 0
 
     def threshold(self) -> float:
@@ -61,27 +65,80 @@ class RulConfig:
             self.threshold_ratio if self.threshold_ratio is not None else default_threshold_ratio()
         )
 
+    def horizon(self, axis: str) -> float:
+        """The planning horizon in units of ``axis`` (``flights`` or ``hours``)."""
+        return self.horizon_flights if axis == "flights" else self.horizon_h
+
 
 @dataclass(frozen=True)
 class History:
-    """One unit's indicator history: cumulative operating hours at each period's end, the
-    C_Lk ratio (NaN where unobservable) and the mean operating hours per flight."""
+    """One unit's indicator history, per period in life order (flight, then sample time):
+    cumulative operating hours at its end ``t_h``, the C_Lk ratio ``y`` (NaN where
+    unobservable), its flight number (NaN: none) and calendar start (Unix s, NaN: none).
+
+    The life axis is ``flights`` when every period has a flight number (the flights flown
+    since the history's first flight, counting that one: flight - first + 1), else operating
+    ``hours``. Conversions: operating hours per flight and calendar days per flight (over the
+    flights with a calendar time, missed days included), when the history has them."""
 
     actuator: str
     t_h: NDArray
     y: NDArray
     hours_per_flight: float | None
+    flight: NDArray | None = None
+    start_unix: NDArray | None = None
+
+    @property
+    def axis(self) -> str:
+        """``flights`` or ``hours`` (class docstring)."""
+        f = self.flight
+        return "flights" if f is not None and len(f) and np.isfinite(f).all() else "hours"
+
+    def life(self) -> NDArray:
+        """Each period's position on the life axis."""
+        if self.axis == "flights":
+            assert self.flight is not None
+            return self.flight - self.flight[0] + 1.0
+        return self.t_h
 
     def observed(self) -> tuple[NDArray, NDArray]:
-        """(t_h, y) of the periods with an observable C_Lk."""
+        """(life, y) of the periods with an observable C_Lk."""
         ok = np.isfinite(self.y)
-        return self.t_h[ok], self.y[ok]
+        return self.life()[ok], self.y[ok]
+
+    def t_now(self) -> float:
+        """Where the history ends on its life axis."""
+        x = self.life()
+        return float(x[-1]) if len(x) else 0.0
+
+    def days_per_flight(self) -> float | None:
+        """Calendar days per flight (class docstring), None without two dated flights."""
+        if self.flight is None or self.start_unix is None:
+            return None
+        ok = np.isfinite(self.flight) & np.isfinite(self.start_unix)
+        if ok.sum() < 2:
+            return None
+        f, u = self.flight[ok], self.start_unix[ok]
+        df = float(f.max() - f.min())
+        du = float(u[np.argmax(f)] - u[np.argmin(f)])
+        return du / 86400.0 / df if df > 0 and du > 0 else None
+
+    def head(self, k: int) -> History:
+        """The history of the first ``k`` periods."""
+        cut = lambda a: None if a is None else a[:k]  # noqa: E731
+        return History(self.actuator, self.t_h[:k], self.y[:k], self.hours_per_flight,
+                       cut(self.flight), cut(self.start_unix))  # fmt: skip
+
+
+def _life_key(p: Period) -> tuple:
+    return (p.flight if p.flight is not None else -1, p.start_t)
 
 
 def history_of(actuator: str, periods: Sequence[Period]) -> History:
-    """The ``History`` of ``periods`` (sorted by start time here). Hours per flight: total
-    operating hours of the periods with a flight number over the number of distinct flights."""
-    ps = sorted(periods, key=lambda p: p.start_t)
+    """The ``History`` of ``periods`` (put in life order here: flight, then start time). Hours
+    per flight: total operating hours of the periods with a flight number over the number of
+    distinct flights."""
+    ps = sorted(periods, key=_life_key)
     op = np.array([p.op_time_s for p in ps], float) / 3600.0
     t_h = np.cumsum(op)
     y = np.array([p.c_lk_ratio if p.observable_samples > 0 else math.nan for p in ps], float)
@@ -90,52 +147,72 @@ def history_of(actuator: str, periods: Sequence[Period]) -> History:
     if flights:
         hours = sum(p.op_time_s for p in ps if p.flight is not None) / 3600.0
         hpf = hours / len(flights)
-    return History(actuator, t_h, y, hpf)
+    fl = np.array([math.nan if p.flight is None else p.flight for p in ps], float)
+    su = np.array([math.nan if p.start_unix is None else p.start_unix for p in ps], float)
+    return History(actuator, t_h, y, hpf, fl, su)
 
 
 def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
 
+_NONE = {f"{q}_{u}": None for q in ("median", "lo", "hi") for u in ("flights", "h", "days")}
+
+
 def rul_of_history(
     h: History, prior: FleetPrior | None = None, cfg: RulConfig | None = None
 ) -> dict:
-    """RUL summary of one history (keys read by ``HealthStore.put_rul``/``fleet``): median_h,
-    lo_h, hi_h (5 / 95 %), the same in flights, p_horizon, warning, the model probabilities
-    and the threshold. None stands for "beyond any crossing the posterior predicts"."""
+    """RUL summary of one history (keys read by ``HealthStore.put_rul``/``fleet``): on the
+    history's life axis (``axis``: flights or hours) the median and the 5 / 95 % quantiles,
+    converted to ``*_flights``, ``*_h`` (operating hours) and ``*_days`` (calendar) where the
+    history has the conversion, ``p_horizon`` (crossing within ``horizon`` on that axis),
+    warning, the model probabilities and the threshold. None stands for "beyond any crossing
+    the posterior predicts" or "not known for this history"."""
     cfg = cfg or RulConfig()
     thr = cfg.threshold()
     t, y = h.observed()
+    axis = h.axis
+    hpf = h.hours_per_flight
+    dpf = h.days_per_flight()
     out: dict = {
         "actuator": h.actuator,
         "threshold_ratio": thr,
+        "axis": axis,
+        "horizon": cfg.horizon(axis),
         "horizon_h": cfg.horizon_h,
         "periods": int(len(t)),
+        "t_now": h.t_now(),
         "t_now_h": float(h.t_h[-1]) if len(h.t_h) else 0.0,
-        "hours_per_flight": h.hours_per_flight,
+        "hours_per_flight": hpf,
+        "days_per_flight": dpf,
         "last_ratio": float(y[-1]) if len(y) else None,
     }
     if len(t) < cfg.min_periods:
-        out.update(status="insufficient history", median_h=None, lo_h=None, hi_h=None,
-                   median_flights=None, lo_flights=None, hi_flights=None, p_horizon=None,
-                   warning=False)  # fmt: skip
+        out.update(status="insufficient history", p_horizon=None, warning=False, **_NONE)
         return out
     fit = fit_history(t, y, prior)
     rng = np.random.default_rng(cfg.seed)
     cross = sample_crossing(fit, thr, cfg.n_samples, rng)
-    t_now = float(h.t_h[-1])  # periods after the last observable one still count as hours
-    rul = np.maximum(cross - t_now, 0.0)
-    lo, med, hi = np.quantile(rul, [0.05, 0.5, 0.95], method="inverted_cdf")
-    p_h = float(np.mean(rul <= cfg.horizon_h))
-    hpf = h.hours_per_flight
+    rul = np.maximum(cross - h.t_now(), 0.0)  # periods after the last observable one count
+    kappa = prior.kappa if prior is not None else 1.0
+    fin = np.isfinite(rul) & (rul > 0)
+    if kappa > 1.0 and fin.sum() > 1:
+        # the fleet's hindcast widening, about the median in log space (stays > 0)
+        lm = float(np.median(np.log(rul[fin])))
+        rul = rul.copy()
+        rul[fin] = np.exp(lm + kappa * (np.log(rul[fin]) - lm))
+    q = dict(zip(("lo", "median", "hi"),
+                 np.quantile(rul, [0.05, 0.5, 0.95], method="inverted_cdf"), strict=True))  # fmt: skip
+    p_h = float(np.mean(rul <= cfg.horizon(axis)))
+    if axis == "flights":
+        per = {"flights": 1.0, "h": hpf, "days": dpf}
+    else:
+        per = {"flights": 1.0 / hpf if hpf else None, "h": 1.0, "days": None}
+    for k, v in q.items():
+        for u, f in per.items():
+            out[f"{k}_{u}"] = _finite(v * f) if f else None
     out.update(
         status="ok",
-        median_h=_finite(med),
-        lo_h=_finite(lo),
-        hi_h=_finite(hi),
-        median_flights=_finite(med / hpf) if hpf else None,
-        lo_flights=_finite(lo / hpf) if hpf else None,
-        hi_flights=_finite(hi / hpf) if hpf else None,
         p_horizon=p_h,
         warning=bool(p_h >= cfg.warn_p),
         model=fit.best(),

@@ -95,6 +95,7 @@ class Period:
     bad_samples: int
     dropped: int
     source: str
+    start_unix: float | None = None
 
     def __post_init__(self) -> None:
         check_actuator(self.actuator)
@@ -118,6 +119,8 @@ class Period:
                 raise ValueError(f"{name}: expected a number, got {getattr(self, name)!r}")
         if not isinstance(self.source, str) or not self.source:
             raise ValueError(f"source: expected a non-empty string, got {self.source!r}")
+        if self.start_unix is not None:
+            _check_finite("start_unix", self.start_unix)
 
     def to_dict(self) -> dict[str, Any]:
         """The fields as a plain dict."""
@@ -126,7 +129,9 @@ class Period:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Period:
         """Inverse of ``to_dict``; ``None`` in a float field reads as NaN."""
-        kw = {k: d[k] for k in PERIOD_FIELDS}
+        kw = {k: d[k] for k in PERIOD_FIELDS if k != "start_unix"}
+        su = d.get("start_unix")
+        kw["start_unix"] = None if su is None or not math.isfinite(float(su)) else float(su)
         for k in PERIOD_FLOAT_FIELDS:
             kw[k] = math.nan if kw[k] is None else float(kw[k])
         for k in PERIOD_INT_FIELDS:

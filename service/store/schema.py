@@ -95,11 +95,15 @@ _V2: tuple[str, ...] = (
     RECOMPUTE_TRENDS,
 )
 
+# calendar time of a period's first sample (Unix s; None where the log does not give it)
+_V3: tuple[str, ...] = ("ALTER TABLE periods ADD COLUMN start_unix DOUBLE PRECISION",)
+
 # (version, description, statements): append only; never edit a released migration. A
 # statement is SQL, or RECOMPUTE_TRENDS (a data step run by the store in the same transaction)
 MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
     (1, "actuators, baselines, periods, alarms, rul, per-actuator summary", _V1),
     (2, "C_Lk-ratio trend columns in the summary", _V2),
+    (3, "calendar time of each period", _V3),
 )
 
 LATEST_VERSION = MIGRATIONS[-1][0]

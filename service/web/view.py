@@ -38,9 +38,11 @@ def unit_status(row: dict[str, Any]) -> tuple[str, str]:
     rul = row.get("rul") or {}
     if rul.get("warning"):
         p = _finite(rul.get("p_horizon"))
-        hor = _finite(rul.get("horizon_h"))
+        flights = rul.get("axis") == "flights"
+        hor = _finite(rul.get("horizon") if flights else rul.get("horizon_h"))
         if p is not None and hor is not None:
-            return "critical", f"P(threshold within {hor:.0f} h) = {p:.2f}"
+            unit = "flights" if flights else "h"
+            return "critical", f"P(threshold within {hor:.0f} {unit}) = {p:.2f}"
         return "critical", "RUL warning"
     alarms = max(int(row.get("alarms") or 0), int(row.get("alarm_events") or 0))
     if alarms:
@@ -61,6 +63,12 @@ def fleet_view(store: HealthStore, now_s: float | None = None) -> dict[str, Any]
         counts[r["status"]] += 1
     horizons = [_finite((r.get("rul") or {}).get("horizon_h")) for r in ranked]
     horizons = [h for h in horizons if h is not None]
+    # the bars' axis: the unit most RULs are in (flights when the histories count them)
+    units = [(r.get("rul_interval") or {}).get("unit") for r in ranked if r.get("rul")]
+    unit = "flights" if units and units.count("flights") * 2 >= len(units) else "h"
+    hz = [_finite((r.get("rul") or {}).get("horizon" if unit == "flights" else "horizon_h"))
+          for r in ranked]  # fmt: skip
+    hz = [h for h in hz if h is not None]
     return jsonable(
         {
             "store": store.where,
@@ -71,6 +79,8 @@ def fleet_view(store: HealthStore, now_s: float | None = None) -> dict[str, Any]
                 1 for r in ranked if (r.get("rul_interval") or {}).get("median_h") is not None
             ),
             "horizon_h": max(horizons) if horizons else None,
+            "horizon": max(hz) if hz else None,
+            "horizon_unit": unit,
             "fleet": ranked,
         }
     )

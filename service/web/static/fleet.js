@@ -62,8 +62,10 @@ function rulText(u) {
   const rul = u.rul || {};
   if (!u.rul) return "-";
   if (rul.status && rul.status !== "ok") return rul.status;
-  if (!iv || num(iv.median_h) === null) return "none predicted";
-  return `${fmt(iv.median_h, 0)} [${fmt(iv.lo_h, 0)}-${fmt(iv.hi_h, 0)}]`;
+  if (!iv || num(iv.median) === null) return "none predicted";
+  const unit = iv.unit === "flights" ? "flights" : "h";
+  const days = num(iv.median_days) === null ? "" : ` (~${fmt(iv.median_days, 0)} d)`;
+  return `${fmt(iv.median, 0)} [${fmt(iv.lo, 0)}-${fmt(iv.hi, 0)}] ${unit}${days}`;
 }
 
 function flightsText(u) {
@@ -73,7 +75,7 @@ function flightsText(u) {
 }
 
 function intervalBar(u, axisMax, horizon) {
-  // the RUL's 90 % interval on the fleet's common axis [0, axisMax] operating hours
+  // the RUL's 90 % interval on the fleet's common axis [0, axisMax] (flights or operating hours)
   const s = svg("svg", { width: BAR_W, height: BAR_H, class: "ivl-svg" });
   const x = (h) => Math.min(Math.max(h, 0), axisMax) / axisMax * (BAR_W - 2) + 1;
   s.appendChild(svg("line", { x1: 1, x2: BAR_W - 1, y1: BAR_H / 2, y2: BAR_H / 2, class: "grid" }));
@@ -81,16 +83,16 @@ function intervalBar(u, axisMax, horizon) {
     s.appendChild(svg("line", { x1: x(horizon), x2: x(horizon), y1: 0, y2: BAR_H, class: "horizon" }));
   }
   const iv = u.rul_interval;
-  if (iv && num(iv.median_h) !== null) {
-    const lo = num(iv.lo_h) === null ? iv.median_h : iv.lo_h;
-    const hi = num(iv.hi_h) === null ? axisMax : iv.hi_h;
+  if (iv && num(iv.median) !== null) {
+    const lo = num(iv.lo) === null ? iv.median : iv.lo;
+    const hi = num(iv.hi) === null ? axisMax : iv.hi;
     const r = svg("rect", {
       x: x(lo), y: 3, width: Math.max(x(hi) - x(lo), 2), height: BAR_H - 6,
       class: "ivl" + (u.status === "critical" ? " critical" : ""),
     });
-    r.appendChild(svg("title", {}, `RUL ${rulText(u)} operating hours`));
+    r.appendChild(svg("title", {}, `RUL ${rulText(u)}`));
     s.appendChild(r);
-    s.appendChild(svg("line", { x1: x(iv.median_h), x2: x(iv.median_h), y1: 1, y2: BAR_H - 1, class: "ivl-med" }));
+    s.appendChild(svg("line", { x1: x(iv.median), x2: x(iv.median), y1: 1, y2: BAR_H - 1, class: "ivl-med" }));
   }
   return s;
 }
@@ -114,14 +116,15 @@ function renderTable() {
   const tbody = $("fleet").tBodies[0];
   tbody.replaceChildren();
   const q = $("filter").value.trim().toLowerCase();
-  const horizon = num(data.horizon_h);
+  const horizon = num(data.horizon);
+  const unit = data.horizon_unit === "flights" ? "flights" : "h";
   // a common axis for every bar: the planning horizon, out to twice it where an interval ends later
   let axisMax = 100;
   if (horizon !== null) {
-    const his = data.fleet.map((u) => u.rul_interval && num(u.rul_interval.hi_h)).filter((h) => h !== null && h !== undefined);
+    const his = data.fleet.map((u) => u.rul_interval && num(u.rul_interval.hi)).filter((h) => h !== null && h !== undefined);
     axisMax = Math.min(2 * horizon, Math.max(horizon, ...his));
   }
-  $("axis").textContent = `(0-${axisMax.toFixed(0)} h${horizon === null ? "" : `, horizon ${horizon.toFixed(0)} h`})`;
+  $("axis").textContent = `(0-${axisMax.toFixed(0)} ${unit}${horizon === null ? "" : `, horizon ${horizon.toFixed(0)} ${unit}`})`;
   let shown = 0;
   for (const u of data.fleet) {
     if (q && !u.actuator.toLowerCase().includes(q)) continue;
@@ -309,7 +312,7 @@ async function loadUnit(name) {
     fact("alarm events", unit.alarms.length ? `${unit.alarms.length}, last ${unit.alarms[unit.alarms.length - 1].kind}` : "none");
     fact("baseline versions", unit.baselines.length ? unit.baselines.map((b) => b.version).join(", ") : "none");
     const rul = unit.rul || {};
-    fact("RUL model", rul.model ? `${rul.model}, horizon ${fmt(rul.horizon_h, 0)} h` : (rul.status || "not computed"));
+    fact("RUL model", rul.model ? `${rul.model}, horizon ${rul.axis === "flights" ? `${fmt(rul.horizon, 0)} flights` : `${fmt(rul.horizon_h, 0)} h`}` : (rul.status || "not computed"));
     box.hidden = false;
     box.dataset.unit = unit.actuator;
     document.body.dataset.unitReady = unit.actuator;

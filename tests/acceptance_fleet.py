@@ -1,0 +1,178 @@
+"""An independent acceptance fleet for the prognostics, held apart from ``fleet-sim`` (issue 31):
+its own wear laws and parameter ranges, its own schedule, a few seconds of log per flight, and
+the user's path only: ``servowatch calibrate --log <flight 0> --store S`` (the actuator named by
+the log), ``servowatch replay <folder> --store S``, then the RUL of the stored histories after
+each flight, scored with the same metrics as ``fleet-sim --evaluate``. Nothing in the RUL is
+tuned on this fleet.
+
+Wear laws (true C_Lk ratio against the unit's cumulative operating hours h, or cycles):
+
+- ``none``: 1 (healthy);
+- ``quadratic``: 1 + a h + b h^2;
+- ``two_rate``: 1 + a h, then four to eight times faster after a knee;
+- ``sqrt_then_exp``: 1 + a sqrt(h) + c (exp(g h) - 1) (early running-in, late runaway);
+- ``cycles``: linear in the number of actuator cycles, which differ per flight (x 0.3-2).
+
+    .venv/bin/python -m tests.acceptance_fleet --seed 101 --units 8 --flights 30 --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+LAWS = ("none", "quadratic", "two_rate", "sqrt_then_exp", "cycles")
+C_LK0 = 2e-13
+
+
+def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
+    """The hidden truth: per unit its law, per flight hours, cycles, calendar start and the
+    true ratio; the end of life on the flights axis (flight k at k + 1)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    n = 5 * flights
+    for i in range(units):
+        law = LAWS[i % len(LAWS)]
+        hours = rng.uniform(0.6, 4.0) * rng.uniform(0.7, 1.3, n)
+        cyc = rng.uniform(0.3, 2.0, n)
+        h = np.concatenate(([0.0], np.cumsum(hours)[:-1]))
+        c = np.concatenate(([0.0], np.cumsum(cyc)[:-1]))
+        life = rng.uniform(0.5, 1.3) * float(np.sum(hours[:flights]))  # hours to the threshold
+        x = h / life  # 1 at the end of life (hours laws)
+        if law == "none":
+            r = np.ones(n)
+        elif law == "quadratic":
+            f = rng.uniform(0.1, 0.6)  # share of the linear term at the end of life
+            r = 1 + (thr - 1) * (f * x + (1 - f) * x**2)
+        elif law == "two_rate":
+            knee = rng.uniform(0.3, 0.6)
+            k = rng.uniform(4.0, 8.0)
+            at_knee = knee / (knee + k * (1 - knee))
+            r = 1 + (thr - 1) * np.where(x < knee, x / knee * at_knee,
+                                         at_knee + (x - knee) / (1 - knee) * (1 - at_knee))  # fmt: skip
+        elif law == "sqrt_then_exp":
+            g = rng.uniform(2.0, 3.5)
+            a = rng.uniform(0.5, 1.5)
+            cc = (thr - 1 - a) / math.expm1(g)
+            r = 1 + a * np.sqrt(x) + cc * np.expm1(g * x)
+        else:  # cycles
+            xc = c / (rng.uniform(0.5, 1.3) * float(np.sum(cyc[:flights])))
+            r = 1 + (thr - 1) * xc
+        per_day = rng.choice([1, 2, 4])
+        starts, day = [], 0
+        while len(starts) < n:
+            if rng.uniform() >= 0.3:
+                starts += [1.75e9 + 86400.0 * day + 5400.0 * j for j in range(per_day)]
+            day += 1
+        above = np.flatnonzero(r >= thr)
+        eol = math.inf
+        if law != "none" and len(above) and above[0] > 0:
+            j = int(above[0])
+            eol = j + (thr - r[j - 1]) / (r[j] - r[j - 1])
+        out.append({
+            "actuator": f"ACC{seed % 1000:03d}{i:02d}/spoiler", "index": i, "law": law,
+            "ratio_schedule": r.tolist(), "start_unix": starts[:n], "eol_flight": eol,
+            "noise": float(rng.uniform(0.7, 1.6)), "load": float(rng.uniform(0.7, 1.3)),
+            "log_s": float(rng.uniform(1.5, 3.0)),
+        })  # fmt: skip
+    return out
+
+
+def write_logs(units: list[dict], flights: int, thr: float, folder: Path, seed: int) -> None:
+    """One log per unit and flight (flight record, a few seconds of the HF bench); a unit stops
+    after the flight that reaches the threshold. Sets each unit's ``flown`` and ``ratio``."""
+    from models.scenario import Profile
+    from service.calibration import measured_run
+    from service.flightrec import FlightRecord, write_flight_log
+    from service.scenarios import load_scenario
+
+    base = load_scenario("healthy_noise")
+    for u in units:
+        ac, act = u["actuator"].split("/")
+        u["ratio"] = []
+        for k in range(flights):
+            ratio = float(u["ratio_schedule"][k])
+            s = base.sensors
+            sens = s.model_copy(update={
+                "seed": int(np.random.SeedSequence([seed, u["index"], k, 7]).generate_state(1)[0]),
+                **{f: getattr(s, f) * u["noise"] for f in ("x_s_m", "x_j_m", "p_pa", "current_a")},
+            })  # fmt: skip
+            sc = base.model_copy(update={
+                "duration_s": 4.0 if k == 0 else u["log_s"], "sensors": sens,
+                "leak": Profile(initial=ratio * C_LK0),
+                "load": Profile(initial=4000.0 * u["load"]),
+            })  # fmt: skip
+            meas = measured_run(sc)[1]
+            rec = FlightRecord(ac, act, k, u["start_unix"][k])
+            ch = {c: v for c, v in meas.items() if c != "t"}
+            write_flight_log(folder / f"{ac}_{act}_{k:03d}.mcap", rec, meas["t"], ch)
+            u["ratio"].append(ratio)
+            if ratio >= thr:
+                break
+        u["flown"] = len(u["ratio"])
+
+
+def run(seed: int, units: int, flights: int, work: Path) -> dict:
+    """Generate, ingest through the CLI, evaluate; the metrics of ``fleet-sim --evaluate``."""
+    from service.cli import main
+    from service.prognostics.fleetsim import FleetSimConfig, evaluate
+    from service.prognostics.rul import default_threshold_ratio
+    from service.store import open_store
+
+    thr = default_threshold_ratio()
+    truth = draw(seed, units, flights, thr)
+    logs = work / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    write_logs(truth, flights, thr, logs, seed)
+    store = work / "acceptance.sqlite"
+    for u in truth:
+        ac, act = u["actuator"].split("/")
+        f0 = logs / f"{ac}_{act}_000.mcap"
+        if main(["calibrate", "--log", str(f0), "--store", str(store), "--json"]) != 0:
+            raise RuntimeError(f"calibrate failed on {f0}")
+    if main(["replay", str(logs), "--store", str(store), "--json"]) != 0:
+        raise RuntimeError("replay failed")
+    with open_store(store) as st:
+        results = [{"truth": {k: v for k, v in u.items() if k != "ratio_schedule"},
+                    "periods": [p.to_dict() for p in st.periods(u["actuator"])]}
+                   for u in truth]  # fmt: skip
+    cfg = FleetSimConfig(actuators=units, flights=flights, seed=seed, threshold_ratio=thr)
+    ev = evaluate(results, cfg)
+    ev["fleet"] = {"seed": seed, "units": units, "flights": flights,
+                   "laws": [u["law"] for u in truth]}  # fmt: skip
+    return ev
+
+
+def main_cli() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=101)
+    ap.add_argument("--units", type=int, default=8)
+    ap.add_argument("--flights", type=int, default=30)
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args()
+    import contextlib
+    import io
+
+    with (
+        tempfile.TemporaryDirectory(prefix="acceptance-") as tmp,
+        contextlib.redirect_stdout(io.StringIO()),
+    ):
+        ev = run(a.seed, a.units, a.flights, Path(tmp))
+    keys = ("alpha_lambda_pct", "interval_coverage_pct", "interval_coverage_all_pct",
+            "kendall_tau", "kendall_tau_min", "healthy_max_p_horizon", "relative_accuracy_pct",
+            "scored_units", "healthy_units")  # fmt: skip
+    if a.json:
+        print(json.dumps({k: ev[k] for k in (*keys, "by_law", "fleet")}, default=str))
+    else:
+        for k in keys:
+            print(f"{k:<28} {ev[k]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main_cli())
