@@ -63,8 +63,38 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="health store (SQLite path or postgresql:// URL; 'off': none); default: the "
         "config's store, else $SERVOWATCH_STORE or servowatch-data/health.sqlite",
     )  # fmt: skip
+    p.add_argument(
+        "--foxglove", default=None, metavar="HOST:PORT",
+        help="serve the channels live over the Foxglove WebSocket protocol (loopback unless "
+        "--foxglove-allow-remote; overrides [foxglove] listen)",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove-allow-remote", action="store_true",
+        help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
+    )  # fmt: skip
     p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
+
+
+def foxglove_override(cfg, listen: str | None, allow_remote: bool):
+    """``cfg`` with ``--foxglove HOST:PORT`` / ``--foxglove-allow-remote`` applied."""
+    from service.config import ConfigError, FoxgloveSettings
+    from service.listen import check_listen
+
+    if listen is None and not allow_remote:
+        return cfg
+    fx = cfg.foxglove.model_dump() if cfg.foxglove is not None else {}
+    if listen is not None:
+        check_listen(
+            listen, allow_remote=allow_remote or bool(fx.get("allow_remote")),
+            flag="--foxglove", what="the Foxglove server", allow="--foxglove-allow-remote",
+        )  # fmt: skip
+        fx["listen"] = listen
+    if allow_remote:
+        fx["allow_remote"] = True
+    if listen is None and cfg.foxglove is None:
+        raise ConfigError("--foxglove-allow-remote needs --foxglove or [foxglove]", None, None)
+    return cfg.model_copy(update={"foxglove": FoxgloveSettings.model_validate(fx)})
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         cfg = service_config_from_args(args)
+        cfg = foxglove_override(cfg, args.foxglove, args.foxglove_allow_remote)
     except (ConfigError, ValueError) as e:
         return fail(str(e))
     from service.store import default_store

@@ -1,0 +1,268 @@
+"""Live view in Foxglove: the daemon's (or a replay's) channels over the Foxglove WebSocket
+protocol (``foxglove.websocket.v1``, served by the ``foxglove-sdk`` package).
+
+Per actuator, the channels are the MCAP log's topics ``/fleet/{aircraft}/{actuator}/{meas,
+est,residual,health,events}`` with the log's JSON schemas (``service.log.block_schema``,
+``json_schema_for``) and the log's message bytes, time-stamped with the sample time, so a
+Foxglove layout works on a log and live alike (docs/dashboard.md).
+
+A viewer never slows the monitor:
+
+* :meth:`FoxgloveFeed.log_block` and :meth:`FoxgloveFeed.log` (the McapLogger calls the
+  fan-out makes) return at once when no viewer subscribed to the topic: nothing is encoded;
+* otherwise they queue the arrays (a reference, no copy, no encoding) in a bounded queue;
+  messages that do not fit are dropped and counted (``dropped``, in ``servowatch status``);
+* one feeder thread encodes the queued rows (the log's compiled JSON codec) and hands them
+  to the SDK, whose server keeps a bounded backlog per client and drops a slow client's
+  oldest messages (``message_backlog_size``); nothing waits on a socket.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from collections import deque
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from service import messages as m
+from service.jsonutil import event_dict, flat
+from service.log.writer import block_schema, encode_message, json_schema_for
+from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS
+from service.monitor.outputs import AlarmEvent
+from service.proclog import MEAS_LOG_FIELDS
+
+__all__ = ["FoxgloveFeed", "LEAVES", "topic_schemas", "DEFAULT_QUEUE"]
+
+log = logging.getLogger("servowatch.foxglove")
+
+#: the per-actuator topic leaves served live, as in the MCAP log
+LEAVES = ("meas", "est", "residual", "health", "events")
+#: messages waiting for the feeder thread at most (beyond: dropped and counted)
+DEFAULT_QUEUE = 20_000
+_HEADER = 31  # MCAP Message record: opcode 1, length 8, channel 2, seq 4, log/publish time 16
+
+
+def topic_schemas(aircraft: str, actuator: str) -> dict[str, dict[str, Any]]:
+    """Topic -> the jsonschema the MCAP log gives it, for the channels of one actuator."""
+    topic = {leaf: m.mcap_topic(aircraft, actuator, leaf) for leaf in LEAVES}
+    event = flat(event_dict(AlarmEvent(0.0, "leak", "raised", 0.0)))  # what FanOut logs
+    return {
+        topic["meas"]: block_schema(topic["meas"], MEAS_LOG_FIELDS, ("seq",)),
+        topic["est"]: block_schema(topic["est"], EST_KEYS),
+        topic["residual"]: block_schema(topic["residual"], RES_KEYS),
+        topic["health"]: block_schema(topic["health"], HEALTH_KEYS),
+        topic["events"]: json_schema_for(topic["events"], event),
+    }
+
+
+def encode_rows(
+    t: np.ndarray, names: tuple[str, ...], values: np.ndarray, int_fields: Iterable[str] = ()
+) -> tuple[np.ndarray, list[bytes]]:
+    """(log times [ns], JSON bytes of each row): the bytes ``McapLogger.log_block`` writes."""
+    from service.log.codec import encode_records, row_format  # numba: imported on use
+
+    tt = np.asarray(t, np.float64).reshape(-1)
+    lts = np.maximum(np.rint(tt * 1e9), 0.0).astype(np.int64)
+    vals = np.ascontiguousarray(values, np.float64)
+    fmt = row_format(names, frozenset(int_fields))
+    iv = vals[:, fmt.isint]
+    if fmt.isint.any() and (np.abs(iv[np.isfinite(iv)]) >= 2.0**63).any():
+        ints = fmt.isint.tolist()
+        rows = [
+            {k: (None if not np.isfinite(v) else int(v) if i else v)
+             for k, i, v in zip(names, ints, row, strict=True)}
+            for row in vals.tolist()
+        ]  # fmt: skip
+        return lts, [encode_message(r) for r in rows]
+    recs, ends = encode_records(fmt, vals, 0, 0, lts)
+    b = recs.tobytes()
+    starts = [0, *ends[:-1].tolist()]
+    return lts, [b[s + _HEADER : e] for s, e in zip(starts, ends.tolist(), strict=True)]
+
+
+class _Listener:
+    """The SDK's server listener: which topics some client subscribed to."""
+
+    def __init__(self, feed: FoxgloveFeed) -> None:
+        self.feed = feed
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self.feed._subscribed(str(channel.topic), +1)
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        self.feed._subscribed(str(channel.topic), -1)
+
+
+class FoxgloveFeed:
+    """A Foxglove WebSocket server on ``host:port`` (0: any free port, see :attr:`port`)
+    fed by a thread of its own from a queue of at most ``queue_size`` messages.
+
+    Use :meth:`add_actuator` once per actuator (advertises its channels), then
+    :meth:`log_block` / :meth:`log` as on a ``McapLogger``; :meth:`status` for the status,
+    :meth:`close` at the end. ``host`` must already be checked (``service.listen``).
+    """
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        *,
+        queue_size: int = DEFAULT_QUEUE,
+        backlog: int = 1024,
+        name: str = "servowatch",
+    ) -> None:
+        import foxglove
+
+        if int(queue_size) < 1:
+            raise ValueError("queue_size must be >= 1")
+        self.queue_size = int(queue_size)
+        self.host = host
+        self._fg = foxglove
+        self._ctx = foxglove.Context()
+        self._channels: dict[str, Any] = {}
+        self._subs: dict[str, int] = {}
+        self._queue: deque = deque()
+        self._lock = threading.Lock()
+        self._queued = 0  # messages in the queue
+        self.sent = 0
+        self.dropped = 0
+        self.errors = 0
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self.server = foxglove.start_server(
+            name=name, host=host, port=port, server_listener=_Listener(self),
+            context=self._ctx, message_backlog_size=int(backlog),
+        )  # fmt: skip
+        self.port = int(self.server.port)
+        self._thread = threading.Thread(target=self._run, name="foxglove-feed", daemon=True)
+        self._thread.start()
+        log.info("Foxglove WebSocket server on ws://%s:%d", host, self.port)
+
+    # -- channels -------------------------------------------------------------------------
+    def add_actuator(self, aircraft: str, actuator: str) -> None:
+        """Advertise the channels of an actuator (once; later calls do nothing)."""
+        for topic, schema in topic_schemas(aircraft, actuator).items():
+            if topic in self._channels:
+                continue
+            self._channels[topic] = self._fg.Channel(
+                topic,
+                schema=self._fg.Schema(
+                    name=topic.rsplit("/", 1)[-1],
+                    encoding="jsonschema",
+                    data=json.dumps(schema).encode(),
+                ),
+                message_encoding="json",
+                context=self._ctx,
+            )
+
+    def _subscribed(self, topic: str, d: int) -> None:
+        with self._lock:
+            n = max(0, self._subs.get(topic, 0) + d)
+            if n:
+                self._subs[topic] = n
+            else:
+                self._subs.pop(topic, None)
+
+    def wants(self, topic: str) -> bool:
+        """Did some client subscribe to ``topic``?"""
+        return topic in self._subs
+
+    # -- the McapLogger calls ------------------------------------------------------------
+    def _put(self, n: int, item: tuple) -> None:
+        with self._lock:
+            if self._queued + n > self.queue_size:
+                self.dropped += n
+                return
+            self._queued += n
+            self._queue.append(item)
+        self._wake.set()
+
+    def log_block(
+        self,
+        topic: str,
+        t: np.ndarray,
+        names: Iterable[str],
+        values: np.ndarray,
+        *,
+        int_fields: Iterable[str] = (),
+    ) -> None:
+        """Rows of ``values`` on ``topic`` at times ``t`` [s], as ``McapLogger.log_block``;
+        the arrays must not change afterwards (they are queued, not copied)."""
+        if topic in self._subs and len(t):
+            self._put(len(t), (topic, t, tuple(names), values, tuple(int_fields)))
+
+    def log(self, topic: str, t: float, msg: Mapping[str, Any]) -> None:
+        """One message on ``topic`` at time ``t`` [s], as ``McapLogger.log``."""
+        if topic in self._subs:
+            self._put(1, (topic, t, None, dict(msg), ()))
+
+    # -- the feeder thread ---------------------------------------------------------------
+    def _run(self) -> None:
+        q = self._queue
+        while not self._stop.is_set():
+            self._wake.wait(0.1)
+            self._wake.clear()
+            while q:
+                topic, t, names, vals, ints = q.popleft()
+                n = 1 if names is None else len(t)
+                try:
+                    self._send(topic, t, names, vals, ints)
+                except Exception as e:  # never let a message kill the feeder
+                    self.errors += 1
+                    log.warning("foxglove feed: %s: %s", topic, e)
+                with self._lock:
+                    self._queued -= n
+
+    def _send(self, topic: str, t: Any, names: Any, vals: Any, ints: tuple) -> None:
+        ch = self._channels.get(topic)
+        if ch is None:
+            return
+        if names is None:  # one message
+            ch.log(encode_message(vals), log_time=max(0, int(round(float(t) * 1e9))))
+            self.sent += 1
+            return
+        lts, datas = encode_rows(t, names, vals, ints)
+        for lt, data in zip(lts.tolist(), datas, strict=True):
+            ch.log(data, log_time=lt)
+        self.sent += len(datas)
+
+    # -- status and end ------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        """Listen address, subscribed topics, messages sent, queued and dropped."""
+        with self._lock:
+            subs = sum(self._subs.values())
+            topics = len(self._subs)
+            queued = self._queued
+        return {
+            "listen": f"{self.host}:{self.port}",
+            "channels": len(self._channels),
+            "subscriptions": subs,
+            "subscribed_topics": topics,
+            "sent": self.sent,
+            "queued": queued,
+            "queue_size": self.queue_size,
+            "dropped": self.dropped,
+            "errors": self.errors,
+        }
+
+    def close(self) -> None:
+        """Stop the feeder thread and the server (idempotent)."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._wake.set()
+        self._thread.join(5)
+        try:
+            self.server.stop()
+        except Exception as e:
+            log.debug("foxglove server stop: %s", e)
+
+    def __enter__(self) -> FoxgloveFeed:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
