@@ -249,17 +249,27 @@ class FoxgloveFeed:
             "errors": self.errors,
         }
 
-    def close(self) -> None:
-        """Stop the feeder thread and the server (idempotent)."""
+    def close(self, timeout: float = 2.0) -> None:
+        """Stop the feeder thread and the server (idempotent). The SDK's ``stop`` waits for
+        each client's backlog to be sent, which a stuck client never takes: it runs in a
+        thread of its own, waited for at most ``timeout`` seconds."""
         if self._stop.is_set():
             return
         self._stop.set()
         self._wake.set()
         self._thread.join(5)
-        try:
-            self.server.stop()
-        except Exception as e:
-            log.debug("foxglove server stop: %s", e)
+
+        def stop() -> None:
+            try:
+                self.server.stop()
+            except Exception as e:
+                log.debug("foxglove server stop: %s", e)
+
+        th = threading.Thread(target=stop, name="foxglove-stop", daemon=True)
+        th.start()
+        th.join(timeout)
+        if th.is_alive():
+            log.warning("Foxglove server: a client did not take its messages; not waiting")
 
     def __enter__(self) -> FoxgloveFeed:
         return self

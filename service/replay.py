@@ -8,7 +8,9 @@ of consecutive samples (``MonitorBank.update_arrays``; as fast as possible, its 
 gives results that do not depend on the batch composition (``tests/test_monitor.py``), so a
 replay reproduces the live daemon's estimates when it uses the same monitor configuration and
 baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` copied, ``est``,
-``residual``, ``health``, ``events``) and, optionally, are republished on Zenoh.
+``residual``, ``health``, ``events``) and, optionally, are republished on Zenoh and served
+live to Foxglove (``live``, a ``service.foxglove_feed.FoxgloveFeed``: the same channels as the
+daemon's, best paced).
 
 With a health store (``store``), each actuator runs on its latest baseline from the store
 (``service.monitor.MonitorFleet``; none: the default, ``commissioned: false``), and the
@@ -302,6 +304,7 @@ def _write_stage(
     summary: ReplaySummary,
     progress: Callable[[ReplaySummary], None] | None,
     fleet: MonitorFleet | None = None,
+    live: Any | None = None,
 ) -> None:
     """Stage 3: the meas samples copied to the output log, the outputs through the fan-out
     (log blocks, events, publishing), the summary."""
@@ -314,9 +317,11 @@ def _write_stage(
                 info = {"commissioned": v is not None, "baseline_version": v}
                 kw = {"c_lk0": fleet.bank.baseline_of(inp.name).c_lk, "info": info}
             fanout.track(inp.row, *inp.at, **kw)
+            ints = ("seq",) if "seq" in inp.names else ()
             if writer is not None:
-                ints = ("seq",) if "seq" in inp.names else ()
                 writer.log_block(inp.topic, inp.t, inp.names, inp.meas, int_fields=ints)
+            if live is not None and live.wants(inp.topic):
+                live.log_block(inp.topic, inp.t, inp.names, inp.meas, int_fields=ints)
         summary.outputs += len(rows.index)
         for em in fanout.emit(rows, ks):
             summary.alarms.extend({"actuator": em.name, **d} for d in em.events)
@@ -340,6 +345,7 @@ def replay(
     progress: Callable[[ReplaySummary], None] | None = None,
     store: str | Path | None = None,
     period_config: PeriodConfig | None = None,
+    live: Any | None = None,
 ) -> ReplaySummary:
     """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
 
@@ -361,6 +367,8 @@ def replay(
 
     store : a health store (path or URL): per-actuator baselines from it, and the operating
         periods and alarm raises written to it (``period_config`` cuts the periods).
+    live : a ``FoxgloveFeed``: meas, est, residual, health and events served live (the
+        actuators named in the log's summary are advertised before the first sample).
 
     A truncated log is replayed up to its last complete chunk; the summary says so in
     ``truncated`` and ``warnings``.
@@ -388,15 +396,38 @@ def replay(
 
         hs = open_store(store)
     try:
+        if live is not None:
+            for ac, act in log_actuators(files):
+                live.add_actuator(ac, act)
         return _replay(files, log_path, summary, cfg, base, hs, speed, out, publish,
-                       publish_every, log_every, progress, period_config)  # fmt: skip
+                       publish_every, log_every, progress, period_config, live)  # fmt: skip
     finally:
         if hs is not None:
             hs.close()
 
 
+def log_actuators(files: list[Path]) -> list[tuple[str, str]]:
+    """(aircraft, actuator) of the ``meas`` channels in the summaries of ``files`` (a file
+    without a summary, e.g. truncated, names none)."""
+    from mcap.reader import make_reader
+
+    out: list[tuple[str, str]] = []
+    for f in files:
+        try:
+            with open(f, "rb") as fh:
+                summ = make_reader(fh).get_summary()
+        except Exception as e:  # truncated: its actuators appear with their first sample
+            log.debug("summary of %s: %s", f, e)
+            continue
+        for ch in (summ.channels if summ is not None else {}).values():
+            at = _parse_topic(ch.topic) if _is_meas(ch.topic) else None
+            if at is not None and at not in out:
+                out.append(at)
+    return out
+
+
 def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publish_every,
-            log_every, progress, period_config) -> ReplaySummary:  # fmt: skip
+            log_every, progress, period_config, live=None) -> ReplaySummary:  # fmt: skip
     """``replay`` once the log, the configuration and the store (``hs``) are resolved."""
     closed: list = []
     alarms: list = []
@@ -425,7 +456,7 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
     fanout = FanOut(
         writer, log_every=log_every, publish_every=publish_every, session=publish,
         on_periods=None if hs is None else (lambda p, a: (closed.extend(p), alarms.extend(a))),
-        source=summary.source or "replay", period_config=period_config,
+        source=summary.source or "replay", period_config=period_config, live=live,
     )  # fmt: skip
     stats = LogReadStats()
     wall0 = time.perf_counter()
@@ -435,7 +466,7 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
         batches = _monitor_stage(inputs, bank, speed, lambda: summary.t_start or 0.0)
         try:
             fleet = bank if isinstance(bank, MonitorFleet) else None
-            _write_stage(batches, writer, fanout, summary, progress, fleet)
+            _write_stage(batches, writer, fanout, summary, progress, fleet, live)
             fanout.flush()
         finally:
             batches.close()  # stops the monitor stage's worker thread

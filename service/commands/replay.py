@@ -12,6 +12,9 @@ NAME = "replay"
 HELP = "replay an MCAP log through the monitor (as fast as possible or paced)"
 
 
+_UNSET = object()  # --speed not given: max, or 1.0 with --foxglove
+
+
 def _speed(text: str) -> float | None:
     if text.strip().lower() in ("max", "inf", "fast"):
         return None
@@ -29,8 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "log", help="MCAP log of `servowatch run` or the demo (or a rotation set's base name)"
     )
     p.add_argument(
-        "--speed", type=_speed, default=None, metavar="max|X",
-        help="max (default): as fast as possible; X: X times real time",
+        "--speed", type=_speed, default=_UNSET, metavar="max|X",
+        help="max (default; 1.0 with --foxglove): as fast as possible; X: X times real time",
     )  # fmt: skip
     p.add_argument("--out", default=None, metavar="FILE.mcap", help="write a new log here")
     p.add_argument("--publish", action="store_true", help="republish est/res/health on Zenoh")
@@ -41,6 +44,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--log-every", type=int, default=1, metavar="N",
         help="with --out: log est/residual/health every N outputs (default 1 = all)",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove", default=None, metavar="HOST:PORT",
+        help="serve the replay live over the Foxglove WebSocket protocol (loopback unless "
+        "--foxglove-allow-remote), paced by --speed",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove-allow-remote", action="store_true",
+        help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove-wait", type=float, default=0.0, metavar="S",
+        help="with --foxglove: wait up to S seconds for a viewer to subscribe before starting",
     )  # fmt: skip
     p.add_argument("--config", default=None, help="service TOML (its [monitor] and baseline)")
     p.add_argument(
@@ -80,7 +96,6 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from service.config import ConfigError, load_config
-    from service.replay import replay
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     from service.log import rotated_files
@@ -115,6 +130,44 @@ def run(args: argparse.Namespace) -> int:
             open_store(store).close()  # fail fast, naming --store
         except StoreError as e:
             return fail(f"--store: {e}")
+    if args.speed is _UNSET:
+        args.speed = 1.0 if args.foxglove is not None else None
+    live = None
+    if args.foxglove is not None:
+        from service.foxglove_feed import FoxgloveFeed
+        from service.listen import check_listen
+
+        try:
+            host, port = check_listen(
+                args.foxglove, allow_remote=args.foxglove_allow_remote, flag="--foxglove",
+                what="the Foxglove server", allow="--foxglove-allow-remote",
+            )  # fmt: skip
+            live = FoxgloveFeed(host, port, name=f"servowatch replay {Path(args.log).name}")
+        except (ValueError, RuntimeError, OSError) as e:
+            return fail(str(e))
+        print(f"servowatch replay: Foxglove WebSocket server on ws://{host}:{live.port}",
+              file=sys.stderr, flush=True)  # fmt: skip
+    try:
+        return _run(args, cfg, monitor_config, baseline, store, pc, live)
+    finally:
+        if live is not None:
+            live.close()
+
+
+def _run(args, cfg, monitor_config, baseline, store, pc, live) -> int:
+    """``run`` once the inputs are checked; ``live``: a FoxgloveFeed or None."""
+    from service.replay import replay
+
+    if live is not None and args.foxglove_wait > 0:
+        import time
+
+        from service.replay import log_actuators, rotated_files
+
+        for ac, act in log_actuators(rotated_files(args.log)):
+            live.add_actuator(ac, act)
+        end = time.monotonic() + args.foxglove_wait
+        while live.status()["subscriptions"] == 0 and time.monotonic() < end:
+            time.sleep(0.05)
     session = None
     if args.publish:
         import zenoh
@@ -134,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
             args.log, speed=args.speed, out=args.out, publish=session,
             monitor_config=monitor_config, baseline=baseline, log_every=args.log_every,
             publish_every=cfg.publish_every if cfg is not None else 10, store=store,
-            period_config=pc,
+            period_config=pc, live=live,
         )  # fmt: skip
     except (OSError, ValueError) as e:
         return fail(str(e))
