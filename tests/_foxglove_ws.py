@@ -39,8 +39,13 @@ class FoxgloveClient:
     _buf: bytes = b""
 
     # -- RFC 6455 -----------------------------------------------------------------------
-    def connect(self, timeout: float = 10.0) -> FoxgloveClient:
-        s = socket.create_connection((self.host, self.port), timeout=timeout)
+    def connect(self, timeout: float = 10.0, rcvbuf: int | None = None) -> FoxgloveClient:
+        """Handshake; ``rcvbuf``: the socket's receive buffer size (a small one fills fast)."""
+        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        if rcvbuf is not None:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, int(rcvbuf))
+        s.settimeout(timeout)
+        s.connect((self.host, self.port))
         key = base64.b64encode(os.urandom(16)).decode()
         s.sendall(
             (
@@ -156,14 +161,18 @@ class FoxgloveClient:
 
     def wait_channel(self, topic: str, timeout: float = 60.0) -> dict[str, Any]:
         """Read until ``topic`` is advertised (messages in between are discarded)."""
+        self.wait_topics({topic}, timeout)
+        return self.channel_of(topic)
+
+    def wait_topics(self, topics: set[str], timeout: float = 60.0) -> None:
+        """Read until all of ``topics`` are advertised (messages in between are discarded)."""
         end = time.monotonic() + timeout
-        while self.channel_of(topic) is None:
+        while not set(topics) <= self.topics():
             left = end - time.monotonic()
             if left <= 0:
-                raise TimeoutError(f"{topic} not advertised; have {sorted(self.topics())}")
+                raise TimeoutError(f"{topics} not advertised; have {sorted(self.topics())}")
             with contextlib.suppress(TimeoutError):
                 self.recv(timeout=min(1.0, left))
-        return self.channel_of(topic)
 
     def topics(self) -> set[str]:
         return {c["topic"] for c in self.channels.values()}
