@@ -283,6 +283,9 @@ class FoxgloveSettings(BaseModel):
     backlog: int = Field(
         1024, ge=1, le=1_000_000, description="messages buffered per client (oldest dropped)"
     )
+    every: int = Field(
+        10, ge=1, le=100_000, description="send one row in N per topic (events: all; 1 = all)"
+    )
 
     @model_validator(mode="after")
     def _loopback(self) -> FoxgloveSettings:

@@ -12,6 +12,8 @@ A viewer never slows the monitor:
   fan-out makes) return at once when no viewer subscribed to the topic: nothing is encoded;
 * otherwise they queue the arrays (a reference, no copy, no encoding) in a bounded queue;
   messages that do not fit are dropped and counted (``dropped``, in ``servowatch status``);
+* ``every`` N > 1 sends one message in N per topic (a Plot panel needs no more than a
+  screen's worth; events always go, and N = 1 sends all);
 * one feeder thread encodes the queued rows (the log's compiled JSON codec) and hands them
   to the SDK, whose server keeps a bounded backlog per client and drops a slow client's
   oldest messages (``message_backlog_size``); nothing waits on a socket.
@@ -99,7 +101,9 @@ class _Listener:
 
 class FoxgloveFeed:
     """A Foxglove WebSocket server on ``host:port`` (0: any free port, see :attr:`port`)
-    fed by a thread of its own from a queue of at most ``queue_size`` messages.
+    fed by a thread of its own from a queue of at most ``queue_size`` messages; of the rows
+    of a topic, one in ``every`` is sent (events: all); ``backlog``: messages the server
+    buffers per client (the oldest dropped beyond).
 
     Use :meth:`add_actuator` once per actuator (advertises its channels), then
     :meth:`log_block` / :meth:`log` as on a ``McapLogger``; :meth:`status` for the status,
@@ -113,12 +117,15 @@ class FoxgloveFeed:
         *,
         queue_size: int = DEFAULT_QUEUE,
         backlog: int = 1024,
+        every: int = 1,
         name: str = "servowatch",
     ) -> None:
         import foxglove
 
-        if int(queue_size) < 1:
-            raise ValueError("queue_size must be >= 1")
+        if int(queue_size) < 1 or int(every) < 1:
+            raise ValueError("queue_size and every must be >= 1")
+        self.every = int(every)
+        self._count: dict[str, int] = {}  # rows offered per topic (for ``every``)
         self.queue_size = int(queue_size)
         self.host = host
         self._fg = foxglove
@@ -190,10 +197,18 @@ class FoxgloveFeed:
         *,
         int_fields: Iterable[str] = (),
     ) -> None:
-        """Rows of ``values`` on ``topic`` at times ``t`` [s], as ``McapLogger.log_block``;
-        the arrays must not change afterwards (they are queued, not copied)."""
-        if topic in self._subs and len(t):
-            self._put(len(t), (topic, t, tuple(names), values, tuple(int_fields)))
+        """Rows of ``values`` on ``topic`` at times ``t`` [s], as ``McapLogger.log_block``
+        (one in ``every``); the arrays must not change afterwards (queued, not copied)."""
+        if topic not in self._subs or not len(t):
+            return
+        if self.every > 1:
+            c = self._count.get(topic, 0)
+            self._count[topic] = c + len(t)
+            k0 = -c % self.every
+            if k0 >= len(t):
+                return
+            t, values = t[k0 :: self.every], values[k0 :: self.every]
+        self._put(len(t), (topic, t, tuple(names), values, tuple(int_fields)))
 
     def log(self, topic: str, t: float, msg: Mapping[str, Any]) -> None:
         """One message on ``topic`` at time ``t`` [s], as ``McapLogger.log``."""

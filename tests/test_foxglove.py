@@ -114,6 +114,30 @@ def test_feed_encodes_only_subscribed_topics_and_counts_drops():
         feed.close()
 
 
+def test_every_sends_one_row_in_n_per_topic_and_every_event():
+    feed = FoxgloveFeed("127.0.0.1", 0, every=4)
+    c = FoxgloveClient("127.0.0.1", feed.port).connect()
+    try:
+        feed.add_actuator(AC, ACT)
+        c.wait_topics(set(TOPIC.values()), timeout=10)
+        c.subscribe({1: c.channel_of(TOPIC["est"])["id"], 2: c.channel_of(TOPIC["events"])["id"]})
+        _wait(lambda: feed.wants(TOPIC["est"]) and feed.wants(TOPIC["events"]))
+        est = np.zeros((10, len(EST_KEYS)))
+        for a, b in ((0, 3), (3, 8), (8, 10)):  # blocks of 3, 5 and 2 rows
+            feed.log_block(TOPIC["est"], np.arange(a, b, dtype=float), EST_KEYS, est[a:b])
+            feed.log(TOPIC["events"], a + 0.5, {"t": a + 0.5, "kind": "leak", "state": "raised"})
+        got = []
+        while len(got) < 6:
+            r = c.recv(timeout=10)
+            if isinstance(r, MessageData):
+                got.append((r.subscription, r.timestamp_ns / 1e9))
+        assert sorted(x for s, x in got if s == 1) == [0.0, 4.0, 8.0]
+        assert sorted(x for s, x in got if s == 2) == [0.5, 3.5, 8.5]
+    finally:
+        c.close()
+        feed.close()
+
+
 def test_non_loopback_refused_without_the_allow_flag(tmp_path):
     from service.commands.run import foxglove_override
     from service.config import ServiceConfig
@@ -163,7 +187,8 @@ def test_daemon_serves_foxglove_live(net, tmp_path):
     port = free_port()
     d = net.start("run", "--log", str(log), "--no-rotate", "--json", "--store", "off",
                   "--foxglove", f"127.0.0.1:{port}",
-                  env={"SERVOWATCH_FOXGLOVE__BACKLOG": "64"})  # fmt: skip
+                  env={"SERVOWATCH_FOXGLOVE__BACKLOG": "64",
+                       "SERVOWATCH_FOXGLOVE__EVERY": "1"})  # fmt: skip
     net.wait(lambda st: True, what="the daemon's status queryable")
     a = net.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "24")
     c = _connect(port)

@@ -59,7 +59,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", default="demo.png", help="PNG plot (default demo.png; '' = none)")
     p.add_argument(
         "--foxglove", default=None, metavar="HOST:PORT",
-        help="also serve the channels live over the Foxglove WebSocket protocol (loopback)",
+        help="also serve the channels live over the Foxglove WebSocket protocol (loopback; "
+        "one row in 10 per topic, events all)",
     )  # fmt: skip
     p.add_argument("--lines", action="store_true", help="line updates even on a terminal")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")

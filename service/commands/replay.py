@@ -55,6 +55,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
     )  # fmt: skip
     p.add_argument(
+        "--foxglove-every", type=int, default=10, metavar="N",
+        help="send one row in N per topic to Foxglove (default 10; events all; 1 = all)",
+    )  # fmt: skip
+    p.add_argument(
         "--foxglove-wait", type=float, default=0.0, metavar="S",
         help="with --foxglove: wait up to S seconds for a viewer to subscribe before starting",
     )  # fmt: skip
@@ -142,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
                 args.foxglove, allow_remote=args.foxglove_allow_remote, flag="--foxglove",
                 what="the Foxglove server", allow="--foxglove-allow-remote",
             )  # fmt: skip
-            live = FoxgloveFeed(host, port, name=f"servowatch replay {Path(args.log).name}")
+            live = FoxgloveFeed(host, port, every=args.foxglove_every,
+                                name=f"servowatch replay {Path(args.log).name}")  # fmt: skip
         except (ValueError, RuntimeError, OSError) as e:
             return fail(str(e))
         print(f"servowatch replay: Foxglove WebSocket server on ws://{host}:{live.port}",

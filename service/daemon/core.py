@@ -214,7 +214,7 @@ class Daemon:
             fc = config.foxglove
             host, port = fc.host_port()
             self.foxglove = FoxgloveFeed(
-                host, port, queue_size=fc.queue_size, backlog=fc.backlog,
+                host, port, queue_size=fc.queue_size, backlog=fc.backlog, every=fc.every,
                 name=f"servowatch {self.station}/{self.shard}",
             )  # fmt: skip
         self.fanout = FanOut(
