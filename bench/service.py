@@ -29,7 +29,7 @@ time per sample (all its threads: worker, feeder, the SDK's server; the MCAP log
 is apart and does not change): throughput on a saturated CPU is its inverse, so
 ``cost = 1 - cpu_without / cpu_with`` is the fraction of throughput a viewer takes.
 
-    .venv/bin/python bench/service.py --viewer-cost --actuators 10 --duration 10
+    .venv/bin/python bench/service.py --viewer-cost --actuators 10 --duration 10 --repeat 3
 """
 
 from __future__ import annotations
@@ -409,20 +409,26 @@ class _Viewer:
 
 
 def print_cost(rows: list[dict]) -> None:
-    """The --viewer-cost table and the cost figures."""
-    base = next((r for r in rows if r["viewer"] == "none"), None)
-    print(f"{'viewer':>8} {'every':>5} {'samples':>8} {'dropped':>7} {'viewer msgs':>11} "
-          f"{'cpu s':>6} {'cpu us/sample':>13} {'busy':>5} {'throughput cost':>15}")  # fmt: skip
+    """The --viewer-cost table (medians over the repeats) and the cost figures."""
+    import statistics
+
+    groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        cost = (
-            "-" if base is None or r is base
-            else f"{100 * (1 - base['cpu_us_per_sample'] / r['cpu_us_per_sample']):.1f} %"
-        )  # fmt: skip
-        print(f"{r['viewer']:>8} {r['every'] or '-':>5} {r['accepted']:>8} {r['dropped']:>7} {r['viewer_msgs']:>11} "
-              f"{r['cpu_s']:>6.2f} {r['cpu_us_per_sample']:>13.2f} {r['busy']:>5.2f} "
-              f"{cost:>15}")  # fmt: skip
+        groups.setdefault((r["viewer"], r["every"]), []).append(r)
+    med = {k: statistics.median(r["cpu_us_per_sample"] for r in v) for k, v in groups.items()}
+    base = med.get(("none", None))
+    print(f"{'viewer':>8} {'every':>5} {'runs':>4} {'samples':>8} {'dropped':>7} "
+          f"{'viewer msgs':>11} {'cpu us/sample (each run)':>28} {'median':>7} "
+          f"{'throughput cost':>15}")  # fmt: skip
+    for k, v in groups.items():
+        cost = "-" if base is None or k == ("none", None) else f"{100 * (1 - base / med[k]):.1f} %"
+        each = " ".join(f"{r['cpu_us_per_sample']:.1f}" for r in v)
+        print(f"{k[0]:>8} {k[1] or '-':>5} {len(v):>4} {v[0]['accepted']:>8} "
+              f"{max(r['dropped'] for r in v):>7} {v[0]['viewer_msgs']:>11} {each:>28} "
+              f"{med[k]:>7.2f} {cost:>15}")  # fmt: skip
     print("cpu = the daemon process's CPU time (all threads) over the run; throughput cost = "
-          "1 - cpu/sample without the Foxglove server / cpu/sample with the viewer")  # fmt: skip
+          "1 - median cpu/sample without the Foxglove server / median with the viewer; the "
+          "configurations alternate run by run")  # fmt: skip
 
 
 def _f(v, spec=".1f"):
@@ -471,6 +477,7 @@ def main(argv=None) -> int:
     p.add_argument("--profile", action="store_true", help="profile the daemon's worker")
     p.add_argument("--foxglove", type=int, default=None, help=argparse.SUPPRESS)  # _daemon
     p.add_argument("--foxglove-every", type=int, default=10, help=argparse.SUPPRESS)
+    p.add_argument("--repeat", type=int, default=1, help="--viewer-cost: runs per setting")
     p.add_argument(
         "--viewer-cost", action="store_true",
         help="the cost of a Foxglove viewer: runs without, with a layout viewer, with an "
@@ -528,7 +535,8 @@ def main(argv=None) -> int:
 def _viewer_cost(args: argparse.Namespace) -> int:
     n, mon = args.actuators or 10, args.monitor or "real"
     rows = []
-    for viewer, every in ((None, 10), ("layout", 10), ("all", 10), ("layout", 1)):
+    plan = [(None, 10), ("layout", 10), ("all", 10), ("layout", 1)] * args.repeat
+    for viewer, every in plan:
         print(f"run: {n} actuators x {args.rate:g} Hz, {args.duration:g} s, monitor {mon}, "
               f"viewer {viewer or 'none (no Foxglove server)'}, every {every} ...",
               file=sys.stderr, flush=True)  # fmt: skip
