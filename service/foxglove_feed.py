@@ -14,7 +14,7 @@ A viewer never slows the monitor:
   messages that do not fit are dropped and counted (``dropped``, in ``servowatch status``);
 * ``every`` N > 1 sends one message in N per topic (a Plot panel needs no more than a
   screen's worth; events always go, and N = 1 sends all);
-* one feeder thread encodes the queued rows (the log's compiled JSON codec) and hands them
+* one feeder thread, every 25 ms, encodes the queued rows (the log's compiled JSON codec) and hands them
   to the SDK, whose server keeps a bounded backlog per client and drops a slow client's
   oldest messages (``message_backlog_size``); nothing waits on a socket.
 """
@@ -45,6 +45,7 @@ log = logging.getLogger("servowatch.foxglove")
 LEAVES = ("meas", "est", "residual", "health", "events")
 #: messages waiting for the feeder thread at most (beyond: dropped and counted)
 DEFAULT_QUEUE = 20_000
+_PERIOD_S = 0.025  # the feeder thread's period: what is queued is sent within this
 _HEADER = 31  # MCAP Message record: opcode 1, length 8, channel 2, seq 4, log/publish time 16
 
 
@@ -186,7 +187,6 @@ class FoxgloveFeed:
                 return
             self._queued += n
             self._queue.append(item)
-        self._wake.set()
 
     def log_block(
         self,
@@ -219,7 +219,9 @@ class FoxgloveFeed:
     def _run(self) -> None:
         q = self._queue
         while not self._stop.is_set():
-            self._wake.wait(0.1)
+            # polled, not woken per block: one switch to this thread per period, not one
+            # per block (the worker is not interrupted to hand over the GIL)
+            self._wake.wait(_PERIOD_S)
             self._wake.clear()
             while q:
                 topic, t, names, vals, ints = q.popleft()
