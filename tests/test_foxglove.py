@@ -285,3 +285,60 @@ def test_daemon_serves_foxglove_live(net, tmp_path):
     ev_logged = msgs[TOPIC["events"]]
     for x in events:
         assert ev_logged[x.timestamp_ns] == x.payload
+
+
+@pytest.mark.slow
+def test_replay_serves_foxglove_paced(tmp_path):
+    """``servowatch replay LOG --foxglove`` (a separate process) serves the replay's est at
+    the pace of ``--speed``, the same bytes as its ``--out`` log."""
+    import re
+
+    from models.eha import simulate
+    from service.scenarios import load_scenario
+
+    n, speed = 3000, 1.0
+    r = simulate(load_scenario("leak_step"), "HF", out_every=10)  # 1 kHz samples
+    log, out = tmp_path / "run.mcap", tmp_path / "replayed.mcap"
+    with McapLogger(log, background_flush=False) as lg:
+        for k in range(n):
+            d = {"seq": k, "t": float(r.t[k])}
+            d.update({c: float(getattr(r, c)[k]) for c in m.CHANNELS})
+            lg.log(TOPIC["meas"], d["t"], d)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "replay", str(log), "--out", str(out),
+         "--foxglove", "127.0.0.1:0", "--foxglove-every", "1", "--foxglove-wait", "60",
+         "--speed", str(speed), "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        line = p.stderr.readline()
+        port = int(re.search(r"ws://127\.0\.0\.1:(\d+)", line).group(1))
+        c = _connect(port)
+        c.wait_topics(set(TOPIC.values()), timeout=60)  # advertised before the first sample
+        c.subscribe({1: c.channel_of(TOPIC["est"])["id"]})
+        got: list[tuple[float, MessageData]] = []
+        try:
+            while True:
+                x = c.recv(timeout=60 if not got else 5)
+                if isinstance(x, MessageData):
+                    got.append((time.monotonic(), x))
+        except (TimeoutError, ConnectionError):
+            pass
+        c.close()
+        stdout, _ = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0
+    summary = json.loads(stdout)
+    assert summary["samples"] == n
+    _, msgs = _mcap(out)
+    logged = msgs[TOPIC["est"]]
+    assert len(got) >= 0.9 * len(logged)
+    for _, x in got:
+        assert logged[x.timestamp_ns] == x.payload
+    span_t = (got[-1][1].timestamp_ns - got[0][1].timestamp_ns) / 1e9
+    span_wall = got[-1][0] - got[0][0]
+    # paced (as fast as possible, 3000 samples take well under 0.3 s); the first slices lag
+    # by the monitor's warm-up, which the replay catches up
+    assert span_t > 2.5 and span_wall >= 0.6 * span_t / speed
