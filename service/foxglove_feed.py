@@ -87,19 +87,6 @@ def encode_rows(
     return lts, [b[s + _HEADER : e] for s, e in zip(starts, ends.tolist(), strict=True)]
 
 
-class _Listener:
-    """The SDK's server listener: which topics some client subscribed to."""
-
-    def __init__(self, feed: FoxgloveFeed) -> None:
-        self.feed = feed
-
-    def on_subscribe(self, client: Any, channel: Any) -> None:
-        self.feed._subscribed(str(channel.topic), +1)
-
-    def on_unsubscribe(self, client: Any, channel: Any) -> None:
-        self.feed._subscribed(str(channel.topic), -1)
-
-
 class FoxgloveFeed:
     """A Foxglove WebSocket server on ``host:port`` (0: any free port, see :attr:`port`)
     fed by a thread of its own from a queue of at most ``queue_size`` messages; of the rows
@@ -132,7 +119,6 @@ class FoxgloveFeed:
         self._fg = foxglove
         self._ctx = foxglove.Context()
         self._channels: dict[str, Any] = {}
-        self._subs: dict[str, int] = {}
         self._queue: deque = deque()
         self._lock = threading.Lock()
         self._queued = 0  # messages in the queue
@@ -142,8 +128,8 @@ class FoxgloveFeed:
         self._wake = threading.Event()
         self._stop = threading.Event()
         self.server = foxglove.start_server(
-            name=name, host=host, port=port, server_listener=_Listener(self),
-            context=self._ctx, message_backlog_size=int(backlog),
+            name=name, host=host, port=port, context=self._ctx,
+            message_backlog_size=int(backlog),
         )  # fmt: skip
         self.port = int(self.server.port)
         self._thread = threading.Thread(target=self._run, name="foxglove-feed", daemon=True)
@@ -167,17 +153,11 @@ class FoxgloveFeed:
                 context=self._ctx,
             )
 
-    def _subscribed(self, topic: str, d: int) -> None:
-        with self._lock:
-            n = max(0, self._subs.get(topic, 0) + d)
-            if n:
-                self._subs[topic] = n
-            else:
-                self._subs.pop(topic, None)
-
     def wants(self, topic: str) -> bool:
-        """Did some client subscribe to ``topic``?"""
-        return topic in self._subs
+        """Is some client subscribed to ``topic``? (The SDK's own subscription state: no
+        server listener, so no SDK thread ever waits for the GIL.)"""
+        ch = self._channels.get(topic)
+        return ch is not None and ch.has_sinks()
 
     # -- the McapLogger calls ------------------------------------------------------------
     def _put(self, n: int, item: tuple) -> None:
@@ -199,7 +179,7 @@ class FoxgloveFeed:
     ) -> None:
         """Rows of ``values`` on ``topic`` at times ``t`` [s], as ``McapLogger.log_block``
         (one in ``every``); the arrays must not change afterwards (queued, not copied)."""
-        if topic not in self._subs or not len(t):
+        if not len(t) or not self.wants(topic):
             return
         if self.every > 1:
             c = self._count.get(topic, 0)
@@ -212,7 +192,7 @@ class FoxgloveFeed:
 
     def log(self, topic: str, t: float, msg: Mapping[str, Any]) -> None:
         """One message on ``topic`` at time ``t`` [s], as ``McapLogger.log``."""
-        if topic in self._subs:
+        if self.wants(topic):
             self._put(1, (topic, t, None, dict(msg), ()))
 
     # -- the feeder thread ---------------------------------------------------------------
@@ -249,16 +229,13 @@ class FoxgloveFeed:
 
     # -- status and end ------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
-        """Listen address, subscribed topics, messages sent, queued and dropped."""
+        """Listen address, channels, subscribed topics, messages sent, queued and dropped."""
         with self._lock:
-            subs = sum(self._subs.values())
-            topics = len(self._subs)
             queued = self._queued
         return {
             "listen": f"{self.host}:{self.port}",
             "channels": len(self._channels),
-            "subscriptions": subs,
-            "subscribed_topics": topics,
+            "subscribed_topics": sum(ch.has_sinks() for ch in list(self._channels.values())),
             "sent": self.sent,
             "queued": queued,
             "queue_size": self.queue_size,

@@ -105,10 +105,10 @@ def test_feed_encodes_only_subscribed_topics_and_counts_drops():
         feed.log_block(TOPIC["est"], np.arange(9.0), EST_KEYS, np.zeros((9, len(EST_KEYS))))
         st = feed.status()
         assert st["dropped"] == 9 and st["sent"] == 3  # 9 > queue_size 8: dropped, counted
-        assert st["subscriptions"] == 1
+        assert st["subscribed_topics"] == 1
         c.unsubscribe([5])
         _wait(lambda: not feed.wants(TOPIC["est"]))
-        assert feed.status()["subscriptions"] == 0
+        assert feed.status()["subscribed_topics"] == 0
     finally:
         c.close()
         feed.close()
@@ -207,10 +207,10 @@ def test_daemon_serves_foxglove_live(net, tmp_path):
         stuck.wait_topics(set(TOPIC.values()), timeout=10)
         stuck.subscribe({i: stuck.channel_of(TOPIC[leaf])["id"]
                          for i, leaf in enumerate(("meas", "est", "residual", "health"), 1)})  # fmt: skip
-        net.wait(lambda st: st["foxglove"]["subscriptions"] == 4, what="the stuck subscriptions")
+        net.wait(lambda st: st["foxglove"]["subscribed_topics"] == 4, what="the stuck one's")
         net.wait(lambda st: st["samples"] > RATE * 2, what="2 s of samples")
         c.subscribe({1: ch_est["id"], 2: ch_ev["id"]})
-        net.wait(lambda st: st["foxglove"]["subscriptions"] == 6, what="the subscriptions")
+        net.wait(lambda st: st["foxglove"]["subscribed_topics"] == 5, what="est and events")
         ack = send_fault(net.session, AC, ACT, m.FaultCommand(kind="leak", value=8e-13))
         assert ack is not None and ack.ok
         est: list[MessageData] = []
@@ -226,7 +226,7 @@ def test_daemon_serves_foxglove_live(net, tmp_path):
         ts = [x.timestamp_ns for x in est]
         assert ts == sorted(ts) and len(set(ts)) == len(ts)
         c.unsubscribe([1, 2])
-        net.wait(lambda st: st["foxglove"]["subscriptions"] == 4, what="the unsubscription")
+        net.wait(lambda st: st["foxglove"]["subscribed_topics"] == 4, what="the unsubscription")
         late = []  # what was in flight at the unsubscribe, then nothing
         c.sock.settimeout(1.0)
         try:

@@ -171,7 +171,7 @@ def _run(args, cfg, monitor_config, baseline, store, pc, live) -> int:
         for ac, act in log_actuators(rotated_files(args.log)):
             live.add_actuator(ac, act)
         end = time.monotonic() + args.foxglove_wait
-        while live.status()["subscriptions"] == 0 and time.monotonic() < end:
+        while live.status()["subscribed_topics"] == 0 and time.monotonic() < end:
             time.sleep(0.05)
     session = None
     if args.publish:

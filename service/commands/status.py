@@ -61,7 +61,7 @@ def format_status(daemons: dict) -> str:
         fx = st.get("foxglove")
         if fx:
             lines.append(
-                f"  foxglove ws://{fx.get('listen')}: {fx.get('subscriptions')} subscriptions, "
+                f"  foxglove ws://{fx.get('listen')}: {fx.get('subscribed_topics')} topics subscribed, "
                 f"{fx.get('sent')} sent, {fx.get('dropped')} dropped"
             )
         for _name, a in sorted(st.get("actuators", {}).items()):
