@@ -243,10 +243,11 @@ def _monitor_stage(
     (``MonitorBank.step_arrays``, compiled, releases the GIL) while this thread reads the
     next blocks and makes the output rows of the stepped ones (``rows_of``), up to
     ``_IN_FLIGHT`` batches ahead. Paced (``speed``), slices of ``_PACED_SLICE`` samples run
-    when due: ``t0()`` is the wall time of the first sample."""
+    when due: ``t0()`` is the time of the first sample, due when the first slice's output
+    is ready (the bank's warm-up is not caught up by running the next ones flat out)."""
     ids: dict[str, int] = {}
     if speed is not None:
-        wall0 = time.perf_counter()
+        wall0 = None  # the pace starts at the first slice's output (after any JIT warm-up)
         for inp in inputs:
             if inp.name not in ids:
                 ids[inp.name] = bank.index_of(inp.name)
@@ -254,11 +255,10 @@ def _monitor_stage(
             ks = np.full(len(inp.t), inp.row, np.int64)
             for a in range(0, len(inp.t), _PACED_SLICE):
                 sl = slice(a, a + _PACED_SLICE)
-                yield (
-                    ([inp] if a == 0 else []),
-                    ks[sl],
-                    bank.update_arrays(ks[sl], inp.t[sl], inp.ch[sl]),
-                )
+                rows = bank.update_arrays(ks[sl], inp.t[sl], inp.ch[sl])
+                if wall0 is None:
+                    wall0 = time.perf_counter() - (float(inp.t[sl][-1]) - t0()) / speed
+                yield ([inp] if a == 0 else []), ks[sl], rows
                 due = wall0 + (float(inp.t[sl][-1]) - t0()) / speed
                 time.sleep(max(0.0, due - time.perf_counter()))
         return

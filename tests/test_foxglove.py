@@ -337,8 +337,8 @@ def test_replay_serves_foxglove_paced(tmp_path):
     assert len(got) >= 0.9 * len(logged)
     for _, x in got:
         assert logged[x.timestamp_ns] == x.payload
-    span_t = (got[-1][1].timestamp_ns - got[0][1].timestamp_ns) / 1e9
-    span_wall = got[-1][0] - got[0][0]
-    # paced (as fast as possible, 3000 samples take well under 0.3 s); the first slices lag
-    # by the monitor's warm-up, which the replay catches up
-    assert span_t > 2.5 and span_wall >= 0.6 * span_t / speed
+    half = got[len(got) // 2 :]  # past the monitor's warm-up lag, which the replay catches up
+    span_t = (half[-1][1].timestamp_ns - half[0][1].timestamp_ns) / 1e9
+    span_wall = half[-1][0] - half[0][0]
+    # paced: as fast as possible, 3000 samples take well under 0.3 s
+    assert span_t > 1.2 and span_wall >= 0.7 * span_t / speed, (span_t, span_wall)
