@@ -257,7 +257,7 @@ def _monitor_stage(
                 sl = slice(a, a + _PACED_SLICE)
                 rows = bank.update_arrays(ks[sl], inp.t[sl], inp.ch[sl])
                 if wall0 is None:
-                    wall0 = time.perf_counter() - (float(inp.t[sl][-1]) - t0()) / speed
+                    wall0 = time.perf_counter() - (float(inp.t[sl][0]) - t0()) / speed
                 yield ([inp] if a == 0 else []), ks[sl], rows
                 due = wall0 + (float(inp.t[sl][-1]) - t0()) / speed
                 time.sleep(max(0.0, due - time.perf_counter()))
