@@ -19,6 +19,17 @@ over the daemon's last 50 000 outputs (steady state on long runs).
 
     .venv/bin/python bench/service.py                       # default table
     .venv/bin/python bench/service.py --actuators 20 --rate 1000 --duration 10 --monitor null
+
+``--viewer-cost``: the cost of serving Foxglove (``[foxglove]``, docs/dashboard.md), in one
+run: the same load without the Foxglove server, then with a viewer (a WebSocket client in
+this process, tests/_foxglove_ws.py) subscribed to the shipped layout's topics of one
+actuator, then to every channel of every actuator (both at the default ``every`` = 10: one
+row in 10 per topic), then the layout viewer with ``every`` = 1 (every row). The figure is the daemon process's CPU
+time per sample (all its threads: worker, feeder, the SDK's server; the MCAP log process
+is apart and does not change): throughput on a saturated CPU is its inverse, so
+``cost = 1 - cpu_without / cpu_with`` is the fraction of throughput a viewer takes.
+
+    .venv/bin/python bench/service.py --viewer-cost --actuators 10 --duration 10 --repeat 3
 """
 
 from __future__ import annotations
@@ -153,6 +164,16 @@ def _daemon(args: argparse.Namespace) -> int:
         zenoh=ZenohSettings(mode="client", connect=[args.connect]),
     )
     bank = _NullBank() if args.monitor == "null" else None
+    if args.foxglove:
+        from service.config import FoxgloveSettings
+
+        cfg = cfg.model_copy(
+            update={
+                "foxglove": FoxgloveSettings(
+                    listen=f"127.0.0.1:{args.foxglove}", every=args.foxglove_every
+                )
+            }
+        )
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *a: stop.set())
     with zenoh.open(cfg.zenoh.to_zenoh()) as session:
@@ -167,6 +188,7 @@ def _daemon(args: argparse.Namespace) -> int:
             inner = d.process_pending
             d.process_pending = lambda: prof.runcall(inner)
         d.start(session)
+        cpu0 = time.process_time()
         print("ready", flush=True)
         ppid = os.getppid()
         while not stop.wait(0.5):
@@ -178,6 +200,7 @@ def _daemon(args: argparse.Namespace) -> int:
             time.sleep(0.02)
         drain = time.monotonic() - t0
         left = len(d._queue)
+        cpu_s = time.process_time() - cpu0
         st = d.stop()
     if prof is not None:
         import pstats
@@ -185,6 +208,7 @@ def _daemon(args: argparse.Namespace) -> int:
         pstats.Stats(prof, stream=sys.stderr).sort_stats("tottime").print_stats(25)
     st["drain_s"] = drain
     st["left_in_queue"] = left
+    st["cpu_s"] = cpu_s
     print(json.dumps(st), flush=True)
     return 0
 
@@ -203,14 +227,20 @@ def run_one(
     log_every: int = 1,
     profile: bool = False,
     gather: float = 0.005,
+    viewer: str | None = None,
+    every: int = 10,
 ) -> dict:
-    """One benchmark run; returns the row of the table."""
+    """One benchmark run; returns the row of the table. ``viewer``: None (no Foxglove
+    server), "layout" (a viewer of one actuator's layout topics) or "all" (of every
+    channel)."""
     import zenoh
 
     from service.log import read_log
     from service.zenoh_util import free_port, loopback, make_config
 
     ep = loopback(free_port())
+    fx_port = free_port()
+    view = None
     router = zenoh.open(make_config("router", [ep]))
     tmp = tempfile.mkdtemp(prefix="servowatch-bench-")
     log = Path(tmp) / "bench.mcap"
@@ -237,11 +267,14 @@ def run_one(
                 *(["--profile"] if profile else []),
                 "--gather",
                 str(gather),
+                *(["--foxglove", str(fx_port), "--foxglove-every", str(every)] if viewer else []),
             ],
             stdout=subprocess.PIPE,
             text=True,
         )
         assert dproc.stdout.readline().strip() == "ready"
+        if viewer:
+            view = _Viewer(fx_port, viewer)
         time.sleep(0.5)
         g = subprocess.run(
             [
@@ -271,6 +304,8 @@ def run_one(
         st = json.loads(out.strip().splitlines()[-1])
     finally:
         router.close()
+        if view is not None:
+            view.close()
     logged = sum(1 for topic, _t, _m in read_log(log) if topic.endswith("/meas"))
     acts = st["actuators"].values()
     processed = sum(a["outputs"] for a in acts)
@@ -301,11 +336,99 @@ def run_one(
         "drain_s": st["drain_s"],
         "left_in_queue": st["left_in_queue"],
         "gen_late_s": gen["max_late_s"],
+        "viewer": viewer or "none",
+        "every": every if viewer else None,
+        "cpu_s": st["cpu_s"],
+        "cpu_us_per_sample": 1e6 * st["cpu_s"] / max(1, st["samples"]),
+        "viewer_msgs": 0 if view is None else view.received,
+        "viewer_subscriptions": 0 if view is None else len(view.subs),
+        "feed": st.get("foxglove"),
         "keeps_up": st["dropped"] == 0
         and st["drain_s"] < 1.0
         and st["samples"] == gen["sent_samples"]
         and (st["latency_ms"]["p99"] or 0.0) < 1000.0,
     }
+
+
+class _Viewer:
+    """A Foxglove viewer in a thread: subscribes to the channels it wants as they are
+    advertised ("layout": est, residual, health, events of the first actuator; "all":
+    every channel) and reads and counts the messages."""
+
+    def __init__(self, port: int, which: str) -> None:
+        import threading
+
+        sys.path.insert(0, str(ROOT / "tests"))
+        from _foxglove_ws import FoxgloveClient
+
+        end = time.monotonic() + 30
+        while True:
+            try:
+                self.c = FoxgloveClient("127.0.0.1", port).connect()
+                break
+            except OSError:
+                if time.monotonic() > end:
+                    raise
+                time.sleep(0.1)
+        self.which = which
+        self.subs: dict[int, int] = {}  # channel id -> subscription id
+        self.received = 0
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+        self._t.start()
+
+    def _wanted(self, topic: str) -> bool:
+        if self.which == "all":
+            return True
+        return topic.startswith("/fleet/AC000/act0/") and topic.rsplit("/", 1)[-1] in (
+            "est", "residual", "health", "events")  # fmt: skip
+
+    def _run(self) -> None:
+        from _foxglove_ws import MessageData
+
+        while not self._stop.is_set():
+            try:
+                r = self.c.recv(timeout=0.5)
+            except TimeoutError:
+                continue
+            except (OSError, ConnectionError):
+                return
+            if isinstance(r, MessageData):
+                self.received += 1
+            elif r.get("op") == "advertise":
+                new = {ch["id"]: len(self.subs) + k + 1 for k, ch in enumerate(
+                    x for x in r["channels"] if self._wanted(x["topic"]))}  # fmt: skip
+                if new:
+                    self.subs.update(new)
+                    self.c.subscribe({s: c for c, s in new.items()})
+
+    def close(self) -> None:
+        self._stop.set()
+        self._t.join(5)
+        self.c.close()
+
+
+def print_cost(rows: list[dict]) -> None:
+    """The --viewer-cost table (medians over the repeats) and the cost figures."""
+    import statistics
+
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["viewer"], r["every"]), []).append(r)
+    med = {k: statistics.median(r["cpu_us_per_sample"] for r in v) for k, v in groups.items()}
+    base = med.get(("none", None))
+    print(f"{'viewer':>8} {'every':>5} {'runs':>4} {'samples':>8} {'dropped':>7} "
+          f"{'viewer msgs':>11} {'cpu us/sample (each run)':>28} {'median':>7} "
+          f"{'throughput cost':>15}")  # fmt: skip
+    for k, v in groups.items():
+        cost = "-" if base is None or k == ("none", None) else f"{100 * (1 - base / med[k]):.1f} %"
+        each = " ".join(f"{r['cpu_us_per_sample']:.1f}" for r in v)
+        print(f"{k[0]:>8} {k[1] or '-':>5} {len(v):>4} {v[0]['accepted']:>8} "
+              f"{max(r['dropped'] for r in v):>7} {v[0]['viewer_msgs']:>11} {each:>28} "
+              f"{med[k]:>7.2f} {cost:>15}")  # fmt: skip
+    print("cpu = the daemon process's CPU time (all threads) over the run; throughput cost = "
+          "1 - median cpu/sample without the Foxglove server / median with the viewer; the "
+          "configurations alternate run by run")  # fmt: skip
 
 
 def _f(v, spec=".1f"):
@@ -352,11 +475,21 @@ def main(argv=None) -> int:
     p.add_argument("--json", action="store_true")
     p.add_argument("--gather", type=float, default=0.005, help="daemon batch gathering [s]")
     p.add_argument("--profile", action="store_true", help="profile the daemon's worker")
+    p.add_argument("--foxglove", type=int, default=None, help=argparse.SUPPRESS)  # _daemon
+    p.add_argument("--foxglove-every", type=int, default=10, help=argparse.SUPPRESS)
+    p.add_argument("--repeat", type=int, default=1, help="--viewer-cost: runs per setting")
+    p.add_argument(
+        "--viewer-cost", action="store_true",
+        help="the cost of a Foxglove viewer: runs without, with a layout viewer, with an "
+        "all-channels viewer (default 10 actuators, real monitor)",
+    )  # fmt: skip
     args = p.parse_args(argv)
     if args.role == "_gen":
         return _generator(args)
     if args.role == "_daemon":
         return _daemon(args)
+    if args.viewer_cost:
+        return _viewer_cost(args)
     default_plan = args.actuators is None and args.monitor is None
     if not default_plan:
         plan = [(args.actuators or 20, args.monitor or "real", args.log_every)]
@@ -394,6 +527,28 @@ def main(argv=None) -> int:
         f"publish_every {args.publish_every}"
     )
     print_table(rows)
+    if args.json:
+        print(json.dumps(rows))
+    return 0
+
+
+def _viewer_cost(args: argparse.Namespace) -> int:
+    n, mon = args.actuators or 10, args.monitor or "real"
+    rows = []
+    plan = [(None, 10), ("layout", 10), ("all", 10), ("layout", 1)] * args.repeat
+    for viewer, every in plan:
+        print(f"run: {n} actuators x {args.rate:g} Hz, {args.duration:g} s, monitor {mon}, "
+              f"viewer {viewer or 'none (no Foxglove server)'}, every {every} ...",
+              file=sys.stderr, flush=True)  # fmt: skip
+        row = run_one(
+            n, args.rate, args.duration, mon, args.spm, args.publish_every, args.drain_cap,
+            args.log_every, False, args.gather, viewer, every,
+        )  # fmt: skip
+        print("  " + json.dumps(row), file=sys.stderr, flush=True)
+        rows.append(row)
+    print(f"servowatch Foxglove viewer cost ({os.cpu_count()} CPUs): {n} actuators x "
+          f"{args.rate:g} Hz, {args.duration:g} s, monitor {mon}")  # fmt: skip
+    print_cost(rows)
     if args.json:
         print(json.dumps(rows))
     return 0

@@ -45,6 +45,7 @@ __all__ = [
     "ServiceConfig",
     "PrognosticsSettings",
     "ClockSettings",
+    "FoxgloveSettings",
     "SessionError",
     "AuthError",
     "load_config",
@@ -269,6 +270,43 @@ class GroupSettings(BaseModel):
     )
 
 
+class FoxgloveSettings(BaseModel):
+    """The live Foxglove WebSocket server (``service.foxglove_feed``, docs/dashboard.md):
+    loopback unless ``allow_remote`` (docs/security.md, "HTTP")."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    listen: str = Field("127.0.0.1:8765", description="HOST:PORT of the WebSocket server")
+    allow_remote: bool = Field(
+        False, description="allow a non-loopback host (only behind an authenticating TLS proxy)"
+    )
+    queue_size: int = Field(
+        20_000, ge=1, le=10_000_000, description="messages waiting for the feeder at most"
+    )
+    backlog: int = Field(
+        1024, ge=1, le=1_000_000, description="messages buffered per client (oldest dropped)"
+    )
+    every: int = Field(
+        10, ge=1, le=100_000, description="send one row in N per topic (events: all; 1 = all)"
+    )
+
+    @model_validator(mode="after")
+    def _loopback(self) -> FoxgloveSettings:
+        from service.listen import check_listen
+
+        check_listen(
+            self.listen, allow_remote=self.allow_remote, flag="listen",
+            what="the Foxglove server", allow="allow_remote = true",
+        )  # fmt: skip
+        return self
+
+    def host_port(self) -> tuple[str, int]:
+        """(host, port) of ``listen``."""
+        from service.listen import check_listen
+
+        return check_listen(self.listen, allow_remote=self.allow_remote)
+
+
 class ServiceConfig(BaseModel):
     """Settings of ``servowatch run`` (and defaults for demo and replay)."""
 
@@ -303,6 +341,9 @@ class ServiceConfig(BaseModel):
     clock: ClockSettings = Field(default_factory=ClockSettings)
     group: GroupSettings | None = Field(
         None, description="share the units with the other daemons of a monitor group"
+    )
+    foxglove: FoxgloveSettings | None = Field(
+        None, description="serve the channels live to Foxglove (None: no server)"
     )
 
 

@@ -8,6 +8,10 @@ Per actuator, counting its outputs 1, 2, ...:
 * every alarm event is logged on ``.../events``;
 * est, res and health are published every ``publish_every``-th output.
 
+With ``live`` (a ``service.foxglove_feed.FoxgloveFeed``), the logged est, residual, health
+and events also go to the live Foxglove channels (the feed encodes only what a viewer
+subscribed to).
+
 With ``on_periods``, each tracked actuator's rows also go into a
 ``service.prognostics.PeriodAccumulator`` (docs/prognostics.md section 1); the periods it
 closes and its alarm raises are handed to ``on_periods(periods, alarms)``, so the daemon and
@@ -66,7 +70,9 @@ class FanOut:
     """Turns ``BankRows`` into log blocks (``logger.log_block``), events (``logger.log``) and
     Zenoh puts on ``fleet/{ac}/{act}/{est,res,health}`` (``session``; None: no publishing).
 
-    ``on_publish_error(exc)`` is called when a put fails (None: the error propagates).
+    ``live`` receives what is logged (``log_block``/``log``, as a ``McapLogger``; None: no
+    live view). ``on_publish_error(exc)`` is called when a put fails (None: the error
+    propagates).
     ``on_periods(periods, alarms)`` receives closed operating periods and alarm raises
     (None: no periods); ``source`` names them in the store (a log's identity, or
     ``live:{station}``); ``counters(row)`` gives the monitor's counters of a bank row.
@@ -84,6 +90,7 @@ class FanOut:
         source: str = "live",
         period_config: PeriodConfig | None = None,
         counters: Callable[[int], Mapping[str, int]] | None = None,
+        live: Any | None = None,
     ) -> None:
         if int(log_every) < 1 or int(publish_every) < 1:
             raise ValueError("log_every and publish_every must be >= 1")
@@ -97,6 +104,7 @@ class FanOut:
         self.source = source
         self.period_config = period_config or PeriodConfig()
         self.counters = counters
+        self.live = live
 
     def track(
         self,
@@ -113,6 +121,8 @@ class FanOut:
             tg = _Target(aircraft, actuator, f"/fleet/{aircraft}/{actuator}/")
             self._targets[row] = tg
             self._set(tg, c_lk0, info)
+            if self.live is not None:
+                self.live.add_actuator(aircraft, actuator)
 
     def retrack(
         self, row: int, *, c_lk0: float | None, info: Mapping[str, Any] | None = None
@@ -163,6 +173,7 @@ class FanOut:
         order = np.argsort(owner, kind="stable")
         out = []
         lg = self.logger
+        lv = self.live
         for g in np.split(order, np.flatnonzero(np.diff(owner[order])) + 1):
             row = int(owner[g[0]])
             tg = self._targets[row]
@@ -176,19 +187,31 @@ class FanOut:
                     rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt
                 )
                 self._deliver(closed, [tg.acc])
-            if lg is not None:
+            if lg is not None or lv is not None:
                 sel = g[(num % self.log_every == 0) | ev]
                 if len(sel):
                     ts = rows.t[sel]
-                    lg.log_block(tg.prefix + "est", ts, EST_KEYS, rows.est[sel])
-                    lg.log_block(tg.prefix + "residual", ts, RES_KEYS, rows.res[sel])
-                    lg.log_block(tg.prefix + "health", ts, HEALTH_KEYS, rows.health[sel])
+                    for leaf, keys, arr in (
+                        ("est", EST_KEYS, rows.est),
+                        ("residual", RES_KEYS, rows.res),
+                        ("health", HEALTH_KEYS, rows.health),
+                    ):
+                        topic = tg.prefix + leaf
+                        blk = None
+                        if lg is not None:
+                            blk = arr[sel]
+                            lg.log_block(topic, ts, keys, blk)
+                        if lv is not None and lv.wants(topic):  # else nothing is made
+                            lv.log_block(topic, ts, keys, arr[sel] if blk is None else blk)
             for r in g[ev].tolist():
                 t_r = float(rows.t[r])
                 for e in rows.events[r]:
                     d = event_dict(e)
+                    te, fd = float(d.get("t") or t_r), flat(d)
                     if lg is not None:
-                        lg.log(tg.prefix + "events", float(d.get("t") or t_r), flat(d))
+                        lg.log(tg.prefix + "events", te, fd)
+                    if lv is not None:
+                        lv.log(tg.prefix + "events", te, fd)
                     em.events.append(d)
             if self.session is not None:
                 for r in g[num % self.publish_every == 0].tolist():

@@ -8,7 +8,9 @@ of consecutive samples (``MonitorBank.update_arrays``; as fast as possible, its 
 gives results that do not depend on the batch composition (``tests/test_monitor.py``), so a
 replay reproduces the live daemon's estimates when it uses the same monitor configuration and
 baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` copied, ``est``,
-``residual``, ``health``, ``events``) and, optionally, are republished on Zenoh.
+``residual``, ``health``, ``events``) and, optionally, are republished on Zenoh and served
+live to Foxglove (``live``, a ``service.foxglove_feed.FoxgloveFeed``: the same channels as the
+daemon's, best paced).
 
 With a health store (``store``), each actuator runs on its latest baseline from the store
 (``service.monitor.MonitorFleet``; none: the default, ``commissioned: false``), and the
@@ -259,10 +261,11 @@ def _monitor_stage(
     (``MonitorBank.step_arrays``, compiled, releases the GIL) while this thread reads the
     next blocks and makes the output rows of the stepped ones (``rows_of``), up to
     ``_IN_FLIGHT`` batches ahead. Paced (``speed``), slices of ``_PACED_SLICE`` samples run
-    when due: ``t0()`` is the wall time of the first sample."""
+    when due: ``t0()`` is the time of the first sample, due when the first slice's output
+    is ready (the bank's warm-up is not caught up by running the next ones flat out)."""
     ids: dict[str, int] = {}
     if speed is not None:
-        wall0 = time.perf_counter()
+        wall0 = None  # the pace starts at the first slice's output (after any JIT warm-up)
         for inp in inputs:
             if inp.name not in ids:
                 ids[inp.name] = bank.index_of(inp.name)
@@ -270,11 +273,10 @@ def _monitor_stage(
             ks = np.full(len(inp.t), inp.row, np.int64)
             for a in range(0, len(inp.t), _PACED_SLICE):
                 sl = slice(a, a + _PACED_SLICE)
-                yield (
-                    ([inp] if a == 0 else []),
-                    ks[sl],
-                    bank.update_arrays(ks[sl], inp.t[sl], inp.ch[sl]),
-                )
+                rows = bank.update_arrays(ks[sl], inp.t[sl], inp.ch[sl])
+                if wall0 is None:
+                    wall0 = time.perf_counter() - (float(inp.t[sl][0]) - t0()) / speed
+                yield ([inp] if a == 0 else []), ks[sl], rows
                 due = wall0 + (float(inp.t[sl][-1]) - t0()) / speed
                 time.sleep(max(0.0, due - time.perf_counter()))
         return
@@ -320,6 +322,7 @@ def _write_stage(
     summary: ReplaySummary,
     progress: Callable[[ReplaySummary], None] | None,
     fleet: MonitorFleet | None = None,
+    live: Any | None = None,
 ) -> None:
     """Stage 3: the meas samples copied to the output log, the outputs through the fan-out
     (log blocks, events, publishing), the summary."""
@@ -332,9 +335,11 @@ def _write_stage(
                 info = {"commissioned": v is not None, "baseline_version": v}
                 kw = {"c_lk0": fleet.bank.baseline_of(inp.name).c_lk, "info": info}
             fanout.track(inp.row, *inp.at, **kw)
+            ints = ("seq",) if "seq" in inp.names else ()
             if writer is not None:
-                ints = ("seq",) if "seq" in inp.names else ()
                 writer.log_block(inp.topic, inp.t, inp.names, inp.meas, int_fields=ints)
+            if live is not None and live.wants(inp.topic):
+                live.log_block(inp.topic, inp.t, inp.names, inp.meas, int_fields=ints)
         summary.outputs += len(rows.index)
         for em in fanout.emit(rows, ks):
             summary.alarms.extend({"actuator": em.name, **d} for d in em.events)
@@ -362,6 +367,7 @@ def replay(
     start_unix: float | None = None,
     flight_gap_s: float = FLIGHT_GAP_S,
     stamper: FlightStamper | None = None,
+    live: Any | None = None,
 ) -> ReplaySummary:
     """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
 
@@ -387,6 +393,8 @@ def replay(
     flight, start_unix, flight_gap_s : the periods' flight number and the calendar time of the
         log's first sample, else from the log's flight records, else the gap rule with this
         gap (``service.prognostics.life``); ``stamper`` carries a batch's state.
+    live : a ``FoxgloveFeed``: meas, est, residual, health and events served live (the
+        actuators named in the log's summary are advertised before the first sample).
 
     A truncated log is replayed up to its last complete chunk; the summary says so in
     ``truncated`` and ``warnings``.
@@ -425,8 +433,12 @@ def replay(
         st = stamper or FlightStamper(_last_period(hs), flight_gap_s)
         life = (st, records, flight, start_unix)
     try:
+        if live is not None:
+            for ac, act in log_actuators(files):
+                live.add_actuator(ac, act)
         return _replay(files, log_path, summary, cfg, base, hs, speed, out, publish,
-                       publish_every, log_every, progress, period_config, life)  # fmt: skip
+                       publish_every, log_every, progress, period_config, life,
+                       live)  # fmt: skip
     finally:
         if own and hs is not None:
             hs.close()
@@ -445,8 +457,28 @@ def _last_period(hs) -> Callable[[str], Period | None]:
     return last
 
 
+def log_actuators(files: list[Path]) -> list[tuple[str, str]]:
+    """(aircraft, actuator) of the ``meas`` channels in the summaries of ``files`` (a file
+    without a summary, e.g. truncated, names none)."""
+    from mcap.reader import make_reader
+
+    out: list[tuple[str, str]] = []
+    for f in files:
+        try:
+            with open(f, "rb") as fh:
+                summ = make_reader(fh).get_summary()
+        except Exception as e:  # truncated: its actuators appear with their first sample
+            log.debug("summary of %s: %s", f, e)
+            continue
+        for ch in (summ.channels if summ is not None else {}).values():
+            at = _parse_topic(ch.topic) if _is_meas(ch.topic) else None
+            if at is not None and at not in out:
+                out.append(at)
+    return out
+
+
 def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publish_every,
-            log_every, progress, period_config, life=None) -> ReplaySummary:  # fmt: skip
+            log_every, progress, period_config, life=None, live=None) -> ReplaySummary:  # fmt: skip
     """``replay`` once the log, the configuration and the store (``hs``) are resolved."""
     closed: list = []
     alarms: list = []
@@ -475,7 +507,7 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
     fanout = FanOut(
         writer, log_every=log_every, publish_every=publish_every, session=publish,
         on_periods=None if hs is None else (lambda p, a: (closed.extend(p), alarms.extend(a))),
-        source=summary.source or "replay", period_config=period_config,
+        source=summary.source or "replay", period_config=period_config, live=live,
     )  # fmt: skip
     stats = LogReadStats()
     wall0 = time.perf_counter()
@@ -485,7 +517,7 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
         batches = _monitor_stage(inputs, bank, speed, lambda: summary.t_start or 0.0)
         try:
             fleet = bank if isinstance(bank, MonitorFleet) else None
-            _write_stage(batches, writer, fanout, summary, progress, fleet)
+            _write_stage(batches, writer, fanout, summary, progress, fleet, live)
             fanout.flush()
         finally:
             batches.close()  # stops the monitor stage's worker thread

@@ -57,6 +57,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="demo", help="actuator scenario (default demo)")
     p.add_argument("--out", default="demo.mcap", help="MCAP log (default demo.mcap)")
     p.add_argument("--plot", default="demo.png", help="PNG plot (default demo.png; '' = none)")
+    p.add_argument(
+        "--foxglove", default=None, metavar="HOST:PORT",
+        help="also serve the channels live over the Foxglove WebSocket protocol (loopback; "
+        "one row in 10 per topic, events all)",
+    )  # fmt: skip
     p.add_argument("--lines", action="store_true", help="line updates even on a terminal")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
@@ -238,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
 
     from service import messages as msgs
     from service.commands.inject import send_fault
-    from service.config import ServiceConfig, ZenohSettings
+    from service.config import FoxgloveSettings, ServiceConfig, ZenohSettings
     from service.daemon import Daemon
     from service.scenarios import ScenarioError, resolve_scenario
     from service.zenoh_util import free_port, loopback, make_config
@@ -253,6 +258,10 @@ def run(args: argparse.Namespace) -> int:
         scenario = str(resolve_scenario(args.scenario))
     except ScenarioError as e:
         return fail(str(e))
+    try:
+        fx = None if args.foxglove is None else FoxgloveSettings(listen=args.foxglove)
+    except ValueError as e:
+        return fail(f"--foxglove: {e}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.exists():
@@ -266,6 +275,7 @@ def run(args: argparse.Namespace) -> int:
         publish_every=10,
         silence_s=2.0,
         zenoh=ZenohSettings(mode="client", connect=[ep]),
+        foxglove=fx,
     )
     tty = sys.stdout.isatty() and not args.lines and not args.json
     screen = _Screen(tty, sys.stderr if args.json else sys.stdout)

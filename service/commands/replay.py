@@ -18,6 +18,9 @@ NAME = "replay"
 HELP = "replay an MCAP log through the monitor (as fast as possible or paced)"
 
 
+_UNSET = object()  # --speed not given: max, or 1.0 with --foxglove
+
+
 def _speed(text: str) -> float | None:
     if text.strip().lower() in ("max", "inf", "fast"):
         return None
@@ -52,8 +55,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "flight (default 1800)",
     )  # fmt: skip
     p.add_argument(
-        "--speed", type=_speed, default=None, metavar="max|X",
-        help="max (default): as fast as possible; X: X times real time",
+        "--speed", type=_speed, default=_UNSET, metavar="max|X",
+        help="max (default; 1.0 with --foxglove): as fast as possible; X: X times real time",
     )  # fmt: skip
     p.add_argument("--out", default=None, metavar="FILE.mcap", help="write a new log here")
     p.add_argument("--publish", action="store_true", help="republish est/res/health on Zenoh")
@@ -64,6 +67,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--log-every", type=int, default=1, metavar="N",
         help="with --out: log est/residual/health every N outputs (default 1 = all)",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove", default=None, metavar="HOST:PORT",
+        help="serve the replay live over the Foxglove WebSocket protocol (loopback unless "
+        "--foxglove-allow-remote), paced by --speed",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove-allow-remote", action="store_true",
+        help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove-every", type=int, default=10, metavar="N",
+        help="send one row in N per topic to Foxglove (default 10; events all; 1 = all)",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove-wait", type=float, default=0.0, metavar="S",
+        help="with --foxglove: wait up to S seconds for a viewer to subscribe before starting",
     )  # fmt: skip
     p.add_argument("--config", default=None, help="service TOML (its [monitor] and baseline)")
     p.add_argument(
@@ -108,7 +128,6 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from service.config import ConfigError, load_config
-    from service.replay import replay
 
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     from service.log import rotated_files
@@ -170,9 +189,48 @@ def run(args: argparse.Namespace) -> int:
     if len(logs) > 1:
         if store is None:
             return fail("several logs go into a store: give --store")
-        if args.out or args.publish or args.speed is not None:
-            return fail("--out, --publish and --speed take one log")
+        if args.out or args.publish or args.speed is not _UNSET or args.foxglove is not None:
+            return fail("--out, --publish, --speed and --foxglove take one log")
         return _run_many(args, logs, store, monitor_config, baseline, pc, gap)
+    if args.speed is _UNSET:
+        args.speed = 1.0 if args.foxglove is not None else None
+    live = None
+    if args.foxglove is not None:
+        from service.foxglove_feed import FoxgloveFeed
+        from service.listen import check_listen
+
+        try:
+            host, port = check_listen(
+                args.foxglove, allow_remote=args.foxglove_allow_remote, flag="--foxglove",
+                what="the Foxglove server", allow="--foxglove-allow-remote",
+            )  # fmt: skip
+            live = FoxgloveFeed(host, port, every=args.foxglove_every,
+                                name=f"servowatch replay {Path(logs[0]).name}")  # fmt: skip
+        except (ValueError, RuntimeError, OSError) as e:
+            return fail(str(e))
+        print(f"servowatch replay: Foxglove WebSocket server on ws://{host}:{live.port}",
+              file=sys.stderr, flush=True)  # fmt: skip
+    try:
+        return _run(args, logs, cfg, monitor_config, baseline, store, pc, gap, live)
+    finally:
+        if live is not None:
+            live.close()
+
+
+def _run(args, logs, cfg, monitor_config, baseline, store, pc, gap, live) -> int:
+    """``run`` once the inputs are checked; ``live``: a FoxgloveFeed or None."""
+    from service.replay import replay
+
+    if live is not None and args.foxglove_wait > 0:
+        import time
+
+        from service.replay import log_actuators, rotated_files
+
+        for ac, act in log_actuators(rotated_files(logs[0])):
+            live.add_actuator(ac, act)
+        end = time.monotonic() + args.foxglove_wait
+        while live.status()["subscribed_topics"] == 0 and time.monotonic() < end:
+            time.sleep(0.05)
     session = None
     if args.publish:
         import zenoh
@@ -193,6 +251,7 @@ def run(args: argparse.Namespace) -> int:
             monitor_config=monitor_config, baseline=baseline, log_every=args.log_every,
             publish_every=cfg.publish_every if cfg is not None else 10, store=store,
             period_config=pc, flight=args.flight, start_unix=args.start_unix, flight_gap_s=gap,
+            live=live,
         )  # fmt: skip
     except (OSError, ValueError) as e:
         return fail(str(e))

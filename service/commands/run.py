@@ -63,8 +63,46 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="health store (SQLite path or postgresql:// URL; 'off': none); default: the "
         "config's store, else $SERVOWATCH_STORE or servowatch-data/health.sqlite",
     )  # fmt: skip
+    p.add_argument(
+        "--foxglove", default=None, metavar="HOST:PORT",
+        help="serve the channels live over the Foxglove WebSocket protocol (loopback unless "
+        "--foxglove-allow-remote; overrides [foxglove] listen)",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove-allow-remote", action="store_true",
+        help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
+    )  # fmt: skip
+    p.add_argument(
+        "--foxglove-every", type=int, default=None, metavar="N",
+        help="send one row in N per topic to Foxglove (default: [foxglove] every, 10; events "
+        "all; 1 = every row)",
+    )  # fmt: skip
     p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
+
+
+def foxglove_override(cfg, listen: str | None, allow_remote: bool, every: int | None = None):
+    """``cfg`` with ``--foxglove HOST:PORT``, ``--foxglove-allow-remote`` and
+    ``--foxglove-every`` applied."""
+    from service.config import ConfigError, FoxgloveSettings
+    from service.listen import check_listen
+
+    if listen is None and not allow_remote and every is None:
+        return cfg
+    fx = cfg.foxglove.model_dump() if cfg.foxglove is not None else {}
+    if listen is not None:
+        check_listen(
+            listen, allow_remote=allow_remote or bool(fx.get("allow_remote")),
+            flag="--foxglove", what="the Foxglove server", allow="--foxglove-allow-remote",
+        )  # fmt: skip
+        fx["listen"] = listen
+    if allow_remote:
+        fx["allow_remote"] = True
+    if every is not None:
+        fx["every"] = every
+    if listen is None and cfg.foxglove is None:
+        raise ConfigError("--foxglove-* options need --foxglove or [foxglove]", None, None)
+    return cfg.model_copy(update={"foxglove": FoxgloveSettings.model_validate(fx)})
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         cfg = service_config_from_args(args)
+        cfg = foxglove_override(cfg, args.foxglove, args.foxglove_allow_remote, args.foxglove_every)
     except (ConfigError, ValueError) as e:
         return fail(str(e))
     from service.store import default_store

@@ -58,6 +58,12 @@ def format_status(daemons: dict) -> str:
                 f"{'' if g.get('joined') else ' (joining)'}; {g.get('takeovers')} units taken "
                 f"over, {g.get('released')} released, {g.get('held_units')} held"
             )
+        fx = st.get("foxglove")
+        if fx:
+            lines.append(
+                f"  foxglove ws://{fx.get('listen')}: {fx.get('subscribed_topics')} topics subscribed, "
+                f"{fx.get('sent')} sent, {fx.get('dropped')} dropped"
+            )
         for _name, a in sorted(st.get("actuators", {}).items()):
             est = ", ".join(
                 f"{k}={_fmt(v)}"

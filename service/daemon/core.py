@@ -12,6 +12,10 @@ Data path (docs/design.md, "Data flow" and "Backpressure"):
   to ``service.fanout.FanOut`` (the replay's fan-out too): est, residual and health logged
   every ``log_every``-th output and at every alarm event, events logged, est/res/health
   published every ``publish_every``-th output per actuator;
+* with ``[foxglove]`` (docs/dashboard.md): the logged meas, est, residual, health and events
+  also go live to a Foxglove WebSocket server (``service.foxglove_feed``) through a bounded
+  queue and a thread of its own; only subscribed topics are encoded, and what does not fit
+  is dropped and counted in the status (``foxglove.dropped``);
 * the status queryable ``monitor/{station}/{shard}/status`` answers a JSON snapshot;
 * with a health store (``store`` in the TOML, docs/store.md): each actuator runs on its
   latest baseline from the store (``service.monitor.MonitorFleet``; none: the default,
@@ -205,6 +209,16 @@ class Daemon:
         self.latency = deque(maxlen=50000)  # receipt -> health output [s]
         self.age = deque(maxlen=50000)  # sample time t -> health output [s] (Unix-time t)
         self.bad_log = RateLimitedLog(log, bad_log_interval_s)
+        self.foxglove = None  # FoxgloveFeed
+        if config.foxglove is not None:
+            from service.foxglove_feed import FoxgloveFeed
+
+            fc = config.foxglove
+            host, port = fc.host_port()
+            self.foxglove = FoxgloveFeed(
+                host, port, queue_size=fc.queue_size, backlog=fc.backlog, every=fc.every,
+                name=f"servowatch {self.station}/{self.shard}",
+            )  # fmt: skip
         self.fanout = FanOut(
             logger,
             log_every=self.log_every,
@@ -214,6 +228,7 @@ class Daemon:
             source=f"live:{self.station}/{self.shard}",
             period_config=PeriodConfig(silence_s=pc.period_silence_s, window_s=pc.period_window_s),
             counters=lambda row: self.bank.counters_of(self._row_key[row]),
+            live=self.foxglove,
         )
         self.started = time.time()
         self.ticks = 0
@@ -370,6 +385,10 @@ class Daemon:
                 )
         except Exception:  # kept in logger.failure and logged there; monitoring goes on
             self.errors += 1
+        fx = self.foxglove
+        if fx is not None and fx.wants(topic):
+            fx.log_block(topic, a.t[j0:], MEAS_LOG_FIELDS, meas_log_values(a, j0),
+                         int_fields=("seq",))  # fmt: skip
 
     def _update(self, parts: list) -> None:
         """The tick's samples in one ``MonitorBank.update_arrays`` call; the output rows
@@ -756,6 +775,8 @@ class Daemon:
                 d.undeclare()
         self.fanout.flush()  # open periods of every actuator to the store
         self.fanout.close()
+        if self.foxglove is not None:
+            self.foxglove.close()
         if self.store is not None:
             self.store.close()
         try:

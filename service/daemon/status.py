@@ -99,6 +99,7 @@ def snapshot(d: Daemon) -> dict[str, Any]:
             "alive_tokens": sorted(k for k, v in d.alive_tokens.items() if v),
             "lost_tokens": sorted(k for k, v in d.alive_tokens.items() if not v),
             "silent": [a["aircraft"] + "/" + a["actuator"] for a in acts.values() if a["silent"]],
+            "foxglove": None if getattr(d, "foxglove", None) is None else d.foxglove.status(),
             "group": None if d.group is None else {**d.group.status(), "released_units": released},
         }
     )

@@ -46,7 +46,7 @@ try:
 except ImportError:  # pragma: no cover
     lz4_frame = None
 
-__all__ = ["McapLogger", "json_schema_for"]
+__all__ = ["McapLogger", "json_schema_for", "block_schema", "encode_message"]
 
 log = logging.getLogger("servowatch.log")
 
@@ -69,6 +69,24 @@ def json_schema_for(topic: str, msg: Mapping[str, Any]) -> dict[str, Any]:
         else:
             props[k] = {}
     return {"title": topic, "type": "object", "properties": props}
+
+
+def encode_message(msg: Mapping[str, Any]) -> bytes:
+    """The JSON bytes :meth:`McapLogger.log` writes for ``msg`` (compact; non-finite floats
+    as null and other values made flat by ``service.jsonutil.flat``)."""
+    try:
+        return _ENCODE(msg).encode()
+    except (ValueError, TypeError):
+        return _ENCODE(flat(dict(msg))).encode()
+
+
+def block_schema(
+    topic: str, names: Iterable[str], int_fields: Iterable[str] = ()
+) -> dict[str, Any]:
+    """The jsonschema :meth:`McapLogger.log_block` gives a topic with these field names whose
+    first row is finite: integers for ``int_fields``, numbers or null for the others."""
+    ints = set(int_fields)
+    return json_schema_for(topic, {n: 0 if n in ints else 0.0 for n in names})
 
 
 def _row_dicts(names: tuple[str, ...], isint: np.ndarray, vals: np.ndarray) -> list[dict]:
@@ -246,7 +264,7 @@ class McapLogger:
         try:
             data = _ENCODE(msg).encode()
         except (ValueError, TypeError):
-            msg = flat(dict(msg))
+            msg = flat(dict(msg))  # the schema of a new topic is made from the flat message
             data = _ENCODE(msg).encode()
         t_ns = max(0, int(round(t * 1e9)))
         with self._lock:
@@ -287,8 +305,9 @@ class McapLogger:
 
         Row k is written exactly as ``log(topic, t[k], {names[f]: values[k, f]})`` writes it
         (floats as ``float.__repr__``, fields named in ``int_fields`` as integers, truncated;
-        non-finite values as ``null``); the schema comes from the first row if the topic is
-        new. Same flush and rotation as :meth:`log` (checked once per block).
+        non-finite values as ``null``); a new topic's schema comes from its first row
+        (:func:`block_schema` when that row is finite). Same flush and rotation as
+        :meth:`log` (checked once per block).
         """
         names_t = tuple(str(n) for n in names)
         tt = np.asarray(t, dtype=np.float64).reshape(-1)
@@ -309,7 +328,8 @@ class McapLogger:
         lts = np.maximum(np.rint(tns), 0.0).astype(np.int64)  # = max(0, int(round(t * 1e9)))
         from service.log.codec import encode_records, row_format  # numba: imported on use
 
-        fmt = row_format(names_t, frozenset(int_fields))
+        ints = frozenset(int_fields)
+        fmt = row_format(names_t, ints)
         compiled = True  # integer fields beyond int64 are formatted by json instead
         if fmt.isint.any():
             iv = vals[:, fmt.isint]

@@ -19,7 +19,6 @@ its Content-Security-Policy says so.
 
 from __future__ import annotations
 
-import ipaddress
 import json
 import sys
 from http import HTTPStatus
@@ -29,6 +28,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from service.jsonutil import jsonable
+from service.listen import check_listen
 from service.store import StoreError, open_store
 from service.web.view import UnknownActuatorError, fleet_view, unit_view
 
@@ -52,34 +52,6 @@ SECURITY_HEADERS: dict[str, str] = {
     "X-Frame-Options": "DENY",
     "Cache-Control": "no-store",
 }
-
-
-def check_listen(text: str, *, allow_remote: bool = False) -> tuple[str, int]:
-    """``HOST:PORT`` -> (host, port); ValueError naming ``--listen`` when it does not parse,
-    or when the host is not a loopback address and ``allow_remote`` is False."""
-    host, sep, port_s = text.rpartition(":")
-    host = host.strip("[]")
-    if not sep or not host:
-        raise ValueError(f"--listen: expected HOST:PORT (e.g. 127.0.0.1:8080), got {text!r}")
-    try:
-        port = int(port_s)
-    except ValueError:
-        raise ValueError(f"--listen: port {port_s!r} is not a number") from None
-    if not 0 <= port <= 65535:
-        raise ValueError(f"--listen: port {port} is out of 0-65535")
-    if host == "localhost":
-        host = "127.0.0.1"
-    try:
-        ip = ipaddress.ip_address(host)
-    except ValueError:
-        raise ValueError(f"--listen: {host!r} is not an IP address") from None
-    if not ip.is_loopback and not allow_remote:
-        raise ValueError(
-            f"--listen: {host} is not a loopback address; the page has no authentication of "
-            "its own, so expose it beyond the host only behind an authenticating TLS proxy "
-            "(docs/security.md) and pass --allow-remote"
-        )
-    return host, port
 
 
 def _json_answer(status: int, obj: Any) -> tuple[int, bytes, str]:
