@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import collections
 import json
+import logging
 import re
 import socket
 import threading
@@ -42,6 +43,9 @@ RECONNECT: dict[str, Any] = {
 
 _LOOPBACK_RE = re.compile(r"^(?:tcp|tls)/127\.0\.0\.1:(\d{1,5})$")
 _UNIX_RE = re.compile(r"^(unixsock-stream|unix)/.+$")
+#: listen protocols that authenticate (a non-loopback listen of any other needs an explicit flag)
+_SECURE_LISTEN = ("tls/", "quic/")
+_log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 
@@ -50,11 +54,21 @@ class EndpointError(ValueError):
     """An endpoint that is not allowed (not loopback/unix without ``allow_remote``)."""
 
 
-def check_endpoint(endpoint: str, *, allow_remote: bool = False, field: str = "endpoint") -> str:
+def check_endpoint(
+    endpoint: str,
+    *,
+    allow_remote: bool = False,
+    field: str = "endpoint",
+    listen: bool = False,
+    allow_plain_listen: bool = False,
+) -> str:
     """Return ``endpoint`` if allowed, normalised (``unix/P`` -> ``unixsock-stream/P``).
 
-    Allowed: ``tcp/127.0.0.1:<port>``, ``tls/127.0.0.1:<port>`` (port 0..65535) and unix sockets; anything of the form
-    ``<proto>/<address>`` when ``allow_remote`` is true. Raises :class:`EndpointError`.
+    Allowed: ``tcp/127.0.0.1:<port>``, ``tls/127.0.0.1:<port>`` (port 0..65535) and unix
+    sockets; anything of the form ``<proto>/<address>`` when ``allow_remote`` is true, except
+    that a ``listen`` endpoint off loopback that is not ``tls/`` (plain ``tcp/``, ``udp/``,
+    ...: anyone on the network may connect unauthenticated) needs ``allow_plain_listen`` as
+    well, and is logged as a warning. Raises :class:`EndpointError`.
     """
     if not isinstance(endpoint, str) or "/" not in endpoint:
         raise EndpointError(f"{field}: {endpoint!r} is not <proto>/<address>")
@@ -65,7 +79,21 @@ def check_endpoint(endpoint: str, *, allow_remote: bool = False, field: str = "e
         if int(m.group(1)) > 65535:
             raise EndpointError(f"{field}: port out of range in {endpoint!r}")
         return endpoint
-    if _UNIX_RE.match(endpoint) or allow_remote:
+    if _UNIX_RE.match(endpoint):
+        return endpoint
+    if allow_remote:
+        if listen and not endpoint.startswith(_SECURE_LISTEN):
+            if not allow_plain_listen:
+                raise EndpointError(
+                    f"{field}: {endpoint!r} refused: a plain (not tls/) listen endpoint off "
+                    "loopback accepts anyone on the network without authentication; use "
+                    "tls/<address>, or pass allow_plain_listen (--allow-plain-listen) explicitly"
+                )
+            _log.warning(
+                "%s: listening on %s without TLS: anyone who reaches it may join unauthenticated",
+                field,
+                endpoint,
+            )
         return endpoint
     raise EndpointError(
         f"{field}: {endpoint!r} refused: only tcp/127.0.0.1:<port>, tls/127.0.0.1:<port> "
@@ -80,6 +108,7 @@ def make_config(
     connect: Sequence[str] = (),
     *,
     allow_remote: bool = False,
+    allow_plain_listen: bool = False,
     extra: Mapping[str, Any] | None = None,
 ) -> zenoh.Config:
     """A :class:`zenoh.Config` with multicast scouting off and only the given endpoints.
@@ -93,7 +122,13 @@ def make_config(
         raise ValueError(f"mode: {mode!r} is not peer, client or router")
     if isinstance(listen, str) or isinstance(connect, str):
         raise TypeError("listen and connect are sequences of endpoints, not strings")
-    lst = [check_endpoint(e, allow_remote=allow_remote, field="listen") for e in listen]
+    lst = [
+        check_endpoint(
+            e, allow_remote=allow_remote, field="listen", listen=True,
+            allow_plain_listen=allow_plain_listen,
+        )
+        for e in listen
+    ]  # fmt: skip
     con = [check_endpoint(e, allow_remote=allow_remote, field="connect") for e in connect]
     if mode == "client" and not con:
         raise ValueError("connect: a client needs at least one endpoint to connect to")

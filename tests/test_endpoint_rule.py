@@ -1,0 +1,131 @@
+"""The loopback rule for every command and every way of giving endpoints (issue 33, item 3).
+
+``servowatch router`` checks the endpoints of its final config (flags and ``--config``
+alike, and Zenoh's own default listen ``tcp/[::]:7447`` when a config names none); the
+service commands check ``[zenoh]`` from the TOML, the ``SERVOWATCH_ZENOH__*`` variables and
+the flags. A non-loopback listen without TLS needs ``allow_plain_listen`` on top of
+``allow_remote``. Nothing here listens off loopback: every refusal happens before the
+session opens, and the addresses are 0.0.0.0 (checked in-process, never opened) or
+192.0.2.1 (TEST-NET-1, assigned to no host: a command that did try would fail to bind).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from service.config import ConfigError, load_config
+from service.zenoh_util import EndpointError, check_endpoint, free_port
+
+ROOT = Path(__file__).resolve().parents[1]
+SECURE = ROOT / "deploy" / "secure"
+NOWHERE = "192.0.2.1"  # TEST-NET-1 (RFC 5737): no host has it, nothing can bind it
+
+
+def _router_args(*argv: str) -> argparse.Namespace:
+    from service.commands import router
+
+    p = argparse.ArgumentParser()
+    router.add_arguments(p)
+    return p.parse_args(list(argv))
+
+
+def _cli(*argv: str, env: dict | None = None, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "service.cli", *argv], capture_output=True, text=True,
+        timeout=timeout, cwd=ROOT, env={**os.environ, **(env or {})},
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["--config", str(SECURE / "router.json5"), "--listen", "tcp/0.0.0.0:7447"],
+        ["--config", str(ROOT / "deploy" / "loopback" / "router.json5"), "--listen",
+         "tcp/0.0.0.0:7447"],
+        ["--config", str(SECURE / "router.json5"), "--connect", "tls/10.0.0.5:7447"],
+        ["--listen", "tcp/0.0.0.0:7447", "--allow-remote"],  # plain tcp/ needs its own flag
+    ],
+)  # fmt: skip
+def test_router_config_endpoints_are_checked(argv):
+    """In-process (nothing is opened): the final config's endpoints are refused."""
+    from service.commands.router import _config
+
+    with pytest.raises(EndpointError, match="refused"):
+        _config(_router_args(*argv))
+
+
+def test_router_config_without_listen_is_not_every_interface(tmp_path):
+    """A config naming no listen endpoint would get Zenoh's default, tcp/[::]:7447."""
+    from service.commands.router import _config
+
+    cfg = tmp_path / "r.json5"
+    cfg.write_text('{ mode: "router", scouting: { multicast: { enabled: false } } }')
+    with pytest.raises(EndpointError, match=r"\[::\]"):
+        _config(_router_args("--config", str(cfg)))
+
+
+def test_router_remote_tls_listen_with_allow_remote_passes_the_check():
+    from service.commands.router import _config
+
+    _, listen = _config(
+        _router_args("--config", str(SECURE / "router.json5"), "--listen", "tls/0.0.0.0:7447",
+                     "--allow-remote")
+    )  # fmt: skip
+    assert listen == ["tls/0.0.0.0:7447"]
+
+
+def test_router_command_with_config_exits_2_before_listening():
+    port = free_port()
+    res = _cli(
+        "router", "--config", str(SECURE / "router.json5"), "--listen", f"tcp/{NOWHERE}:{port}"
+    )
+    assert res.returncode == 2, res
+    assert "refused" in res.stderr and f"{NOWHERE}:{port}" in res.stderr
+    assert "listening" not in res.stdout
+
+
+def test_plain_remote_listen_needs_its_flag_and_warns(caplog):
+    ep = "tcp/10.0.0.5:7447"
+    with pytest.raises(EndpointError, match="plain"):
+        check_endpoint(ep, allow_remote=True, listen=True)
+    assert check_endpoint(ep, allow_remote=True) == ep  # a connect endpoint: no TLS rule
+    assert check_endpoint("tls/10.0.0.5:7447", allow_remote=True, listen=True)
+    with caplog.at_level(logging.WARNING, logger="service.zenoh_util"):
+        assert check_endpoint(ep, allow_remote=True, listen=True, allow_plain_listen=True) == ep
+    assert any("without TLS" in r.getMessage() for r in caplog.records)
+
+
+def test_environment_listen_follows_the_rule(tmp_path):
+    env = {"SERVOWATCH_ZENOH__ALLOW_REMOTE": "true", "SERVOWATCH_ZENOH__LISTEN": "tcp/0.0.0.0:7447"}
+    with pytest.raises(ConfigError, match="plain"):
+        load_config(environ=env)
+    with pytest.raises(ConfigError, match="refused"):
+        load_config(environ={"SERVOWATCH_ZENOH__LISTEN": "tcp/0.0.0.0:7447"})
+    cfg = load_config(environ={**env, "SERVOWATCH_ZENOH__ALLOW_PLAIN_LISTEN": "true"})
+    assert cfg.zenoh.listen == ["tcp/0.0.0.0:7447"]
+
+
+@pytest.mark.parametrize("how", ["flag", "env", "toml"])
+def test_service_command_refuses_remote_plain_listen(tmp_path, how):
+    """``servowatch status`` (any service command): exit 2 before opening a session."""
+    ep = f"tcp/{NOWHERE}:{free_port()}"
+    args, env = ["status", "--timeout", "1"], {}
+    if how == "flag":
+        args += ["--listen", ep, "--mode", "peer"]
+        env["SERVOWATCH_ZENOH__ALLOW_REMOTE"] = "true"
+    elif how == "env":
+        env.update(SERVOWATCH_ZENOH__ALLOW_REMOTE="true", SERVOWATCH_ZENOH__LISTEN=ep)
+    else:
+        toml = tmp_path / "c.toml"
+        toml.write_text(f'[zenoh]\nallow_remote = true\nmode = "peer"\nlisten = ["{ep}"]\n')
+        args += ["--config", str(toml)]
+    res = _cli(*args, env=env)
+    assert res.returncode == 2, res
+    assert "plain" in res.stderr
