@@ -277,6 +277,13 @@ class GroupSettings(BaseModel):
     takeover_s: float = Field(
         2.0, ge=0, le=60, description="messages of others' units kept for a takeover [s]"
     )
+    unmonitored_s: float = Field(
+        5.0,
+        gt=0,
+        le=600,
+        description="a unit whose measurements arrive with no health output from any member "
+        "for this long raises 'unmonitored' [s]",
+    )
 
 
 class ServiceConfig(BaseModel):
