@@ -218,11 +218,32 @@ _TLS_REASONS = {
     "DECRYPT_ERROR": "the router rejected the client certificate (not signed by the station CA)",
     "BAD_CERTIFICATE": "the router rejected the client certificate",
     "UNKNOWN_CA": "the router rejected the client certificate (unknown CA)",
-    "CERTIFICATE_EXPIRED": "a certificate has expired",
+    # TLS has one alert for both: rustls sends it for a not-yet-valid certificate too
+    "CERTIFICATE_EXPIRED": "a certificate has expired or is not yet valid (check its validity "
+    "dates and the clocks)",
     "CERTIFICATE_REVOKED": "the client certificate is revoked",
     "CERTIFICATE_VERIFY_FAILED": "the router's certificate is not trusted by tls.root_ca",
     "WRONG_VERSION_NUMBER": "the endpoint does not speak TLS (a tcp/ listener?)",
 }
+
+
+def certificate_validity(cert: str | Path, now: float | None = None) -> str:
+    """Why the certificate file ``cert`` is not valid at ``now`` (Unix time; default: now):
+    "not yet valid (from ...)", "expired (on ...)", or "" when it is valid or unreadable."""
+    import ssl
+
+    try:
+        info = ssl._ssl._test_decode_cert(str(cert))  # the stdlib's PEM decoder, no CA check
+        not_before = ssl.cert_time_to_seconds(info["notBefore"])
+        not_after = ssl.cert_time_to_seconds(info["notAfter"])
+    except (OSError, ValueError, KeyError, ssl.SSLError, AttributeError):
+        return ""
+    now = time.time() if now is None else now
+    if now < not_before:
+        return f"not yet valid (from {info['notBefore']})"
+    if now > not_after:
+        return f"expired (on {info['notAfter']})"
+    return ""
 
 
 def diagnose_link(
@@ -272,6 +293,9 @@ def diagnose_link(
             reason = str(getattr(e, "reason", "") or "")
             for k, text in _TLS_REASONS.items():
                 if k in reason:
+                    if k == "CERTIFICATE_EXPIRED" and cert is not None:
+                        why = certificate_validity(cert)
+                        text = f"this identity's certificate {cert} is {why}" if why else text
                     return "refused", f"{text} [{reason}]"
             return "refused", f"TLS handshake failed: {reason or e}"
         except OSError as e:

@@ -129,3 +129,20 @@ def test_service_command_refuses_remote_plain_listen(tmp_path, how):
     res = _cli(*args, env=env)
     assert res.returncode == 2, res
     assert "plain" in res.stderr
+
+
+@pytest.mark.skipif(__import__("shutil").which("openssl") is None, reason="needs openssl")
+def test_certificate_validity_tells_not_yet_valid_from_expired(tmp_path):
+    """A not-yet-valid certificate is not reported as expired (TLS sends one alert for both)."""
+    import time
+
+    from service.zenoh_util import certificate_validity
+
+    subprocess.run(["bash", str(ROOT / "deploy" / "pki" / "make-certs.sh"), str(tmp_path), "operator"],
+                   check=True, capture_output=True, timeout=60)  # fmt: skip
+    pem = tmp_path / "operator.pem"
+    now = time.time()
+    assert certificate_validity(pem, now) == ""
+    assert certificate_validity(pem, now - 2 * 86400).startswith("not yet valid (from ")
+    assert certificate_validity(pem, now + 400 * 86400).startswith("expired (on ")
+    assert certificate_validity(tmp_path / "nothing.pem") == ""
