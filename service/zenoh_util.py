@@ -227,6 +227,21 @@ _TLS_REASONS = {
 }
 
 
+def certificate_cn(cert: str | Path) -> str | None:
+    """The subject common name of the certificate file ``cert`` (None: unreadable, none)."""
+    import ssl
+
+    try:
+        info = ssl._ssl._test_decode_cert(str(cert))  # the stdlib's PEM decoder, no CA check
+    except (OSError, ValueError, ssl.SSLError, AttributeError):
+        return None
+    for rdn in info.get("subject", ()):
+        for k, v in rdn:
+            if k == "commonName":
+                return str(v)
+    return None
+
+
 def certificate_validity(cert: str | Path, now: float | None = None) -> str:
     """Why the certificate file ``cert`` is not valid at ``now`` (Unix time; default: now):
     "not yet valid (from ...)", "expired (on ...)", or "" when it is valid or unreadable."""

@@ -146,3 +146,23 @@ def test_certificate_validity_tells_not_yet_valid_from_expired(tmp_path):
     assert certificate_validity(pem, now - 2 * 86400).startswith("not yet valid (from ")
     assert certificate_validity(pem, now + 400 * 86400).startswith("expired (on ")
     assert certificate_validity(tmp_path / "nothing.pem") == ""
+
+
+@pytest.mark.skipif(__import__("shutil").which("openssl") is None, reason="needs openssl")
+def test_daemon_warns_when_its_certificate_is_another_identity(tmp_path, caplog):
+    from service.commands.run import _check_identity
+    from service.zenoh_util import certificate_cn
+
+    subprocess.run(["bash", str(ROOT / "deploy" / "pki" / "make-certs.sh"), str(tmp_path),
+                    "monitor.ground1.0", "monitor.ground1.1"],
+                   check=True, capture_output=True, timeout=60)  # fmt: skip
+    assert certificate_cn(tmp_path / "monitor.ground1.1.pem") == "monitor.ground1.1"
+    env = {"SERVOWATCH_ZENOH__TLS__ROOT_CA": str(tmp_path / "ca.pem"),
+           "SERVOWATCH_ZENOH__TLS__CERT": str(tmp_path / "monitor.ground1.1.pem"),
+           "SERVOWATCH_ZENOH__TLS__KEY": str(tmp_path / "monitor.ground1.1.key")}  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger="servowatch.daemon"):
+        _check_identity(load_config(environ=env))  # station ground1, shard 0
+        assert "not 'monitor.ground1.0'" in caplog.text
+        caplog.clear()
+        _check_identity(load_config(environ={**env, "SERVOWATCH_SHARD": "1"}))
+        assert caplog.text == ""
