@@ -191,6 +191,7 @@ def test_unit_owned_by_a_member_that_does_nothing_is_unmonitored():
     g.join()
     g._joined_at = now - 10.0  # joined long ago
     g.member_event("gX/9", True)  # the silent member
+    g._changed_at = now - 10.0  # ... joined long ago too
     theirs = next(u for u in UNITS if owner_of(u, g.members) == "gX/9")
     mine = next(u for u in UNITS if owner_of(u, g.members) == "gA/0")
     _stream(g, mine, now - 3.0, now, outputs=True)
@@ -205,6 +206,24 @@ def test_unit_owned_by_a_member_that_does_nothing_is_unmonitored():
     g.output_seen(_key(theirs), now + 0.1)  # someone monitors it again
     assert g.check_unmonitored(now + 0.2, live_s=2.0) == ([], [_key(theirs)])
     assert g.status()["unmonitored"] == {} and g.status()["unmonitored_events"] == 1
+
+
+def test_own_units_and_a_fresh_owner_are_not_judged_at_once():
+    """This member's own units are judged by the others; a new owner gets unmonitored_s from
+    the membership change before its units count as unmonitored."""
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: None, unmonitored_s=1.0)
+    now = time.monotonic()
+    g.join()
+    g._joined_at = now - 10.0
+    mine = UNITS[0]
+    _stream(g, mine, now - 3.0, now, outputs=False)  # ours, its output not seen (yet)
+    assert g.check_unmonitored(now, live_s=2.0) == ([], [])
+    g.member_event("gB/0", True)  # a member arrives; its units have 1 s to show output
+    theirs = next(u for u in UNITS if owner_of(u, g.members) == "gB/0")
+    _stream(g, theirs, now - 3.0, now, outputs=False)
+    assert g.check_unmonitored(now + 0.5, live_s=2.0) == ([], [])
+    new, _ = g.check_unmonitored(g._changed_at + 1.2, live_s=2.0)
+    assert [k for k, _, _ in new] == [_key(theirs)]
 
 
 def test_unit_released_to_nobody_is_unmonitored():

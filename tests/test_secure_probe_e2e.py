@@ -144,6 +144,10 @@ def probe(tmp_path_factory):
         _stop(web)
         _stop(act)
         _stop(daemon)
+        from service.log import read_log
+
+        (mcap,) = tmp.glob("servowatch-ground1-0-*.mcap")
+        r["events"] = [row[2] for row in read_log(mcap, [f"/fleet/{UNIT}/service"])]
         yield r
     finally:
         st.close()
@@ -186,8 +190,7 @@ def test_a_member_that_takes_units_and_does_nothing_makes_them_unmonitored(probe
     g = probe["idle"]["group"]
     assert g["members"] == ["ground1/0", "ground1/1"], g
     assert g["unmonitored"][UNIT]["owner"] == "ground1/1", g
-    events = [e["kind"] for e in probe["idle"]["actuators"][KEY]["events"]]
-    assert "released" in events and "unmonitored" in events, events
+    assert g["released_units"] == [UNIT], g  # the idle member took it
     text = probe["idle_text"]
     assert text["rc"] == 0 and f"UNMONITORED {UNIT}" in text["out"], text
     unit = probe["idle_live"]["units"][UNIT]
@@ -195,7 +198,15 @@ def test_a_member_that_takes_units_and_does_nothing_makes_them_unmonitored(probe
     # the idle member left: the unit is the daemon's again and monitored
     back = probe["back"]
     assert back["group"]["unmonitored"] == {} and back["group"]["members"] == ["ground1/0"]
-    assert "monitored" in [e["kind"] for e in back["actuators"][KEY]["events"]]
+    # the daemon's log: never unmonitored while it owned the unit; unmonitored (owner
+    # ground1/1) after the release; monitored again once it had the unit back
+    events = [(e["kind"], e["value"]) for e in probe["events"]]
+    kinds = [k for k, _ in events]
+    k = kinds.index("released")
+    assert "unmonitored" not in kinds[:k], events
+    j = kinds.index("unmonitored", k)
+    assert json.loads(events[j][1])["owner"] == "ground1/1", events
+    assert "monitored" in kinds[j:], events
 
 
 def test_a_virtual_actuator_certificate_cannot_claim_a_real_actuator(probe):

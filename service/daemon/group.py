@@ -20,7 +20,9 @@ A member also watches the group's work: every unit whose measurements keep arriv
 show a health output (``fleet/{ac}/{act}/health``, from whichever member) at least every
 ``unmonitored_s`` seconds. A unit that does not (its owner is a member that holds a token
 but processes nothing, or it was released and nobody took it) is **unmonitored**: every
-member raises the ``unmonitored`` event and lists it in its status until outputs resume.
+member raises the ``unmonitored`` event and lists it in its status until outputs resume. A
+member judges the units the others own (its own show to them), and a new owner has
+``unmonitored_s`` from the membership change.
 
 Memory is bounded: at most ``max_units`` held units, ``max_held`` messages each, no payload
 larger than ``max_bytes`` (the owner counts those), and ``sweep`` drops what has aged out.
@@ -116,6 +118,7 @@ class MonitorGroup:
         self.changes = 0  # membership changes seen
         self.unmonitored_s = float(unmonitored_s)
         self._joined_at = 0.0  # time.monotonic() of the join
+        self._changed_at = 0.0  # time.monotonic() of the last membership change
         self._last_meas: dict[str, float] = {}  # meas key -> last arrival (every unit)
         self._first_meas: dict[str, float] = {}  # meas key -> first arrival
         self._last_output: dict[str, float] = {}  # meas key -> last health seen (any member)
@@ -205,7 +208,15 @@ class MonitorGroup:
                     if self._unmonitored.pop(key, None) is not None:
                         back.append(key)
                     continue
-                ref = max(self._last_output.get(key, self._first_meas[key]), self._joined_at)
+                # a new owner gets unmonitored_s from the change; this member's own units are
+                # judged by the others (it knows it processes them; its stall shows to them)
+                ref = max(
+                    self._last_output.get(key, self._first_meas[key]),
+                    self._joined_at,
+                    self._changed_at,
+                )
+                if self._owner_of_key(key) == self.me:
+                    ref = now
                 if now - ref > self.unmonitored_s:
                     if key not in self._unmonitored:
                         owner = self._owner_of_key(key)
@@ -250,6 +261,7 @@ class MonitorGroup:
                 return
             (self.members.add if now_present else self.members.discard)(member)
             self.changes += 1
+            self._changed_at = time.monotonic()
             before = dict(self._owner)
             self._owner.clear()
             if not self.joined:
