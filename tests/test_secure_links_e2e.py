@@ -82,12 +82,19 @@ def _samples(status: dict | None) -> int:
     return sum(d["actuators"].get(KEY, {}).get("samples", 0) for d in status["daemons"].values())
 
 
-def _denied(log: str, what: str, key: str) -> list[str]:
-    """The router's refusals of ``what`` (e.g. "Reply (ingress)") on exactly ``key``."""
+def _denied(log: str, cn: str, what: str, key: str) -> list[str]:
+    """The router's refusals, to identity ``cn``, of ``what`` (e.g. "Reply (ingress)") on
+    exactly ``key`` (the router also traces, at each declaration, what a key is not allowed
+    for every other message type: those lines name other identities or directions)."""
     import re
 
     pat = re.compile(
-        r"unauthorized to " + re.escape(what) + r" on " + re.escape(key) + r"(\s|\x1b|$)"
+        re.escape(f"CertCommonName({cn})")
+        + r".*unauthorized to "
+        + re.escape(what)
+        + r" on "
+        + re.escape(key)
+        + r"(\s|\x1b|$)"
     )
     return [ln for ln in log.splitlines() if pat.search(ln)]
 
@@ -145,8 +152,8 @@ def test_secure_router_restart_loses_no_cached_sample(tmp_path):
         assert d["actuators"][KEY]["gaps"] == 0 and d["actuators"][KEY]["missed"] == 0, d
         # the restarted router let the cache's history replies through
         log2 = (tmp_path / "router2.out").read_text() + (tmp_path / "router2.err").read_text()
-        for what in ("Reply (ingress)", "Reply (egress)"):
-            assert not _denied(log2, what, KEY), _denied(log2, what, KEY)[:5]
+        for cn, what in (("sim-AC001", "Reply (ingress)"), ("monitor.ground1.0", "Reply (egress)")):
+            assert not _denied(log2, cn, what, KEY), _denied(log2, cn, what, KEY)[:5]
     finally:
         st.close()
 
@@ -187,11 +194,18 @@ def test_two_linked_secure_stations_carry_meas_to_the_other_daemon(tmp_path):
         assert on_a is None, on_a
         log_b = (tmp_path / "router_b.out").read_text() + (tmp_path / "router_b.err").read_text()
         log_a = st.router_log()
-        for lg in (log_a, log_b):
-            for what in ("Put (ingress)", "Put (egress)"):
-                assert not _denied(lg, what, KEY), _denied(lg, what, KEY)[:5]
+        for lg, cn, what in (
+            (log_a, "sim-AC001", "Put (ingress)"),
+            (log_a, "router", "Put (egress)"),
+            (log_b, "router", "Put (ingress)"),
+            (log_b, "monitor.ground2.0", "Put (egress)"),
+        ):
+            assert not _denied(lg, cn, what, KEY), _denied(lg, cn, what, KEY)[:5]
+        assert "CertCommonName(router)" in log_a and "CertCommonName(router)" in log_b
         # the link carries no status queryable: B's router keeps its daemon's to itself
-        refused = _denied(log_b, "Declare/Undeclare Queryable (egress)", "monitor/ground2/0/status")
-        assert any("CertCommonName(router)" in ln for ln in refused), log_b[-3000:]
+        refused = _denied(
+            log_b, "router", "Declare/Undeclare Queryable (egress)", "monitor/ground2/0/status"
+        )
+        assert refused, log_b[-3000:]
     finally:
         st.close()
