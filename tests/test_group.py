@@ -258,3 +258,27 @@ def test_no_unmonitored_while_outputs_flow_or_the_unit_is_silent():
     h = MonitorGroup("h", "gA/0", lambda k, p, t: None, unmonitored_s=0.1)
     _stream(h, units[0], t0, t0 + 2.0, outputs=False)
     assert h.check_unmonitored(t0 + 2.0, live_s=2.0) == ([], [])
+
+
+def test_fleet_page_live_view_shows_unmonitored_units():
+    """``web.live.slim``: a unit a member reports unmonitored is marked, with its owner, even
+    when no daemon lists it among its actuators; the daemon strip lists it too."""
+    from service.web.live import slim
+
+    g = {"unmonitored": {"AC001/flap": {"owner": "ground1/9", "since": 1.0}}}
+    daemons = {
+        "monitor/ground1/0/status": {"station": "ground1", "shard": "0", "actuators": {},
+                                     "group": g},
+        "monitor/ground1/1/status": {"station": "ground1", "shard": "1", "group": g,
+                                     "actuators": {"fleet/AC002/rudder/meas": {
+                                         "aircraft": "AC002", "actuator": "rudder",
+                                         "samples": 5}}},
+    }  # fmt: skip
+    view = slim(daemons, 0.0)
+    assert view["units"]["AC001/flap"] == {
+        "daemon": None,
+        "unmonitored": True,
+        "owner": "ground1/9",
+    }
+    assert "unmonitored" not in view["units"]["AC002/rudder"]
+    assert [d["unmonitored"] for d in view["daemons"]] == [["AC001/flap"], ["AC001/flap"]]

@@ -572,10 +572,10 @@ class Daemon:
                 now = time.monotonic()
                 if now - self._last_silence_check > 0.2:
                     self._last_silence_check = now
-                    released = self.release_units() if self.group is not None else []
+                    changed = self.release_units() if self.group is not None else []
                     if self.group is not None:
-                        released += self.check_unmonitored(now)
-                    if self.check_silence(now) or released:
+                        changed += self.check_unmonitored(now)
+                    if self.check_silence(now) or changed:
                         self.logger.commit()
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now

@@ -194,8 +194,6 @@ class MonitorGroup:
         """Units that became unmonitored, as (meas key, owner, seconds without output), and
         those that are monitored again (outputs resumed, or the unit fell silent: nothing to
         monitor). A unit counts while its measurements arrived within ``live_s``."""
-        import time as _time
-
         new: list[tuple[str, str | None, float]] = []
         back: list[str] = []
         with self._lock:
@@ -222,7 +220,7 @@ class MonitorGroup:
                         owner = self._owner_of_key(key)
                         self._unmonitored[key] = {
                             "owner": owner,
-                            "since": _time.time() - (now - ref),
+                            "since": time.time() - (now - ref),
                         }
                         self.unmonitored_events += 1
                         new.append((key, owner, now - ref))
