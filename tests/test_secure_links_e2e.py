@@ -149,6 +149,9 @@ def test_secure_router_restart_loses_no_cached_sample(tmp_path):
         assert seqs and lost == [] and len(seqs) > 500, (len(seqs), lost[:20])
         assert seqs[-1] + 1 >= a["samples"] * 0.95, (seqs[-1], a)
         (d,) = final["daemons"].values()
+        print(f"secure restart: {a['samples']} published, {len(seqs)} logged (seq {seqs[0]}-"
+              f"{seqs[-1]}), {len(lost)} lost, gaps {d['actuators'][KEY]['gaps']}, missed "
+              f"{d['actuators'][KEY]['missed']}")  # fmt: skip
         assert d["actuators"][KEY]["gaps"] == 0 and d["actuators"][KEY]["missed"] == 0, d
         # the restarted router let the cache's history replies through
         log2 = (tmp_path / "router2.out").read_text() + (tmp_path / "router2.err").read_text()
@@ -190,6 +193,7 @@ def test_two_linked_secure_stations_carry_meas_to_the_other_daemon(tmp_path):
         assert daemon.wait(60) == 0, (tmp_path / "daemon_b.err").read_text()[-3000:]
         assert list(on_b["daemons"]) == ["monitor/ground2/0/status"], on_b
         got = _samples(on_b)
+        print(f"linked stations: {a['samples']} published on A, {got} accepted by B's daemon")
         assert got >= a["samples"] * 0.95 and got > 500, (got, a["samples"])
         assert on_a is None, on_a
         log_b = (tmp_path / "router_b.out").read_text() + (tmp_path / "router_b.err").read_text()
