@@ -103,7 +103,7 @@ class Station:
         """Run to the end: ``{"rc", "out", "err", "json"}``."""
         return self.result(self.popen(args, tag, env, role), tag, timeout)
 
-    def result(self, p: subprocess.Popen, tag: str, timeout: float = 90.0) -> dict:
+    def result(self, p: subprocess.Popen, tag: str, timeout: float = 240.0) -> dict:
         """Wait for ``p``: ``{"rc", "out", "err", "json"}`` (last stdout line as JSON)."""
         rc = p.wait(timeout)
         out = (self.tmp / f"{tag}.out").read_text()
