@@ -132,6 +132,11 @@ class ZenohSettings(BaseModel):
     allow_remote: bool = Field(
         False, description="accept endpoints other than tcp|tls/127.0.0.1 and unix sockets"
     )
+    allow_plain_listen: bool = Field(
+        False,
+        description="with allow_remote: accept a non-loopback listen endpoint without TLS "
+        "(tcp/...; unauthenticated, logged as a warning)",
+    )
     mode: Literal["peer", "client", "router"] = "peer"
     listen: _Endpoints = Field(default_factory=list, description="endpoints to listen on")
     connect: _Endpoints = Field(
@@ -155,8 +160,15 @@ class ZenohSettings(BaseModel):
     @classmethod
     def _endpoints(cls, v: list[str], info: ValidationInfo) -> list[str]:
         remote = bool(info.data.get("allow_remote", False))
+        plain = bool(info.data.get("allow_plain_listen", False))
+        listen = info.field_name == "listen"
         try:
-            return [check_endpoint(e, allow_remote=remote, field=f"[{k}]") for k, e in enumerate(v)]
+            return [
+                check_endpoint(
+                    e, allow_remote=remote, field=f"[{k}]", listen=listen, allow_plain_listen=plain
+                )
+                for k, e in enumerate(v)
+            ]
         except EndpointError as err:
             raise ValueError(str(err)) from None
 
@@ -177,6 +189,7 @@ class ZenohSettings(BaseModel):
             self.listen,
             self.connect,
             allow_remote=self.allow_remote,
+            allow_plain_listen=self.allow_plain_listen,
             extra=self.tls.to_zenoh(listen=bool(self.listen)),
         )
 
@@ -267,6 +280,13 @@ class GroupSettings(BaseModel):
     )
     takeover_s: float = Field(
         2.0, ge=0, le=60, description="messages of others' units kept for a takeover [s]"
+    )
+    unmonitored_s: float = Field(
+        5.0,
+        gt=0,
+        le=600,
+        description="a unit whose measurements arrive with no health output from any member "
+        "for this long raises 'unmonitored' [s]",
     )
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import collections
 import json
+import logging
 import re
 import socket
 import threading
@@ -42,6 +43,9 @@ RECONNECT: dict[str, Any] = {
 
 _LOOPBACK_RE = re.compile(r"^(?:tcp|tls)/127\.0\.0\.1:(\d{1,5})$")
 _UNIX_RE = re.compile(r"^(unixsock-stream|unix)/.+$")
+#: listen protocols that authenticate (a non-loopback listen of any other needs an explicit flag)
+_SECURE_LISTEN = ("tls/", "quic/")
+_log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 
@@ -50,11 +54,21 @@ class EndpointError(ValueError):
     """An endpoint that is not allowed (not loopback/unix without ``allow_remote``)."""
 
 
-def check_endpoint(endpoint: str, *, allow_remote: bool = False, field: str = "endpoint") -> str:
+def check_endpoint(
+    endpoint: str,
+    *,
+    allow_remote: bool = False,
+    field: str = "endpoint",
+    listen: bool = False,
+    allow_plain_listen: bool = False,
+) -> str:
     """Return ``endpoint`` if allowed, normalised (``unix/P`` -> ``unixsock-stream/P``).
 
-    Allowed: ``tcp/127.0.0.1:<port>``, ``tls/127.0.0.1:<port>`` (port 0..65535) and unix sockets; anything of the form
-    ``<proto>/<address>`` when ``allow_remote`` is true. Raises :class:`EndpointError`.
+    Allowed: ``tcp/127.0.0.1:<port>``, ``tls/127.0.0.1:<port>`` (port 0..65535) and unix
+    sockets; anything of the form ``<proto>/<address>`` when ``allow_remote`` is true, except
+    that a ``listen`` endpoint off loopback that is not ``tls/`` (plain ``tcp/``, ``udp/``,
+    ...: anyone on the network may connect unauthenticated) needs ``allow_plain_listen`` as
+    well, and is logged as a warning. Raises :class:`EndpointError`.
     """
     if not isinstance(endpoint, str) or "/" not in endpoint:
         raise EndpointError(f"{field}: {endpoint!r} is not <proto>/<address>")
@@ -65,7 +79,21 @@ def check_endpoint(endpoint: str, *, allow_remote: bool = False, field: str = "e
         if int(m.group(1)) > 65535:
             raise EndpointError(f"{field}: port out of range in {endpoint!r}")
         return endpoint
-    if _UNIX_RE.match(endpoint) or allow_remote:
+    if _UNIX_RE.match(endpoint):
+        return endpoint
+    if allow_remote:
+        if listen and not endpoint.startswith(_SECURE_LISTEN):
+            if not allow_plain_listen:
+                raise EndpointError(
+                    f"{field}: {endpoint!r} refused: a plain (not tls/) listen endpoint off "
+                    "loopback accepts anyone on the network without authentication; use "
+                    "tls/<address>, or pass allow_plain_listen (--allow-plain-listen) explicitly"
+                )
+            _log.warning(
+                "%s: listening on %s without TLS: anyone who reaches it may join unauthenticated",
+                field,
+                endpoint,
+            )
         return endpoint
     raise EndpointError(
         f"{field}: {endpoint!r} refused: only tcp/127.0.0.1:<port>, tls/127.0.0.1:<port> "
@@ -80,6 +108,7 @@ def make_config(
     connect: Sequence[str] = (),
     *,
     allow_remote: bool = False,
+    allow_plain_listen: bool = False,
     extra: Mapping[str, Any] | None = None,
 ) -> zenoh.Config:
     """A :class:`zenoh.Config` with multicast scouting off and only the given endpoints.
@@ -93,7 +122,13 @@ def make_config(
         raise ValueError(f"mode: {mode!r} is not peer, client or router")
     if isinstance(listen, str) or isinstance(connect, str):
         raise TypeError("listen and connect are sequences of endpoints, not strings")
-    lst = [check_endpoint(e, allow_remote=allow_remote, field="listen") for e in listen]
+    lst = [
+        check_endpoint(
+            e, allow_remote=allow_remote, field="listen", listen=True,
+            allow_plain_listen=allow_plain_listen,
+        )
+        for e in listen
+    ]  # fmt: skip
     con = [check_endpoint(e, allow_remote=allow_remote, field="connect") for e in connect]
     if mode == "client" and not con:
         raise ValueError("connect: a client needs at least one endpoint to connect to")
@@ -183,11 +218,47 @@ _TLS_REASONS = {
     "DECRYPT_ERROR": "the router rejected the client certificate (not signed by the station CA)",
     "BAD_CERTIFICATE": "the router rejected the client certificate",
     "UNKNOWN_CA": "the router rejected the client certificate (unknown CA)",
-    "CERTIFICATE_EXPIRED": "a certificate has expired",
+    # TLS has one alert for both: rustls sends it for a not-yet-valid certificate too
+    "CERTIFICATE_EXPIRED": "a certificate has expired or is not yet valid (check its validity "
+    "dates and the clocks)",
     "CERTIFICATE_REVOKED": "the client certificate is revoked",
     "CERTIFICATE_VERIFY_FAILED": "the router's certificate is not trusted by tls.root_ca",
     "WRONG_VERSION_NUMBER": "the endpoint does not speak TLS (a tcp/ listener?)",
 }
+
+
+def certificate_cn(cert: str | Path) -> str | None:
+    """The subject common name of the certificate file ``cert`` (None: unreadable, none)."""
+    import ssl
+
+    try:
+        info = ssl._ssl._test_decode_cert(str(cert))  # the stdlib's PEM decoder, no CA check
+    except (OSError, ValueError, ssl.SSLError, AttributeError):
+        return None
+    for rdn in info.get("subject", ()):
+        for k, v in rdn:
+            if k == "commonName":
+                return str(v)
+    return None
+
+
+def certificate_validity(cert: str | Path, now: float | None = None) -> str:
+    """Why the certificate file ``cert`` is not valid at ``now`` (Unix time; default: now):
+    "not yet valid (from ...)", "expired (on ...)", or "" when it is valid or unreadable."""
+    import ssl
+
+    try:
+        info = ssl._ssl._test_decode_cert(str(cert))  # the stdlib's PEM decoder, no CA check
+        not_before = ssl.cert_time_to_seconds(info["notBefore"])
+        not_after = ssl.cert_time_to_seconds(info["notAfter"])
+    except (OSError, ValueError, KeyError, ssl.SSLError, AttributeError):
+        return ""
+    now = time.time() if now is None else now
+    if now < not_before:
+        return f"not yet valid (from {info['notBefore']})"
+    if now > not_after:
+        return f"expired (on {info['notAfter']})"
+    return ""
 
 
 def diagnose_link(
@@ -237,6 +308,9 @@ def diagnose_link(
             reason = str(getattr(e, "reason", "") or "")
             for k, text in _TLS_REASONS.items():
                 if k in reason:
+                    if k == "CERTIFICATE_EXPIRED" and cert is not None:
+                        why = certificate_validity(cert)
+                        text = f"this identity's certificate {cert} is {why}" if why else text
                     return "refused", f"{text} [{reason}]"
             return "refused", f"TLS handshake failed: {reason or e}"
         except OSError as e:

@@ -7,6 +7,10 @@ command does. Prints one JSON object on stdout.
     python tests/_zenoh_role.py put KEY TEXT COUNT     # COUNT puts, 20 ms apart
     python tests/_zenoh_role.py get KEY TEXT           # one query; how many replies
     python tests/_zenoh_role.py listen KEYEXPR MARK    # until SIGTERM: samples per key
+    python tests/_zenoh_role.py token KEY [KEY ...]    # until SIGTERM: hold liveliness tokens
+    python tests/_zenoh_role.py serve KEY [KEY ...]    # until SIGTERM: queryables; queries got
+
+``{zid}`` in a token key is replaced by the session id.
 """
 
 from __future__ import annotations
@@ -39,6 +43,27 @@ def main(argv: list[str]) -> int:
         elif argv[0] == "get":
             replies = list(session.get(argv[1], payload=argv[2].encode(), timeout=2.0))
             out["replies"] = sum(r.ok is not None for r in replies)
+        elif argv[0] in ("token", "serve"):
+            zid = str(session.info.zid())
+            stop = threading.Event()
+            signal.signal(signal.SIGTERM, lambda *_: stop.set())
+            got: collections.Counter = collections.Counter()
+
+            def on_query(q) -> None:
+                got[str(q.key_expr)] += 1
+                q.reply(q.key_expr, b"{}")
+
+            decl = [
+                session.liveliness().declare_token(k.replace("{zid}", zid))
+                if argv[0] == "token"
+                else session.declare_queryable(k, on_query)
+                for k in argv[1:]
+            ]
+            print(json.dumps({"ready": True}), flush=True)
+            stop.wait()
+            for d in decl:
+                d.undeclare()
+            out["queries"] = dict(got)
         elif argv[0] == "listen":
             mark = argv[2].encode()
             counts: collections.Counter = collections.Counter()

@@ -170,3 +170,115 @@ def test_daemon_releases_and_takes_back_a_unit_afresh():
     assert a["first_seq"] == 10 and a["samples"] == 30
     # 10..19 then 1000..1009: the only gap is the one really missing from the stream
     assert a["gaps"] == 1000 - 20
+
+
+def _stream(g: MonitorGroup, unit: str, t0: float, t1: float, outputs: bool) -> None:
+    """Measurements of ``unit`` every 0.1 s over [t0, t1) (monotonic), with a health output
+    seen after each when ``outputs``."""
+    t = t0
+    while t < t1:
+        g.admit(_key(unit), b"x", t)
+        if outputs:
+            g.output_seen(_key(unit), t)
+        t += 0.1
+
+
+def test_unit_owned_by_a_member_that_does_nothing_is_unmonitored():
+    """A member that joins (a token) and takes units but publishes no output for them: after
+    unmonitored_s every member reports those units, naming the owner; outputs end it."""
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: None, unmonitored_s=1.0)
+    now = time.monotonic()
+    g.join()
+    g._joined_at = now - 10.0  # joined long ago
+    g.member_event("gX/9", True)  # the silent member
+    g._changed_at = now - 10.0  # ... joined long ago too
+    theirs = next(u for u in UNITS if owner_of(u, g.members) == "gX/9")
+    mine = next(u for u in UNITS if owner_of(u, g.members) == "gA/0")
+    _stream(g, mine, now - 3.0, now, outputs=True)
+    _stream(g, theirs, now - 3.0, now - 2.0, outputs=True)  # its outputs stopped 2 s ago
+    _stream(g, theirs, now - 2.0, now, outputs=False)  # its meas did not
+    new, back = g.check_unmonitored(now, live_s=2.0)
+    assert [(k, o) for k, o, _ in new] == [(_key(theirs), "gX/9")] and back == []
+    assert 1.9 < new[0][2] < 2.2
+    st = g.status()
+    assert list(st["unmonitored"]) == [theirs] and st["unmonitored"][theirs]["owner"] == "gX/9"
+    assert g.check_unmonitored(now, live_s=2.0) == ([], [])  # raised once
+    g.output_seen(_key(theirs), now + 0.1)  # someone monitors it again
+    assert g.check_unmonitored(now + 0.2, live_s=2.0) == ([], [_key(theirs)])
+    assert g.status()["unmonitored"] == {} and g.status()["unmonitored_events"] == 1
+
+
+def test_own_units_and_a_fresh_owner_are_not_judged_at_once():
+    """This member's own units are judged by the others; a new owner gets unmonitored_s from
+    the membership change before its units count as unmonitored."""
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: None, unmonitored_s=1.0)
+    now = time.monotonic()
+    g.join()
+    g._joined_at = now - 10.0
+    mine = UNITS[0]
+    _stream(g, mine, now - 3.0, now, outputs=False)  # ours, its output not seen (yet)
+    assert g.check_unmonitored(now, live_s=2.0) == ([], [])
+    g.member_event("gB/0", True)  # a member arrives; its units have 1 s to show output
+    theirs = next(u for u in UNITS if owner_of(u, g.members) == "gB/0")
+    _stream(g, theirs, now - 3.0, now, outputs=False)
+    assert g.check_unmonitored(now + 0.5, live_s=2.0) == ([], [])
+    new, _ = g.check_unmonitored(g._changed_at + 1.2, live_s=2.0)
+    assert [k for k, _, _ in new] == [_key(theirs)]
+
+
+def test_unit_released_to_nobody_is_unmonitored():
+    """This member released a unit (a member appeared) but no output for it follows."""
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: None, unmonitored_s=1.0)
+    t0 = time.monotonic()
+    g.join()
+    unit = next(u for u in UNITS if owner_of(u, ["gA/0", "gB/0"]) == "gB/0")
+    _stream(g, unit, t0, t0 + 1.0, outputs=True)  # ours, monitored
+    assert g.owns_key(_key(unit))
+    g.member_event("gB/0", True)  # released to gB ...
+    assert g.pop_released() == [_key(unit)]
+    _stream(g, unit, t0 + 1.0, t0 + 3.0, outputs=False)  # ... which never outputs
+    assert g.check_unmonitored(t0 + 1.5, live_s=2.0) == ([], [])  # within unmonitored_s
+    new, _ = g.check_unmonitored(t0 + 3.0, live_s=2.0)
+    assert [(k, o) for k, o, _ in new] == [(_key(unit), "gB/0")]
+
+
+def test_no_unmonitored_while_outputs_flow_or_the_unit_is_silent():
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: None, unmonitored_s=1.0)
+    t0 = time.monotonic()
+    g.member_event("gB/0", True)
+    g.join()
+    units = UNITS[:20]
+    for u in units:
+        _stream(g, u, t0, t0 + 5.0, outputs=True)
+    assert g.check_unmonitored(t0 + 5.0, live_s=2.0) == ([], [])
+    # the units fell silent (no meas): nothing to monitor, nothing raised, state forgotten
+    assert g.check_unmonitored(t0 + 60.0, live_s=2.0) == ([], [])
+    assert g._last_meas == {} and g._last_output == {}
+    # before the join nothing is judged
+    h = MonitorGroup("h", "gA/0", lambda k, p, t: None, unmonitored_s=0.1)
+    _stream(h, units[0], t0, t0 + 2.0, outputs=False)
+    assert h.check_unmonitored(t0 + 2.0, live_s=2.0) == ([], [])
+
+
+def test_fleet_page_live_view_shows_unmonitored_units():
+    """``web.live.slim``: a unit a member reports unmonitored is marked, with its owner, even
+    when no daemon lists it among its actuators; the daemon strip lists it too."""
+    from service.web.live import slim
+
+    g = {"unmonitored": {"AC001/flap": {"owner": "ground1/9", "since": 1.0}}}
+    daemons = {
+        "monitor/ground1/0/status": {"station": "ground1", "shard": "0", "actuators": {},
+                                     "group": g},
+        "monitor/ground1/1/status": {"station": "ground1", "shard": "1", "group": g,
+                                     "actuators": {"fleet/AC002/rudder/meas": {
+                                         "aircraft": "AC002", "actuator": "rudder",
+                                         "samples": 5}}},
+    }  # fmt: skip
+    view = slim(daemons, 0.0)
+    assert view["units"]["AC001/flap"] == {
+        "daemon": None,
+        "unmonitored": True,
+        "owner": "ground1/9",
+    }
+    assert "unmonitored" not in view["units"]["AC002/rudder"]
+    assert [d["unmonitored"] for d in view["daemons"]] == [["AC001/flap"], ["AC001/flap"]]

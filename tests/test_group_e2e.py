@@ -89,6 +89,7 @@ def test_group_shares_units_and_takes_over_without_loss(net: Net, tmp_path):
     for n in (A, B):
         g = sts[n]["group"]
         assert g["members"] == [A, B] and g["joined"] and g["held_units"] == 2
+        assert g["unmonitored"] == {} and g["unmonitored_events"] == 0  # both members work
     # kill A with its log process; its last accepted sample of each unit, just before
     last_a = {u: own[A][u]["last_seq"] for u in units[:2]}
     os.killpg(daemons[A].pid, signal.SIGKILL)
@@ -110,3 +111,5 @@ def test_group_shares_units_and_takes_over_without_loss(net: Net, tmp_path):
         assert a["first_seq"] <= last_a[u], (u, a["first_seq"], last_a[u])
         assert a["gaps"] == 0 and a["missed"] == 0, a
     assert took_s < 15, took_s
+    # a takeover well within unmonitored_s (5 s) raises no 'unmonitored'
+    assert b["group"]["unmonitored"] == {} and b["group"]["unmonitored_events"] == 0, b["group"]

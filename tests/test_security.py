@@ -103,7 +103,7 @@ class Station:
         """Run to the end: ``{"rc", "out", "err", "json"}``."""
         return self.result(self.popen(args, tag, env, role), tag, timeout)
 
-    def result(self, p: subprocess.Popen, tag: str, timeout: float = 90.0) -> dict:
+    def result(self, p: subprocess.Popen, tag: str, timeout: float = 240.0) -> dict:
         """Wait for ``p``: ``{"rc", "out", "err", "json"}`` (last stdout line as JSON)."""
         rc = p.wait(timeout)
         out = (self.tmp / f"{tag}.out").read_text()
@@ -143,7 +143,7 @@ def station(tmp_path_factory):
         daemon = st.popen(
             ["run", "--config", str(SECURE / "monitor.toml"), "--log", str(tmp / "d.mcap"),
              "--no-rotate", "--json", "--plain-logs"],
-            "daemon", env=st.env("monitor"),
+            "daemon", env=st.env("monitor.ground1.0"),
         )  # fmt: skip
         deadline = time.monotonic() + 90  # a cold numba cache compiles for a while
         while True:
@@ -379,7 +379,7 @@ def test_monitor_group_forms_through_the_secure_router(tmp_path):
                 text.replace("[zenoh]", 'store = "off"\n\n[group]\nname = "fleet"\n\n[zenoh]', 1)
             )
             st.popen(["run", "--config", str(cfg), "--no-rotate", "--json", "--plain-logs"],
-                     f"m{shard}", env=st.env("monitor"))  # fmt: skip
+                     f"m{shard}", env=st.env(f"monitor.ground1.{shard}"))  # fmt: skip
         deadline = time.monotonic() + 90
         groups: dict = {}
         while time.monotonic() < deadline:

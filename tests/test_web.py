@@ -262,3 +262,100 @@ def test_status_rules():
     assert unit_status({**base, "alarm_events": 2}) == ("watch", "2 alarms recorded")
     assert unit_status({**base, "trend": {"label": "rising"}}) == ("watch", "C_Lk ratio rising")
     assert unit_status({**base, "rul": {"warning": False}}) == ("ok", "")
+
+
+def _page_thread(store: str, **kw):
+    """The page's server in a thread of this process (``make_server``), and its URL."""
+    import threading
+
+    from service.web.server import make_server
+
+    srv = make_server(store, "127.0.0.1", 0, **kw)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    return srv, f"http://127.0.0.1:{srv.server_address[1]}"
+
+
+def test_more_than_one_host_header_is_400(filled):
+    import socket
+
+    srv, url = _page_thread(filled)
+    try:
+        port = srv.server_address[1]
+        for hosts in ((f"localhost:{port}", "evil.example"), ("evil.example", "localhost"),
+                      (f"127.0.0.1:{port}", f"127.0.0.1:{port}")):  # fmt: skip
+            raw = b"GET /api/fleet HTTP/1.1\r\n" + b"".join(
+                f"Host: {h}\r\n".encode() for h in hosts
+            )
+            with socket.create_connection(("127.0.0.1", port), timeout=10) as sock:
+                sock.sendall(raw + b"\r\n")
+                got = b""
+                while chunk := sock.recv(65536):  # the server closes after the 400
+                    got += chunk
+            head, _, body = got.partition(b"\r\n\r\n")
+            assert int(head.split()[1]) == 400, (hosts, got)
+            assert json.loads(body)["error"] == "Host: more than one Host header"
+    finally:
+        srv.shutdown()
+        srv.server_close()
+
+
+def test_idle_limit_is_on_the_whole_request_not_each_byte(filled):
+    """A client sending one byte every 0.3 s never trips a per-read timeout; the request's
+    own limit (here 1.5 s) closes the connection all the same."""
+    import socket
+
+    srv, _ = _page_thread(filled, request_s=1.5)
+    try:
+        sock = socket.create_connection(("127.0.0.1", srv.server_address[1]), timeout=10)
+        t0 = time.monotonic()
+        closed_at = None
+        with sock:
+            for b in b"GET /api/fleet HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: " + b"a" * 200:
+                try:
+                    sock.sendall(bytes([b]))
+                    time.sleep(0.3)
+                    sock.setblocking(False)
+                    try:
+                        if sock.recv(65536) == b"":
+                            closed_at = time.monotonic() - t0
+                            break
+                    except BlockingIOError:
+                        pass
+                    finally:
+                        sock.setblocking(True)
+                except OSError:  # reset by the server
+                    closed_at = time.monotonic() - t0
+                    break
+                assert time.monotonic() - t0 < 10, "still open after 10 s"
+        assert closed_at is not None and 1.4 < closed_at < 3.0, closed_at
+    finally:
+        srv.shutdown()
+        srv.server_close()
+
+
+def test_listen_backlog_fits_the_expected_clients(filled):
+    """64 clients connecting at once while the server accepts nothing all complete their
+    handshake (socketserver's default backlog of 5 leaves the others waiting on SYN retries)."""
+    import select
+    import socket
+
+    from service.web.server import make_server
+
+    srv = make_server(filled, "127.0.0.1", 0)  # bound and listening, not serving
+    socks = []
+    try:
+        for _ in range(64):
+            s = socket.socket()
+            s.setblocking(False)
+            s.connect_ex(("127.0.0.1", srv.server_address[1]))
+            socks.append(s)
+        deadline = time.monotonic() + 0.8  # the first SYN retry comes after 1 s
+        done: set = set()
+        while time.monotonic() < deadline and len(done) < len(socks):
+            _, w, _ = select.select([], [s for s in socks if s not in done], [], 0.05)
+            done.update(x for x in w if x.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) == 0)
+        assert len(done) == 64, len(done)
+    finally:
+        for s in socks:
+            s.close()
+        srv.server_close()

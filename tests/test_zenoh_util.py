@@ -56,7 +56,11 @@ def test_allow_remote_is_explicit():
     assert check_endpoint("tcp/10.0.0.5:7447", allow_remote=True) == "tcp/10.0.0.5:7447"
     with pytest.raises(EndpointError):
         make_config("router", listen=["tcp/0.0.0.0:7447"])
-    cfg = make_config("router", listen=["tcp/0.0.0.0:7447"], allow_remote=True)
+    with pytest.raises(EndpointError, match="plain"):  # off loopback, tcp/ also needs its flag
+        make_config("router", listen=["tcp/0.0.0.0:7447"], allow_remote=True)
+    cfg = make_config(
+        "router", listen=["tcp/0.0.0.0:7447"], allow_remote=True, allow_plain_listen=True
+    )
     assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/0.0.0.0:7447"]
 
 

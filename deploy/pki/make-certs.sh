@@ -4,9 +4,11 @@
 #   deploy/pki/make-certs.sh OUTDIR [COMMON_NAME ...]
 #
 # Without names it makes the identities of the shipped configs (deploy/secure/):
-#   router  monitor  operator  dashboard  acq-AC001  acq-AC002  sim-AC001  sim-AC002
-# The role is the common name's prefix (see docs/security.md): router, monitor, operator,
-# dashboard, acq-<AIRCRAFT> (acquisition), sim-<AIRCRAFT> (virtual actuator).
+#   router  monitor.ground1.0  monitor.ground1.1  monitor.ground2.0  operator  dashboard
+#   acq-AC001  acq-AC002  sim-AC001  sim-AC002
+# The role is the common name's prefix (see docs/security.md): router, monitor.<STATION>.<SHARD>
+# (one per daemon), operator, dashboard, acq-<AIRCRAFT> (acquisition), sim-<AIRCRAFT> (virtual
+# actuators).
 # OUTDIR gets ca.pem (the CA certificate to distribute), ca.key (keep it off the station),
 # and <name>.pem / <name>.key per identity (keys mode 0600). An existing CA in OUTDIR is
 # reused, so the script can add identities later. The router certificate names localhost and
@@ -23,7 +25,8 @@ out="$1"
 shift
 names=("$@")
 if [[ ${#names[@]} -eq 0 ]]; then
-  names=(router monitor operator dashboard acq-AC001 acq-AC002 sim-AC001 sim-AC002)
+  names=(router monitor.ground1.0 monitor.ground1.1 monitor.ground2.0 operator dashboard
+    acq-AC001 acq-AC002 sim-AC001 sim-AC002)
 fi
 days="${DAYS:-365}"
 sans="DNS:localhost,IP:127.0.0.1${ROUTER_SANS:+,$ROUTER_SANS}"

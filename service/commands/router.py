@@ -35,6 +35,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--config", default=None, metavar="FILE.json5",
         help="a Zenoh JSON5 config (e.g. deploy/loopback/router.json5); --listen/--connect override it",
     )  # fmt: skip
+    p.add_argument(
+        "--allow-remote", action="store_true",
+        help="accept endpoints other than tcp|tls/127.0.0.1 and unix sockets (from the flags "
+        "and from --config alike)",
+    )  # fmt: skip
+    p.add_argument(
+        "--allow-plain-listen", action="store_true",
+        help="with --allow-remote: accept a non-loopback listen endpoint without TLS (tcp/...; "
+        "unauthenticated, logged as a warning)",
+    )  # fmt: skip
     from service.config import add_tls_arguments
 
     add_tls_arguments(p)
@@ -67,7 +77,10 @@ def _config(args: argparse.Namespace):
 
     if args.config is None:
         listen = args.listen or ["tcp/127.0.0.1:7447"]
-        cfg = make_config("router", listen, args.connect)
+        cfg = make_config(
+            "router", listen, args.connect, allow_remote=args.allow_remote,
+            allow_plain_listen=args.allow_plain_listen,
+        )  # fmt: skip
         _tls(cfg, args)
         return cfg, listen
     cfg = zenoh.Config.from_file(args.config)
@@ -78,8 +91,36 @@ def _config(args: argparse.Namespace):
     if args.connect:
         cfg.insert_json5("connect/endpoints", json.dumps(args.connect))
     _tls(cfg, args)
-    listen = json.loads(cfg.get_json("listen/endpoints"))
+    listen = _endpoints(cfg, "listen")
+    connect = _endpoints(cfg, "connect")
+    _check(args, listen, connect)
+    cfg.insert_json5("listen/endpoints", json.dumps(listen))
     return cfg, listen
+
+
+def _endpoints(cfg, what: str) -> list[str]:
+    """The router's ``listen`` or ``connect`` endpoints in ``cfg``: a per-mode table (Zenoh's
+    default listen is ``tcp/[::]:7447``, every interface) resolves to its ``router`` entry."""
+    v = json.loads(cfg.get_json(f"{what}/endpoints"))
+    if isinstance(v, dict):
+        v = v.get("router", [])
+    if not isinstance(v, list) or not all(isinstance(e, str) for e in v):
+        raise ValueError(f"{what}/endpoints: expected a list of endpoints, got {v!r}")
+    return v
+
+
+def _check(args: argparse.Namespace, listen: list[str], connect: list[str]) -> None:
+    """The loopback rule (``service.zenoh_util.check_endpoint``) on the final endpoints,
+    whether they came from the flags or from ``--config``."""
+    from service.zenoh_util import check_endpoint
+
+    src = f" ({args.config})" if args.config else ""
+    for what, eps in (("listen", listen), ("connect", connect)):
+        for k, e in enumerate(eps):
+            check_endpoint(
+                e, allow_remote=args.allow_remote, field=f"{what}/endpoints[{k}]{src}",
+                listen=what == "listen", allow_plain_listen=args.allow_plain_listen,
+            )  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:

@@ -105,6 +105,23 @@ def foxglove_override(cfg, listen: str | None, allow_remote: bool, every: int | 
     return cfg.model_copy(update={"foxglove": FoxgloveSettings.model_validate(fx)})
 
 
+def _check_identity(cfg) -> None:
+    """Warn when the daemon's certificate is not ``monitor.<station>.<shard>``: the secure
+    station's rules let each daemon identity hold only its own status and tokens, so another
+    identity's would be refused silently (docs/security.md)."""
+    if cfg.zenoh.tls.cert is None:
+        return
+    from service.zenoh_util import certificate_cn
+
+    want = f"monitor.{cfg.station}.{cfg.shard}"
+    cn = certificate_cn(cfg.zenoh.tls.cert)
+    if cn != want:
+        logging.getLogger("servowatch.daemon").warning(
+            "certificate %s names %r, not %r: the secure station's rules let a daemon hold "
+            "only its own identity's status and group tokens", cfg.zenoh.tls.cert, cn, want,
+        )  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
 
     from service.cliargs import service_config_from_args
@@ -123,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     if args.no_rotate:
         cfg = cfg.model_copy(update={"rotate_bytes": None, "rotate_s": None})
     setup_logging(cfg.log_level, not args.plain_logs)
+    _check_identity(cfg)
     stop = threading.Event()
 
     def _stop(signum, frame):

@@ -58,6 +58,11 @@ def format_status(daemons: dict) -> str:
                 f"{'' if g.get('joined') else ' (joining)'}; {g.get('takeovers')} units taken "
                 f"over, {g.get('released')} released, {g.get('held_units')} held"
             )
+            for unit, u in sorted((g.get("unmonitored") or {}).items()):
+                lines.append(
+                    f"  UNMONITORED {unit}: no member's health output for more than "
+                    f"{_fmt(g.get('unmonitored_s'), 'g')} s (owner: {u.get('owner') or '-'})"
+                )
         fx = st.get("foxglove")
         if fx:
             lines.append(

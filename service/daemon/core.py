@@ -135,6 +135,7 @@ class Daemon:
                 f"{self.station}/{self.shard}",
                 self.submit,
                 takeover_s=config.group.takeover_s,
+                unmonitored_s=config.group.unmonitored_s,
                 max_units=MAX_ACTUATORS,
                 max_bytes=config.max_bytes,
             )
@@ -595,6 +596,40 @@ class Daemon:
             out.append(st.name)
         return out
 
+    def check_unmonitored(self, now: float) -> list[str]:
+        """Group units with measurements but no member's output for ``unmonitored_s``: the
+        ``unmonitored`` event (and ``monitored`` when outputs resume); returns the new ones."""
+        new, back = self.group.check_unmonitored(now, self.silence_s)
+        for key, owner, age in new:
+            log.warning(
+                "%s unmonitored: no health output for %.1f s (its owner in this member's view: "
+                "%s)", key, age, owner,
+            )  # fmt: skip
+            self._group_event(key, "unmonitored", {"owner": owner, "for_s": round(age, 3)})
+        for key in back:
+            log.info("%s monitored again", key)
+            self._group_event(key, "monitored", None)
+        return [k for k, _, _ in new]
+
+    def _group_event(self, key: str, kind: str, value: Any) -> None:
+        """An event of a group unit, owned by this member or not: logged, and in the unit's
+        status when this member has monitored it."""
+        parts = key.split("/")
+        t = time.time()
+        d = {"t": t, "kind": kind, "value": value, "wall": t}
+        st = self.actuators.get(key)
+        if st is not None:
+            st.events.append(d)
+        self.logger.log(f"/fleet/{parts[1]}/{parts[2]}/service", t, flat(d))
+
+    def _on_output(self, sample) -> None:
+        """A member's health output (this member's own too): the unit is monitored."""
+        try:
+            k = str(sample.key_expr)
+            self.group.output_seen(k[: -len("health")] + "meas", time.monotonic())
+        except Exception:
+            self.errors += 1
+
     def _run_worker(self) -> None:
         while True:
             stopping = self._stop.is_set()
@@ -605,8 +640,10 @@ class Daemon:
                 now = time.monotonic()
                 if now - self._last_silence_check > 0.2:
                     self._last_silence_check = now
-                    released = self.release_units() if self.group is not None else []
-                    if self.check_silence(now) or released:
+                    changed = self.release_units() if self.group is not None else []
+                    if self.group is not None:
+                        changed += self.check_unmonitored(now)
+                    if self.check_silence(now) or changed:
                         self.logger.commit()
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now
@@ -678,6 +715,13 @@ class Daemon:
         self._decl.append(
             session.liveliness().declare_subscriber(
                 GROUP_TOKENS.format(group=g.name), on_member, history=True
+            )
+        )
+        # every member's health outputs: a unit with meas but none is unmonitored
+        self._decl.append(
+            session.declare_subscriber(
+                m.KEY_HEALTH.format(aircraft="*", actuator="*"),
+                self._on_output,
             )
         )
         self._join_timer = threading.Timer(self.group_config.join_s, g.join)

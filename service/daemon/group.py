@@ -16,6 +16,14 @@ that starts (or restarts) loses nothing of the units the others hand it. Message
 units pass straight on. Ownership and the hand-over are decided under one lock, so a
 hand-over never reorders a unit's messages.
 
+A member also watches the group's work: every unit whose measurements keep arriving must
+show a health output (``fleet/{ac}/{act}/health``, from whichever member) at least every
+``unmonitored_s`` seconds. A unit that does not (its owner is a member that holds a token
+but processes nothing, or it was released and nobody took it) is **unmonitored**: every
+member raises the ``unmonitored`` event and lists it in its status until outputs resume. A
+member judges the units the others own (its own show to them), and a new owner has
+``unmonitored_s`` from the membership change.
+
 Memory is bounded: at most ``max_units`` held units, ``max_held`` messages each, no payload
 larger than ``max_bytes`` (the owner counts those), and ``sweep`` drops what has aged out.
 
@@ -87,6 +95,7 @@ class MonitorGroup:
         max_units: int = 10_000,
         max_held: int = 20_000,
         max_bytes: int = 65536,
+        unmonitored_s: float = 5.0,
     ) -> None:
         self.name = name
         self.me = me
@@ -107,6 +116,14 @@ class MonitorGroup:
         self.released = 0  # units that became another member's
         self.handed_over = 0  # held messages fed on a takeover
         self.changes = 0  # membership changes seen
+        self.unmonitored_s = float(unmonitored_s)
+        self._joined_at = 0.0  # time.monotonic() of the join
+        self._changed_at = 0.0  # time.monotonic() of the last membership change
+        self._last_meas: dict[str, float] = {}  # meas key -> last arrival (every unit)
+        self._first_meas: dict[str, float] = {}  # meas key -> first arrival
+        self._last_output: dict[str, float] = {}  # meas key -> last health seen (any member)
+        self._unmonitored: dict[str, dict[str, Any]] = {}  # meas key -> owner, since [wall s]
+        self.unmonitored_events = 0
 
     # -- ownership ------------------------------------------------------------------------
     def _owner_of_key(self, key: str) -> str | None:
@@ -129,6 +146,11 @@ class MonitorGroup:
         unit: the daemon counts it as bad input), else held."""
         with self._lock:
             owner = self._owner_of_key(key)
+            if owner is not None and (
+                key in self._last_meas or len(self._last_meas) < self.max_units
+            ):
+                self._last_meas[key] = t_recv
+                self._first_meas.setdefault(key, t_recv)
             if owner is None or (self.joined and owner == self.me):
                 self.submit(key, payload, t_recv)
                 return
@@ -159,6 +181,53 @@ class MonitorGroup:
                 if not q:
                     del self._held[key]
 
+    def output_seen(self, key: str, t: float) -> None:
+        """A health output of the unit of meas key ``key`` was seen at ``t`` (monotonic), from
+        any member (this one included)."""
+        with self._lock:
+            if key in self._last_meas:
+                self._last_output[key] = t
+
+    def check_unmonitored(
+        self, now: float, live_s: float
+    ) -> tuple[list[tuple[str, str | None, float]], list[str]]:
+        """Units that became unmonitored, as (meas key, owner, seconds without output), and
+        those that are monitored again (outputs resumed, or the unit fell silent: nothing to
+        monitor). A unit counts while its measurements arrived within ``live_s``."""
+        new: list[tuple[str, str | None, float]] = []
+        back: list[str] = []
+        with self._lock:
+            if not self.joined:
+                return new, back
+            for key, last in list(self._last_meas.items()):
+                if now - last > live_s:
+                    for d in (self._last_meas, self._first_meas, self._last_output):
+                        d.pop(key, None)
+                    if self._unmonitored.pop(key, None) is not None:
+                        back.append(key)
+                    continue
+                # a new owner gets unmonitored_s from the change; this member's own units are
+                # judged by the others (it knows it processes them; its stall shows to them)
+                ref = max(
+                    self._last_output.get(key, self._first_meas[key]),
+                    self._joined_at,
+                    self._changed_at,
+                )
+                if self._owner_of_key(key) == self.me:
+                    ref = now
+                if now - ref > self.unmonitored_s:
+                    if key not in self._unmonitored:
+                        owner = self._owner_of_key(key)
+                        self._unmonitored[key] = {
+                            "owner": owner,
+                            "since": time.time() - (now - ref),
+                        }
+                        self.unmonitored_events += 1
+                        new.append((key, owner, now - ref))
+                elif self._unmonitored.pop(key, None) is not None:
+                    back.append(key)
+        return new, back
+
     def pop_released(self) -> list[str]:
         """The meas keys that became another member's since the last call (the daemon ends
         their periods and forgets their stream state, so a unit that comes back starts
@@ -172,6 +241,7 @@ class MonitorGroup:
         """Start owning: the units that are ours now are fed their held messages."""
         with self._lock:
             self.joined = True
+            self._joined_at = time.monotonic()
             self._reassign(count=False)
 
     def member_event(self, member: str, present: bool, zid: str = "") -> None:
@@ -189,6 +259,7 @@ class MonitorGroup:
                 return
             (self.members.add if now_present else self.members.discard)(member)
             self.changes += 1
+            self._changed_at = time.monotonic()
             before = dict(self._owner)
             self._owner.clear()
             if not self.joined:
@@ -242,4 +313,10 @@ class MonitorGroup:
                 "held_units": len(held),
                 "held_messages": sum(held.values()),
                 "not_held": self.not_held,
+                "unmonitored_s": self.unmonitored_s,
+                "unmonitored": {
+                    "/".join(k.split("/")[1:3]): dict(v)
+                    for k, v in sorted(self._unmonitored.items())
+                },
+                "unmonitored_events": self.unmonitored_events,
             }

@@ -43,6 +43,7 @@ def slim(daemons: dict[str, dict[str, Any]], queried_s: float) -> dict[str, Any]
                 "latency_p99_ms": (st.get("latency_ms") or {}).get("p99"),
                 "log_failure": st.get("log_failure"),
                 "silent": list(st.get("silent") or []),
+                "unmonitored": sorted((st.get("group") or {}).get("unmonitored") or {}),
             }
         )
         for a in acts.values():
@@ -58,6 +59,14 @@ def slim(daemons: dict[str, dict[str, Any]], queried_s: float) -> dict[str, Any]
                 "missed": a.get("missed"),
                 "alarms": sorted({str(x.get("kind")) for x in a.get("alarms") or []}),
             }
+    # a unit that any member reports unmonitored (measurements, no member's output) is shown
+    # so, whoever last listed it
+    for st in daemons.values():
+        g = st.get("group") if isinstance(st, dict) else None
+        for unit, u in ((g or {}).get("unmonitored") or {}).items():
+            entry = units.setdefault(unit, {"daemon": None})
+            entry["unmonitored"] = True
+            entry["owner"] = (u or {}).get("owner")
     return {"enabled": True, "queried_s": queried_s, "daemons": out_d, "units": units}
 
 

@@ -19,6 +19,7 @@ its Content-Security-Policy says so.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 from http import HTTPStatus
@@ -42,6 +43,9 @@ _FILES = {
     "/static/fleet.css": ("fleet.css", "text/css; charset=utf-8"),
 }
 STORE_TIMEOUT_S = 5.0  # a store that does not answer within this is a 503 [s]
+IDLE_S = 30.0  # a kept-alive connection with no new request is closed after this long [s]
+REQUEST_S = 10.0  # a request, from its first byte to its answer, must be done within this [s]
+BACKLOG = 128  # pending connections the kernel queues (a few browsers, scripts, a proxy)
 SECURITY_HEADERS: dict[str, str] = {
     "Content-Security-Policy": (
         "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
@@ -76,7 +80,8 @@ class _Handler(BaseHTTPRequestHandler):
     server_version = "servowatch-web"
     sys_version = ""
     protocol_version = "HTTP/1.1"
-    timeout = 30.0  # an idle or stalled connection frees its thread after this long [s]
+    timeout = IDLE_S  # socket timeout: the wait for a request's first byte [s]
+    request_s = REQUEST_S  # the whole request and its answer, however slowly it trickles [s]
     # set by make_server on a subclass
     store_target: str = ""
     refresh_s: float = 10.0
@@ -85,6 +90,34 @@ class _Handler(BaseHTTPRequestHandler):
     allowed_hosts: frozenset[str] | None = None  # Host header names; None = any
 
     # -- plumbing ---------------------------------------------------------------------------
+    def handle_one_request(self) -> None:
+        """One request within ``request_s`` in total: the socket timeout bounds each read, so
+        a client sending a byte now and then would otherwise hold the connection (and its
+        thread) forever. At the deadline the socket is shut down and the connection ends."""
+        import socket
+        import threading
+
+        try:
+            if not self.rfile.peek(1):  # the idle wait (socket timeout); b"": closed
+                self.close_connection = True
+                return
+        except (TimeoutError, OSError):
+            self.close_connection = True
+            return
+
+        def expire() -> None:
+            self.close_connection = True
+            with contextlib.suppress(OSError):
+                self.connection.shutdown(socket.SHUT_RDWR)
+
+        timer = threading.Timer(self.request_s, expire)
+        timer.daemon = True
+        timer.start()
+        try:
+            super().handle_one_request()
+        finally:
+            timer.cancel()
+
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
         if self.access_log:
             sys.stderr.write(f"servowatch web: {self.address_string()} {format % args}\n")
@@ -161,6 +194,9 @@ class _Handler(BaseHTTPRequestHandler):
         def ok(obj: Any) -> tuple[int, bytes, str]:
             return _json_answer(HTTPStatus.OK, obj)
 
+        if len(self.headers.get_all("Host") or ()) > 1:  # which one a proxy reads is anyone's guess
+            self.close_connection = True
+            return err(HTTPStatus.BAD_REQUEST, "Host: more than one Host header")
         if not self._host_ok():
             return err(HTTPStatus.MISDIRECTED_REQUEST, "Host: not this server's name")
         if path in _FILES:
@@ -217,6 +253,10 @@ class _Handler(BaseHTTPRequestHandler):
     do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_TRACE = do_CONNECT = _refuse
 
 
+class _Server(ThreadingHTTPServer):
+    request_queue_size = BACKLOG  # the listen backlog (socketserver's default is 5)
+
+
 def make_server(
     store_target: str,
     host: str = "127.0.0.1",
@@ -226,11 +266,14 @@ def make_server(
     access_log: bool = False,
     live: Any = None,
     allow_remote: bool = False,
+    request_s: float = REQUEST_S,
 ) -> ThreadingHTTPServer:
     """A bound (not yet serving) server of the page on ``host:port`` (port 0: any free one;
     ``server.server_address`` tells which) over the store at ``store_target``; ``live``, a
     started ``LiveStatus``, adds the daemons' live status. Unless ``allow_remote``, a request
-    whose Host header is not a loopback name of this server is answered 421."""
+    whose Host header is not a loopback name of this server is answered 421; a request with
+    more than one Host header is a 400. Each request must be done within ``request_s`` [s];
+    the kernel queues up to :data:`BACKLOG` pending connections."""
     handler = type(
         "FleetPageHandler",
         (_Handler,),
@@ -240,12 +283,13 @@ def make_server(
             "access_log": access_log,
             "live": live,
             "allowed_hosts": None if allow_remote else _loopback_names(host),
+            "request_s": float(request_s),
         },
     )
-    cls = ThreadingHTTPServer
+    cls = _Server
     if ":" in host:
 
-        class _V6(ThreadingHTTPServer):
+        class _V6(_Server):
             import socket as _socket
 
             address_family = _socket.AF_INET6

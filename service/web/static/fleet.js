@@ -168,6 +168,14 @@ function liveCell(name) {
     td.dataset.live = "none";
     return td;
   }
+  if (lu.unmonitored) {
+    // measurements arrive but no group member publishes its health: nobody watches it
+    td.dataset.live = "unmonitored";
+    td.appendChild(el("span", { class: "dot unmonitored" }));
+    td.appendChild(document.createTextNode(`UNMONITORED (owner ${lu.owner || "none"})`));
+    td.title = "its measurements arrive, but no monitor-group member publishes its health";
+    return td;
+  }
   const state = lu.silent ? "silent" : "receiving";
   td.dataset.live = state;
   td.appendChild(el("span", { class: "dot " + state }));
@@ -197,6 +205,9 @@ function renderDaemons() {
       (num(d.latency_p99_ms) === null ? "" : `, p99 ${d.latency_p99_ms.toFixed(1)} ms`) +
       (d.silent && d.silent.length ? `, silent: ${d.silent.join(", ")}` : "")));
     if (d.log_failure) c.appendChild(el("div", { class: "rising" }, `log failed: ${d.log_failure}`));
+    if (d.unmonitored && d.unmonitored.length) {
+      c.appendChild(el("div", { class: "rising" }, `unmonitored: ${d.unmonitored.join(", ")}`));
+    }
     list.appendChild(c);
   }
 }
