@@ -35,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--config", default=None, metavar="FILE.json5",
         help="a Zenoh JSON5 config (e.g. deploy/loopback/router.json5); --listen/--connect override it",
     )  # fmt: skip
-    from service.config import add_tls_arguments
+    from service.cliargs import add_tls_arguments
 
     add_tls_arguments(p)
 
