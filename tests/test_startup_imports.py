@@ -60,7 +60,7 @@ def _start_router(port: int) -> subprocess.Popen:
         except OSError:
             if p.poll() is not None or time.monotonic() > deadline:
                 p.kill()
-                raise AssertionError(f"the router never listened: {p.communicate()[1]}")
+                raise AssertionError(f"no router: {p.communicate()[1]}") from None
             time.sleep(0.02)
 
 
