@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 
 $(KERNELS): $(STAMP) $(KERNEL_SRC)
 	find models service \( -name '*.nbi' -o -name '*.nbc' \) -delete
-	$(PY) -m service.warmup
+	$(VENV)/bin/servowatch warmup
 	touch $(KERNELS)
 
 demo: $(KERNELS)

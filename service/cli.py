@@ -35,6 +35,7 @@ COMMANDS: tuple[str, ...] = (
     "router",
     "replay",
     "demo",
+    "warmup",
 )
 
 

@@ -253,6 +253,9 @@ def run(args: argparse.Namespace) -> int:
         scenario = str(resolve_scenario(args.scenario))
     except ScenarioError as e:
         return fail(str(e))
+    from service.warmup import ensure
+
+    ensure("models", "monitor", "log")  # a first run compiles here, and says so
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.exists():
