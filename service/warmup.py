@@ -109,13 +109,14 @@ def _entries(group: str) -> list:
     if group == "models":
         from models import compiled
 
-        return [compiled.integrate]
+        return list(compiled._LOOPS)
     if group in ("monitor", "monitor-wh"):
+        from models import compiled
         from service import wire_kernels
         from service.monitor import kernels
 
         k = kernels.KERNELS[group == "monitor-wh"]
-        return [k.bank_step, k.output_rows, k.block_steps, k.block_rows, kernels.prepare_inputs,
+        return [compiled._integrate_hf, k.bank_step, k.output_rows, k.block_steps, k.block_rows, kernels.prepare_inputs,
                 wire_kernels.unpack_checked]  # fmt: skip
     from service.log import codec
 

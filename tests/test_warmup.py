@@ -28,7 +28,7 @@ def test_a_cold_compile_is_announced_then_cached(tmp_path):
     assert r.returncode == 0, r.stderr
     m = re.search(r"compiling the EHA bench kernels \(first run, about (\d+) s", r.stderr)
     assert m and int(m.group(1)) > 0, r.stderr
-    assert "compiled models.compiled.integrate" in r.stderr, r.stderr
+    assert "compiled models.compiled._integrate_hf" in r.stderr, r.stderr
     assert any(p.suffix == ".nbi" for p in tmp_path.rglob("*")), "nothing cached"
     again = _warmup(tmp_path, "--group", "models")
     assert again.returncode == 0, again.stderr
