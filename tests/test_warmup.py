@@ -26,7 +26,7 @@ def _warmup(cache_dir, *args: str) -> subprocess.CompletedProcess:
 def test_a_cold_compile_is_announced_then_cached(tmp_path):
     r = _warmup(tmp_path, "--group", "models")
     assert r.returncode == 0, r.stderr
-    m = re.search(r"compiling the EHA bench kernels \(first run, about (\d+) s", r.stderr)
+    m = re.search(r"compiling the HF bench kernels \(first run, about (\d+) s", r.stderr)
     assert m and int(m.group(1)) > 0, r.stderr
     assert "compiled models.compiled._integrate_hf" in r.stderr, r.stderr
     assert any(p.suffix == ".nbi" for p in tmp_path.rglob("*")), "nothing cached"

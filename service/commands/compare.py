@@ -156,7 +156,7 @@ def _run_suite(args: argparse.Namespace) -> int:
         return fail(f"{args.suite}: no scenario files (*.toml)")
     from service.warmup import ensure
 
-    ensure("models")
+    ensure("models", "valves")
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     try:
         out = compare_suite(files, log)
@@ -197,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
         return fail(str(e))
     from service.warmup import ensure
 
-    ensure("models")
+    ensure("models", "valves")
     prog = Progress("compare")
     out, results = compare(scenario, progress=prog)
     prog.done()

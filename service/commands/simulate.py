@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     from models.eha import simulate
     from service.warmup import ensure
 
-    ensure("models")
+    ensure("models" if args.valve == "HF" else "valves")
     warm_up(scenario, args.valve)
     prog = Progress(f"simulate {args.valve}")
     t0 = time.perf_counter()
