@@ -57,9 +57,14 @@ def borrowed_all(typingctx, arrays):
 
 def has_cached_code(dispatcher) -> bool:
     """True when ``dispatcher`` (an ``@njit(cache=True)`` function) has compiled code in its
-    cache index for its current source: its first call loads instead of compiling. A cache
-    that cannot be read counts as absent."""
+    cache index for its current source, this target and, for a closure, its closure values
+    (the variants of one factory share an index): its first call loads instead of compiling.
+    A cache that cannot be read counts as absent."""
     try:
-        return bool(dispatcher._cache._cache_file._load_index())
-    except (AttributeError, OSError, EOFError, ValueError):
+        cache = dispatcher._cache
+        overloads = cache._cache_file._load_index()
+        # the index keys: (signature, target magic tuple, (bytecode hash, closure hash))
+        _, magic, code = cache._index_key(None, dispatcher.targetctx.codegen())
+    except (AttributeError, OSError, EOFError, ValueError, TypeError):
         return False
+    return any(k[1] == magic and k[2] == code for k in overloads)
