@@ -546,7 +546,6 @@ def _rhs5(model, cur, x_s, v_s, x_j, v_j, x_cmd, f_r, p_sr, f0, f1, f2, x_ss, ar
 
 
 def _make_simplified_loop(model: int):
-    @njit(cache=True, error_model="numpy")
     def _integrate_simplified(y, h, n_sub, k0, n_steps, u, prm, out_every, out):
         dc = _drive_consts(prm)
         jc = _jack_consts(prm)
@@ -604,7 +603,10 @@ def _make_simplified_loop(model: int):
                 out[row, 6] = y6
         y[0], y[1], y[2], y[3], y[4] = y0, y1, y2, y3, y4
 
-    return _integrate_simplified
+    # one qualified name per model: its own cache index and symbol (loops of one name compiled
+    # in different processes would collide when loaded from the cache)
+    _integrate_simplified.__qualname__ += f"_{model}"
+    return njit(cache=True, error_model="numpy")(_integrate_simplified)
 
 
 _LOOP_A = _make_simplified_loop(1)

@@ -186,7 +186,7 @@ def _make_step_one(wh: bool):
     """``step_one`` for the WH process model (wh) or the C-type laws: ``wh`` is a
     compile-time constant, so a bank compiles only its own model's kernels."""
 
-    @njit(cache=True)  # called, not inlined: one compile for both of its callers
+    # called, not inlined: one compile for both of its callers
     def step_one(
         j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm,
         Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
@@ -340,14 +340,17 @@ def _make_step_one(wh: bool):
         NIS_AVG[k] = 0.0
         return STEP_BROKEN
 
-    return step_one
+    # one qualified name per variant: its own cache index and symbol (variants of one name
+    # compiled in different processes would collide when loaded from the cache)
+    step_one.__qualname__ += "_wh" if wh else "_c"
+    return njit(cache=True)(step_one)
 
 
 def _make_row_one(wh: bool):
     """``row_one`` for the WH process model (wh) or the C-type laws: ``wh`` is a
     compile-time constant, so a bank compiles only its own model's kernels."""
 
-    @njit(cache=True)  # called, not inlined: one compile for both of its callers
+    # called, not inlined: one compile for both of its callers
     def row_one(
         j, kk, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
         PENDING, cst, est, res, health, fire, xs, zo,
@@ -444,7 +447,10 @@ def _make_row_one(wh: bool):
             health[j, HEALTH_ALARM + a] = 1.0 if ALARM[k, a] else 0.0
         health[j, HEALTH_NIS_AVG] = NIS_AVG[kk]
 
-    return row_one
+    # one qualified name per variant: its own cache index and symbol (variants of one name
+    # compiled in different processes would collide when loaded from the cache)
+    row_one.__qualname__ += "_wh" if wh else "_c"
+    return njit(cache=True)(row_one)
 
 
 _step_one_c = _make_step_one(False)
@@ -486,7 +492,6 @@ def _make_bank_step(wh: bool):
     """``bank_step`` for the WH process model (wh) or the C-type laws: ``wh`` is a
     compile-time constant, so a bank compiles only its own model's kernels."""
 
-    @njit(cache=True)
     def bank_step(
         ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm, Wc,
         c, prm, cst, ws, y, nis, nis_avg, flag,
@@ -507,14 +512,16 @@ def _make_bank_step(wh: bool):
                 zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
             )  # fmt: skip
 
-    return bank_step
+    # one qualified name per variant: its own cache index and symbol (variants of one name
+    # compiled in different processes would collide when loaded from the cache)
+    bank_step.__qualname__ += "_wh" if wh else "_c"
+    return njit(cache=True)(bank_step)
 
 
 def _make_output_rows(wh: bool):
     """``output_rows`` for the WH process model (wh) or the C-type laws: ``wh`` is a
     compile-time constant, so a bank compiles only its own model's kernels."""
 
-    @njit(cache=True)
     def output_rows(
         X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING, cst,
         est, res, health, fire,
@@ -535,7 +542,10 @@ def _make_output_rows(wh: bool):
                 PENDING, cst, est, res, health, fire, xs, zo,
             )  # fmt: skip
 
-    return output_rows
+    # one qualified name per variant: its own cache index and symbol (variants of one name
+    # compiled in different processes would collide when loaded from the cache)
+    output_rows.__qualname__ += "_wh" if wh else "_c"
+    return njit(cache=True)(output_rows)
 
 
 @njit(cache=True, nogil=True)
@@ -588,7 +598,7 @@ def _make_block_steps(wh: bool):
     """``block_steps`` for the WH process model (wh) or the C-type laws: ``wh`` is a
     compile-time constant, so a bank compiles only its own model's kernels."""
 
-    @njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
+    # other threads (receivers, loggers) run meanwhile
     def block_steps(
         j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT, q,
         R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis, nis_avg, acc, SX, SPD,
@@ -646,14 +656,16 @@ def _make_block_steps(wh: bool):
             SNA[j] = NIS_AVG[k]
         return ks.shape[0], STEP_OK
 
-    return block_steps
+    # one qualified name per variant: its own cache index and symbol (variants of one name
+    # compiled in different processes would collide when loaded from the cache)
+    block_steps.__qualname__ += "_wh" if wh else "_c"
+    return njit(cache=True, nogil=True)(block_steps)
 
 
 def _make_block_rows(wh: bool):
     """``block_rows`` for the WH process model (wh) or the C-type laws: ``wh`` is a
     compile-time constant, so a bank compiles only its own model's kernels."""
 
-    @njit(cache=True, nogil=True)
     def block_rows(
         ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t, ALARM, PENDING,
         cst, est, res, health, fire,
@@ -675,7 +687,10 @@ def _make_block_rows(wh: bool):
                     ALARM, PENDING, cst, est, res, health, fire, xs, zo,
                 )  # fmt: skip
 
-    return block_rows
+    # one qualified name per variant: its own cache index and symbol (variants of one name
+    # compiled in different processes would collide when loaded from the cache)
+    block_rows.__qualname__ += "_wh" if wh else "_c"
+    return njit(cache=True, nogil=True)(block_rows)
 
 
 # the kernels MonitorBank calls, by process model (``KERNELS[bank.wh]``): a C-type bank never
