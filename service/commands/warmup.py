@@ -13,7 +13,7 @@ import sys
 from service.cliutil import emit_json
 
 NAME = "warmup"
-HELP = "compile the numba kernels once (a first run: about a minute; then seconds)"
+HELP = "compile the numba kernels once (a first run: about two minutes; then seconds)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
