@@ -1,11 +1,13 @@
-"""Resume time and samples lost across a router restart (kill -9, back on the same port).
+"""Resume time and samples lost across a router restart (kill -9 of `servowatch router`, the
+same command back on the same port).
 
     .venv/bin/python bench/restart.py [--link actuator|daemon] [--down 1.0] [--rate 250] [--runs 3]
 
 Every piece runs in its own process on loopback (evaluation.restart); prints one JSON
-line per run: ``resume_s`` from the restarted router listening to the daemon holding a sample
-published after that, ``lost`` sequence numbers never logged, ``missed`` messages Zenoh
-reported unrecoverable.
+line per run: ``listen_s`` from the restarted router's spawn to its port accepting,
+``resume_s`` from it listening to the daemon holding a sample published after that,
+``flowing_s`` from its spawn to that sample (the chain flowing again), ``lost`` sequence
+numbers never logged, ``missed`` messages Zenoh reported unrecoverable.
 """
 
 from __future__ import annotations

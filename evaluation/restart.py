@@ -34,22 +34,20 @@ def _cli(*args: str) -> subprocess.Popen:
     )  # fmt: skip
 
 
-_ROUTER = """
-import signal, sys, threading, zenoh
-from service.zenoh_util import make_config
-s = zenoh.open(make_config("router", [sys.argv[1]], sys.argv[2:]))
-stop = threading.Event()
-signal.signal(signal.SIGTERM, lambda *_: stop.set())
-stop.wait()
-s.close()
-"""
+def servowatch_exe() -> list[str]:
+    """The ``servowatch`` console script next to this interpreter (the command a user types),
+    else ``python -m service.cli`` (the same code)."""
+    exe = Path(sys.executable).with_name("servowatch")
+    return [str(exe)] if exe.is_file() else [sys.executable, "-m", "service.cli"]
 
 
 def _router(listen: str, *connect: str) -> subprocess.Popen:
-    """A Zenoh router in its own process (what ``servowatch router`` opens, without the CLI's
-    imports, so a restart takes a fraction of a second)."""
+    """``servowatch router`` in its own process, listening on ``listen``."""
+    args = ["router", "--listen", listen]
+    for c in connect:
+        args += ["--connect", c]
     return subprocess.Popen(
-        [sys.executable, "-c", _ROUTER, listen, *connect],
+        [*servowatch_exe(), *args],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=dict(os.environ),
     )  # fmt: skip
 
@@ -76,8 +74,10 @@ def run_restart(
     after_s: float = 3.0,
     cache_s: float = 10.0,
 ) -> dict[str, Any]:
-    """Run the restart once; returns the figures (``resume_s``: from the restarted router
-    listening to the daemon holding a sample published after that; ``lost``: seq numbers the
+    """Run the restart once (the routers are ``servowatch router``); returns the figures
+    (``listen_s``: from the restarted router's spawn to its port accepting; ``resume_s``: from
+    it listening to the daemon holding a sample published after that; ``flowing_s``: from its
+    spawn to that sample, the chain flowing again; ``lost``: seq numbers the
     daemon never accepted; the daemon's final ``gaps``, ``missed``, ``samples``)."""
     import zenoh
 
@@ -130,13 +130,15 @@ def run_restart(
         victim.wait(10)
         t_kill = time.time()
         time.sleep(down_s)
+        t_spawn = time.time()
         procs.append(_router(loopback(vport), *([loopback(p1)] if link == "daemon" else [])))
         t_back = _listening(vport)
-        resume = None
+        resume = flowing = None
         while time.time() - t_back < 30:
             a = act()
             if a.get("last_t") is not None and a["last_t"] >= t_back:
-                resume = time.time() - t_back
+                now = time.time()
+                resume, flowing = now - t_back, now - t_spawn
                 break
             time.sleep(0.02)
         time.sleep(after_s)
@@ -162,7 +164,9 @@ def run_restart(
         "rate_hz": rate_hz,
         "down_s": down_s,
         "outage_s": t_back - t_kill,
+        "listen_s": t_back - t_spawn,
         "resume_s": resume,
+        "flowing_s": flowing,
         "logged": len(seqs),
         "first_seq": seqs[0] if seqs else None,
         "last_seq": seqs[-1] if seqs else None,

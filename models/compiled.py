@@ -546,7 +546,6 @@ def _rhs5(model, cur, x_s, v_s, x_j, v_j, x_cmd, f_r, p_sr, f0, f1, f2, x_ss, ar
 
 
 def _make_simplified_loop(model: int):
-    @njit(cache=True, error_model="numpy")
     def _integrate_simplified(y, h, n_sub, k0, n_steps, u, prm, out_every, out):
         dc = _drive_consts(prm)
         jc = _jack_consts(prm)
@@ -604,7 +603,10 @@ def _make_simplified_loop(model: int):
                 out[row, 6] = y6
         y[0], y[1], y[2], y[3], y[4] = y0, y1, y2, y3, y4
 
-    return _integrate_simplified
+    # one qualified name per model: its own cache index and symbol (loops of one name compiled
+    # in different processes would collide when loaded from the cache)
+    _integrate_simplified.__qualname__ += f"_{model}"
+    return njit(cache=True, error_model="numpy")(_integrate_simplified)
 
 
 _LOOP_A = _make_simplified_loop(1)
@@ -679,29 +681,20 @@ def _integrate_hf(y, h, n_sub, k0, n_steps, u, prm, out_every, out):
     y[0], y[1], y[2], y[3], y[4], y[5], y[6] = y0, y1, y2, y3, y4, y5, y6
 
 
-@njit(cache=True, error_model="numpy")
-def integrate(y, h, n_sub, k0, n_steps, u, prm, model, out_every, out):
+# the loop of each valve model id (MODEL_IDS)
+_LOOPS = (_integrate_hf, _LOOP_A, _LOOP_B, _LOOP_C1, _LOOP_C3, _LOOP_C5, _integrate_wh)
+
+
+def integrate(y, h, n_sub, k0, n_steps, u, prm, model, out_every, out) -> None:
     """Advance ``y`` in place over ``n_steps`` classic RK4 steps of ``h`` (global steps
     k0..k0+n-1), each split into ``n_sub`` substeps.
 
     ``u`` is (n_u, 4): x_cmd, f_r, p_sr, c_lk held over local step k (row min(k, n_u - 1)).
     After global step g = k0 + k the state goes to ``out[(g + 1) // out_every]`` whenever
     ``(g + 1) % out_every == 0`` (row 0 is left for the initial state). Classic RK4 on
-    :func:`rhs` up to round-off; one specialised loop per valve model (see module docstring).
+    :func:`rhs` up to round-off; one specialised loop per valve model (see module docstring),
+    chosen here in Python, so that a run compiles only its own model's loop.
     """
-    if model == 0:
-        _integrate_hf(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
-    elif model == 1:
-        _LOOP_A(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
-    elif model == 2:
-        _LOOP_B(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
-    elif model == 3:
-        _LOOP_C1(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
-    elif model == 4:
-        _LOOP_C3(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
-    elif model == 5:
-        _LOOP_C5(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
-    elif model == 6:
-        _integrate_wh(y, h, n_sub, k0, n_steps, u, prm, out_every, out)
-    else:
+    if not 0 <= model < len(_LOOPS):
         raise ValueError("unknown valve model id")
+    _LOOPS[model](y, h, n_sub, k0, n_steps, u, prm, out_every, out)

@@ -8,7 +8,9 @@ Bad arguments exit 2 (argparse), a bad input file exits 2 with a message naming 
 from __future__ import annotations
 
 import argparse
+import ast
 import importlib
+import importlib.util
 import re
 import sys
 from collections.abc import Sequence
@@ -33,27 +35,62 @@ COMMANDS: tuple[str, ...] = (
     "router",
     "replay",
     "demo",
+    "warmup",
 )
 
 
+def _module_name(name: str) -> str:
+    return f"service.commands.{name.replace('-', '_')}"
+
+
 def _load(name: str):
-    return importlib.import_module(f"service.commands.{name.replace('-', '_')}")
+    return importlib.import_module(_module_name(name))
 
 
-def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The top-level parser with every subcommand (or just ``only``: a command module is
-    imported only when needed, which keeps start-up fast)."""
+def help_of(name: str) -> str:
+    """The ``HELP`` string of a command module, read from its source without importing it
+    (the top-level ``--help`` lists every command without paying for their imports)."""
+    spec = importlib.util.find_spec(_module_name(name))
+    if spec is None or spec.origin is None:
+        raise ImportError(f"no command module for {name!r}")
+    with open(spec.origin, encoding="utf-8") as f:
+        tree = ast.parse(f.read(), spec.origin)
+    for node in tree.body:
+        if (
+            isinstance(node, ast.Assign)
+            and any(isinstance(t, ast.Name) and t.id == "HELP" for t in node.targets)
+            and isinstance(node.value, ast.Constant)
+            and isinstance(node.value.value, str)
+        ):
+            return node.value.value
+    return _load(name).HELP  # not a plain string literal: import it
+
+
+def build_parser(only: str | None = None, *, summary: bool = False) -> argparse.ArgumentParser:
+    """The top-level parser with every subcommand, or just ``only`` (a command module is
+    imported only when needed, which keeps start-up fast). ``summary``: every subcommand with
+    its one-line help and no arguments, no command module imported (for ``servowatch --help``
+    and usage errors)."""
     parser = argparse.ArgumentParser(
         prog="servowatch",
         description="Prognostics and health monitoring for electro-hydraulic actuators.",
+        epilog="`servowatch COMMAND --help` describes a command's options (docs/cli.md).",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS if only is None else (only,):
+        if summary:
+            sub.add_parser(name, help=_escape(help_of(name)))
+            continue
         mod = _load(name)
-        p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
+        p = sub.add_parser(name, help=_escape(mod.HELP), description=mod.HELP)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
+
+
+def _escape(text: str) -> str:
+    """argparse %-formats help strings: a literal ``%`` (``90 % interval``) must be ``%%``."""
+    return text.replace("%", "%%")
 
 
 _NEG_NUMBER = re.compile(r"^-[\d.]")
@@ -83,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``servowatch`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
     only = argv[0] if argv and argv[0] in COMMANDS else None
-    parser = build_parser(only)
+    parser = build_parser(only, summary=only is None)
     args = parser.parse_args(_join_negative_values(argv))
     try:
         return int(args._run(args) or 0)

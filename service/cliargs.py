@@ -3,12 +3,37 @@
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the config pulls in the monitor (numba): imported when used
     from service.config import ServiceConfig
 
-__all__ = ["add_zenoh_arguments", "service_config_from_args"]
+__all__ = [
+    "add_zenoh_arguments",
+    "add_tls_arguments",
+    "tls_overrides",
+    "service_config_from_args",
+]
+
+
+def add_tls_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--tls-root-ca``, ``--tls-cert``, ``--tls-key``: file paths (never a secret itself)."""
+    g = parser.add_argument_group("TLS (paths; override [zenoh.tls] and SERVOWATCH_ZENOH__TLS__*)")
+    g.add_argument("--tls-root-ca", metavar="FILE.pem", default=None, help="station CA certificate")
+    g.add_argument(
+        "--tls-cert", metavar="FILE.pem", default=None, help="this identity's certificate"
+    )
+    g.add_argument("--tls-key", metavar="FILE.pem", default=None, help="its private key (a path)")
+
+
+def tls_overrides(args: argparse.Namespace, zenoh: dict[str, Any]) -> dict[str, Any]:
+    """``zenoh`` (a ``ZenohSettings.model_dump()``) with the ``--tls-*`` flags applied."""
+    tls = dict(zenoh.get("tls") or {})
+    for name in ("root_ca", "cert", "key"):
+        v = getattr(args, f"tls_{name}", None)
+        if v is not None:
+            tls[name] = v
+    return {**zenoh, "tls": tls}
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,14 +61,12 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
         help="Zenoh mode (default: the config's; a peer with nothing to "
         "listen on runs as a client)",
     )
-    from service.config import add_tls_arguments  # --tls-root-ca/--tls-cert/--tls-key paths
-
     add_tls_arguments(parser)
 
 
 def service_config_from_args(args: argparse.Namespace) -> ServiceConfig:
     """``load_config(args.config)`` with the command line's Zenoh overrides applied."""
-    from service.config import ConfigError, ZenohSettings, load_config, tls_overrides
+    from service.config import ConfigError, ZenohSettings, load_config
 
     cfg = load_config(getattr(args, "config", None))
     z = cfg.zenoh.model_dump()

@@ -14,7 +14,6 @@ no secret is ever a setting value, so none can reach a command line or a log.
 
 from __future__ import annotations
 
-import argparse
 import os
 import tomllib
 import typing
@@ -34,6 +33,7 @@ from pydantic import (
 from pydantic_settings import NoDecode
 from pydantic_settings.exceptions import SettingsError
 
+from service.cliargs import add_tls_arguments, tls_overrides  # re-exported
 from service.compat.pydantic_settings import MappingEnvSource
 from service.monitor import MonitorConfig
 from service.zenoh_util import EndpointError, check_endpoint, diagnose_link, make_config
@@ -443,23 +443,3 @@ def load_config(
         if hit is not None:
             raise ConfigError(f"{first['msg']} (got {hit[1]!r})", _loc(first), hit[0]) from None
         _raise_validation(e, source)
-
-
-def add_tls_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--tls-root-ca``, ``--tls-cert``, ``--tls-key``: file paths (never a secret itself)."""
-    g = parser.add_argument_group("TLS (paths; override [zenoh.tls] and SERVOWATCH_ZENOH__TLS__*)")
-    g.add_argument("--tls-root-ca", metavar="FILE.pem", default=None, help="station CA certificate")
-    g.add_argument(
-        "--tls-cert", metavar="FILE.pem", default=None, help="this identity's certificate"
-    )
-    g.add_argument("--tls-key", metavar="FILE.pem", default=None, help="its private key (a path)")
-
-
-def tls_overrides(args: argparse.Namespace, zenoh: dict[str, Any]) -> dict[str, Any]:
-    """``zenoh`` (a ``ZenohSettings.model_dump()``) with the ``--tls-*`` flags applied."""
-    tls = dict(zenoh.get("tls") or {})
-    for name in ("root_ca", "cert", "key"):
-        v = getattr(args, f"tls_{name}", None)
-        if v is not None:
-            tls[name] = v
-    return {**zenoh, "tls": tls}

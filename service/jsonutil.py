@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Mapping
 from typing import Any
-
-import numpy as np
 
 __all__ = ["jsonable", "flat", "event_dict"]
 
@@ -23,9 +22,10 @@ def jsonable(v: Any) -> Any:
         return {str(k): jsonable(x) for k, x in v.items()}
     if isinstance(v, list | tuple):
         return [jsonable(x) for x in v]
-    if isinstance(v, np.ndarray):
+    np = sys.modules.get("numpy")  # not imported: no value can be a numpy one (fast start-up)
+    if np is not None and isinstance(v, np.ndarray):
         return jsonable(v.tolist())
-    if isinstance(v, np.generic):
+    if np is not None and isinstance(v, np.generic):
         return jsonable(v.item())
     try:
         f = float(v)

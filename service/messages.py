@@ -27,7 +27,6 @@ from collections.abc import Mapping, Sequence
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
-from numba import njit
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from service.compat.pydantic import construct_unchecked
@@ -381,36 +380,15 @@ _REC_DTYPE = np.dtype(
 )  # packed: 73 bytes, the layout of _REC
 
 
-@njit(cache=True)
-def _unpack_checked(seq_in, t_in, mk_in, v_in, seq, t, values):  # pragma: no cover - numba
-    """Copy the packed records into ``seq``, ``t``, ``values`` (NaN where the mask bit is
-    clear); False at the first record that breaks a rule of ``_bin_rows``."""
-    nch = values.shape[1]
-    for k in range(seq_in.shape[0]):
-        s_k, t_k, m_k = seq_in[k], t_in[k], mk_in[k]
-        if s_k < 0 or not np.isfinite(t_k) or m_k >= (1 << nch):
-            return False
-        if k > 0 and (s_k <= seq[k - 1] or t_k <= t[k - 1]):
-            return False
-        seq[k], t[k] = s_k, t_k
-        for b in range(nch):
-            if (m_k >> b) & 1:
-                x = v_in[k, b]
-                if not np.isfinite(x):
-                    return False
-                values[k, b] = x
-            else:
-                values[k, b] = np.nan
-    return True
-
-
 def _bin_arrays(payload: bytes) -> MeasArrays:
     """``_bin_rows`` compiled: same checks; on a violation the scalar decoder raises the same
     error naming the first offending field."""
     n = _bin_count(payload)
     rec = np.frombuffer(payload, _REC_DTYPE, n, _HEADER.size)
     out = MeasArrays(np.empty(n, np.int64), np.empty(n), np.empty((n, len(CHANNELS))))
-    if not _unpack_checked(rec["seq"], rec["t"], rec["mask"], rec["v"], *out):
+    from service.wire_kernels import unpack_checked  # numba: loaded on the first decode
+
+    if not unpack_checked(rec["seq"], rec["t"], rec["mask"], rec["v"], *out):
         _bin_rows(payload)  # raises the error of the first offending field
         raise MessageError("invalid record", "samples")  # pragma: no cover - unreachable
     return out

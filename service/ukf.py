@@ -19,7 +19,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints
 from numba import njit
 from numpy.typing import NDArray
 
@@ -56,10 +55,16 @@ class SigmaWeights:
 def merwe_weights(
     n: int, alpha: float = 1e-3, beta: float = 2.0, kappa: float = 0.0
 ) -> SigmaWeights:
-    """Weights of filterpy's ``MerweScaledSigmaPoints(n, alpha, beta, kappa)``."""
-    pts = MerweScaledSigmaPoints(n, alpha=alpha, beta=beta, kappa=kappa)
+    """Weights of filterpy's ``MerweScaledSigmaPoints(n, alpha, beta, kappa)``, by its own
+    formulas in its own order (bit for bit, ``tests/test_ukf.py``; filterpy imports scipy,
+    a second of start-up, so it is not imported here)."""
     lam = alpha**2 * (n + kappa) - n
-    return SigmaWeights(n=n, Wm=np.array(pts.Wm, float), Wc=np.array(pts.Wc, float), c=n + lam)
+    c = 0.5 / (n + lam)
+    Wc = np.full(2 * n + 1, c)
+    Wm = np.full(2 * n + 1, c)
+    Wc[0] = lam / (n + lam) + (1 - alpha**2 + beta)
+    Wm[0] = lam / (n + lam)
+    return SigmaWeights(n=n, Wm=Wm, Wc=Wc, c=n + lam)
 
 
 def nearest_spd(P: NDArray, jitter: float = 1e-12) -> NDArray:

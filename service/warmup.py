@@ -1,50 +1,291 @@
-"""Compile and cache the numba kernels once (``python -m service.warmup``).
+"""Compile and cache the numba kernels ahead of use (``servowatch warmup``,
+``python -m service.warmup``).
 
 ``make`` runs this right after installing, so the first ``servowatch demo`` or test run does
-not spend its first seconds compiling. Safe to run any time; it only exercises the kernels.
+not spend its first minutes compiling; a pip-installed copy runs ``servowatch warmup`` once.
+Safe to run any time: it only exercises the kernels (loaded from numba's cache when they are
+compiled already). ``--table`` prints what each kernel cost: the compile seconds of every
+numba function (its own, without the functions it calls, and in total).
+
+The kernels are grouped by the command that needs them (``GROUPS``); a command that would
+compile a group first says so on stderr (:func:`announce`).
 """
 
 from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 
-__all__ = ["warm_up"]
+__all__ = [
+    "warm_up",
+    "GROUPS",
+    "DEFAULT_GROUPS",
+    "ensure",
+    "monitor_group",
+    "is_cached",
+    "table",
+    "print_table",
+]
 
 
-def warm_up() -> float:
-    """Run every compiled path briefly; return the wall time taken [s]."""
-    t0 = time.perf_counter()
-    from models.eha import VALVE_MODELS, EHAStepper, simulate
+def _models() -> None:
+    """The HF bench: the virtual actuator (``servowatch actuator``, the demo), calibrate,
+    estimate."""
+    from models.eha import EHAStepper
     from models.params import EHAParams
+
+    st = EHAStepper(EHAParams(), "HF")
+    for _ in range(3):
+        st.advance(10, 0.001, 0.0, 20e6, 2e-13)
+
+
+def _valves() -> None:
+    """The bench on every other valve model (A, B, C1, C3, C5, WH): simulate, compare."""
+    from models.eha import VALVE_MODELS, simulate
     from models.scenario import Scenario
-    from service.messages import decode_meas_arrays, encode_meas
-    from service.monitor import Monitor, MonitorBank
 
     sc = Scenario(name="warmup", duration_s=2e-3, step_s=1e-4)
     for valve in VALVE_MODELS:
         simulate(sc, valve)
+
+
+def _monitor_run(model: str) -> None:
+    from models.eha import EHAStepper
+    from models.params import EHAParams
+    from service.messages import decode_meas_arrays, encode_meas
+    from service.monitor import Monitor, MonitorBank, MonitorConfig
+
+    cfg = MonitorConfig(model=model)
     st = EHAStepper(EHAParams(), "HF")
     samples = []
     for k in range(20):
         st.advance(10, 0.001, 0.0, 20e6, 2e-13)
-        s = st.signals()
-        samples.append({**s, "t": 1e-3 * k})
-    mon = Monitor()
+        samples.append({**st.signals(), "t": 1e-3 * k})
+    mon = Monitor(cfg)
     for s in samples:
         mon.update(s)
-    bank = MonitorBank()
+    bank = MonitorBank(cfg)
     bank.update_rows([("a", s) for s in samples[:1]])
     for s in samples[1:]:
         bank.update_rows([("a", s)])
     arr = decode_meas_arrays(encode_meas([{**s, "seq": k} for k, s in enumerate(samples)]))
     bank.update_arrays([bank.index_of("b")] * len(arr.t), arr.t, arr.values)
+
+
+def _monitor() -> None:
+    """The degradation monitor on the C-type laws (the default, C5): run, replay, estimate,
+    calibrate."""
+    _monitor_run("C5")
+
+
+def _monitor_wh() -> None:
+    """The degradation monitor on the WH process model (``[monitor] model = "WH"``)."""
+    _monitor_run("WH")
+
+
+def _log() -> None:
+    """The MCAP log's encoder and reader: run, replay."""
     from service.log import codec as logcodec
 
     logcodec.warm_up()
+
+
+GROUPS: dict[str, Callable[[], None]] = {
+    "models": _models,
+    "monitor": _monitor,
+    "log": _log,
+    "valves": _valves,
+    "monitor-wh": _monitor_wh,
+}
+# what `servowatch warmup` compiles by default: what the demo, the daemon, the replay and the
+# virtual actuator need; the other groups compile on their first use (announced) or --all
+DEFAULT_GROUPS = ("models", "monitor", "log")
+
+WHAT = {
+    "models": "the HF bench kernels",
+    "valves": "the simplified valve models' bench kernels",
+    "monitor": "the monitor kernels",
+    "monitor-wh": "the monitor's WH model kernels",
+    "log": "the MCAP log kernels",
+}
+# CPU seconds of each group's first compile on this project's 2-core VM, from `servowatch
+# warmup --table` (numba compiles on one core: the wall time of an idle machine); the
+# estimate a compiling command prints
+ESTIMATE_S = {"models": 10.0, "monitor": 80.0, "log": 25.0, "valves": 20.0, "monitor-wh": 50.0}
+
+
+# the kernels each group's warm-up calls from Python (numba's cache of these tells whether
+# the group would compile)
+def _entries(group: str) -> list:
+    if group == "models":
+        from models import compiled
+
+        return [compiled._integrate_hf]
+    if group == "valves":
+        from models import compiled
+
+        return list(compiled._LOOPS[1:])
+    if group in ("monitor", "monitor-wh"):
+        from models import compiled
+        from service import wire_kernels
+        from service.monitor import kernels
+
+        k = kernels.KERNELS[group == "monitor-wh"]
+        return [compiled._integrate_hf, k.bank_step, k.output_rows, k.block_steps, k.block_rows, kernels.prepare_inputs,
+                wire_kernels.unpack_checked]  # fmt: skip
+    from service.log import codec
+
+    return [codec._encode, codec._scan, codec._fill, codec._objects]
+
+
+def warm_up(groups: tuple[str, ...] | None = None) -> float:
+    """Run every compiled path (or those of ``groups``) briefly; return the wall time [s]."""
+    t0 = time.perf_counter()
+    for name in DEFAULT_GROUPS if groups is None else groups:
+        GROUPS[name]()
     return time.perf_counter() - t0
 
 
+class _CompileTimes:
+    """Compile seconds per numba function, from numba's ``numba:compile`` events (a cache
+    load is not a compile event). Own time excludes the functions compiled while it compiled
+    (its callees); total includes them."""
+
+    def __init__(self) -> None:
+        self.stack: list[list] = []  # [name, t_start, child_seconds]
+        self.own: dict[str, float] = {}
+        self.total: dict[str, float] = {}
+        self.count: dict[str, int] = {}
+
+    def on_start(self, ev) -> None:
+        d = ev.data["dispatcher"]
+        name = f"{d.py_func.__module__}.{d.py_func.__qualname__}"
+        self.stack.append([name, time.perf_counter(), 0.0])
+
+    def on_end(self, ev) -> None:
+        name, t0, child = self.stack.pop()
+        dt = time.perf_counter() - t0
+        if self.stack:
+            self.stack[-1][2] += dt
+        self.own[name] = self.own.get(name, 0.0) + dt - child
+        self.total[name] = self.total.get(name, 0.0) + dt
+        self.count[name] = self.count.get(name, 0) + 1
+
+
+def _listener(on_start: Callable, on_end: Callable):
+    """A numba event listener calling ``on_start`` / ``on_end`` with each event."""
+    from numba.core import event
+
+    class _L(event.Listener):
+        def on_start(self, ev) -> None:
+            on_start(ev)
+
+        def on_end(self, ev) -> None:
+            on_end(ev)
+
+    return _L()
+
+
+def table(
+    groups: tuple[str, ...] | None = None,
+) -> tuple[list[tuple[str, str, int, float, float]], float]:
+    """Warm up with numba's compile events recorded: rows (group, kernel, signatures, own s,
+    total s), slowest first, and the wall time."""
+    from numba.core import event
+
+    rows = []
+    t0 = time.perf_counter()
+    for g in DEFAULT_GROUPS if groups is None else groups:
+        rec = _CompileTimes()
+        with event.install_listener("numba:compile", _listener(rec.on_start, rec.on_end)):
+            GROUPS[g]()
+        rows += [(g, k, rec.count[k], rec.own[k], rec.total[k]) for k in rec.own]
+    rows.sort(key=lambda r: -r[3])
+    return rows, time.perf_counter() - t0
+
+
+def is_cached(group: str) -> bool:
+    """True when the entry kernels of ``group`` have compiled code in numba's cache for their
+    current source (their first call loads it; no compile). Reads the cache index only."""
+    from service.compat.numba import has_cached_code
+
+    return all(has_cached_code(d) for d in _entries(group))
+
+
+def monitor_group(model: str) -> str:
+    """The warm-up group of the monitor on process ``model`` (a MonitorConfig.model)."""
+    return "monitor-wh" if model == "WH" else "monitor"
+
+
+def ensure(*groups: str, always: bool = False, stream=None) -> float:
+    """Compile the kernels of ``groups`` that numba's cache lacks, before a command uses
+    them, saying so on ``stream`` (stderr): what, an estimate, then a line per kernel as it
+    is compiled. Silent and cheap when they are cached (``always``: run the warm-up anyway,
+    loading from the cache). Returns the wall time spent [s]."""
+    from numba.core import event
+
+    out = sys.stderr if stream is None else stream
+    t0 = time.perf_counter()
+    cold = [g for g in groups if not is_cached(g)]
+    todo = list(groups) if always else cold
+    if cold:
+        est = sum(ESTIMATE_S[g] for g in cold)
+        print(
+            f"servowatch: compiling {', '.join(WHAT[g] for g in cold)} (first run, about "
+            f"{est:.0f} s on 2 cores; cached afterwards; `servowatch warmup` does it ahead)...",
+            file=out, flush=True,
+        )  # fmt: skip
+    depth = [0]
+
+    def on_start(ev) -> None:
+        depth[0] += 1
+
+    def on_end(ev) -> None:
+        depth[0] -= 1
+        if depth[0] == 0:
+            f = ev.data["dispatcher"].py_func
+            print(f"servowatch:   compiled {f.__module__}.{f.__qualname__} "
+                  f"({time.perf_counter() - t0:.0f} s)", file=out, flush=True)  # fmt: skip
+
+    with event.install_listener("numba:compile", _listener(on_start, on_end)):
+        for g in todo:
+            GROUPS[g]()
+    if cold:
+        print(f"servowatch: kernels compiled in {time.perf_counter() - t0:.0f} s", file=out,
+              flush=True)  # fmt: skip
+    return time.perf_counter() - t0
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(
+        prog="python -m service.warmup", description=__doc__.split("\n")[0]
+    )
+    ap.add_argument("--table", action="store_true", help="print the compile seconds per kernel")
+    ap.add_argument("--group", action="append", choices=tuple(GROUPS), default=None,
+                    help="only this group of kernels (repeatable; default: models, monitor, "
+                    "log; valves, monitor-wh: compiled on first use)")  # fmt: skip
+    a = ap.parse_args(argv)
+    groups = tuple(a.group) if a.group else None
+    if not a.table:
+        dt = warm_up(groups)
+        print(f"servowatch: compiled kernels ready ({dt:.1f} s)", file=sys.stderr)
+        return 0
+    rows, wall = table(groups)
+    print_table(rows, wall)
+    return 0
+
+
+def print_table(rows: list[tuple[str, str, int, float, float]], wall: float) -> None:
+    """The rows of :func:`table` as text, slowest first, with their sum and the wall time."""
+    print(f"{'group':<8} {'kernel':<60} {'sigs':>4} {'own_s':>7} {'total_s':>8}")
+    for g, k, n, own, tot in rows:
+        print(f"{g:<8} {k:<60} {n:>4} {own:7.2f} {tot:8.2f}")
+    print(f"{'':<8} {'sum of own compile seconds':<60} {'':>4} {sum(r[3] for r in rows):7.2f}")
+    print(f"wall {wall:.1f} s (compiles, and the warm-up runs themselves)", flush=True)
+
+
 if __name__ == "__main__":
-    dt = warm_up()
-    print(f"servowatch: compiled kernels ready ({dt:.1f} s)", file=sys.stderr)
+    sys.exit(main())

@@ -109,3 +109,42 @@ def test_nrt_option_is_accepted() -> None:
         return s
 
     assert leaf(np.arange(5.0)) == 10.0
+
+
+def test_has_cached_code_sees_the_cache_index(tmp_path, monkeypatch) -> None:
+    """A fresh ``cache=True`` function has no cached code until its first call compiles it;
+    then it has (the index ``service.warmup`` reads to announce a compile)."""
+    import sys
+
+    src = tmp_path / "_cached_kernel.py"
+    src.write_text("from numba import njit\n\n@njit(cache=True)\ndef f(x):\n    return x + 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    mod = importlib.import_module("_cached_kernel")
+    try:
+        assert not cn.has_cached_code(mod.f), "numba cache index: see service/compat/numba.py"
+        assert mod.f(1) == 2
+        assert cn.has_cached_code(mod.f), "numba cache index: see service/compat/numba.py"
+    finally:
+        sys.modules.pop("_cached_kernel", None)
+
+
+def test_has_cached_code_tells_closure_variants_apart(tmp_path, monkeypatch) -> None:
+    """Two variants of one factory share a cache index; compiling one leaves the other
+    uncached (service.monitor.kernels builds its kernels per process model this way)."""
+    import sys
+
+    src = tmp_path / "_cached_factory.py"
+    src.write_text(
+        "from numba import njit\n\ndef make(wh):\n    @njit(cache=True)\n"
+        "    def f(x):\n        return x + 2 if wh else x + 1\n    return f\n\n"
+        "F0 = make(False)\nF1 = make(True)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    mod = importlib.import_module("_cached_factory")
+    try:
+        assert mod.F0(1) == 2
+        assert cn.has_cached_code(mod.F0), "numba cache index keys: see service/compat/numba.py"
+        assert not cn.has_cached_code(mod.F1), "numba cache index keys: closure variants"
+        assert mod.F1(1) == 3 and cn.has_cached_code(mod.F1)
+    finally:
+        sys.modules.pop("_cached_factory", None)

@@ -14,7 +14,9 @@ pytestmark = pytest.mark.slow
 @pytest.mark.parametrize("link", ["actuator", "daemon"])
 def test_router_kill_and_restart_loses_no_cached_sample(tmp_path, link):
     r = run_restart(tmp_path, link=link, down_s=1.0, before_s=2.0, after_s=2.0)
-    assert r["resume_s"] is not None and r["resume_s"] < 5.0, r  # generous bound; bench/restart.py
+    # generous bounds for a loaded machine; the figures: bench/restart.py
+    assert r["resume_s"] is not None and r["resume_s"] < 5.0, r  # from the router listening
+    assert r["flowing_s"] < 10.0, r  # from its spawn (servowatch router's start included)
     assert r["lost"] == 0 and r["gaps"] == 0 and r["missed"] == 0, r
     assert r["logged"] == r["last_seq"] + 1 and r["bad"] == {}, r
 

@@ -71,6 +71,9 @@ def run(args: argparse.Namespace) -> int:
         return fail("--rate must be > 0 and --samples-per-msg >= 1")
     if not 0 < args.cache_s <= 3600:
         return fail(f"--cache-s: must be in (0, 3600] s, got {args.cache_s}")
+    from service.warmup import ensure
+
+    ensure("models")  # before publishing: a first run compiles (and says so)
     va = VirtualActuator(scenario, rate_hz=args.rate, t_origin=time.time(), seed=args.seed)
     stop = threading.Event()
 

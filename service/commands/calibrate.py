@@ -78,9 +78,11 @@ def meas_from_log(path: str, actuator: str | None = None) -> dict[str, np.ndarra
 
 def run(args: argparse.Namespace) -> int:
     from service.monitor.config import MONITOR_MODELS
+    from service.warmup import ensure, monitor_group
 
     if args.model not in MONITOR_MODELS:
         return fail(f"unknown model {args.model!r}; expected one of {', '.join(MONITOR_MODELS)}")
+    ensure("models", monitor_group(args.model))
     if args.passes < 0:
         return fail("--passes must be >= 0")
     if args.log is not None:

@@ -154,6 +154,9 @@ def _run_suite(args: argparse.Namespace) -> int:
     files = suite_files(args.suite)
     if not files:
         return fail(f"{args.suite}: no scenario files (*.toml)")
+    from service.warmup import ensure
+
+    ensure("models", "valves")
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
     try:
         out = compare_suite(files, log)
@@ -192,6 +195,9 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as e:
         return fail(str(e))
+    from service.warmup import ensure
+
+    ensure("models", "valves")
     prog = Progress("compare")
     out, results = compare(scenario, progress=prog)
     prog.done()

@@ -262,6 +262,9 @@ def run(args: argparse.Namespace) -> int:
         fx = None if args.foxglove is None else FoxgloveSettings(listen=args.foxglove)
     except ValueError as e:
         return fail(f"--foxglove: {e}")
+    from service.warmup import ensure
+
+    ensure("models", "monitor", "log")  # a first run compiles here, and says so
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.exists():

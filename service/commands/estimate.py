@@ -280,9 +280,11 @@ def run(args: argparse.Namespace) -> int:
         return fail(str(e))
     from service.monitor import Baseline, MonitorConfig
     from service.monitor.config import MONITOR_MODELS
+    from service.warmup import ensure, monitor_group
 
     if args.model not in MONITOR_MODELS:
         return fail(f"unknown model {args.model!r}; expected one of {', '.join(MONITOR_MODELS)}")
+    ensure("models", monitor_group(args.model))
     if args.duration is not None:
         if args.duration <= 0:
             return fail("--duration must be positive")

@@ -47,6 +47,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from service.prognostics.fleetsim import FleetSimConfig, evaluate, run_fleet_sim
     from service.prognostics.rul import RulConfig, compute_rul
+    from service.warmup import ensure
+
+    ensure("models", "monitor")
 
     if args.actuators < 1 or args.flights < 2:
         return fail("need --actuators >= 1 and --flights >= 2")

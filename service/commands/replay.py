@@ -153,6 +153,9 @@ def run(args: argparse.Namespace) -> int:
         cfg = load_config(args.config) if args.config else None
     except ConfigError as e:
         return fail(str(e))
+    from service.warmup import ensure, monitor_group
+
+    ensure(monitor_group(cfg.monitor.model if cfg is not None else "C5"), "log")
     monitor_config = cfg.monitor if cfg is not None else None
     baseline = None
     if cfg is not None and cfg.baseline is not None:

@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --allow-remote: accept a non-loopback listen endpoint without TLS (tcp/...; "
         "unauthenticated, logged as a warning)",
     )  # fmt: skip
-    from service.config import add_tls_arguments
+    from service.cliargs import add_tls_arguments
 
     add_tls_arguments(p)
 

@@ -141,6 +141,11 @@ def run(args: argparse.Namespace) -> int:
         cfg = cfg.model_copy(update={"rotate_bytes": None, "rotate_s": None})
     setup_logging(cfg.log_level, not args.plain_logs)
     _check_identity(cfg)
+    from service.warmup import ensure, monitor_group
+
+    ensure(
+        monitor_group(cfg.monitor.model), "log"
+    )  # before the session: a first run compiles (and says so)
     stop = threading.Event()
 
     def _stop(signum, frame):

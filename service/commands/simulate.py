@@ -83,7 +83,9 @@ def run(args: argparse.Namespace) -> int:
     except ScenarioError as e:
         return fail(str(e))
     from models.eha import simulate
+    from service.warmup import ensure
 
+    ensure("models" if args.valve == "HF" else "valves")
     warm_up(scenario, args.valve)
     prog = Progress(f"simulate {args.valve}")
     t0 = time.perf_counter()

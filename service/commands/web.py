@@ -54,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="service TOML whose [zenoh] table opens the live-status session "
         "(e.g. deploy/secure/dashboard.toml)",
     )  # fmt: skip
-    from service.config import add_tls_arguments
+    from service.cliargs import add_tls_arguments
 
     add_tls_arguments(p)
     p.add_argument(

@@ -7,6 +7,9 @@
   with atomic operations and its pruning pass leaves most of them in a function the size of
   the UKF step: about a third of ``service.ukf.ukf_one`` and a fifth of the monitor's block
   loop (``service.monitor.kernels``).
+* ``has_cached_code``: whether a dispatcher's on-disk cache index (``numba.core.caching``:
+  ``Dispatcher._cache._cache_file._load_index``) holds a fresh entry, i.e. whether its first
+  call loads compiled code instead of compiling (``service.warmup`` announces a compile).
 * ``NO_NRT``: the private ``_nrt`` target option (``numba.core.cpu.CPUTargetOptions``), which
   compiles a kernel without the runtime's reference counting at all; for kernels that
   allocate nothing (``service.log.codec``). Empty when the option is gone (the kernels still
@@ -23,7 +26,7 @@ from numba.core import cpu
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array
 
-__all__ = ["borrowed_all", "NO_NRT", "HAS_NRT_OPTION"]
+__all__ = ["borrowed_all", "NO_NRT", "HAS_NRT_OPTION", "has_cached_code"]
 
 HAS_NRT_OPTION: bool = hasattr(cpu.CPUTargetOptions, "_nrt")
 NO_NRT: dict[str, bool] = {"_nrt": False} if HAS_NRT_OPTION else {}
@@ -50,3 +53,18 @@ def borrowed_all(typingctx, arrays):
         return context.make_tuple(builder, sig.return_type, out)
 
     return arrays(arrays), codegen
+
+
+def has_cached_code(dispatcher) -> bool:
+    """True when ``dispatcher`` (an ``@njit(cache=True)`` function) has compiled code in its
+    cache index for its current source, this target and, for a closure, its closure values
+    (the variants of one factory share an index): its first call loads instead of compiling.
+    A cache that cannot be read counts as absent."""
+    try:
+        cache = dispatcher._cache
+        overloads = cache._cache_file._load_index()
+        # the index keys: (signature, target magic tuple, (bytecode hash, closure hash))
+        _, magic, code = cache._index_key(None, dispatcher.targetctx.codegen())
+    except (AttributeError, OSError, EOFError, ValueError, TypeError):
+        return False
+    return any(k[1] == magic and k[2] == code for k in overloads)

@@ -61,7 +61,7 @@ __all__ = ["Daemon", "default_log_path", "EXIT_LOG_FAILURE"]
 
 log = logging.getLogger("servowatch.daemon")
 
-#: exit code of ``servowatch run`` when the MCAP log failed (README, "Commands")
+#: exit code of ``servowatch run`` when the MCAP log failed (docs/cli.md, "Commands")
 EXIT_LOG_FAILURE = 5  # 3 and 4 are the Zenoh session's (service.config)
 
 

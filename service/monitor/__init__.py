@@ -5,29 +5,64 @@ row layout EST_KEYS / RES_KEYS / HEALTH_KEYS and the output types), ``bank`` (Mo
 Monitor) and ``kernels`` (the compiled per-sample loops). See docs/estimation.md.
 """
 
-from service.monitor.bank import Monitor, MonitorBank
-from service.monitor.config import (
-    MODEL_DEFAULTS,
-    AlarmConfig,
-    Baseline,
-    MeasurementNoise,
-    MonitorConfig,
-    ProcessNoise,
-)
-from service.monitor.fleet import MonitorFleet
-from service.monitor.outputs import (
-    ALARM_KINDS,
-    COUNTERS,
-    EST_KEYS,
-    HEALTH_KEYS,
-    MEAS_CHANNELS,
-    RES_KEYS,
-    AlarmEvent,
-    BankRows,
-    MonitorOutput,
-    RowEvents,
-    StepBlock,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+# lazy (PEP 562): ``service.monitor.config`` (the settings a config file or a command line
+# needs) is importable without compiling anything; the bank and its kernels (numba) load
+# on first use of one of their names
+_WHERE = {
+    "Monitor": "bank",
+    "MonitorBank": "bank",
+    "MonitorFleet": "fleet",
+    **dict.fromkeys(
+        ("MODEL_DEFAULTS", "AlarmConfig", "Baseline", "MeasurementNoise", "MonitorConfig",
+         "ProcessNoise"),
+        "config",
+    ),
+    **dict.fromkeys(
+        ("ALARM_KINDS", "COUNTERS", "EST_KEYS", "HEALTH_KEYS", "MEAS_CHANNELS", "RES_KEYS",
+         "AlarmEvent", "BankRows", "MonitorOutput", "RowEvents", "StepBlock"),
+        "outputs",
+    ),
+}  # fmt: skip
+
+if TYPE_CHECKING:
+    from service.monitor.bank import Monitor, MonitorBank
+    from service.monitor.config import (
+        MODEL_DEFAULTS,
+        AlarmConfig,
+        Baseline,
+        MeasurementNoise,
+        MonitorConfig,
+        ProcessNoise,
+    )
+    from service.monitor.fleet import MonitorFleet
+    from service.monitor.outputs import (
+        ALARM_KINDS,
+        COUNTERS,
+        EST_KEYS,
+        HEALTH_KEYS,
+        MEAS_CHANNELS,
+        RES_KEYS,
+        AlarmEvent,
+        BankRows,
+        MonitorOutput,
+        RowEvents,
+        StepBlock,
+    )
+
+
+def __getattr__(name: str):
+    sub = _WHERE.get(name)
+    if sub is None:
+        raise AttributeError(f"module 'service.monitor' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"service.monitor.{sub}"), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "MeasurementNoise",

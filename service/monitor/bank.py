@@ -40,6 +40,7 @@ from service.monitor.kernels import (
     IN_X_CMD,
     IN_Z,
     INPUT_COLUMNS,
+    KERNELS,
     N_CARRY,
     N_CHANNELS,
     N_PENDING,
@@ -60,10 +61,6 @@ from service.monitor.kernels import (
     Z_P_SR,
     Z_X_J,
     Z_X_S,
-    bank_step,
-    block_rows,
-    block_steps,
-    output_rows,
     prepare_inputs,
 )
 from service.monitor.outputs import (
@@ -528,7 +525,7 @@ class MonitorBank:
         extra: dict[int, list[AlarmEvent]] = {}
         j, emit = 0, False
         while True:
-            j, code = block_steps(
+            j, code = KERNELS[self.wh].block_steps(
                 j, emit, ks, t, z, mask, cand, i_m, x_c, self.x, self.P, self.ol, self.t_last,
                 self.carry, self.nis_avg, self.t_init, self.r_q, self.r_R, self.r_scale,
                 self.r_zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst,
@@ -578,7 +575,7 @@ class MonitorBank:
         res = np.zeros((n, len(RES_KEYS)))
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
-        block_rows(
+        KERNELS[self.wh].block_rows(
             ks, sb.acc, *sb.snap, self.r_scale, self.r_zscale, self.r_prm, sb.z, sb.mask, sb.y,
             sb.nis, t, self.alarm, self.pending, self.r_cst, est, res, health, fire,
         )  # fmt: skip
@@ -741,7 +738,7 @@ class MonitorBank:
         nis = np.zeros(B)
         nis_avg = np.zeros(B)
         flag = np.zeros(B, np.int64)
-        bank_step(
+        KERNELS[self.wh].bank_step(
             ks, t, z, mask, i_m, x_c, self.x, self.P, self.ol, self.t_last, self.carry,
             self.nis_avg, self.r_q, self.r_R, self.r_scale, self.r_zscale, self.ukf.w.Wm,
             self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst, self._ws, y, nis, nis_avg, flag,
@@ -777,7 +774,7 @@ class MonitorBank:
         res = np.zeros((n, len(RES_KEYS)))
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
-        output_rows(
+        KERNELS[self.wh].output_rows(
             self.x, np.diagonal(self.P, axis1=1, axis2=2).copy(), self.ol, ks, self.r_scale, self.r_zscale, self.r_prm, z, mask, y, nis,
             t, self.t_init, self.nis_avg, self.alarm, self.pending, self.r_cst, est, res,
             health, fire,

@@ -10,13 +10,15 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from models import eha_reduced as er
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
+
+if TYPE_CHECKING:  # the reduced model compiles (numba): imported where it is used
+    from models import eha_reduced as er
 
 MONITOR_MODELS: tuple[str, ...] = (*LAW_NAMES, "WH")
 """Process models of the monitor: the C-type laws (models.eha_reduced) and WH
@@ -380,6 +382,8 @@ class Baseline(_Cfg):
     @classmethod
     def nominal(cls, law: str = "C5", params: EHAParams | None = None) -> Baseline:
         """Uncalibrated values derived from the HF parameter set (physics.md section 3)."""
+        from models import eha_reduced as er
+
         p = params or EHAParams()
         rp = er.reduced_params(params, law)._asdict()
         fields = {k: v for k, v in rp.items() if k in cls.model_fields}
@@ -400,6 +404,8 @@ class Baseline(_Cfg):
 
     def reduced_params(self) -> er.ReducedParams:
         """Parameters of ``models.eha_reduced`` for this baseline."""
+        from models import eha_reduced as er
+
         return er.ReducedParams(
             **{
                 k: getattr(self, k)

@@ -1,0 +1,50 @@
+"""The first-run compile says what it does (issue 34): ``servowatch warmup`` on an empty numba
+cache announces the compile with an estimate and prints a line per compiled kernel; once
+cached, the same command and ``ensure`` are silent."""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import subprocess
+
+import pytest
+
+from evaluation.restart import servowatch_exe
+
+
+def _warmup(cache_dir, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache_dir)}
+    return subprocess.run(
+        [*servowatch_exe(), "warmup", *args], capture_output=True, text=True, timeout=900,
+        env=env,
+    )  # fmt: skip
+
+
+@pytest.mark.slow
+def test_a_cold_compile_is_announced_then_cached(tmp_path):
+    r = _warmup(tmp_path, "--group", "models")
+    assert r.returncode == 0, r.stderr
+    m = re.search(r"compiling the HF bench kernels \(first run, about (\d+) s", r.stderr)
+    assert m and int(m.group(1)) > 0, r.stderr
+    assert "compiled models.compiled._integrate_hf" in r.stderr, r.stderr
+    assert any(p.suffix == ".nbi" for p in tmp_path.rglob("*")), "nothing cached"
+    again = _warmup(tmp_path, "--group", "models")
+    assert again.returncode == 0, again.stderr
+    assert "compiling" not in again.stderr and "compiled kernels ready" in again.stderr
+
+
+def test_ensure_is_silent_when_cached():
+    from service.warmup import ensure, is_cached
+
+    if not is_cached("log"):
+        pytest.skip("the log kernels are not compiled here (run `servowatch warmup`)")
+    out = io.StringIO()
+    ensure("log", stream=out)
+    assert out.getvalue() == ""
+
+
+def test_warmup_help_names_the_groups():
+    r = subprocess.run([*servowatch_exe(), "warmup", "--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "monitor-wh" in r.stdout, r.stderr
