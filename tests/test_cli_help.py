@@ -10,8 +10,8 @@ import sys
 
 import pytest
 
-from service.cli import COMMANDS, _load, help_of
 from evaluation.restart import servowatch_exe
+from service.cli import COMMANDS, _load, help_of
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
