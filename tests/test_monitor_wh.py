@@ -154,6 +154,9 @@ C5_HASHES_1S = {
 }
 
 
+C5_CONFIG = MonitorConfig(model="C5")
+
+
 def test_c_type_outputs_unchanged():
     spec = importlib.util.spec_from_file_location(
         "outputs_hash", Path(__file__).resolve().parent.parent / "bench" / "outputs_hash.py"
@@ -161,4 +164,4 @@ def test_c_type_outputs_unchanged():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     for name in ("leak_step", "supply_drop"):
-        assert mod.scenario_hash(name, 1.0)[0] == C5_HASHES_1S[name]
+        assert mod.scenario_hash(name, 1.0, config=C5_CONFIG)[0] == C5_HASHES_1S[name]

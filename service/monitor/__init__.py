@@ -7,12 +7,15 @@ Monitor) and ``kernels`` (the compiled per-sample loops). See docs/estimation.md
 
 from service.monitor.bank import Monitor, MonitorBank
 from service.monitor.config import (
+    DEFAULT_MODEL,
     MODEL_DEFAULTS,
     AlarmConfig,
     Baseline,
+    BaselineModelError,
     MeasurementNoise,
     MonitorConfig,
     ProcessNoise,
+    check_baseline_model,
 )
 from service.monitor.fleet import MonitorFleet
 from service.monitor.outputs import (
@@ -36,6 +39,9 @@ __all__ = [
     "MonitorConfig",
     "MODEL_DEFAULTS",
     "Baseline",
+    "BaselineModelError",
+    "check_baseline_model",
+    "DEFAULT_MODEL",
     "AlarmEvent",
     "MonitorOutput",
     "Monitor",

@@ -26,7 +26,12 @@ from numpy.typing import NDArray
 from models import eha_reduced as er
 from models import eha_reduced_wh as erw
 from service.messages import CHANNELS as WIRE
-from service.monitor.config import MONITOR_MODELS, Baseline, MonitorConfig
+from service.monitor.config import (
+    MONITOR_MODELS,
+    Baseline,
+    MonitorConfig,
+    check_baseline_model,
+)
 from service.monitor.kernels import (
     CARRY_GM,
     CARRY_GP,
@@ -125,7 +130,8 @@ class MonitorBank:
     """Monitors for many actuators advanced together in one vectorised UKF update.
 
     ``baseline`` is the default of every actuator; ``index_of(key, baseline)`` or
-    ``set_baseline`` gives one its own. The baseline-dependent vectors (state and channel
+    ``set_baseline`` gives one its own; a baseline for another process model than the
+    config's is refused (``BaselineModelError``). The baseline-dependent vectors (state and channel
     scales, Q, R, the model's parameter vector and the constants) are kept as one row per
     actuator, which the compiled kernels index by actuator, so actuators with different
     baselines still run in one batched update."""
@@ -142,8 +148,7 @@ class MonitorBank:
                 f"unknown model {self.config.model!r}; expected one of {MONITOR_MODELS}"
             )
         self.baseline = baseline or Baseline.default(self.config.model)
-        if self.baseline.law != self.config.model:
-            self.baseline = self.baseline.model_copy(update={"law": self.config.model})
+        check_baseline_model(self.baseline, self.config.model)
         self.rp = self.baseline.reduced_params()
         b, c = self.baseline, self.config
         # WH: models.eha_reduced_wh, the C-type states plus the chamber states p~1, p~2
@@ -245,8 +250,7 @@ class MonitorBank:
     def _vectors(self, baseline: Baseline) -> tuple:
         """(baseline, its reduced parameters, and the rows of ``_ROW_VECTORS``): computed by
         the constructor of a bank on that baseline, so a row equals a bank's own vectors."""
-        if baseline.law != self.config.model:
-            baseline = baseline.model_copy(update={"law": self.config.model})
+        check_baseline_model(baseline, self.config.model)
         sig = baseline.model_dump_json()
         v = self._vec_cache.get(sig)
         if v is None:

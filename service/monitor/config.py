@@ -17,13 +17,15 @@ from pydantic import BaseModel, ConfigDict, Field
 from models import eha_reduced as er
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
+from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 
-MONITOR_MODELS: tuple[str, ...] = (*LAW_NAMES, "WH")
-"""Process models of the monitor: the C-type laws (models.eha_reduced) and WH
-(models.eha_reduced_wh, docs/estimation.md)."""
+assert (*LAW_NAMES, "WH") == MONITOR_MODELS, "service.model_choice lists the monitor's models"
 
 __all__ = [
     "MONITOR_MODELS",
+    "DEFAULT_MODEL",
+    "BaselineModelError",
+    "check_baseline_model",
     "MeasurementNoise",
     "ProcessNoise",
     "AlarmConfig",
@@ -152,7 +154,7 @@ _RESOLVED_FALLBACK: dict[str, float] = {  # the rest: 0 (off)
 class MonitorConfig(_Cfg):
     """Monitor settings; every default works on the bundled scenarios without tuning."""
 
-    model: str = Field("C5", description=f"process model, one of {MONITOR_MODELS}")
+    model: str = Field(DEFAULT_MODEL, description=f"process model, one of {MONITOR_MODELS}")
     channels: Literal["full", "reduced"] = Field(
         "full", description="full: use every channel present; reduced: x_J only (+ i, x_cmd)"
     )
@@ -319,7 +321,10 @@ class Baseline(_Cfg):
     nominal value and the effective 1/G_PQ takes the rest).
     """
 
-    law: str = "C5"
+    law: str = Field(
+        description="the process model this baseline is for (MONITOR_MODELS); a monitor on "
+        "another model refuses it (check_baseline_model)"
+    )
     g_pq: float = Field(gt=0)
     x_ss: float = Field(gt=0)
     c_lk: float = Field(ge=0)
@@ -378,7 +383,7 @@ class Baseline(_Cfg):
     source: str = "nominal"
 
     @classmethod
-    def nominal(cls, law: str = "C5", params: EHAParams | None = None) -> Baseline:
+    def nominal(cls, law: str = DEFAULT_MODEL, params: EHAParams | None = None) -> Baseline:
         """Uncalibrated values derived from the HF parameter set (physics.md section 3)."""
         p = params or EHAParams()
         rp = er.reduced_params(params, law)._asdict()
@@ -389,7 +394,7 @@ class Baseline(_Cfg):
         return cls(**fields, c_lk=p.c_lk, v_c=p.v0, beta=p.beta_l, source="nominal")
 
     @classmethod
-    def default(cls, law: str = "C5") -> Baseline:
+    def default(cls, law: str = DEFAULT_MODEL) -> Baseline:
         """The baseline calibrated on the bundled healthy HF run (``servowatch calibrate``);
         nominal values for a law without a stored calibration (WH: its datasheet values)."""
         cal = _DEFAULT_CALIBRATION.get(law)
@@ -416,6 +421,27 @@ class Baseline(_Cfg):
     def load(cls, path: str | Path) -> Baseline:
         """Read a JSON file written by ``save``."""
         return cls.model_validate_json(Path(path).read_text())
+
+
+class BaselineModelError(ValueError):
+    """A baseline identified for one process model offered to a monitor on another."""
+
+    def __init__(self, baseline_model: str, monitor_model: str, what: str = "baseline"):
+        self.baseline_model, self.monitor_model = baseline_model, monitor_model
+        super().__init__(
+            f"{what} is for process model {baseline_model}, the monitor runs {monitor_model}: "
+            f"recalibrate it for {monitor_model} (servowatch calibrate --model "
+            f"{monitor_model}) or run the monitor on {baseline_model} (model = "
+            f'"{baseline_model}")'
+        )
+
+
+def check_baseline_model(baseline: Baseline, model: str, what: str = "baseline") -> None:
+    """Raise ``BaselineModelError`` unless ``baseline`` was identified for ``model``: a
+    baseline's parameters are effective values of its own model (``Baseline``), never
+    carried over to another."""
+    if baseline.law != model:
+        raise BaselineModelError(baseline.law, model, what)
 
 
 # Effective parameters identified by ``servowatch calibrate --scenario healthy_noise`` on the
