@@ -162,7 +162,7 @@ def test_suite_readings_agree_with_the_suite_and_bin_every_member(tmp_path):
     assert rows["dc1_000"]["obs_settled_s"] is None
     sim, _, base, cfg, _ = monitor_run(duty_cycle(1, 1), model="WH")
     gate = gate_open(sim.v_j, sim.x_s - base.x_0, sim.p1 - sim.p2, cfg.c_lk_gate_v, base.x_u,
-                     cfg.resolved("c_lk_gate_p12") * base.p_sr_rated)  # fmt: skip
+                     cfg.c_lk_gate_p12 * base.p_sr_rated)  # fmt: skip
     t_leak = sim.t[np.flatnonzero(np.abs(sim.c_lk - sim.c_lk[-1]) > 1e-3 * sim.c_lk[-1])[-1]]
     dt = sim.t[1] - sim.t[0]
     row = rows["dc1_001"]

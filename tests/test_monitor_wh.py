@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _c_type import c_type_config
 
 from models import eha_reduced_wh as erw
 from service.calibration import measured_run, run_monitor
@@ -154,7 +155,7 @@ C5_HASHES_1S = {
 }
 
 
-C5_CONFIG = MonitorConfig(model="C5")
+C5_CONFIG = c_type_config("C5")
 
 
 def test_c_type_outputs_unchanged():

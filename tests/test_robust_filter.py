@@ -67,7 +67,9 @@ def test_flow_at_a_saturated_spool_matches_the_hf_valve():
 
 def test_c_lk_gate_is_a_consider_update():
     """Above the gate speed the C_Lk mean stays and its variance grows by q dt (Schmidt)."""
-    bank = MonitorBank(MonitorConfig(model="C5"), Baseline.default("C5"))
+    # no cap on the held variance, no adaptive step: the plain consider update
+    cfg = MonitorConfig(model="C5", c_lk_gated_sigma_max=0.0, adapt_nis=0.0)
+    bank = MonitorBank(cfg, Baseline.default("C5"))
     k = bank.index_of("a")
     s = {"t": 0.0, "x_cmd": 0.0, "i": 0.0, "x_s": 0.0, "x_j": 0.0, "p1": 12e6, "p2": 9e6}
     bank.update_many([("a", s)])

@@ -8,7 +8,6 @@ Monitor) and ``kernels`` (the compiled per-sample loops). See docs/estimation.md
 from service.monitor.bank import Monitor, MonitorBank
 from service.monitor.config import (
     DEFAULT_MODEL,
-    MODEL_DEFAULTS,
     AlarmConfig,
     Baseline,
     BaselineModelError,
@@ -37,7 +36,6 @@ __all__ = [
     "ProcessNoise",
     "AlarmConfig",
     "MonitorConfig",
-    "MODEL_DEFAULTS",
     "Baseline",
     "BaselineModelError",
     "check_baseline_model",

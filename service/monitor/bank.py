@@ -96,6 +96,10 @@ log = logging.getLogger(__name__)
 _PLAIN = {float, int, type(None), np.float64}
 
 
+# filter units (MonitorBank.scale, _zscale): the scaled states and channels are of order 1,
+# so the covariance arithmetic keeps its precision; not settings
+_FILTER_UNITS = {"x_j": 1e-3, "v_j": 1e-2, "f_r": 1e3, "p": 1e6, "c_lk": 1e-13, "i_b": 1e-4}
+
 _PARAMS = slice(S_F_R, S_I_B + 1)  # the random-walk parameter states f_r, p_sr, c_lk, i_b
 # columns of update_arrays' channels (the wire order, service.messages.CHANNELS)
 _WIRE_X_CMD, _WIRE_I, _WIRE_Z = WIRE.index("x_cmd"), WIRE.index("i"), WIRE.index(MEAS_CHANNELS[0])
@@ -156,25 +160,26 @@ class MonitorBank:
         names = erw.STATE_NAMES if self.wh else er.STATE_NAMES
         self.nx = len(names)
         self._names = names
-        wh_sc = {"pt1": 1e6, "pt2": 1e6} if self.wh else {}
-        # filter units: one scale per state (x_scaled = x_SI / scale) and per channel
-        self.scale = _by_name(names, x_s=b.x_ss, v_s=b.x_ss * b.omega_n, x_j=1e-3,
-                              v_j=1e-2, f_r=1e3, p_sr=1e6, c_lk=1e-13, i_b=1e-4,
-                              **wh_sc)  # fmt: skip
+        # filter units: one scale per state (x_scaled = x_SI / scale) and per channel; units
+        # of the arithmetic, not settings (the spool's from the baseline's x_SS)
+        u = _FILTER_UNITS
+        wh_sc = {"pt1": u["p"], "pt2": u["p"]} if self.wh else {}
+        self.scale = _by_name(names, x_s=b.x_ss, v_s=b.x_ss * b.omega_n, x_j=u["x_j"],
+                              v_j=u["v_j"], f_r=u["f_r"], p_sr=u["p"], c_lk=u["c_lk"],
+                              i_b=u["i_b"], **wh_sc)  # fmt: skip
         pn = c.process
         # WH: the chamber columns of q hold the differential and the common mode's random
         # walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (service.ukf; equal: uncorrelated)
-        q_wh = {"pt1": pn.p_ch, "pt2": c.resolved("process.p_ch_common")} if self.wh else {}
-        q_set = {n: getattr(pn, n) for n in er.STATE_NAMES if n not in ("p_sr", "c_lk")}
-        q = _by_name(names, **q_set, p_sr=c.resolved("process.p_sr"),
-                     c_lk=c.resolved("process.c_lk"), **q_wh)  # fmt: skip
+        q_wh = {"pt1": pn.p_ch, "pt2": pn.p_ch_common} if self.wh else {}
+        q = _by_name(names, **{n: getattr(pn, n) for n in er.STATE_NAMES}, **q_wh)
         if c.channels == "reduced":  # parameters not observable from x_J alone
             q[[S_P_SR, S_C_LK, S_I_B]] *= c.reduced_param_q
         self._q = (q / self.scale) ** 2
         nz = c.noise
         r = _by_name(MEAS_CHANNELS, x_s=nz.x_s_m, x_j=nz.x_j_m, p1=nz.p_pa, p2=nz.p_pa,
                      p_sr=nz.p_sr_pa)  # fmt: skip
-        self._zscale = _by_name(MEAS_CHANNELS, x_s=b.x_ss, x_j=1e-3, p1=1e6, p2=1e6, p_sr=1e6)
+        self._zscale = _by_name(MEAS_CHANNELS, x_s=b.x_ss, x_j=u["x_j"], p1=u["p"], p2=u["p"],
+                                p_sr=u["p"])  # fmt: skip
         self.R = np.diag((r / self._zscale) ** 2)
         self._use = np.zeros(N_CHANNELS, bool)
         self._use[[Z_X_S, Z_X_J, Z_P1, Z_P2, Z_P_SR] if c.channels == "full" else [Z_X_J]] = True
@@ -188,7 +193,8 @@ class MonitorBank:
             if self._use[c]
         ]
         p0_wh = {"pt1": c.init_sigma_p_ch, "pt2": c.init_sigma_p_ch} if self.wh else {}
-        self._p0 = _by_name(names, x_s=2e-6, v_s=1e-3, x_j=1e-4, v_j=5e-3,
+        self._p0 = _by_name(names, x_s=c.init_sigma_x_s, v_s=c.init_sigma_v_s,
+                            x_j=c.init_sigma_x_j, v_j=c.init_sigma_v_j,
                             f_r=c.init_sigma_f_r, p_sr=c.init_sigma_p_sr,
                             c_lk=c.init_sigma_c_lk, i_b=c.init_sigma_i_b, **p0_wh)  # fmt: skip
         self.ukf = BatchUKF(self.nx, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
@@ -204,7 +210,7 @@ class MonitorBank:
             h_max=h_max,
             c_lk_max=c.c_lk_max / self.scale[S_C_LK],
             p_vap=self.rp.p_vap / self.scale[S_P_SR],
-            p_sr_max=c.resolved("p_sr_max_ratio") * b.p_sr_rated / self.scale[S_P_SR],
+            p_sr_max=c.p_sr_max_ratio * b.p_sr_rated / self.scale[S_P_SR],
             nis_tau=c.nis_tau_s,
             nis_reinit=c.nis_reinit,
             c_lk0=b.c_lk,
@@ -215,28 +221,28 @@ class MonitorBank:
             supply_raise=a.supply_raise,
             supply_clear=a.supply_clear,
             hold=a.hold_s,
-            leak_max_sigma=c.resolved("alarms.leak_max_sigma"),
+            leak_max_sigma=a.leak_max_sigma,
             supply_max_sigma=a.supply_max_sigma,
             gate_v=c.c_lk_gate_v / self.scale[S_V_J],
-            gate_x_s=_underlaps(1.0, self.rp.x_u) / self.scale[S_X_S],
+            gate_x_s=_underlaps(c.c_lk_gate_x_u, self.rp.x_u) / self.scale[S_X_S],
             gate_nis=c.c_lk_gate_nis,
-            gate_p12=c.resolved("c_lk_gate_p12") * b.p_sr_rated,
+            gate_p12=c.c_lk_gate_p12 * b.p_sr_rated,
             gate_p12_tau=c.c_lk_gate_p12_tau_s,
-            adapt_nis=c.resolved("adapt_nis"),
+            adapt_nis=c.adapt_nis,
             adapt_max=c.adapt_max,
             adapt_reinit=c.adapt_reinit,
-            adapt_p_sr=c.resolved("adapt_p_sr"),
-            gate_adapt=c.resolved("c_lk_gate_adapt"),
-            gate_i_b_x_s=_underlaps(c.resolved("i_b_gate_x_u"), self.rp.x_u) / self.scale[S_X_S],
+            adapt_p_sr=c.adapt_p_sr,
+            gate_adapt=c.c_lk_gate_adapt,
+            gate_i_b_x_s=_underlaps(c.i_b_gate_x_u, self.rp.x_u) / self.scale[S_X_S],
             mask_tau=a.leak_mask_tau_s,
             mask_supply=a.leak_mask_supply,
             mask_s=a.leak_mask_s,
             cusum_nu=c.c_lk_cusum_nu,
-            cusum_h=c.resolved("c_lk_cusum_h"),
+            cusum_h=c.c_lk_cusum_h,
             cusum_kick=(c.c_lk_cusum_kick * b.c_lk / self.scale[S_C_LK]) ** 2,
-            gate_var_max=(c.resolved("c_lk_gated_sigma_max") * b.c_lk / self.scale[S_C_LK]) ** 2,
-            gate_v_flow=c.resolved("c_lk_gate_flow") * b.c_lk / b.area / self.scale[S_V_J],
-            gate_flow_s=c.resolved("c_lk_gate_flow_s"),
+            gate_var_max=(c.c_lk_gated_sigma_max * b.c_lk / self.scale[S_C_LK]) ** 2,
+            gate_v_flow=c.c_lk_gate_flow * b.c_lk / b.area / self.scale[S_V_J],
+            gate_flow_s=c.c_lk_gate_flow_s,
             gate_flow_v_fast=c.c_lk_gate_flow_v_fast / self.scale[S_V_J],
         )
         self._ws = workspace(self.nx, N_CHANNELS)
