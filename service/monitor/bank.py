@@ -24,7 +24,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from models import eha_reduced as er
-from models import eha_reduced_wh as erw
 from service.messages import CHANNELS as WIRE
 from service.monitor.config import (
     MONITOR_MODELS,
@@ -39,7 +38,6 @@ from service.monitor.kernels import (
     CARRY_N,
     CARRY_P12,
     CARRY_T_FAST,
-    CST_FIELDS,
     IN_I,
     IN_T,
     IN_X_CMD,
@@ -53,8 +51,6 @@ from service.monitor.kernels import (
     S_F_R,
     S_I_B,
     S_P_SR,
-    S_V_J,
-    S_X_S,
     STEP_BROKEN,
     STEP_COUNTERS,
     STEP_DIVERGED,
@@ -65,12 +61,19 @@ from service.monitor.kernels import (
     Z_P_SR,
     Z_X_J,
     Z_X_S,
+    BankState,
+    ModelRows,
+    Rows,
+    Samples,
+    Sigma,
+    Stepped,
     bank_step,
     block_rows,
     block_steps,
     output_rows,
     prepare_inputs,
 )
+from service.monitor.model_rows import by_name, model_vectors
 from service.monitor.outputs import (
     ALARM_KINDS,
     COUNTERS,
@@ -96,27 +99,10 @@ log = logging.getLogger(__name__)
 _PLAIN = {float, int, type(None), np.float64}
 
 
-# filter units (MonitorBank.scale, _zscale): the scaled states and channels are of order 1,
-# so the covariance arithmetic keeps its precision; not settings
-_FILTER_UNITS = {"x_j": 1e-3, "v_j": 1e-2, "f_r": 1e3, "p": 1e6, "c_lk": 1e-13, "i_b": 1e-4}
-
 _PARAMS = slice(S_F_R, S_I_B + 1)  # the random-walk parameter states f_r, p_sr, c_lk, i_b
 # columns of update_arrays' channels (the wire order, service.messages.CHANNELS)
 _WIRE_X_CMD, _WIRE_I, _WIRE_Z = WIRE.index("x_cmd"), WIRE.index("i"), WIRE.index(MEAS_CHANNELS[0])
 assert WIRE[_WIRE_Z : _WIRE_Z + N_CHANNELS] == MEAS_CHANNELS
-
-
-def _by_name(names: Sequence[str], **values: float) -> NDArray:
-    """A float vector laid out as ``names`` from one keyword per name (all required)."""
-    if set(values) != set(names):
-        raise ValueError(f"expected exactly {names}, got {sorted(values)}")
-    return np.array([values[n] for n in names], float)
-
-
-def _underlaps(n: float, x_u: float) -> float:
-    """Spool opening [m] of ``n`` underlaps x_u, past which a gate holds a parameter
-    (n = 0 or no underlap: inf, never)."""
-    return n * x_u if n > 0.0 and x_u > 0.0 else math.inf
 
 
 def _f(v) -> float | None:
@@ -153,34 +139,15 @@ class MonitorBank:
             )
         self.baseline = baseline or Baseline.default(self.config.model)
         check_baseline_model(self.baseline, self.config.model)
-        self.rp = self.baseline.reduced_params()
-        b, c = self.baseline, self.config
+        c = self.config
         # WH: models.eha_reduced_wh, the C-type states plus the chamber states p~1, p~2
         self.wh = c.model == "WH"
-        names = erw.STATE_NAMES if self.wh else er.STATE_NAMES
-        self.nx = len(names)
-        self._names = names
-        # filter units: one scale per state (x_scaled = x_SI / scale) and per channel; units
-        # of the arithmetic, not settings (the spool's from the baseline's x_SS)
-        u = _FILTER_UNITS
-        wh_sc = {"pt1": u["p"], "pt2": u["p"]} if self.wh else {}
-        self.scale = _by_name(names, x_s=b.x_ss, v_s=b.x_ss * b.omega_n, x_j=u["x_j"],
-                              v_j=u["v_j"], f_r=u["f_r"], p_sr=u["p"], c_lk=u["c_lk"],
-                              i_b=u["i_b"], **wh_sc)  # fmt: skip
-        pn = c.process
-        # WH: the chamber columns of q hold the differential and the common mode's random
-        # walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (service.ukf; equal: uncorrelated)
-        q_wh = {"pt1": pn.p_ch, "pt2": pn.p_ch_common} if self.wh else {}
-        q = _by_name(names, **{n: getattr(pn, n) for n in er.STATE_NAMES}, **q_wh)
-        if c.channels == "reduced":  # parameters not observable from x_J alone
-            q[[S_P_SR, S_C_LK, S_I_B]] *= c.reduced_param_q
-        self._q = (q / self.scale) ** 2
-        nz = c.noise
-        r = _by_name(MEAS_CHANNELS, x_s=nz.x_s_m, x_j=nz.x_j_m, p1=nz.p_pa, p2=nz.p_pa,
-                     p_sr=nz.p_sr_pa)  # fmt: skip
-        self._zscale = _by_name(MEAS_CHANNELS, x_s=b.x_ss, x_j=u["x_j"], p1=u["p"], p2=u["p"],
-                                p_sr=u["p"])  # fmt: skip
-        self.R = np.diag((r / self._zscale) ** 2)
+        v = model_vectors(c, self.baseline)  # the process model's factory
+        self.rp = v.rp
+        self._names = v.names
+        self.nx = len(v.names)
+        self.scale, self._zscale, self._q, self.R = v.scale, v.zscale, v.q, v.R
+        self._prm, self._cst, self._p0 = v.prm, v.cst, v.p0
         self._use = np.zeros(N_CHANNELS, bool)
         self._use[[Z_X_S, Z_X_J, Z_P1, Z_P2, Z_P_SR] if c.channels == "full" else [Z_X_J]] = True
         # channels whose absence is counted (the supply transducer is optional)
@@ -192,59 +159,9 @@ class MonitorBank:
             for c, name in enumerate(MEAS_CHANNELS)
             if self._use[c]
         ]
-        p0_wh = {"pt1": c.init_sigma_p_ch, "pt2": c.init_sigma_p_ch} if self.wh else {}
-        self._p0 = _by_name(names, x_s=c.init_sigma_x_s, v_s=c.init_sigma_v_s,
-                            x_j=c.init_sigma_x_j, v_j=c.init_sigma_v_j,
-                            f_r=c.init_sigma_f_r, p_sr=c.init_sigma_p_sr,
-                            c_lk=c.init_sigma_c_lk, i_b=c.init_sigma_i_b, **p0_wh)  # fmt: skip
         self.ukf = BatchUKF(self.nx, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
-        if self.wh:
-            self._prm = erw.param_vector(self.rp, b.v_c, b.beta)
-            h_max = min(self.rp.h_max, erw.H_MAX)
-        else:
-            self._prm = er.param_vector(self.rp)
-            h_max = self.rp.h_max
-        a = c.alarms
-        self._cst = _by_name(
-            CST_FIELDS,
-            h_max=h_max,
-            c_lk_max=c.c_lk_max / self.scale[S_C_LK],
-            p_vap=self.rp.p_vap / self.scale[S_P_SR],
-            p_sr_max=c.p_sr_max_ratio * b.p_sr_rated / self.scale[S_P_SR],
-            nis_tau=c.nis_tau_s,
-            nis_reinit=c.nis_reinit,
-            c_lk0=b.c_lk,
-            p_rated=b.p_sr_rated,
-            arm=c.arm_s,
-            leak_raise=a.leak_raise,
-            leak_clear=a.leak_clear,
-            supply_raise=a.supply_raise,
-            supply_clear=a.supply_clear,
-            hold=a.hold_s,
-            leak_max_sigma=a.leak_max_sigma,
-            supply_max_sigma=a.supply_max_sigma,
-            gate_v=c.c_lk_gate_v / self.scale[S_V_J],
-            gate_x_s=_underlaps(c.c_lk_gate_x_u, self.rp.x_u) / self.scale[S_X_S],
-            gate_nis=c.c_lk_gate_nis,
-            gate_p12=c.c_lk_gate_p12 * b.p_sr_rated,
-            gate_p12_tau=c.c_lk_gate_p12_tau_s,
-            adapt_nis=c.adapt_nis,
-            adapt_max=c.adapt_max,
-            adapt_reinit=c.adapt_reinit,
-            adapt_p_sr=c.adapt_p_sr,
-            gate_adapt=c.c_lk_gate_adapt,
-            gate_i_b_x_s=_underlaps(c.i_b_gate_x_u, self.rp.x_u) / self.scale[S_X_S],
-            mask_tau=a.leak_mask_tau_s,
-            mask_supply=a.leak_mask_supply,
-            mask_s=a.leak_mask_s,
-            cusum_nu=c.c_lk_cusum_nu,
-            cusum_h=c.c_lk_cusum_h,
-            cusum_kick=(c.c_lk_cusum_kick * b.c_lk / self.scale[S_C_LK]) ** 2,
-            gate_var_max=(c.c_lk_gated_sigma_max * b.c_lk / self.scale[S_C_LK]) ** 2,
-            gate_v_flow=c.c_lk_gate_flow * b.c_lk / b.area / self.scale[S_V_J],
-            gate_flow_s=c.c_lk_gate_flow_s,
-            gate_flow_v_fast=c.c_lk_gate_flow_v_fast / self.scale[S_V_J],
-        )
+        w = self.ukf.w
+        self._sigma = Sigma(w.Wm, w.Wc, float(w.c))
         self._ws = workspace(self.nx, N_CHANNELS)
         self.ids: dict[str, int] = {}
         self._rows: list | None = None
@@ -260,11 +177,8 @@ class MonitorBank:
         sig = baseline.model_dump_json()
         v = self._vec_cache.get(sig)
         if v is None:
-            if sig == self.baseline.model_dump_json():
-                src = self
-            else:
-                src = MonitorBank(self.config, baseline, capacity=1)
-            v = (src.baseline, src.rp, *(getattr(src, a) for a in self._ROW_VECTORS))
+            mv = model_vectors(self.config, baseline)
+            v = (baseline, mv.rp, mv.scale, mv.zscale, mv.q, mv.R, mv.prm, mv.cst)
             self._vec_cache[sig] = v
         return v
 
@@ -291,6 +205,14 @@ class MonitorBank:
         self.r_prm = np.tile(self._prm, (cap, 1))
         self.r_cst = np.tile(self._cst, (cap, 1))
         self.r_base: list[tuple[Baseline, er.ReducedParams]] = [(self.baseline, self.rp)] * cap
+        self._views()
+
+    def _views(self) -> None:
+        """The kernels' named groups of the bank's arrays (rebuilt when they grow)."""
+        self.bs = BankState(self.x, self.P, self.ol, self.t_last, self.carry, self.nis_avg,
+                            self.t_init, self.alarm, self.pending)  # fmt: skip
+        self.mr = ModelRows(self.r_q, self.r_R, self.r_scale, self.r_zscale, self.r_prm,
+                            self.r_cst)  # fmt: skip
 
     _ARRAYS = ("x", "P", "ol", "t_last", "carry", "nis_avg", "t_init", "alarm", "pending",
                "r_scale", "r_zscale", "r_q", "r_R", "r_prm", "r_cst")  # fmt: skip
@@ -307,6 +229,7 @@ class MonitorBank:
         self.counters[:n_old] = counters
         self.events_log[:n_old] = events
         self.r_base[:n_old] = bases
+        self._views()
 
     def _key_of(self, k: int) -> str:
         for key, v in self.ids.items():
@@ -535,15 +458,13 @@ class MonitorBank:
         snap = (np.empty((n, nx)), np.empty((n, nx)), np.empty((n, nx)), np.empty(n),
                 np.empty(n))  # fmt: skip
         cnt = np.zeros((len(self.x), len(STEP_COUNTERS)), np.int64)
+        sm = Samples(ks, t, z, mask, cand, i_m, x_c)
+        so = Stepped(y, nis, nis_avg, acc, *snap, cnt)
         extra: dict[int, list[AlarmEvent]] = {}
         j, emit = 0, False
         while True:
-            j, code = block_steps(
-                j, emit, ks, t, z, mask, cand, i_m, x_c, self.x, self.P, self.ol, self.t_last,
-                self.carry, self.nis_avg, self.t_init, self.r_q, self.r_R, self.r_scale,
-                self.r_zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst,
-                self.config.max_gap_s, self._expect, self._ws, y, nis, nis_avg, acc, *snap, cnt,
-            )  # fmt: skip
+            j, code = block_steps(j, emit, sm, self.bs, self.mr, self._sigma,
+                                  self.config.max_gap_s, self._expect, self._ws, so)  # fmt: skip
             if code == STEP_OK:
                 break
             k = int(ks[j])
@@ -579,7 +500,7 @@ class MonitorBank:
             c = self.counters[k]
             for col, name in enumerate(STEP_COUNTERS):
                 c[name] += int(cnt[k, col])
-        return StepBlock(ks, t, z, mask, y, nis, acc, snap, extra)
+        return StepBlock(ks, t, z, mask, y, nis, acc, snap, extra, sm, so)
 
     def _rows_of(self, sb: StepBlock) -> BankRows:
         ks, t = sb.ks, sb.t
@@ -588,10 +509,7 @@ class MonitorBank:
         res = np.zeros((n, len(RES_KEYS)))
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
-        block_rows(
-            ks, sb.acc, *sb.snap, self.r_scale, self.r_zscale, self.r_prm, sb.z, sb.mask, sb.y,
-            sb.nis, t, self.alarm, self.pending, self.r_cst, est, res, health, fire,
-        )  # fmt: skip
+        block_rows(sb.sm, sb.so, self.mr, self.alarm, self.pending, Rows(est, res, health, fire))
         extra = sb.extra
         sel = np.flatnonzero(sb.acc)
         at: dict[int, list[AlarmEvent]] = {}
@@ -700,7 +618,7 @@ class MonitorBank:
                 "pt1": z[Z_P1] * sc[Z_P1] if mask[Z_P1] else b.p_r + 0.5 * (p_sr + p12),
                 "pt2": z[Z_P2] * sc[Z_P2] if mask[Z_P2] else b.p_r + 0.5 * (p_sr - p12),
             }
-        xs = _by_name(self._names, x_s=x_s, v_s=0.0, x_j=x_j, v_j=0.0, f_r=f_r, p_sr=p_sr,
+        xs = by_name(self._names, x_s=x_s, v_s=0.0, x_j=x_j, v_j=0.0, f_r=f_r, p_sr=p_sr,
                       c_lk=b.c_lk, i_b=0.0, **wh0)  # fmt: skip
         self.x[k] = xs / self.r_scale[k]
         self.P[k] = np.diag((self._p0 / self.r_scale[k]) ** 2)
@@ -751,11 +669,8 @@ class MonitorBank:
         nis = np.zeros(B)
         nis_avg = np.zeros(B)
         flag = np.zeros(B, np.int64)
-        bank_step(
-            ks, t, z, mask, i_m, x_c, self.x, self.P, self.ol, self.t_last, self.carry,
-            self.nis_avg, self.r_q, self.r_R, self.r_scale, self.r_zscale, self.ukf.w.Wm,
-            self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst, self._ws, y, nis, nis_avg, flag,
-        )  # fmt: skip
+        sm = Samples(ks.astype(np.int64), t, z, mask, np.ones(B, np.bool_), i_m, x_c)
+        bank_step(sm, self.bs, self.mr, self._sigma, self._ws, y, nis, nis_avg, flag)
         bad, diverged = flag == STEP_BROKEN, flag == STEP_DIVERGED
         evs: list[list[AlarmEvent]] = [[] for _ in range(B)]
         for j in np.flatnonzero(bad | diverged):
@@ -787,11 +702,9 @@ class MonitorBank:
         res = np.zeros((n, len(RES_KEYS)))
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
-        output_rows(
-            self.x, np.diagonal(self.P, axis1=1, axis2=2).copy(), self.ol, ks, self.r_scale, self.r_zscale, self.r_prm, z, mask, y, nis,
-            t, self.t_init, self.nis_avg, self.alarm, self.pending, self.r_cst, est, res,
-            health, fire,
-        )  # fmt: skip
+        sm = Samples(np.asarray(ks, np.int64), t, z, mask, np.ones(n, np.bool_), t, t)
+        pd = np.diagonal(self.P, axis1=1, axis2=2).copy()
+        output_rows(self.bs, pd, self.mr, sm, y, nis, Rows(est, res, health, fire))
         for j, a in zip(*np.nonzero(fire), strict=True):
             state = "raised" if fire[j, a] == FIRE_RAISED else "cleared"
             evs[j].append(

@@ -14,9 +14,11 @@ vector ``C_*`` (built by name from ``CST_FIELDS``), counter columns ``CNT_*`` an
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from models import eha_reduced as er
 from models import eha_reduced_wh as erw
@@ -44,7 +46,7 @@ from service.monitor.outputs import (
     RES_NIS_DOF,
     RES_OL,
 )
-from service.ukf import ukf_one, ukf_one_wh
+from service.ukf import ukf_again, ukf_again_wh, ukf_one, ukf_one_wh
 
 # filter state columns (X, P, OL rows)
 S_X_S, S_V_S, S_X_J, S_V_J, S_F_R, S_P_SR, S_C_LK, S_I_B = (
@@ -165,6 +167,82 @@ CNT_BAD_CHANNEL, CNT_SKIPPED_NAN = range(len(PREP_COUNTERS))
 STEP_COUNTERS: tuple[str, ...] = ("skipped_time", "missing_channel", "accepted")
 CNT_SKIPPED_TIME, CNT_MISSING_CHANNEL, CNT_ACCEPTED = range(len(STEP_COUNTERS))
 
+
+# -- the kernels' arguments, grouped (the bank builds them; kernels read fields by name) ----
+class BankState(NamedTuple):
+    """The bank's per-actuator state, one row per actuator (``MonitorBank``)."""
+
+    X: NDArray  # scaled filter state (n_act, n)
+    PP: NDArray  # its covariance (n_act, n, n)
+    OL: NDArray  # SI state of the parallel (open-loop) model (n_act, n)
+    T_LAST: NDArray  # time of the last accepted sample [s]
+    CARRY: NDArray  # (n_act, N_CARRY): CARRY_* columns
+    NIS_AVG: NDArray  # NIS/dof average
+    T_INIT: NDArray  # time of the last (re-)initialisation [s]
+    ALARM: NDArray  # alarm states (n_act, N_ALARMS)
+    PENDING: NDArray  # (n_act, N_PENDING): PEND_* columns
+
+
+class ModelRows(NamedTuple):
+    """Per-actuator rows of the process model on its baseline (one factory per process
+    model builds them: ``service.monitor.model_rows``)."""
+
+    q: NDArray  # process noise intensities, filter units (n_act, n)
+    R: NDArray  # measurement noise covariance, filter units (n_act, m, m)
+    scale: NDArray  # state scales (n_act, n): x_filter = x_SI / scale
+    zscale: NDArray  # channel scales (n_act, m)
+    prm: NDArray  # the model's parameter vector (n_act, n_prm)
+    cst: NDArray  # the bank's constants (n_act, len(CST_FIELDS)): C_* columns
+
+
+class Sigma(NamedTuple):
+    """Unscented-transform weights (``service.ukf.merwe_weights``) and the spread c."""
+
+    Wm: NDArray
+    Wc: NDArray
+    c: float
+
+
+class Samples(NamedTuple):
+    """A block of samples (``prepare_inputs``): actuator rows, times [s], scaled channels with
+    their mask, candidates (a usable time and value), measured current [A] and command [m]
+    (NaN: absent)."""
+
+    ks: NDArray
+    t: NDArray
+    z: NDArray
+    mask: NDArray
+    cand: NDArray
+    i_m: NDArray
+    x_c: NDArray
+
+
+class Stepped(NamedTuple):
+    """Per sample of a block: innovations, NIS, NIS average, whether it has an output row,
+    the snapshot its row is made of (X, diagonal of P, OL, T_INIT, NIS_AVG) and, per
+    actuator, the STEP_COUNTERS."""
+
+    y: NDArray
+    nis: NDArray
+    nis_avg: NDArray
+    acc: NDArray
+    SX: NDArray
+    SPD: NDArray
+    SOL: NDArray
+    STI: NDArray
+    SNA: NDArray
+    cnt: NDArray
+
+
+class Rows(NamedTuple):
+    """Output rows: est, res, health (``service.monitor.outputs``) and fire (FIRE_*)."""
+
+    est: NDArray
+    res: NDArray
+    health: NDArray
+    fire: NDArray
+
+
 UKF_FAILED = 2  # status of service.ukf.ukf_one: no positive definite factor
 # codes of step_one / block_steps
 STEP_OK = 0  # stepped
@@ -175,23 +253,29 @@ STEP_INIT = 3  # first sample or gap: (re-)initialise from this sample, not step
 
 
 @njit(cache=True, inline="always")
-def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws, n):
-    """One UKF step on the bank's process model: WH (n = 10) or a C-type law (n = 8)."""
+def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, w, prm, y, ws, n, again):
+    """One UKF step on the bank's process model: WH (n = 10) or a C-type law (n = 8);
+    ``again``: the last step redone with process noise q (``service.ukf.ukf_again``)."""
+    Wm, Wc, c = w.Wm, w.Wc, w.c
     if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
+        if again:
+            return ukf_again_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
         return ukf_one_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
+    if again:
+        return ukf_again(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
     return ukf_one(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
 
 
 @njit(cache=True, inline="always")
-def step_one(
-    j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm,
-    Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-):  # fmt: skip
-    """Sample j of actuator k (in place on the bank arrays): inputs (measured current, else
-    the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average. Returns
+def step_one(j, k, sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp):
+    """Sample j of actuator k (in place on the bank state ``bs``): inputs (measured current,
+    else the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average. Returns
     STEP_OK, STEP_BROKEN (non-finite / not positive definite) or STEP_DIVERGED (NIS average).
-    q, R, scale, zscale, prm, cst hold one row per actuator (its baseline)."""
-    q_k, R_k, sc_k, zs_k, prm_k, cst_k = q[k], R[k], scale[k], zscale[k], prm[k], cst[k]
+    sm: the ``Samples``; mr: the ``ModelRows``, row k; w: the ``Sigma`` weights."""
+    t, z, mask, i_m, x_c = sm.t, sm.z, sm.mask, sm.i_m, sm.x_c
+    X, PP, OL, T_LAST, CARRY, NIS_AVG = bs.X, bs.PP, bs.OL, bs.T_LAST, bs.CARRY, bs.NIS_AVG
+    q_k, R_k, sc_k, zs_k = mr.q[k], mr.R[k], mr.scale[k], mr.zscale[k]
+    prm_k, cst_k = mr.prm[k], mr.cst[k]
     n = X.shape[1]
     k_p, i_max = prm_k[er.K_K_P], prm_k[er.K_I_MAX]
     dt = t[j] - T_LAST[k]
@@ -246,18 +330,13 @@ def step_one(
     for r in range(mask.shape[1]):
         if mask[j, r]:
             dof += 1.0
-    # adaptive process noise (docs/estimation.md, "WH on the duty-cycle suite"): keep the prior,
-    # and if this sample's NIS/dof passes adapt_nis, redo the step with the plant states'
-    # process noise (not the parameters') scaled by NIS/dof / adapt_nis
+    # adaptive process noise (docs/estimation.md, "WH on the duty-cycle suite"): if this
+    # sample's NIS/dof passes adapt_nis, redo the step from its prediction (kept in ws) with
+    # the plant states' process noise (not the parameters') scaled by NIS/dof / adapt_nis
     thr = cst_k[C_ADAPT_NIS]
-    x_sv, q_sv, p_sv = tmp[n : 2 * n], tmp[2 * n : 3 * n], tmp[3 * n :]
-    if thr > 0.0:
-        for r in range(n):
-            x_sv[r] = X[k, r]
-            for s_ in range(n):
-                p_sv[r * n + s_] = PP[k, r, s_]
-    nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc,
-                     c, prm_k, y[j], ws, n)  # fmt: skip
+    q_sv = tmp[n : 2 * n]
+    nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, w,
+                     prm_k, y[j], ws, n, False)  # fmt: skip
     capped = False
     g = 1.0
     if thr > 0.0 and dof > 0.0 and nis_j > thr * dof:
@@ -269,15 +348,12 @@ def step_one(
     if g > 1.0:
         g_p = min(g ** cst_k[C_ADAPT_P_SR], cst_k[C_ADAPT_MAX])  # P_SR's scale (exponent 0: held)
         for r in range(n):
-            X[k, r] = x_sv[r]
-            for s_ in range(n):
-                PP[k, r, s_] = p_sv[r * n + s_]
             if r == S_P_SR:
                 q_sv[r] = q_k[r] * g_p
             else:
                 q_sv[r] = q_k[r] * (1.0 if S_P_SR <= r <= S_I_B else g)
         nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_sv, R_k, sc_k, zs_k,
-                         Wm, Wc, c, prm_k, y[j], ws, n)  # fmt: skip
+                         w, prm_k, y[j], ws, n, True)  # fmt: skip
     if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
         X[k, S_C_LK] = c_prior
         v_held = p_prior + q_k[S_C_LK] * dt
@@ -336,10 +412,7 @@ def step_one(
 
 
 @njit(cache=True, inline="always")
-def row_one(
-    j, kk, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
-    PENDING, cst, est, res, health, fire, xs, zo,
-):  # fmt: skip
+def row_one(j, kk, k, X, PD, OL, T_INIT, NIS_AVG, mr, sm, y, nis, ALARM, PENDING, ro, xs, zo):
     """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
     innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak
     and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence,
@@ -347,8 +420,11 @@ def row_one(
     FIRE_CLEARED this sample, else 0). The filter state is row kk of X, PD (the diagonal of
     P), OL, T_INIT and NIS_AVG: the bank's row k, or the snapshot of sample j taken by
     ``block_steps``; the alarm state (ALARM, PENDING) is the bank's row k. scale, zscale,
-    prm, cst hold one row per actuator (its baseline): row k."""
-    sc_k, zs_k, prm_k, cst_k = scale[k], zscale[k], prm[k], cst[k]
+    prm, cst (``ModelRows`` mr) hold one row per actuator (its baseline): row k; sm: the
+    ``Samples``; ro: the ``Rows`` written."""
+    sc_k, zs_k, prm_k, cst_k = mr.scale[k], mr.zscale[k], mr.prm[k], mr.cst[k]
+    z, mask, t = sm.z, sm.mask, sm.t
+    est, res, health, fire = ro.est, ro.res, ro.health, ro.fire
     n = X.shape[1]
     m = z.shape[1]
     c_lk0, p_rated = cst_k[C_C_LK0], cst_k[C_P_RATED]
@@ -435,47 +511,31 @@ def row_one(
 
 
 @njit(cache=True)
-def bank_step(
-    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm, Wc,
-    c, prm, cst, ws, y, nis, nis_avg, flag,
-):  # fmt: skip
-    """One sample for each actuator ks[j] through ``step_one``; flag[j] its return code."""
-    ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG = borrowed_all(
-        (ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG)
-    )
-    q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag = borrowed_all(
-        (q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag)
-    )
+def bank_step(sm, bs, mr, w, ws, y, nis, nis_avg, flag):
+    """One sample for each actuator sm.ks[j] through ``step_one``; flag[j] its return code."""
+    sm, bs, mr = borrowed_all(sm), borrowed_all(bs), borrowed_all(mr)
+    wm, wc = borrowed_all((w.Wm, w.Wc))
+    w = Sigma(wm, wc, w.c)
     ws = borrowed_all(ws)
+    y, nis, nis_avg, flag = borrowed_all((y, nis, nis_avg, flag))
+    n = bs.X.shape[1]
     coef = np.empty(4)
-    tmp = np.empty(X.shape[1] * (X.shape[1] + 3))  # model output, then step_one's scratch
-    for j in range(ks.shape[0]):
-        flag[j] = step_one(
-            j, ks[j], t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale,
-            zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-        )  # fmt: skip
+    tmp = np.empty(n * (n + 3))  # model output, then step_one's scratch
+    for j in range(sm.ks.shape[0]):
+        flag[j] = step_one(j, sm.ks[j], sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp)
 
 
 @njit(cache=True)
-def output_rows(
-    X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING, cst,
-    est, res, health, fire,
-):  # fmt: skip
-    """The output row of each actuator ks[j] through ``row_one`` (PD: diagonals of P)."""
-    X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t = borrowed_all(
-        (X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t)
-    )
-    T_INIT, NIS_AVG, ALARM, PENDING, cst, est, res, health, fire = borrowed_all(
-        (T_INIT, NIS_AVG, ALARM, PENDING, cst, est, res, health, fire)
-    )
-    xs = np.empty(X.shape[1])
-    zo = np.empty(z.shape[1])
-    for j in range(ks.shape[0]):
-        k = ks[j]
-        row_one(
-            j, k, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
-            PENDING, cst, est, res, health, fire, xs, zo,
-        )  # fmt: skip
+def output_rows(bs, PD, mr, sm, y, nis, ro):
+    """The output row of each actuator sm.ks[j] through ``row_one`` (PD: diagonals of P)."""
+    sm, bs, mr, ro = borrowed_all(sm), borrowed_all(bs), borrowed_all(mr), borrowed_all(ro)
+    PD, y, nis = borrowed_all((PD, y, nis))
+    xs = np.empty(bs.X.shape[1])
+    zo = np.empty(sm.z.shape[1])
+    for j in range(sm.ks.shape[0]):
+        k = sm.ks[j]
+        row_one(j, k, k, bs.X, PD, bs.OL, bs.T_INIT, bs.NIS_AVG, mr, sm, y, nis, bs.ALARM,
+                bs.PENDING, ro, xs, zo)  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
@@ -525,31 +585,27 @@ def prepare_inputs(ks, vals, present, use, zscale, cnt):
 
 
 @njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
-def block_steps(
-    j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT, q,
-    R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis, nis_avg, acc, SX, SPD,
-    SOL, STI, SNA, cnt,
-):  # fmt: skip
-    """The samples j0.. of a block in order, each through the time checks and ``step_one``
-    (the code of the per-round path, so the same bits); after its step, the state a sample's
-    output row is made of (X, diagonal of P, OL, T_INIT, NIS_AVG of its actuator) is copied
-    into row j of SX, SPD, SOL, STI, SNA for ``block_rows``. Returns (j, code): code 0 when
-    done; 3 when sample j needs a (re-)initialisation (first sample or gap; not stepped), 1/2
-    when its step broke/diverged. The caller re-initialises and resumes with (j,
-    emit0=True), which takes sample j's snapshot without stepping it. acc[j]: sample j has an
-    output row; cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
-    # every array argument through borrowed_all (see service.ukf): the inlined step_one takes
-    # about 30 arrays, which numba would otherwise reference-count with atomic operations at
-    # every sample (about a fifth of the step)
-    ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT = borrowed_all(
-        (ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT)
-    )
-    q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg = borrowed_all(
-        (q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg)
-    )
-    acc, SX, SPD, SOL, STI, SNA, cnt = borrowed_all((acc, SX, SPD, SOL, STI, SNA, cnt))
+def block_steps(j0, emit0, sm, bs, mr, w, max_gap, expect, ws, so):
+    """The samples j0.. of a block (``Samples`` sm) in order, each through the time checks and
+    ``step_one`` on the bank state ``bs`` (the code of the per-round path, so the same bits);
+    after its step, the state a sample's output row is made of (X, diagonal of P, OL, T_INIT,
+    NIS_AVG of its actuator) is copied into row j of so.SX, SPD, SOL, STI, SNA (``Stepped``
+    so) for ``block_rows``. Returns (j, code): code 0 when done; 3 when sample j needs a
+    (re-)initialisation (first sample or gap; not stepped), 1/2 when its step
+    broke/diverged. The caller re-initialises and resumes with (j, emit0=True), which takes
+    sample j's snapshot without stepping it. so.acc[j]: sample j has an output row;
+    so.cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
+    # every array through borrowed_all (see service.ukf): numba would otherwise
+    # reference-count the arrays with atomic operations at every sample
+    sm, bs, mr, so = borrowed_all(sm), borrowed_all(bs), borrowed_all(mr), borrowed_all(so)
+    wm, wc = borrowed_all((w.Wm, w.Wc))
+    w = Sigma(wm, wc, w.c)
     ws = borrowed_all(ws)
-    m = z.shape[1]
+    expect = borrowed_all((expect,))[0]
+    ks, t, mask, cand = sm.ks, sm.t, sm.mask, sm.cand
+    X, PP, OL, T_LAST = bs.X, bs.PP, bs.OL, bs.T_LAST
+    cnt = so.cnt
+    m = sm.z.shape[1]
     n = X.shape[1]
     coef = np.empty(4)
     tmp = np.empty(n * (n + 3))  # model output, then step_one's scratch
@@ -567,40 +623,28 @@ def block_steps(
             if not math.isfinite(T_LAST[k]) or t[j] - T_LAST[k] > max_gap:
                 return j, STEP_INIT
             cnt[k, CNT_ACCEPTED] += 1
-            code = step_one(
-                j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale,
-                zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-            )  # fmt: skip
+            code = step_one(j, k, sm, bs, mr, w, ws, so.y, so.nis, so.nis_avg, coef, tmp)
             if code != STEP_OK:
                 return j, code
-        acc[j] = True
+        so.acc[j] = True
         for r in range(n):
-            SX[j, r] = X[k, r]
-            SPD[j, r] = PP[k, r, r]
-            SOL[j, r] = OL[k, r]
-        STI[j] = T_INIT[k]
-        SNA[j] = NIS_AVG[k]
+            so.SX[j, r] = X[k, r]
+            so.SPD[j, r] = PP[k, r, r]
+            so.SOL[j, r] = OL[k, r]
+        so.STI[j] = bs.T_INIT[k]
+        so.SNA[j] = bs.NIS_AVG[k]
     return ks.shape[0], STEP_OK
 
 
 @njit(cache=True, nogil=True)
-def block_rows(
-    ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t, ALARM, PENDING,
-    cst, est, res, health, fire,
-):  # fmt: skip
-    """The output rows of the samples with acc[j], in order, from their ``block_steps``
-    snapshots, through ``row_one`` (alarms: the bank's ALARM, PENDING)."""
-    ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask = borrowed_all(
-        (ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask)
-    )
-    y, nis, t, ALARM, PENDING, cst, est, res, health, fire = borrowed_all(
-        (y, nis, t, ALARM, PENDING, cst, est, res, health, fire)
-    )
-    xs = np.empty(SX.shape[1])
-    zo = np.empty(z.shape[1])
-    for j in range(ks.shape[0]):
-        if acc[j]:
-            row_one(
-                j, j, ks[j], SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t,
-                ALARM, PENDING, cst, est, res, health, fire, xs, zo,
-            )  # fmt: skip
+def block_rows(sm, so, mr, ALARM, PENDING, ro):
+    """The output rows of the samples with so.acc[j], in order, from their ``block_steps``
+    snapshots (``Stepped`` so), through ``row_one`` (alarms: the bank's ALARM, PENDING)."""
+    sm, so, mr, ro = borrowed_all(sm), borrowed_all(so), borrowed_all(mr), borrowed_all(ro)
+    ALARM, PENDING = borrowed_all((ALARM, PENDING))
+    xs = np.empty(so.SX.shape[1])
+    zo = np.empty(sm.z.shape[1])
+    for j in range(sm.ks.shape[0]):
+        if so.acc[j]:
+            row_one(j, j, sm.ks[j], so.SX, so.SPD, so.SOL, so.STI, so.SNA, mr, sm, so.y, so.nis,
+                    ALARM, PENDING, ro, xs, zo)  # fmt: skip
