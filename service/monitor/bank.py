@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -99,6 +100,16 @@ log = logging.getLogger(__name__)
 _PLAIN = {float, int, type(None), np.float64}
 
 
+_MIN_SPLIT = 64  # shorter blocks are stepped in the caller's thread alone
+
+
+def _stepped(n: int, nx: int, cnt: NDArray) -> Stepped:
+    """The outputs of ``block_steps`` for n samples of an nx-state filter (counters ``cnt``)."""
+    return Stepped(np.zeros((n, N_CHANNELS)), np.zeros(n), np.zeros(n), np.zeros(n, np.bool_),
+                   np.empty((n, nx)), np.empty((n, nx)), np.empty((n, nx)), np.empty(n),
+                   np.empty(n), cnt)  # fmt: skip
+
+
 _PARAMS = slice(S_F_R, S_I_B + 1)  # the random-walk parameter states f_r, p_sr, c_lk, i_b
 # columns of update_arrays' channels (the wire order, service.messages.CHANNELS)
 _WIRE_X_CMD, _WIRE_I, _WIRE_Z = WIRE.index("x_cmd"), WIRE.index("i"), WIRE.index(MEAS_CHANNELS[0])
@@ -163,6 +174,8 @@ class MonitorBank:
         w = self.ukf.w
         self._sigma = Sigma(w.Wm, w.Wc, float(w.c))
         self._ws = workspace(self.nx, N_CHANNELS)
+        self._pool: ThreadPoolExecutor | None = None  # the second stepping thread, on demand
+        self._ws_pool: tuple | None = None
         self.ids: dict[str, int] = {}
         self._rows: list | None = None
         self._vec_cache: dict[str, tuple] = {}
@@ -451,20 +464,53 @@ class MonitorBank:
     def _steps(self, ks, t, z, mask, cand, i_m, x_c) -> StepBlock:
         n = len(ks)
         nx = self.nx
-        y = np.zeros((n, N_CHANNELS))
-        nis = np.zeros(n)
-        nis_avg = np.zeros(n)
-        acc = np.zeros(n, np.bool_)
-        snap = (np.empty((n, nx)), np.empty((n, nx)), np.empty((n, nx)), np.empty(n),
-                np.empty(n))  # fmt: skip
         cnt = np.zeros((len(self.x), len(STEP_COUNTERS)), np.int64)
         sm = Samples(ks, t, z, mask, cand, i_m, x_c)
-        so = Stepped(y, nis, nis_avg, acc, *snap, cnt)
+        so = _stepped(n, nx, cnt)
         extra: dict[int, list[AlarmEvent]] = {}
+        parts = self._parts(ks)
+        if parts is None:
+            self._step_part(sm, so, self._ws, extra)
+        else:  # the actuators split between this thread and the pool's (disjoint state)
+            subs = [(Samples(*(a[idx] for a in sm)), _stepped(len(idx), nx, cnt)) for idx in parts]
+            ex: list[dict[int, list[AlarmEvent]]] = [{}, {}]
+            fut = self._pool.submit(self._step_part, *subs[1], self._ws_pool, ex[1])
+            self._step_part(*subs[0], self._ws, ex[0])
+            fut.result()
+            for idx, (_, sub), e in zip(parts, subs, ex, strict=True):
+                for full, part in zip(so[:-1], sub[:-1], strict=True):
+                    full[idx] = part
+                for j, evs in e.items():
+                    extra[int(idx[j])] = evs
+        for k in np.flatnonzero(cnt.any(1)).tolist():
+            c = self.counters[k]
+            for col, name in enumerate(STEP_COUNTERS):
+                c[name] += int(cnt[k, col])
+        snap = (so.SX, so.SPD, so.SOL, so.STI, so.SNA)
+        return StepBlock(ks, t, z, mask, so.y, so.nis, so.acc, snap, extra, sm, so)
+
+    def _parts(self, ks: NDArray) -> list[NDArray] | None:
+        """Sample indices of the two halves of the actuators (k even, odd) when the block is
+        worth two threads (``MonitorConfig.threads``), else None."""
+        if self.config.threads < 2 or len(ks) < _MIN_SPLIT:
+            return None
+        odd = (ks & 1).astype(bool)
+        n_odd = int(odd.sum())
+        if n_odd == 0 or n_odd == len(ks):
+            return None
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="monitor-step")
+            self._ws_pool = workspace(self.nx, N_CHANNELS)
+        return [np.flatnonzero(~odd), np.flatnonzero(odd)]
+
+    def _step_part(self, sm: Samples, so: Stepped, ws: tuple, extra: dict) -> None:
+        """``block_steps`` over the block ``sm`` (its own actuators), re-initialising where it
+        stops; outputs into ``so``, re-initialisation events into ``extra``."""
+        ks, t, z, mask, _, i_m, x_c = sm
         j, emit = 0, False
         while True:
             j, code = block_steps(j, emit, sm, self.bs, self.mr, self._sigma,
-                                  self.config.max_gap_s, self._expect, self._ws, so)  # fmt: skip
+                                  self.config.max_gap_s, self._expect, ws, so)  # fmt: skip
             if code == STEP_OK:
                 break
             k = int(ks[j])
@@ -484,11 +530,11 @@ class MonitorBank:
                 self._init_state(k, z[j], mask[j], i_j, x_j)
                 if code == STEP_DIVERGED:  # keep the parameter estimates, restart P
                     self.x[k, _PARAMS] = keep[_PARAMS]
-                y[j] = 0.0
-                nis[j] = 0.0
+                so.y[j] = 0.0
+                so.nis[j] = 0.0
                 self.counters[k]["reinit"] += 1
                 self.t_init[k] = tj
-                value = float(nis_avg[j]) if math.isfinite(nis_avg[j]) else 0.0
+                value = float(so.nis_avg[j]) if math.isfinite(so.nis_avg[j]) else 0.0
                 extra[j] = [AlarmEvent(tj, "reinit", "raised", value)]
                 log.warning(
                     "monitor %s re-initialised at t=%.6f (%s, NIS/dof average %.3g)",
@@ -496,11 +542,6 @@ class MonitorBank:
                     if code == STEP_BROKEN else "diverged", value,
                 )  # fmt: skip
             emit = True
-        for k in np.flatnonzero(cnt.any(1)).tolist():
-            c = self.counters[k]
-            for col, name in enumerate(STEP_COUNTERS):
-                c[name] += int(cnt[k, col])
-        return StepBlock(ks, t, z, mask, y, nis, acc, snap, extra, sm, so)
 
     def _rows_of(self, sb: StepBlock) -> BankRows:
         ks, t = sb.ks, sb.t

@@ -251,6 +251,14 @@ class MonitorConfig(_Cfg):
         "re-initialises (no plant transient explains it: a dead or swapped sensor)",
     )
 
+    threads: int = Field(
+        2,
+        ge=1,
+        le=2,
+        description="threads that step a block of samples: 2 splits its actuators between "
+        "the caller's thread and one more (the same numbers; blocks of 64 samples and more)",
+    )
+
     @field_validator("model")
     @classmethod
     def _known_model(cls, v: str) -> str:
