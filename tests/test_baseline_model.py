@@ -56,12 +56,12 @@ def test_estimate_refuses_a_baseline_of_another_model(tmp_path, capsys):
     f = tmp_path / "c5.json"
     Baseline.default("C5").save(f)
     rc = main(["estimate", "--scenario", "healthy_noise", "--baseline", str(f), "--duration",
-               "0.3"])  # fmt: skip
+               "0.6"])  # fmt: skip
     err = capsys.readouterr().err
     assert rc == 2
     assert "C5" in err and "WH" in err and "calibrate" in err
     rc = main(["estimate", "--scenario", "healthy_noise", "--baseline", str(f), "--duration",
-               "0.3", "--model", "C5", "--json"])  # fmt: skip
+               "0.6", "--model", "C5", "--json"])  # fmt: skip
     assert rc == 0
 
 
