@@ -14,10 +14,16 @@ Reported per run: samples sent, received, processed, dropped (queue) and bad; th
 sample-receipt -> health-output latency p50/p99; the sample-time -> health age p50/p99 (it
 includes the publisher's batching); the worker's busy fraction; how long after the generator
 stopped the daemon needed to finish its queue ("drain"). "keeps up" = nothing dropped, every
-sample processed, the drain shorter than 1 s and the latency p99 under 1 s. Latencies are
+sample processed, the drain shorter than 1 s and the latency p99 under 1 s. ``--models``
+runs the daemon's monitor on each process model in turn (default: the code's default);
+``--compare-tree PATH`` runs every row again with the daemon of the checkout at PATH (its
+``service`` package; the same load generator and orchestration), printed side by side. Latencies are
 over the daemon's last 50 000 outputs (steady state on long runs).
 
     .venv/bin/python bench/service.py                       # default table
+    .venv/bin/python bench/service.py --actuators 60 --monitor real --models WH,C5 \
+        --compare-tree /tmp/base       # the same rows on another checkout's daemon, e.g.
+                                       # git worktree add /tmp/base 85cd590
     .venv/bin/python bench/service.py --actuators 20 --rate 1000 --duration 10 --monitor null
 
 ``--viewer-cost``: the cost of serving Foxglove (``[foxglove]``, docs/dashboard.md), in one
@@ -149,12 +155,16 @@ def _daemon(args: argparse.Namespace) -> int:
     import signal
     import threading
 
+    if args.tree:  # another checkout's daemon (--compare-tree)
+        sys.path.insert(0, str(Path(args.tree).resolve()))
     import zenoh
 
     from service.config import ServiceConfig, ZenohSettings
     from service.daemon import Daemon
 
+    monitor = {} if args.model is None else {"monitor": {"model": args.model}}
     cfg = ServiceConfig(
+        **monitor,
         station="bench",
         rotate_bytes=None,
         rotate_s=None,
@@ -229,6 +239,8 @@ def run_one(
     gather: float = 0.005,
     viewer: str | None = None,
     every: int = 10,
+    model: str | None = None,
+    tree: str | None = None,
 ) -> dict:
     """One benchmark run; returns the row of the table. ``viewer``: None (no Foxglove
     server), "layout" (a viewer of one actuator's layout topics) or "all" (of every
@@ -268,6 +280,8 @@ def run_one(
                 "--gather",
                 str(gather),
                 *(["--foxglove", str(fx_port), "--foxglove-every", str(every)] if viewer else []),
+                *(["--model", model] if model else []),
+                *(["--tree", tree] if tree else []),
             ],
             stdout=subprocess.PIPE,
             text=True,
@@ -314,6 +328,8 @@ def run_one(
     os.unlink(log)
     os.rmdir(tmp)
     return {
+        "code": "this" if tree is None else Path(tree).name,
+        "model": st.get("model") or model or "default",
         "actuators": actuators,
         "rate_hz": rate,
         "monitor": monitor,
@@ -437,7 +453,7 @@ def _f(v, spec=".1f"):
 
 def print_table(rows: list[dict]) -> None:
     hdr = (
-        f"{'act x Hz':>10} {'monitor':>7} {'log est':>7} {'sent':>8} {'accepted':>8} {'logged':>8} "
+        f"{'code':>6} {'model':>7} {'act x Hz':>10} {'monitor':>7} {'log est':>7} {'sent':>8} {'accepted':>8} {'logged':>8} "
         f"{'processed':>9} {'dropped':>7} {'lat p50':>8} {'lat p99':>8} {'age p50':>8} "
         f"{'age p99':>8} {'busy':>5} {'drain s':>7} {'keeps up':>8}"
     )
@@ -445,6 +461,7 @@ def print_table(rows: list[dict]) -> None:
     print("-" * len(hdr))
     for r in rows:
         print(
+            f"{r['code'][:6]:>6} {r['model'] if r['monitor'] == 'real' else '-':>7} "
             f"{r['actuators']:>4} x {r['rate_hz']:<4g} {r['monitor']:>7} "
             f"{'1/' + str(r['log_every']):>7} {r['sent']:>8} "
             f"{r['accepted']:>8} {r['logged']:>8} {r['processed']:>9} {r['dropped']:>7} "
@@ -483,6 +500,10 @@ def main(argv=None) -> int:
         help="the cost of a Foxglove viewer: runs without, with a layout viewer, with an "
         "all-channels viewer (default 10 actuators, real monitor)",
     )  # fmt: skip
+    p.add_argument("--model", default=None, help=argparse.SUPPRESS)  # the daemon's
+    p.add_argument("--tree", default=None, help=argparse.SUPPRESS)  # the daemon's
+    p.add_argument("--models", default=None, help="monitor process models, e.g. WH,C5")
+    p.add_argument("--compare-tree", default=None, help="also run every row on this checkout")
     args = p.parse_args(argv)
     if args.role == "_gen":
         return _generator(args)
@@ -502,20 +523,25 @@ def main(argv=None) -> int:
             (10, "real", 10),
             (20, "real", 10),
         ]
+    models = [None] if args.models is None else args.models.split(",")
+    trees = [None] if args.compare_tree is None else [None, args.compare_tree]
+    plan = [(n, mon, le, md, tr) for tr in trees for n, mon, le in plan
+            for md in (models if mon == "real" else [None])]  # fmt: skip
     rows = []
-    for n, mon, le in plan:
+    for n, mon, le, model, tree in plan:
         dur = args.duration
         if default_plan and mon == "real" and n > 1:
             dur = min(dur, 5.0)  # keep `make bench` short
         print(
-            f"run: {n} actuators x {args.rate:g} Hz, {dur:g} s, monitor {mon}, log_every {le} ...",
+            f"run: {n} actuators x {args.rate:g} Hz, {dur:g} s, monitor {mon} {model or ''}, "
+            f"log_every {le}, code {tree or 'this'} ...",
             file=sys.stderr,
             flush=True,
         )
         try:
             row = run_one(
                 n, args.rate, dur, mon, args.spm, args.publish_every, args.drain_cap, le,
-                args.profile, args.gather,
+                args.profile, args.gather, model, tree,
             )  # fmt: skip
         except Exception as e:  # report the others
             print(f"  failed: {e}", file=sys.stderr, flush=True)

@@ -3,6 +3,8 @@
 
     .venv/bin/python -m evaluation.outputs_hash            # about 1 min (the HF runs)
     .venv/bin/python -m evaluation.outputs_hash --json     # the hashes as one JSON object
+    .venv/bin/python -m evaluation.outputs_hash --model C5 # another process model (default: WH)
+    .venv/bin/python -m evaluation.outputs_hash --set adapt_nis=0   # a setting changed
 
 ``--fleet`` feeds the same blocks through a ``MonitorFleet`` (one bank per distinct baseline;
 every actuator on the default here), which must give the same hashes as the plain bank.
@@ -29,7 +31,7 @@ import numpy as np
 
 from service.calibration import measured_run
 from service.messages import CHANNELS
-from service.monitor import MonitorBank, MonitorFleet
+from service.monitor import MonitorBank, MonitorConfig, MonitorFleet
 from service.scenarios import load_scenario
 
 SCENARIOS = ("leak_step", "supply_drop", "combined", "healthy_noise")
@@ -54,11 +56,15 @@ def _streams(name: str, duration_s: float | None) -> list[tuple[np.ndarray, np.n
 
 
 def scenario_hash(
-    name: str, duration_s: float | None = None, fleet: bool = False
+    name: str,
+    duration_s: float | None = None,
+    fleet: bool = False,
+    config: MonitorConfig | None = None,
 ) -> tuple[str, int]:
-    """sha256 of the bank's outputs on scenario ``name``; also the number of blocks fed."""
+    """sha256 of the bank's outputs on scenario ``name`` (monitor ``config``, default
+    ``MonitorConfig()``); also the number of blocks fed."""
     streams = _streams(name, duration_s)
-    bank = MonitorFleet() if fleet else MonitorBank()
+    bank = MonitorFleet(config) if fleet else MonitorBank(config)
     ids = [bank.index_of(f"act{a}") for a in range(len(streams))]
     # interleave the actuators sample by sample, as a fleet's intake does
     ks = np.concatenate(
@@ -91,10 +97,27 @@ def main() -> None:
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--duration-s", type=float, default=None, help="cut every scenario to this")
     ap.add_argument("--fleet", action="store_true", help="through a MonitorFleet")
+    ap.add_argument("--model", default=None, help="process model (default: MonitorConfig's)")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a MonitorConfig setting (dotted for a group: alarms.leak_raise=3), repeatable",
+    )
     args = ap.parse_args()
+    cfg: dict = {} if args.model is None else {"model": args.model}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        *groups, leaf = key.split(".")
+        d = cfg
+        for g in groups:
+            d = d.setdefault(g, {})
+        d[leaf] = json.loads(value)
+    config = MonitorConfig.model_validate(cfg)
     out = {}
     for name in SCENARIOS:
-        digest, n_blocks = scenario_hash(name, args.duration_s, args.fleet)
+        digest, n_blocks = scenario_hash(name, args.duration_s, args.fleet, config)
         out[name] = digest
         if not args.json:
             print(f"{name:<14} {digest}  ({n_blocks} blocks)", flush=True)

@@ -11,7 +11,7 @@
 
 Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
 (``service.monitor.MonitorBank``, full channel set, the WH process model unless ``--model``,
-with its defaults ``MODEL_DEFAULTS``; ``--set FIELD=VALUE`` overrides a setting) runs with the baseline calibrated on
+with its defaults; ``--set FIELD=VALUE`` overrides a setting) runs with the baseline calibrated on
 the healthy segment (``service.calibration.calibrate``) and, unless ``--fixed-noise``, the
 sensor noise identified there (``service.calibration.identify_noise``). Figures (targets of
 issue 10 in brackets):
@@ -220,7 +220,7 @@ def run_one(
         obs = first_observable(
             np.asarray(sim.t), np.asarray(sim.v_j), np.asarray(sim.x_s) - base.x_0,
             np.asarray(sim.p1 - sim.p2), tc, cfg.c_lk_gate_v, base.x_u,
-            cfg.resolved("c_lk_gate_p12") * base.p_sr_rated, acfg.hold_s,
+            cfg.c_lk_gate_p12 * base.p_sr_rated, acfg.hold_s,
         )  # fmt: skip
     out["delay"] = delay
     out["obs"] = obs

@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     base = calibrate(mc, config=cfg)
     per_sample = cfg.model_copy(update={"c_lk_gate_p12_tau_s": 0.0})
     area = EHAParams().with_overrides(**dc.params).area
-    gate = cfg.resolved("c_lk_gate_p12") * base.p_sr_rated
+    gate = cfg.c_lk_gate_p12 * base.p_sr_rated
     print(f"plant of dc{a.seed}_{a.index:03d} (noise x{dc.noise_scale:.2f}), WH, gate |P12| > "
           f"{gate / 1e6:.2f} MPa, low-pass {cfg.c_lk_gate_p12_tau_s * 1e3:.0f} ms")  # fmt: skip
     print(f"{'|P12| MPa':>10}{'noise seed':>11}{'per sample':>12}{'low-passed':>12}")

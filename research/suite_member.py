@@ -146,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         est = {k: rows.est[:, EST_KEYS.index(k)] for k in ("c_lk", "c_lk_sigma", "p_sr")}
         alarms = [(e.t, e.kind, e.state) for evs in rows.events for e in evs]
         gates = {
-            "p12": cfg.resolved("c_lk_gate_p12") * base.p_sr_rated,
+            "p12": cfg.c_lk_gate_p12 * base.p_sr_rated,
             "v_j": cfg.c_lk_gate_v,
             "leak_raise": cfg.alarms.leak_raise,
         }

@@ -75,7 +75,7 @@ def reading(
     st = sim.t >= sim.t[-1] - 1.0
     gate = gate_open(
         sim.v_j, np.asarray(sim.x_s) - base.x_0, sim.p1 - sim.p2,
-        cfg.c_lk_gate_v, base.x_u, cfg.resolved("c_lk_gate_p12") * base.p_sr_rated,
+        cfg.c_lk_gate_v, base.x_u, cfg.c_lk_gate_p12 * base.p_sr_rated,
     )  # fmt: skip
     dt = float(np.median(np.diff(sim.t)))
     c_end = float(sim.c_lk[-1])

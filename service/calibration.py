@@ -39,7 +39,7 @@ from scipy.signal import savgol_filter
 
 from models.eha import SimResult, simulate
 from models.scenario import Scenario
-from service.monitor import EST_KEYS, Baseline, MeasurementNoise, MonitorConfig
+from service.monitor import DEFAULT_MODEL, EST_KEYS, Baseline, MeasurementNoise, MonitorConfig
 
 __all__ = [
     "measured_run",
@@ -117,7 +117,7 @@ NULL_FIT_V = 0.5e-3  # "at rest": smoothed |v_J| below this [m/s]
 
 
 def identify_baseline(
-    meas: dict[str, NDArray], law: str = "C5", p_sr_rated: float | None = None
+    meas: dict[str, NDArray], law: str = DEFAULT_MODEL, p_sr_rated: float | None = None
 ) -> Baseline:
     """Steps 1-2 of the module docstring: P_R, effective x_SS and G_PQ by least squares."""
     nom = Baseline.nominal(law)
@@ -260,8 +260,8 @@ def calibrate(
 ) -> Baseline:
     """Identify a baseline from healthy measurements (all steps of the docstring).
 
-    ``law`` is the process model the baseline is for; by default ``config.model`` (C5 when
-    neither is given). ``holds``: on WH, finish with ``hold_fit`` (step 4)."""
+    ``law`` is the process model the baseline is for; by default ``config.model`` (DEFAULT_MODEL
+    when neither is given). ``holds``: on WH, finish with ``hold_fit`` (step 4)."""
     cfg = config or MonitorConfig()
     law = law or cfg.model
     cfg = cfg.model_copy(update={"model": law})

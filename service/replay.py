@@ -60,6 +60,7 @@ from service.monitor import (
     MonitorConfig,
     MonitorFleet,
     RowEvents,
+    check_baseline_model,
 )
 from service.prognostics import PeriodConfig
 from service.prognostics.life import FLIGHT_GAP_S, FlightStamper
@@ -410,11 +411,19 @@ def replay(
     meta = read_metadata(files[0])
     if monitor_config is None and "monitor_config" in meta:
         monitor_config = MonitorConfig.model_validate_json(meta["monitor_config"])
-    if baseline is None and "baseline" in meta:
-        baseline = Baseline.model_validate_json(meta["baseline"])
     cfg = monitor_config or MonitorConfig()
-    base = baseline or Baseline.default(cfg.model)
     summary = ReplaySummary(log=str(log_path), out=str(out) if out is not None else None)
+    if baseline is None and "baseline" in meta:
+        logged = Baseline.model_validate_json(meta["baseline"])
+        if logged.law == cfg.model:
+            baseline = logged
+        else:  # the log's baseline is another model's: never carried over
+            summary.warnings.append(
+                f"the log's baseline is for process model {logged.law}, the replay runs "
+                f"{cfg.model}: monitoring on {cfg.model}'s default baseline"
+            )
+    base = baseline or Baseline.default(cfg.model)
+    check_baseline_model(base, cfg.model)
     summary.files = [str(f) for f in files]
     if flight is not None and (isinstance(flight, bool) or int(flight) < 0):
         raise ValueError(f"flight must be an integer >= 0, got {flight!r}")

@@ -279,12 +279,14 @@ def _cov(Dw, D, P, K, d):
 @njit(**_KERNEL)
 def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
     """One filter step in place (state xb (n,), covariance Pb (n, n), measurement zb (m,)
-    with mask mb); ``ws`` is the workspace of ``workspace(n, m)``. Returns (NIS, status)."""
+    with mask mb); ``ws`` is the workspace of ``workspace(n, m)``. Returns (NIS, status).
+    The prediction before the process noise is kept in ``ws`` for ``ukf_again``."""
     if xb.shape[0] != _N or zb.shape[0] != _M:
         raise ValueError("ukf_one: the model has 8 states and 5 measurement channels")
     return _ukf_core(
-        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N, False
-    )
+        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N, False,
+        False,
+    )  # fmt: skip
 
 
 @njit(**_KERNEL)
@@ -294,26 +296,61 @@ def ukf_one_wh(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, 
     if xb.shape[0] != _N_WH or zb.shape[0] != _M:
         raise ValueError("ukf_one_wh: the model has 10 states and 5 measurement channels")
     return _ukf_core(
-        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N_WH, True
-    )
+        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N_WH,
+        True, False,
+    )  # fmt: skip
+
+
+@njit(**_KERNEL)
+def ukf_again(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
+    """The last ``ukf_one`` step on ``ws`` redone with process noise ``q``: its prediction
+    (the propagated sigma points' mean and covariance, kept in ``ws``) with q dt added, then
+    the update; xb, Pb are overwritten, their values unused. The same bits as ``ukf_one``
+    from that step's prior with ``q``, without propagating the sigma points again."""
+    return _ukf_core(
+        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N, False,
+        True,
+    )  # fmt: skip
+
+
+@njit(**_KERNEL)
+def ukf_again_wh(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
+    """``ukf_again`` after ``ukf_one_wh``."""
+    return _ukf_core(
+        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N_WH,
+        True, True,
+    )  # fmt: skip
 
 
 @njit(**_KERNEL, inline="always")
-def _ukf_core(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, n, wh):
+def _ukf_core(
+    xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, n, wh, again
+):  # fmt: skip
     """The step of ``ukf_one`` for n states (a constant of each caller): the C-type model
     (``models.eha_reduced``, wh False) or WH (``models.eha_reduced_wh``, wh True: its plant
     states are 0..3 and the chamber states 8..9; the parameter states 4..7 are copied
-    through by both models)."""
+    through by both models). ``again``: ``ukf_again``, the prediction from ``ws``."""
     m = _M
     # every array through borrowed_all: no atomic reference counting in the step
     xb, Pb, zb, mb, yb, q, R, scale, zscale, Wm, Wc, prm = borrowed_all(
         (xb, Pb, zb, mb, yb, q, R, scale, zscale, Wm, Wc, prm)
     )
-    L, sig, sig_f, zs, xs, zo, xm, zm, S, LS, C, G, D, Dw, Dz, Dzw, yv, coef, W6 = borrowed_all(ws)
+    L, sig, sig_f, zs, xs, zo, xm, zm, S, LS, C, G, D, Dw, Dz, Dzw, yv, coef, W6, xm0, pc0 = (
+        borrowed_all(ws)
+    )
     K = 2 * n + 1
     nis = 0.0
-    st = _sigma_points_n(xb, Pb, c, L, sig, n)
-    if st != 2:
+    if again:  # the kept prediction: its status, mean and covariance before Q
+        st = int(xm0[n])
+        if st != 2:
+            for r in range(n):
+                xm[r] = xm0[r]
+                for s_ in range(n):
+                    Pb[r, s_] = pc0[r, s_]
+    else:
+        st = _sigma_points_n(xb, Pb, c, L, sig, n)
+        xm0[n] = st
+    if st != 2 and not again:
         # propagate through the model (SI units)
         h = dt / n_sub
         spool_coef_nb(h, prm, coef)
@@ -346,6 +383,11 @@ def _ukf_core(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, p
         _mean(sig_f, Wm, xm, K, n)
         _dev(sig_f, xm, Wc, D, Dw, K, n)
         _cov(Dw, D, Pb, K, n)
+        for r in range(n):  # kept for ukf_again
+            xm0[r] = xm[r]
+            for s_ in range(n):
+                pc0[r, s_] = Pb[r, s_]
+    if st != 2:
         if wh:  # q[8], q[9]: the chambers' differential and common modes (p~1 -+ p~2)/sqrt 2
             for r in range(_N):
                 Pb[r, r] += q[r] * dt
@@ -469,14 +511,15 @@ def workspace(n, m):
     redrawn (K, n); their measurements (K, m); model in/out (n,), (m,); means (n,), (m,);
     S and its factor (m, m); Pxz^T (m, n); gain^T | S^-1 y (m, n + 1); deviations and
     weighted deviations (K, n), (K, m); innovation (m,); spool transition (4,); model
-    stage scratch (K, 6)."""
+    stage scratch (K, 6); the prediction kept for ``ukf_again``: mean and status (n + 1,),
+    covariance before the process noise (n, n)."""
     K = 2 * n + 1
     return (
         np.empty((n, n)), np.empty((K, n)), np.empty((K, n)), np.empty((K, m)),
         np.empty(n), np.empty(m), np.empty(n), np.empty(m),
         np.empty((m, m)), np.empty((m, m)), np.empty((m, n)), np.empty((m, n + 1)),
         np.empty((K, n)), np.empty((K, n)), np.empty((K, m)), np.empty((K, m)),
-        np.empty(m), np.empty(4), np.empty((K, 6)),
+        np.empty(m), np.empty(4), np.empty((K, 6)), np.empty(n + 1), np.empty((n, n)),
     )  # fmt: skip
 
 

@@ -74,14 +74,10 @@ def _monitor_run(model: str) -> None:
 
 
 def _monitor() -> None:
-    """The degradation monitor on the C-type laws (the default, C5): run, replay, estimate,
-    calibrate."""
-    _monitor_run("C5")
-
-
-def _monitor_wh() -> None:
-    """The degradation monitor on the WH process model (``[monitor] model = "WH"``)."""
+    """The degradation monitor (one set of kernels for every process model: WH, the default,
+    and the C-type laws): run, replay, estimate, calibrate."""
     _monitor_run("WH")
+    _monitor_run("C5")
 
 
 def _log() -> None:
@@ -96,7 +92,6 @@ GROUPS: dict[str, Callable[[], None]] = {
     "monitor": _monitor,
     "log": _log,
     "valves": _valves,
-    "monitor-wh": _monitor_wh,
 }
 # what `servowatch warmup` compiles by default: what the demo, the daemon, the replay and the
 # virtual actuator need; the other groups compile on their first use (announced) or --all
@@ -106,13 +101,12 @@ WHAT = {
     "models": "the HF bench kernels",
     "valves": "the simplified valve models' bench kernels",
     "monitor": "the monitor kernels",
-    "monitor-wh": "the monitor's WH model kernels",
     "log": "the MCAP log kernels",
 }
 # CPU seconds of each group's first compile on this project's 2-core VM, from `servowatch
 # warmup --table` (numba compiles on one core: the wall time of an idle machine); the
 # estimate a compiling command prints
-ESTIMATE_S = {"models": 10.0, "monitor": 80.0, "log": 25.0, "valves": 20.0, "monitor-wh": 50.0}
+ESTIMATE_S = {"models": 10.0, "monitor": 80.0, "log": 25.0, "valves": 20.0}
 
 
 # the kernels each group's warm-up calls from Python (numba's cache of these tells whether
@@ -126,14 +120,13 @@ def _entries(group: str) -> list:
         from models import compiled
 
         return list(compiled._LOOPS[1:])
-    if group in ("monitor", "monitor-wh"):
+    if group == "monitor":
         from models import compiled
         from service import wire_kernels
         from service.monitor import kernels
 
-        k = kernels.KERNELS[group == "monitor-wh"]
-        return [compiled._integrate_hf, k.bank_step, k.output_rows, k.block_steps, k.block_rows, kernels.prepare_inputs,
-                wire_kernels.unpack_checked]  # fmt: skip
+        return [compiled._integrate_hf, kernels.bank_step, kernels.output_rows, kernels.block_steps,
+                kernels.block_rows, kernels.prepare_inputs, wire_kernels.unpack_checked]  # fmt: skip
     from service.log import codec
 
     return [codec._encode, codec._scan, codec._fill, codec._objects]
@@ -214,8 +207,9 @@ def is_cached(group: str) -> bool:
 
 
 def monitor_group(model: str) -> str:
-    """The warm-up group of the monitor on process ``model`` (a MonitorConfig.model)."""
-    return "monitor-wh" if model == "WH" else "monitor"
+    """The warm-up group of the monitor on process ``model`` (a MonitorConfig.model): one
+    set of kernels serves every process model."""
+    return "monitor"
 
 
 def ensure(*groups: str, always: bool = False, stream=None) -> float:
@@ -266,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--table", action="store_true", help="print the compile seconds per kernel")
     ap.add_argument("--group", action="append", choices=tuple(GROUPS), default=None,
                     help="only this group of kernels (repeatable; default: models, monitor, "
-                    "log; valves, monitor-wh: compiled on first use)")  # fmt: skip
+                    "log; valves: compiled on first use)")  # fmt: skip
     a = ap.parse_args(argv)
     groups = tuple(a.group) if a.group else None
     if not a.table:

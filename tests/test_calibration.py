@@ -11,7 +11,7 @@ import pytest
 from models.params import EHAParams
 from service.calibration import calibrate, identify_baseline, measured_run, run_monitor
 from service.cli import main
-from service.monitor import Baseline
+from service.monitor import Baseline, MonitorConfig
 from service.scenarios import load_scenario
 
 P = EHAParams()
@@ -29,7 +29,7 @@ def test_identified_gains_match_the_hf_valve_linearised_at_null(healthy):
     clearance flow, w c_r^3 / (12 mu l_min)); the leak adds C_Lk. Noise-free signals."""
     sim, _ = healthy
     truth = {"t": sim.t, "x_s": sim.x_s, "x_j": sim.x_j, "p1": sim.p1, "p2": sim.p2}
-    b = identify_baseline(truth)
+    b = identify_baseline(truth, "C5")
     k_q = b.p_sr_rated / (b.x_ss * b.g_pq)
     assert k_q == pytest.approx(2 * P.g_q, rel=0.02)
     g_lam = P.w_eff * P.c_r**3 / (12 * P.mu * P.l_min)
@@ -40,7 +40,7 @@ def test_identified_gains_match_the_hf_valve_linearised_at_null(healthy):
 def test_noisy_identification_close_to_noise_free(healthy):
     sim, meas = healthy
     truth = {"t": sim.t, "x_s": sim.x_s, "x_j": sim.x_j, "p1": sim.p1, "p2": sim.p2}
-    a, b = identify_baseline(truth), identify_baseline(meas)
+    a, b = identify_baseline(truth, "C5"), identify_baseline(meas, "C5")
     assert b.x_ss * b.g_pq == pytest.approx(a.x_ss * a.g_pq, rel=0.03)  # flow gain
     assert b.g_pq == pytest.approx(a.g_pq, rel=0.05)
 
@@ -48,11 +48,11 @@ def test_noisy_identification_close_to_noise_free(healthy):
 @pytest.mark.slow
 def test_calibrated_monitor_reads_nominal_leakage_on_healthy_data(healthy):
     _, meas = healthy
-    nominal = Baseline.nominal()
-    outs, _ = run_monitor(meas, None, nominal)
+    nominal = Baseline.nominal("C5")
+    outs, _ = run_monitor(meas, MonitorConfig(model="C5"), nominal)
     c_nom = np.mean([o.est["c_lk"] for o in outs if o.t > 1.0])
-    base = calibrate(meas, passes=1)
-    outs, _ = run_monitor(meas, None, base)
+    base = calibrate(meas, "C5", passes=1)
+    outs, _ = run_monitor(meas, MonitorConfig(model="C5"), base)
     c_cal = np.mean([o.est["c_lk"] for o in outs if o.t > 1.0])
     assert abs(c_cal - 2e-13) < 0.2e-13
     assert abs(c_nom - 2e-13) > 3 * abs(c_cal - 2e-13)  # the mismatch calibration removes
@@ -77,7 +77,8 @@ def test_cli_calibrate_writes_a_loadable_baseline(tmp_path, capsys):
     )
     sc.write_text(text)
     out = tmp_path / "base.json"
-    rc = main(["calibrate", "--scenario", str(sc), "--out", str(out), "--passes", "0", "--json"])
+    rc = main(["calibrate", "--scenario", str(sc), "--out", str(out), "--passes", "0", "--json",
+               "--model", "C5"])  # fmt: skip
     assert rc == 0
     res = json.loads(capsys.readouterr().out)
     b = Baseline.load(out)

@@ -82,9 +82,9 @@ def test_status_names_the_monitor_model(tmp_path, model):
     d.stop()
 
 
-def test_status_model_defaults_to_c5():
+def test_status_names_the_model_the_default_config_runs():
     d = Daemon(ServiceConfig(), logger=NullLogger())
-    assert d.status()["model"] == "C5"
+    assert d.status()["model"] == d.bank.config.model == d.bank.baseline.law
     d.stop()
 
 

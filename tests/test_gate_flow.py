@@ -17,14 +17,6 @@ ROOT = Path(__file__).resolve().parent.parent
 C_LK = EST_KEYS.index("c_lk")
 
 
-def test_defaults_on_wh_after_slews_and_off_on_the_c_types():
-    wh, c5 = MonitorConfig(model="WH"), MonitorConfig(model="C5")
-    assert (wh.resolved("c_lk_gate_flow"), wh.resolved("c_lk_gate_flow_s")) == (5.0, 0.3)
-    assert (c5.resolved("c_lk_gate_flow"), c5.resolved("c_lk_gate_flow_s")) == (0.0, 0.0)
-    off = MonitorConfig(model="WH", c_lk_gate_flow=0.0, c_lk_gate_flow_s=0.0)
-    assert (off.resolved("c_lk_gate_flow"), off.resolved("c_lk_gate_flow_s")) == (0.0, 0.0)
-
-
 def test_a_tiny_ratio_holds_c_lk_wherever_the_jack_moves():
     """healthy_noise (sines under 4 kN, |P12| about 4 MPa): with the ratio at 1e-6 the jack
     speed allowed is 1e-6 x 2e-13 x 4e6 / 1e-3 = 8e-10 m/s, so the estimated jack is never

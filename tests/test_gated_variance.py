@@ -11,17 +11,11 @@ import pytest
 
 from evaluation.dutycycle import duty_cycle
 from service.calibration import bank_rows, measured_run
-from service.monitor import EST_KEYS, MODEL_DEFAULTS, Baseline, MonitorConfig
+from service.monitor import EST_KEYS, Baseline, MonitorConfig
 from service.scenarios import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 C_LK, C_LK_SIGMA = EST_KEYS.index("c_lk"), EST_KEYS.index("c_lk_sigma")
-
-
-def test_defaults_wh_on_c_types_off():
-    assert MODEL_DEFAULTS["WH"]["c_lk_gated_sigma_max"] == 0.7
-    assert MonitorConfig(model="WH").resolved("c_lk_gated_sigma_max") == 0.7
-    assert MonitorConfig(model="C5").resolved("c_lk_gated_sigma_max") == 0.0
 
 
 def test_held_variance_grows_to_the_cap_and_no_further():

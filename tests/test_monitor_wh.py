@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from _c_type import c_type_config
 
 from models import eha_reduced_wh as erw
 from service.calibration import measured_run, run_monitor
@@ -152,8 +153,11 @@ C5_HASHES_1S = {
 }
 
 
+C5_CONFIG = c_type_config("C5")
+
+
 def test_c_type_outputs_unchanged():
     from evaluation import outputs_hash as mod
 
     for name in ("leak_step", "supply_drop"):
-        assert mod.scenario_hash(name, 1.0)[0] == C5_HASHES_1S[name]
+        assert mod.scenario_hash(name, 1.0, config=C5_CONFIG)[0] == C5_HASHES_1S[name]

@@ -28,7 +28,7 @@ def test_equivalent_opening_values():
 
 
 def test_compiled_model_equals_numpy_model_at_large_openings():
-    rp = Baseline.default().reduced_params()
+    rp = Baseline.default("C5").reduced_params()
     assert rp.x_u == 1e-4
     prm = er.param_vector(rp)
     rng = np.random.default_rng(3)
@@ -51,7 +51,7 @@ def test_flow_at_a_saturated_spool_matches_the_hf_valve():
     sc = Scenario(name="step", duration_s=0.6, command=Profile(events=[Event(t=0.1, value=0.03)]),
                   load=Profile(initial=2e3))  # fmt: skip
     sim = simulate(sc, "HF", out_every=10)
-    b = Baseline.default()
+    b = Baseline.default("C5")
     g = b.g_pq * np.sqrt(sim.p_sr / b.p_sr_rated)
 
     def q_law(x):  # C5 solved for Q_J at the HF's P12 (unsaturated x_St)
@@ -67,7 +67,9 @@ def test_flow_at_a_saturated_spool_matches_the_hf_valve():
 
 def test_c_lk_gate_is_a_consider_update():
     """Above the gate speed the C_Lk mean stays and its variance grows by q dt (Schmidt)."""
-    bank = MonitorBank()
+    # no cap on the held variance, no adaptive step: the plain consider update
+    cfg = MonitorConfig(model="C5", c_lk_gated_sigma_max=0.0, adapt_nis=0.0)
+    bank = MonitorBank(cfg, Baseline.default("C5"))
     k = bank.index_of("a")
     s = {"t": 0.0, "x_cmd": 0.0, "i": 0.0, "x_s": 0.0, "x_j": 0.0, "p1": 12e6, "p2": 9e6}
     bank.update_many([("a", s)])
@@ -104,10 +106,9 @@ def test_null_bias_is_held_with_the_spool_past_its_underlap(model, cfg):
     assert bank.x[k, 7] != b1
 
 
-def test_null_bias_gate_defaults():
-    assert MonitorConfig(model="WH").resolved("i_b_gate_x_u") == 1.0
-    assert MonitorConfig(model="C5").resolved("i_b_gate_x_u") == 0.0  # the bundled filter
-    bank = MonitorBank()  # C5: i_b learns at any opening
+def test_null_bias_learns_at_any_opening_with_its_gate_off():
+    cfg = MonitorConfig(model="C5", i_b_gate_x_u=0.0)
+    bank = MonitorBank(cfg, Baseline.default("C5"))
     k = bank.index_of("a")
     s = {"t": 0.0, "x_cmd": 0.0, "i": 0.0, "x_s": 0.0, "x_j": 0.0, "p1": 12e6, "p2": 9e6}
     bank.update_many([("a", s), ("a", {**s, "t": 0.001})])

@@ -98,7 +98,7 @@ def test_nearest_spd_repairs_an_indefinite_matrix():
 
 
 # -- the simplified EHA model --------------------------------------------------------------
-RP = Baseline.default().reduced_params()
+RP = Baseline.default("C5").reduced_params()
 
 
 def test_spool_step_is_the_exact_zero_order_hold():

@@ -47,4 +47,4 @@ def test_ensure_is_silent_when_cached():
 
 def test_warmup_help_names_the_groups():
     r = subprocess.run([*servowatch_exe(), "warmup", "--help"], capture_output=True, text=True)
-    assert r.returncode == 0 and "monitor-wh" in r.stdout, r.stderr
+    assert r.returncode == 0 and "valves" in r.stdout, r.stderr

@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from service.cliutil import emit_json, fail
+from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
 from service.scenarios import ScenarioError, load_scenario
 from service.store import StoreError, check_actuator
@@ -34,7 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--scenario", help="healthy scenario TOML (or a bundled name)")
     src.add_argument("--log", help="recorded MCAP log with a .../meas topic")
     p.add_argument(
-        "--model", default="C5", help="process model of the monitor (A, B, C1, C3, C5, WH)"
+        "--model",
+        default=DEFAULT_MODEL,
+        help=f"process model of the monitor ({', '.join(MONITOR_MODELS)}; default {DEFAULT_MODEL})",
     )
     p.add_argument("--out", default=None, help="write the baseline JSON here")
     p.add_argument(
@@ -77,7 +80,6 @@ def meas_from_log(path: str, actuator: str | None = None) -> dict[str, np.ndarra
 
 
 def run(args: argparse.Namespace) -> int:
-    from service.monitor.config import MONITOR_MODELS
     from service.warmup import ensure, monitor_group
 
     if args.model not in MONITOR_MODELS:

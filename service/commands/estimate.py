@@ -16,6 +16,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from service.cliutil import emit_json, fail
+from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
 from service.scenarios import ScenarioError, load_scenario
 
@@ -28,7 +29,9 @@ __all__ = ["NAME", "HELP", "add_arguments", "run", "evaluate"]
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", required=True, help="scenario TOML file (or a bundled name)")
     p.add_argument(
-        "--model", default="C5", help="process model of the monitor (A, B, C1, C3, C5, WH)"
+        "--model",
+        default=DEFAULT_MODEL,
+        help=f"process model of the monitor ({', '.join(MONITOR_MODELS)}; default {DEFAULT_MODEL})",
     )
     p.add_argument("--channels", default="full", choices=("full", "reduced"))
     p.add_argument("--baseline", default=None, help="baseline JSON from `servowatch calibrate`")
@@ -278,8 +281,7 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as e:
         return fail(str(e))
-    from service.monitor import Baseline, MonitorConfig
-    from service.monitor.config import MONITOR_MODELS
+    from service.monitor import Baseline, BaselineModelError, MonitorConfig, check_baseline_model
     from service.warmup import ensure, monitor_group
 
     if args.model not in MONITOR_MODELS:
@@ -293,6 +295,10 @@ def run(args: argparse.Namespace) -> int:
         baseline = Baseline.load(args.baseline) if args.baseline else Baseline.default(args.model)
     except (OSError, ValueError) as e:
         return fail(f"{args.baseline}: cannot read baseline: {e}")
+    try:
+        check_baseline_model(baseline, args.model, f"{args.baseline}")
+    except BaselineModelError as e:
+        return fail(str(e))
     config = MonitorConfig(model=args.model, channels=args.channels)
     prog = Progress(f"estimate {scenario.name}")
     res = evaluate(scenario, config, baseline, progress=prog, keep_outputs=True)

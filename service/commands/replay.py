@@ -165,6 +165,12 @@ def run(args: argparse.Namespace) -> int:
             baseline = Baseline.load(cfg.baseline)
         except (OSError, ValueError) as e:
             return fail(f"{cfg.baseline}: cannot read baseline: {e}")
+        from service.monitor import BaselineModelError, check_baseline_model
+
+        try:
+            check_baseline_model(baseline, cfg.monitor.model, str(cfg.baseline))
+        except BaselineModelError as e:
+            return fail(str(e))
     from service.daemon.core import store_target
     from service.prognostics import PeriodConfig
 

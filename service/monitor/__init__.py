@@ -18,8 +18,8 @@ _WHERE = {
     "MonitorBank": "bank",
     "MonitorFleet": "fleet",
     **dict.fromkeys(
-        ("MODEL_DEFAULTS", "AlarmConfig", "Baseline", "MeasurementNoise", "MonitorConfig",
-         "ProcessNoise"),
+        ("DEFAULT_MODEL", "AlarmConfig", "Baseline", "BaselineModelError", "MeasurementNoise",
+         "MonitorConfig", "ProcessNoise", "check_baseline_model"),
         "config",
     ),
     **dict.fromkeys(
@@ -32,12 +32,14 @@ _WHERE = {
 if TYPE_CHECKING:
     from service.monitor.bank import Monitor, MonitorBank
     from service.monitor.config import (
-        MODEL_DEFAULTS,
+        DEFAULT_MODEL,
         AlarmConfig,
         Baseline,
+        BaselineModelError,
         MeasurementNoise,
         MonitorConfig,
         ProcessNoise,
+        check_baseline_model,
     )
     from service.monitor.fleet import MonitorFleet
     from service.monitor.outputs import (
@@ -69,8 +71,10 @@ __all__ = [
     "ProcessNoise",
     "AlarmConfig",
     "MonitorConfig",
-    "MODEL_DEFAULTS",
     "Baseline",
+    "BaselineModelError",
+    "check_baseline_model",
+    "DEFAULT_MODEL",
     "AlarmEvent",
     "MonitorOutput",
     "Monitor",

@@ -19,14 +19,19 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
 
 from models import eha_reduced as er
-from models import eha_reduced_wh as erw
 from service.messages import CHANNELS as WIRE
-from service.monitor.config import MONITOR_MODELS, Baseline, MonitorConfig
+from service.monitor.config import (
+    MONITOR_MODELS,
+    Baseline,
+    MonitorConfig,
+    check_baseline_model,
+)
 from service.monitor.kernels import (
     CARRY_GM,
     CARRY_GP,
@@ -34,13 +39,11 @@ from service.monitor.kernels import (
     CARRY_N,
     CARRY_P12,
     CARRY_T_FAST,
-    CST_FIELDS,
     IN_I,
     IN_T,
     IN_X_CMD,
     IN_Z,
     INPUT_COLUMNS,
-    KERNELS,
     N_CARRY,
     N_CHANNELS,
     N_PENDING,
@@ -49,8 +52,6 @@ from service.monitor.kernels import (
     S_F_R,
     S_I_B,
     S_P_SR,
-    S_V_J,
-    S_X_S,
     STEP_BROKEN,
     STEP_COUNTERS,
     STEP_DIVERGED,
@@ -61,8 +62,19 @@ from service.monitor.kernels import (
     Z_P_SR,
     Z_X_J,
     Z_X_S,
+    BankState,
+    ModelRows,
+    Rows,
+    Samples,
+    Sigma,
+    Stepped,
+    bank_step,
+    block_rows,
+    block_steps,
+    output_rows,
     prepare_inputs,
 )
+from service.monitor.model_rows import by_name, model_vectors
 from service.monitor.outputs import (
     ALARM_KINDS,
     COUNTERS,
@@ -88,23 +100,20 @@ log = logging.getLogger(__name__)
 _PLAIN = {float, int, type(None), np.float64}
 
 
+_MIN_SPLIT = 64  # shorter blocks are stepped in the caller's thread alone
+
+
+def _stepped(n: int, nx: int, cnt: NDArray) -> Stepped:
+    """The outputs of ``block_steps`` for n samples of an nx-state filter (counters ``cnt``)."""
+    return Stepped(np.zeros((n, N_CHANNELS)), np.zeros(n), np.zeros(n), np.zeros(n, np.bool_),
+                   np.empty((n, nx)), np.empty((n, nx)), np.empty((n, nx)), np.empty(n),
+                   np.empty(n), cnt)  # fmt: skip
+
+
 _PARAMS = slice(S_F_R, S_I_B + 1)  # the random-walk parameter states f_r, p_sr, c_lk, i_b
 # columns of update_arrays' channels (the wire order, service.messages.CHANNELS)
 _WIRE_X_CMD, _WIRE_I, _WIRE_Z = WIRE.index("x_cmd"), WIRE.index("i"), WIRE.index(MEAS_CHANNELS[0])
 assert WIRE[_WIRE_Z : _WIRE_Z + N_CHANNELS] == MEAS_CHANNELS
-
-
-def _by_name(names: Sequence[str], **values: float) -> NDArray:
-    """A float vector laid out as ``names`` from one keyword per name (all required)."""
-    if set(values) != set(names):
-        raise ValueError(f"expected exactly {names}, got {sorted(values)}")
-    return np.array([values[n] for n in names], float)
-
-
-def _underlaps(n: float, x_u: float) -> float:
-    """Spool opening [m] of ``n`` underlaps x_u, past which a gate holds a parameter
-    (n = 0 or no underlap: inf, never)."""
-    return n * x_u if n > 0.0 and x_u > 0.0 else math.inf
 
 
 def _f(v) -> float | None:
@@ -122,7 +131,8 @@ class MonitorBank:
     """Monitors for many actuators advanced together in one vectorised UKF update.
 
     ``baseline`` is the default of every actuator; ``index_of(key, baseline)`` or
-    ``set_baseline`` gives one its own. The baseline-dependent vectors (state and channel
+    ``set_baseline`` gives one its own; a baseline for another process model than the
+    config's is refused (``BaselineModelError``). The baseline-dependent vectors (state and channel
     scales, Q, R, the model's parameter vector and the constants) are kept as one row per
     actuator, which the compiled kernels index by actuator, so actuators with different
     baselines still run in one batched update."""
@@ -139,35 +149,16 @@ class MonitorBank:
                 f"unknown model {self.config.model!r}; expected one of {MONITOR_MODELS}"
             )
         self.baseline = baseline or Baseline.default(self.config.model)
-        if self.baseline.law != self.config.model:
-            self.baseline = self.baseline.model_copy(update={"law": self.config.model})
-        self.rp = self.baseline.reduced_params()
-        b, c = self.baseline, self.config
+        check_baseline_model(self.baseline, self.config.model)
+        c = self.config
         # WH: models.eha_reduced_wh, the C-type states plus the chamber states p~1, p~2
         self.wh = c.model == "WH"
-        names = erw.STATE_NAMES if self.wh else er.STATE_NAMES
-        self.nx = len(names)
-        self._names = names
-        wh_sc = {"pt1": 1e6, "pt2": 1e6} if self.wh else {}
-        # filter units: one scale per state (x_scaled = x_SI / scale) and per channel
-        self.scale = _by_name(names, x_s=b.x_ss, v_s=b.x_ss * b.omega_n, x_j=1e-3,
-                              v_j=1e-2, f_r=1e3, p_sr=1e6, c_lk=1e-13, i_b=1e-4,
-                              **wh_sc)  # fmt: skip
-        pn = c.process
-        # WH: the chamber columns of q hold the differential and the common mode's random
-        # walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (service.ukf; equal: uncorrelated)
-        q_wh = {"pt1": pn.p_ch, "pt2": c.resolved("process.p_ch_common")} if self.wh else {}
-        q_set = {n: getattr(pn, n) for n in er.STATE_NAMES if n not in ("p_sr", "c_lk")}
-        q = _by_name(names, **q_set, p_sr=c.resolved("process.p_sr"),
-                     c_lk=c.resolved("process.c_lk"), **q_wh)  # fmt: skip
-        if c.channels == "reduced":  # parameters not observable from x_J alone
-            q[[S_P_SR, S_C_LK, S_I_B]] *= c.reduced_param_q
-        self._q = (q / self.scale) ** 2
-        nz = c.noise
-        r = _by_name(MEAS_CHANNELS, x_s=nz.x_s_m, x_j=nz.x_j_m, p1=nz.p_pa, p2=nz.p_pa,
-                     p_sr=nz.p_sr_pa)  # fmt: skip
-        self._zscale = _by_name(MEAS_CHANNELS, x_s=b.x_ss, x_j=1e-3, p1=1e6, p2=1e6, p_sr=1e6)
-        self.R = np.diag((r / self._zscale) ** 2)
+        v = model_vectors(c, self.baseline)  # the process model's factory
+        self.rp = v.rp
+        self._names = v.names
+        self.nx = len(v.names)
+        self.scale, self._zscale, self._q, self.R = v.scale, v.zscale, v.q, v.R
+        self._prm, self._cst, self._p0 = v.prm, v.cst, v.p0
         self._use = np.zeros(N_CHANNELS, bool)
         self._use[[Z_X_S, Z_X_J, Z_P1, Z_P2, Z_P_SR] if c.channels == "full" else [Z_X_J]] = True
         # channels whose absence is counted (the supply transducer is optional)
@@ -179,59 +170,12 @@ class MonitorBank:
             for c, name in enumerate(MEAS_CHANNELS)
             if self._use[c]
         ]
-        p0_wh = {"pt1": c.init_sigma_p_ch, "pt2": c.init_sigma_p_ch} if self.wh else {}
-        self._p0 = _by_name(names, x_s=2e-6, v_s=1e-3, x_j=1e-4, v_j=5e-3,
-                            f_r=c.init_sigma_f_r, p_sr=c.init_sigma_p_sr,
-                            c_lk=c.init_sigma_c_lk, i_b=c.init_sigma_i_b, **p0_wh)  # fmt: skip
         self.ukf = BatchUKF(self.nx, alpha=c.alpha, beta=c.beta, kappa=c.kappa)
-        if self.wh:
-            self._prm = erw.param_vector(self.rp, b.v_c, b.beta)
-            h_max = min(self.rp.h_max, erw.H_MAX)
-        else:
-            self._prm = er.param_vector(self.rp)
-            h_max = self.rp.h_max
-        a = c.alarms
-        self._cst = _by_name(
-            CST_FIELDS,
-            h_max=h_max,
-            c_lk_max=c.c_lk_max / self.scale[S_C_LK],
-            p_vap=self.rp.p_vap / self.scale[S_P_SR],
-            p_sr_max=c.resolved("p_sr_max_ratio") * b.p_sr_rated / self.scale[S_P_SR],
-            nis_tau=c.nis_tau_s,
-            nis_reinit=c.nis_reinit,
-            c_lk0=b.c_lk,
-            p_rated=b.p_sr_rated,
-            arm=c.arm_s,
-            leak_raise=a.leak_raise,
-            leak_clear=a.leak_clear,
-            supply_raise=a.supply_raise,
-            supply_clear=a.supply_clear,
-            hold=a.hold_s,
-            leak_max_sigma=c.resolved("alarms.leak_max_sigma"),
-            supply_max_sigma=a.supply_max_sigma,
-            gate_v=c.c_lk_gate_v / self.scale[S_V_J],
-            gate_x_s=_underlaps(1.0, self.rp.x_u) / self.scale[S_X_S],
-            gate_nis=c.c_lk_gate_nis,
-            gate_p12=c.resolved("c_lk_gate_p12") * b.p_sr_rated,
-            gate_p12_tau=c.c_lk_gate_p12_tau_s,
-            adapt_nis=c.resolved("adapt_nis"),
-            adapt_max=c.adapt_max,
-            adapt_reinit=c.adapt_reinit,
-            adapt_p_sr=c.resolved("adapt_p_sr"),
-            gate_adapt=c.resolved("c_lk_gate_adapt"),
-            gate_i_b_x_s=_underlaps(c.resolved("i_b_gate_x_u"), self.rp.x_u) / self.scale[S_X_S],
-            mask_tau=a.leak_mask_tau_s,
-            mask_supply=a.leak_mask_supply,
-            mask_s=a.leak_mask_s,
-            cusum_nu=c.c_lk_cusum_nu,
-            cusum_h=c.resolved("c_lk_cusum_h"),
-            cusum_kick=(c.c_lk_cusum_kick * b.c_lk / self.scale[S_C_LK]) ** 2,
-            gate_var_max=(c.resolved("c_lk_gated_sigma_max") * b.c_lk / self.scale[S_C_LK]) ** 2,
-            gate_v_flow=c.resolved("c_lk_gate_flow") * b.c_lk / b.area / self.scale[S_V_J],
-            gate_flow_s=c.resolved("c_lk_gate_flow_s"),
-            gate_flow_v_fast=c.c_lk_gate_flow_v_fast / self.scale[S_V_J],
-        )
+        w = self.ukf.w
+        self._sigma = Sigma(w.Wm, w.Wc, float(w.c))
         self._ws = workspace(self.nx, N_CHANNELS)
+        self._pool: ThreadPoolExecutor | None = None  # the second stepping thread, on demand
+        self._ws_pool: tuple | None = None
         self.ids: dict[str, int] = {}
         self._rows: list | None = None
         self._vec_cache: dict[str, tuple] = {}
@@ -242,16 +186,12 @@ class MonitorBank:
     def _vectors(self, baseline: Baseline) -> tuple:
         """(baseline, its reduced parameters, and the rows of ``_ROW_VECTORS``): computed by
         the constructor of a bank on that baseline, so a row equals a bank's own vectors."""
-        if baseline.law != self.config.model:
-            baseline = baseline.model_copy(update={"law": self.config.model})
+        check_baseline_model(baseline, self.config.model)
         sig = baseline.model_dump_json()
         v = self._vec_cache.get(sig)
         if v is None:
-            if sig == self.baseline.model_dump_json():
-                src = self
-            else:
-                src = MonitorBank(self.config, baseline, capacity=1)
-            v = (src.baseline, src.rp, *(getattr(src, a) for a in self._ROW_VECTORS))
+            mv = model_vectors(self.config, baseline)
+            v = (baseline, mv.rp, mv.scale, mv.zscale, mv.q, mv.R, mv.prm, mv.cst)
             self._vec_cache[sig] = v
         return v
 
@@ -278,6 +218,14 @@ class MonitorBank:
         self.r_prm = np.tile(self._prm, (cap, 1))
         self.r_cst = np.tile(self._cst, (cap, 1))
         self.r_base: list[tuple[Baseline, er.ReducedParams]] = [(self.baseline, self.rp)] * cap
+        self._views()
+
+    def _views(self) -> None:
+        """The kernels' named groups of the bank's arrays (rebuilt when they grow)."""
+        self.bs = BankState(self.x, self.P, self.ol, self.t_last, self.carry, self.nis_avg,
+                            self.t_init, self.alarm, self.pending)  # fmt: skip
+        self.mr = ModelRows(self.r_q, self.r_R, self.r_scale, self.r_zscale, self.r_prm,
+                            self.r_cst)  # fmt: skip
 
     _ARRAYS = ("x", "P", "ol", "t_last", "carry", "nis_avg", "t_init", "alarm", "pending",
                "r_scale", "r_zscale", "r_q", "r_R", "r_prm", "r_cst")  # fmt: skip
@@ -294,6 +242,7 @@ class MonitorBank:
         self.counters[:n_old] = counters
         self.events_log[:n_old] = events
         self.r_base[:n_old] = bases
+        self._views()
 
     def _key_of(self, k: int) -> str:
         for key, v in self.ids.items():
@@ -515,22 +464,53 @@ class MonitorBank:
     def _steps(self, ks, t, z, mask, cand, i_m, x_c) -> StepBlock:
         n = len(ks)
         nx = self.nx
-        y = np.zeros((n, N_CHANNELS))
-        nis = np.zeros(n)
-        nis_avg = np.zeros(n)
-        acc = np.zeros(n, np.bool_)
-        snap = (np.empty((n, nx)), np.empty((n, nx)), np.empty((n, nx)), np.empty(n),
-                np.empty(n))  # fmt: skip
         cnt = np.zeros((len(self.x), len(STEP_COUNTERS)), np.int64)
+        sm = Samples(ks, t, z, mask, cand, i_m, x_c)
+        so = _stepped(n, nx, cnt)
         extra: dict[int, list[AlarmEvent]] = {}
+        parts = self._parts(ks)
+        if parts is None:
+            self._step_part(sm, so, self._ws, extra)
+        else:  # the actuators split between this thread and the pool's (disjoint state)
+            subs = [(Samples(*(a[idx] for a in sm)), _stepped(len(idx), nx, cnt)) for idx in parts]
+            ex: list[dict[int, list[AlarmEvent]]] = [{}, {}]
+            fut = self._pool.submit(self._step_part, *subs[1], self._ws_pool, ex[1])
+            self._step_part(*subs[0], self._ws, ex[0])
+            fut.result()
+            for idx, (_, sub), e in zip(parts, subs, ex, strict=True):
+                for full, part in zip(so[:-1], sub[:-1], strict=True):
+                    full[idx] = part
+                for j, evs in e.items():
+                    extra[int(idx[j])] = evs
+        for k in np.flatnonzero(cnt.any(1)).tolist():
+            c = self.counters[k]
+            for col, name in enumerate(STEP_COUNTERS):
+                c[name] += int(cnt[k, col])
+        snap = (so.SX, so.SPD, so.SOL, so.STI, so.SNA)
+        return StepBlock(ks, t, z, mask, so.y, so.nis, so.acc, snap, extra, sm, so)
+
+    def _parts(self, ks: NDArray) -> list[NDArray] | None:
+        """Sample indices of the two halves of the actuators (k even, odd) when the block is
+        worth two threads (``MonitorConfig.threads``), else None."""
+        if self.config.threads < 2 or len(ks) < _MIN_SPLIT:
+            return None
+        odd = (ks & 1).astype(bool)
+        n_odd = int(odd.sum())
+        if n_odd == 0 or n_odd == len(ks):
+            return None
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="monitor-step")
+            self._ws_pool = workspace(self.nx, N_CHANNELS)
+        return [np.flatnonzero(~odd), np.flatnonzero(odd)]
+
+    def _step_part(self, sm: Samples, so: Stepped, ws: tuple, extra: dict) -> None:
+        """``block_steps`` over the block ``sm`` (its own actuators), re-initialising where it
+        stops; outputs into ``so``, re-initialisation events into ``extra``."""
+        ks, t, z, mask, _, i_m, x_c = sm
         j, emit = 0, False
         while True:
-            j, code = KERNELS[self.wh].block_steps(
-                j, emit, ks, t, z, mask, cand, i_m, x_c, self.x, self.P, self.ol, self.t_last,
-                self.carry, self.nis_avg, self.t_init, self.r_q, self.r_R, self.r_scale,
-                self.r_zscale, self.ukf.w.Wm, self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst,
-                self.config.max_gap_s, self._expect, self._ws, y, nis, nis_avg, acc, *snap, cnt,
-            )  # fmt: skip
+            j, code = block_steps(j, emit, sm, self.bs, self.mr, self._sigma,
+                                  self.config.max_gap_s, self._expect, ws, so)  # fmt: skip
             if code == STEP_OK:
                 break
             k = int(ks[j])
@@ -550,11 +530,11 @@ class MonitorBank:
                 self._init_state(k, z[j], mask[j], i_j, x_j)
                 if code == STEP_DIVERGED:  # keep the parameter estimates, restart P
                     self.x[k, _PARAMS] = keep[_PARAMS]
-                y[j] = 0.0
-                nis[j] = 0.0
+                so.y[j] = 0.0
+                so.nis[j] = 0.0
                 self.counters[k]["reinit"] += 1
                 self.t_init[k] = tj
-                value = float(nis_avg[j]) if math.isfinite(nis_avg[j]) else 0.0
+                value = float(so.nis_avg[j]) if math.isfinite(so.nis_avg[j]) else 0.0
                 extra[j] = [AlarmEvent(tj, "reinit", "raised", value)]
                 log.warning(
                     "monitor %s re-initialised at t=%.6f (%s, NIS/dof average %.3g)",
@@ -562,11 +542,6 @@ class MonitorBank:
                     if code == STEP_BROKEN else "diverged", value,
                 )  # fmt: skip
             emit = True
-        for k in np.flatnonzero(cnt.any(1)).tolist():
-            c = self.counters[k]
-            for col, name in enumerate(STEP_COUNTERS):
-                c[name] += int(cnt[k, col])
-        return StepBlock(ks, t, z, mask, y, nis, acc, snap, extra)
 
     def _rows_of(self, sb: StepBlock) -> BankRows:
         ks, t = sb.ks, sb.t
@@ -575,10 +550,7 @@ class MonitorBank:
         res = np.zeros((n, len(RES_KEYS)))
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
-        KERNELS[self.wh].block_rows(
-            ks, sb.acc, *sb.snap, self.r_scale, self.r_zscale, self.r_prm, sb.z, sb.mask, sb.y,
-            sb.nis, t, self.alarm, self.pending, self.r_cst, est, res, health, fire,
-        )  # fmt: skip
+        block_rows(sb.sm, sb.so, self.mr, self.alarm, self.pending, Rows(est, res, health, fire))
         extra = sb.extra
         sel = np.flatnonzero(sb.acc)
         at: dict[int, list[AlarmEvent]] = {}
@@ -687,7 +659,7 @@ class MonitorBank:
                 "pt1": z[Z_P1] * sc[Z_P1] if mask[Z_P1] else b.p_r + 0.5 * (p_sr + p12),
                 "pt2": z[Z_P2] * sc[Z_P2] if mask[Z_P2] else b.p_r + 0.5 * (p_sr - p12),
             }
-        xs = _by_name(self._names, x_s=x_s, v_s=0.0, x_j=x_j, v_j=0.0, f_r=f_r, p_sr=p_sr,
+        xs = by_name(self._names, x_s=x_s, v_s=0.0, x_j=x_j, v_j=0.0, f_r=f_r, p_sr=p_sr,
                       c_lk=b.c_lk, i_b=0.0, **wh0)  # fmt: skip
         self.x[k] = xs / self.r_scale[k]
         self.P[k] = np.diag((self._p0 / self.r_scale[k]) ** 2)
@@ -738,11 +710,8 @@ class MonitorBank:
         nis = np.zeros(B)
         nis_avg = np.zeros(B)
         flag = np.zeros(B, np.int64)
-        KERNELS[self.wh].bank_step(
-            ks, t, z, mask, i_m, x_c, self.x, self.P, self.ol, self.t_last, self.carry,
-            self.nis_avg, self.r_q, self.r_R, self.r_scale, self.r_zscale, self.ukf.w.Wm,
-            self.ukf.w.Wc, self.ukf.w.c, self.r_prm, self.r_cst, self._ws, y, nis, nis_avg, flag,
-        )  # fmt: skip
+        sm = Samples(ks.astype(np.int64), t, z, mask, np.ones(B, np.bool_), i_m, x_c)
+        bank_step(sm, self.bs, self.mr, self._sigma, self._ws, y, nis, nis_avg, flag)
         bad, diverged = flag == STEP_BROKEN, flag == STEP_DIVERGED
         evs: list[list[AlarmEvent]] = [[] for _ in range(B)]
         for j in np.flatnonzero(bad | diverged):
@@ -774,11 +743,9 @@ class MonitorBank:
         res = np.zeros((n, len(RES_KEYS)))
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
-        KERNELS[self.wh].output_rows(
-            self.x, np.diagonal(self.P, axis1=1, axis2=2).copy(), self.ol, ks, self.r_scale, self.r_zscale, self.r_prm, z, mask, y, nis,
-            t, self.t_init, self.nis_avg, self.alarm, self.pending, self.r_cst, est, res,
-            health, fire,
-        )  # fmt: skip
+        sm = Samples(np.asarray(ks, np.int64), t, z, mask, np.ones(n, np.bool_), t, t)
+        pd = np.diagonal(self.P, axis1=1, axis2=2).copy()
+        output_rows(self.bs, pd, self.mr, sm, y, nis, Rows(est, res, health, fire))
         for j, a in zip(*np.nonzero(fire), strict=True):
             state = "raised" if fire[j, a] == FIRE_RAISED else "cleared"
             evs[j].append(

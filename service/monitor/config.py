@@ -12,25 +12,26 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
+from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 
 if TYPE_CHECKING:  # the reduced model compiles (numba): imported where it is used
     from models import eha_reduced as er
 
-MONITOR_MODELS: tuple[str, ...] = (*LAW_NAMES, "WH")
-"""Process models of the monitor: the C-type laws (models.eha_reduced) and WH
-(models.eha_reduced_wh, docs/estimation.md)."""
+assert (*LAW_NAMES, "WH") == MONITOR_MODELS, "service.model_choice lists the monitor's models"
 
 __all__ = [
     "MONITOR_MODELS",
+    "DEFAULT_MODEL",
+    "BaselineModelError",
+    "check_baseline_model",
     "MeasurementNoise",
     "ProcessNoise",
     "AlarmConfig",
     "MonitorConfig",
-    "MODEL_DEFAULTS",
     "Baseline",
 ]
 
@@ -51,23 +52,18 @@ class MeasurementNoise(_Cfg):
 class ProcessNoise(_Cfg):
     """Random-walk intensities, 1-sigma growth per sqrt(second) (Q = q^2 dt)."""
 
-    x_s: float = Field(2e-5, gt=0, description="[m/sqrt(s)]")
-    v_s: float = Field(2e-2, gt=0, description="[m/s/sqrt(s)]")
-    x_j: float = Field(2e-5, gt=0, description="[m/sqrt(s)]")
-    v_j: float = Field(5e-3, gt=0, description="[m/s/sqrt(s)]")
+    x_s: float = Field(2e-5, gt=0, description="spool position [m/sqrt(s)]")
+    v_s: float = Field(2e-2, gt=0, description="spool velocity [m/s/sqrt(s)]")
+    x_j: float = Field(2e-5, gt=0, description="jack position [m/sqrt(s)]")
+    v_j: float = Field(5e-3, gt=0, description="jack velocity [m/s/sqrt(s)]")
     f_r: float = Field(2e3, gt=0, description="external load [N/sqrt(s)]")
-    p_sr: float | None = Field(
-        None,
+    p_sr: float = Field(
+        3e5,
         gt=0,
-        description="supply [Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS: 3e5 on "
-        "WH, whose adaptive step frees it on a supply change; 2e6 on the C-types)",
+        description="supply [Pa/sqrt(s)]; small, as the adaptive step (adapt_p_sr) frees it "
+        "on a supply change",
     )
-    c_lk: float | None = Field(
-        None,
-        gt=0,
-        description="leakage [m^3/s/Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS: "
-        "1.2e-13 on WH, 1e-13 on the C-types)",
-    )
+    c_lk: float = Field(1.2e-13, gt=0, description="leakage [m^3/s/Pa/sqrt(s)]")
     i_b: float = Field(2e-6, gt=0, description="servovalve null bias [A/sqrt(s)]")
     p_ch: float = Field(
         1e6,
@@ -75,12 +71,11 @@ class ProcessNoise(_Cfg):
         description="WH model only: chamber states p~1, p~2 [Pa/sqrt(s)]; with p_ch_common "
         "set, the differential mode (p~1 - p~2)/sqrt(2)",
     )
-    p_ch_common: float | None = Field(
-        None,
+    p_ch_common: float = Field(
+        1e5,
         gt=0,
         description="WH model only: common mode (p~1 + p~2)/sqrt(2) of the chamber states "
-        "[Pa/sqrt(s)] (None = the model's default, MODEL_DEFAULTS; equal to p_ch: the "
-        "chambers' walks uncorrelated)",
+        "[Pa/sqrt(s)] (equal to p_ch: the chambers' walks uncorrelated)",
     )
 
 
@@ -92,11 +87,8 @@ class AlarmConfig(_Cfg):
     supply_raise: float = Field(0.85, gt=0, description="raise when P_SR / rated <= this")
     supply_clear: float = Field(0.90, gt=0, description="clear when P_SR / rated >= this")
     hold_s: float = Field(0.05, ge=0, description="condition must persist this long [s]")
-    leak_max_sigma: float | None = Field(
-        None,
-        gt=0,
-        description="raise a leak alarm only if sigma(C_Lk) / baseline is below this (None = "
-        "the model's default, MODEL_DEFAULTS: 0.6 on WH, 1 on the C-types)",
+    leak_max_sigma: float = Field(
+        0.6, gt=0, description="raise a leak alarm only if sigma(C_Lk) / baseline is below this"
     )
     supply_max_sigma: float = Field(
         0.05, gt=0, description="raise a supply alarm only if sigma(P_SR) / rated is below this"
@@ -120,41 +112,11 @@ class AlarmConfig(_Cfg):
     )
 
 
-# settings whose default depends on the process model (tuned on WH, which follows the
-# chamber transients they act on; the C-types keep the filter of the bundled scenarios;
-# docs/decisions/0009-c-types-keep-the-bundled-filter.md)
-MODEL_DEFAULTS: dict[str, dict[str, float]] = {
-    "WH": {
-        "adapt_nis": 1.5,
-        "adapt_p_sr": 2.0,
-        "c_lk_gate_adapt": 20.0,
-        "c_lk_cusum_h": 10.0,
-        "c_lk_gate_p12": 0.05,
-        "c_lk_gated_sigma_max": 0.7,
-        "i_b_gate_x_u": 1.0,
-        "p_sr_max_ratio": 1.05,
-        "process.p_sr": 3e5,
-        "process.p_ch_common": 1e5,
-        # the ramp alarm's walk, with the alarm and the post-slew gate that keep it from
-        # false alarms (docs/decisions/0002-wh-c-lk-walk.md)
-        "process.c_lk": 1.2e-13,
-        "alarms.leak_max_sigma": 0.6,
-        "c_lk_gate_flow": 5.0,
-        "c_lk_gate_flow_s": 0.3,
-    }
-}
-_RESOLVED_FALLBACK: dict[str, float] = {  # the rest: 0 (off)
-    "p_sr_max_ratio": 1.0,
-    "process.p_sr": 2e6,
-    "process.c_lk": 1e-13,
-    "alarms.leak_max_sigma": 1.0,
-}
-
-
 class MonitorConfig(_Cfg):
-    """Monitor settings; every default works on the bundled scenarios without tuning."""
+    """Monitor settings: one concrete default each, for every process model (chosen on WH,
+    the default model; docs/estimation.md, "Settings", lists them all)."""
 
-    model: str = Field("C5", description=f"process model, one of {MONITOR_MODELS}")
+    model: str = Field(DEFAULT_MODEL, description=f"process model, one of {MONITOR_MODELS}")
     channels: Literal["full", "reduced"] = Field(
         "full", description="full: use every channel present; reduced: x_J only (+ i, x_cmd)"
     )
@@ -162,8 +124,12 @@ class MonitorConfig(_Cfg):
     process: ProcessNoise = Field(default_factory=ProcessNoise)
     alarms: AlarmConfig = Field(default_factory=AlarmConfig)
     alpha: float = Field(0.5, gt=0, le=1, description="sigma-point spread (Merwe alpha)")
-    beta: float = 2.0
-    kappa: float = 0.0
+    beta: float = Field(2.0, description="sigma-point weight of the prior (Merwe beta)")
+    kappa: float = Field(0.0, description="secondary sigma-point spread (Merwe kappa)")
+    init_sigma_x_s: float = Field(2e-6, gt=0, description="initial spool position 1-sigma [m]")
+    init_sigma_v_s: float = Field(1e-3, gt=0, description="initial spool velocity 1-sigma [m/s]")
+    init_sigma_x_j: float = Field(1e-4, gt=0, description="initial jack position 1-sigma [m]")
+    init_sigma_v_j: float = Field(5e-3, gt=0, description="initial jack velocity 1-sigma [m/s]")
     init_sigma_f_r: float = Field(5e3, gt=0, description="initial load 1-sigma [N]")
     init_sigma_p_sr: float = Field(2e6, gt=0, description="initial supply 1-sigma [Pa]")
     init_sigma_c_lk: float = Field(2e-13, gt=0, description="initial leakage 1-sigma")
@@ -179,22 +145,25 @@ class MonitorConfig(_Cfg):
     c_lk_gate_v: float = Field(
         0.01,
         gt=0,
-        description="C_Lk is learnt only while |v_J| is below this [m/s] and the spool within "
-        "its underlap (docs/estimation.md, observability gate)",
+        description="C_Lk is learnt only while |v_J| is below this [m/s] "
+        "(docs/estimation.md, observability gate)",
+    )
+    c_lk_gate_x_u: float = Field(
+        1.0,
+        ge=0,
+        description="... and with |x_S| within this many land underlaps x_u (0 = off)",
     )
     c_lk_gate_nis: float = Field(
         5.0,
         gt=0,
         description="... and while the NIS/dof average is below this (the model explains the data)",
     )
-    c_lk_gate_p12: float | None = Field(
-        None,
+    c_lk_gate_p12: float = Field(
+        0.05,
         ge=0,
         lt=1,
         description="... and while the measured |P1 - P2|, low-passed (c_lk_gate_p12_tau_s), "
-        "is above this share of rated P_SR "
-        "(0 = off; None = the model's default, MODEL_DEFAULTS; docs/estimation.md, "
-        "observability gate)",
+        "is above this share of rated P_SR (0 = off; docs/estimation.md, observability gate)",
     )
     c_lk_gate_p12_tau_s: float = Field(
         0.05,
@@ -202,24 +171,24 @@ class MonitorConfig(_Cfg):
         description="... that |P1 - P2| low-passed over the samples before this one, with this "
         "time constant [s] (0 = the sample's own value; docs/estimation.md, observability gate)",
     )
-    c_lk_gated_sigma_max: float | None = Field(
-        None,
+    c_lk_gated_sigma_max: float = Field(
+        0.7,
         ge=0,
         description="while the gate holds C_Lk its variance grows with the walk up to this "
-        "sigma, as a share of baseline C_Lk (0 = no cap; None = the model's default)",
+        "sigma, as a share of baseline C_Lk (0 = no cap)",
     )
-    c_lk_gate_flow: float | None = Field(
-        None,
+    c_lk_gate_flow: float = Field(
+        5.0,
         ge=0,
         description="... and while the jack's flow A |v_J| is below this many times the "
-        "baseline leak flow C_Lk |P12| (|P12| as the gate's low-pass; 0 = off; None = the "
-        "model's default; docs/estimation.md, a speed gate relative to the leak flow)",
+        "baseline leak flow C_Lk |P12| (|P12| as the gate's low-pass; 0 = off; "
+        "docs/estimation.md, a speed gate relative to the leak flow)",
     )
-    c_lk_gate_flow_s: float | None = Field(
-        None,
+    c_lk_gate_flow_s: float = Field(
+        0.3,
         ge=0,
         description="... only within this long [s] after the estimated |v_J| last exceeded "
-        "c_lk_gate_flow_v_fast (0 = always; None = the model's default, MODEL_DEFAULTS)",
+        "c_lk_gate_flow_v_fast (0 = always)",
     )
     c_lk_gate_flow_v_fast: float = Field(
         0.1,
@@ -227,26 +196,24 @@ class MonitorConfig(_Cfg):
         description="fast motion for c_lk_gate_flow_s [m/s]: a slew to a step, faster than "
         "the jack follows a commanded ramp (docs/decisions/0002-wh-c-lk-walk.md)",
     )
-    c_lk_gate_adapt: float | None = Field(
-        None,
+    c_lk_gate_adapt: float = Field(
+        20.0,
         ge=0,
         description="... and on a sample whose adaptive process-noise scale (NIS/dof / "
-        "adapt_nis) exceeds this (0 = off; None = the model's default, MODEL_DEFAULTS)",
+        "adapt_nis) exceeds this (0 = off)",
     )
-    i_b_gate_x_u: float | None = Field(
-        None,
+    i_b_gate_x_u: float = Field(
+        1.0,
         ge=0,
         description="the null bias i_b is held (Schmidt update) while |x_S| exceeds this many "
         "underlaps x_u: the spool model (a linear lag) does not follow a spool opened past it "
-        "(0 = off; None = the model's default, MODEL_DEFAULTS; docs/estimation.md, "
-        "observability gate)",
+        "(0 = off; docs/estimation.md, observability gate)",
     )
-    c_lk_cusum_h: float | None = Field(
-        None,
+    c_lk_cusum_h: float = Field(
+        10.0,
         ge=0,
         description="C_Lk change detector: threshold of the two-sided CUSUM of the "
-        "standardised C_Lk updates (0 = off; None = the model's default, MODEL_DEFAULTS; "
-        "docs/estimation.md, C_Lk change detector (WH))",
+        "standardised C_Lk updates (0 = off; docs/estimation.md, C_Lk change detector (WH))",
     )
     c_lk_cusum_nu: float = Field(0.5, ge=0, description="... its drift per sample")
     c_lk_cusum_kick: float = Field(
@@ -255,30 +222,29 @@ class MonitorConfig(_Cfg):
         description="... on a detection, C_Lk's 1-sigma grows by this share of the "
         "baseline C_Lk (in quadrature)",
     )
-    p_sr_max_ratio: float | None = Field(
-        None,
+    p_sr_max_ratio: float = Field(
+        1.05,
         ge=1,
         le=2,
-        description="upper clip of the P_SR estimate as a share of rated (None = the model's "
-        "default, MODEL_DEFAULTS, else 1: a clip at rated biases an uncertain estimate low)",
+        description="upper clip of the P_SR estimate as a share of rated (a clip at rated "
+        "biases an uncertain estimate low)",
     )
-    adapt_nis: float | None = Field(
-        None,
+    adapt_nis: float = Field(
+        1.5,
         ge=0,
         description="adaptive process noise: a sample whose NIS/dof exceeds this is redone with "
-        "the plant states' process noise scaled by NIS/dof / adapt_nis (0 = off; None = the "
-        "model's default, MODEL_DEFAULTS; docs/estimation.md, adaptive process noise)",
+        "the plant states' process noise scaled by NIS/dof / adapt_nis (0 = off; "
+        "docs/estimation.md, adaptive process noise)",
     )
     adapt_max: float = Field(
         100.0, ge=1, description="largest process-noise scale of the adaptive step"
     )
-    adapt_p_sr: float | None = Field(
-        None,
+    adapt_p_sr: float = Field(
+        2.0,
         ge=0,
         description="exponent k: the adaptive step scales P_SR's random walk by g^k (g = "
         "NIS/dof / adapt_nis), at most adapt_max, so that a supply change frees it at once "
-        "and small misfits leave it alone; 0 = held (the plant states only); None = the "
-        "model's default, MODEL_DEFAULTS",
+        "and small misfits leave it alone; 0 = held (the plant states only)",
     )
     adapt_reinit: float = Field(
         3e3,
@@ -287,23 +253,20 @@ class MonitorConfig(_Cfg):
         "re-initialises (no plant transient explains it: a dead or swapped sensor)",
     )
 
-    def resolved(self, name: str) -> float:
-        """``name`` (c_lk_gate_p12, c_lk_gate_flow, c_lk_gate_flow_s, c_lk_gated_sigma_max,
-        c_lk_gate_adapt, c_lk_cusum_h, i_b_gate_x_u, adapt_nis, adapt_p_sr, p_sr_max_ratio,
-        process.p_sr, process.c_lk, process.p_ch_common or alarms.leak_max_sigma) as set,
-        else the model's default (MODEL_DEFAULTS), else the C-types' value
-        (_RESOLVED_FALLBACK; process.p_ch_common: process.p_ch), else 0 (off)."""
-        obj, attr = self, name
-        if "." in name:
-            group, attr = name.split(".", 1)
-            obj = getattr(self, group)
-        v = getattr(obj, attr)
-        if v is not None:
-            return float(v)
-        fallback = _RESOLVED_FALLBACK.get(name, 0.0)
-        if name == "process.p_ch_common":
-            fallback = self.process.p_ch
-        return float(MODEL_DEFAULTS.get(self.model, {}).get(name, fallback))
+    threads: int = Field(
+        2,
+        ge=1,
+        le=2,
+        description="threads that step a block of samples: 2 splits its actuators between "
+        "the caller's thread and one more (the same numbers; blocks of 64 samples and more)",
+    )
+
+    @field_validator("model")
+    @classmethod
+    def _known_model(cls, v: str) -> str:
+        if v not in MONITOR_MODELS:
+            raise ValueError(f"unknown model {v!r}; expected one of {', '.join(MONITOR_MODELS)}")
+        return v
 
     reduced_param_q: float = Field(
         0.01,
@@ -321,7 +284,10 @@ class Baseline(_Cfg):
     nominal value and the effective 1/G_PQ takes the rest).
     """
 
-    law: str = "C5"
+    law: str = Field(
+        description="the process model this baseline is for (MONITOR_MODELS); a monitor on "
+        "another model refuses it (check_baseline_model)"
+    )
     g_pq: float = Field(gt=0)
     x_ss: float = Field(gt=0)
     c_lk: float = Field(ge=0)
@@ -380,7 +346,7 @@ class Baseline(_Cfg):
     source: str = "nominal"
 
     @classmethod
-    def nominal(cls, law: str = "C5", params: EHAParams | None = None) -> Baseline:
+    def nominal(cls, law: str = DEFAULT_MODEL, params: EHAParams | None = None) -> Baseline:
         """Uncalibrated values derived from the HF parameter set (physics.md section 3)."""
         from models import eha_reduced as er
 
@@ -393,7 +359,7 @@ class Baseline(_Cfg):
         return cls(**fields, c_lk=p.c_lk, v_c=p.v0, beta=p.beta_l, source="nominal")
 
     @classmethod
-    def default(cls, law: str = "C5") -> Baseline:
+    def default(cls, law: str = DEFAULT_MODEL) -> Baseline:
         """The baseline calibrated on the bundled healthy HF run (``servowatch calibrate``);
         nominal values for a law without a stored calibration (WH: its datasheet values)."""
         cal = _DEFAULT_CALIBRATION.get(law)
@@ -422,6 +388,27 @@ class Baseline(_Cfg):
     def load(cls, path: str | Path) -> Baseline:
         """Read a JSON file written by ``save``."""
         return cls.model_validate_json(Path(path).read_text())
+
+
+class BaselineModelError(ValueError):
+    """A baseline identified for one process model offered to a monitor on another."""
+
+    def __init__(self, baseline_model: str, monitor_model: str, what: str = "baseline"):
+        self.baseline_model, self.monitor_model = baseline_model, monitor_model
+        super().__init__(
+            f"{what} is for process model {baseline_model}, the monitor runs {monitor_model}: "
+            f"recalibrate it for {monitor_model} (servowatch calibrate --model "
+            f"{monitor_model}) or run the monitor on {baseline_model} (model = "
+            f'"{baseline_model}")'
+        )
+
+
+def check_baseline_model(baseline: Baseline, model: str, what: str = "baseline") -> None:
+    """Raise ``BaselineModelError`` unless ``baseline`` was identified for ``model``: a
+    baseline's parameters are effective values of its own model (``Baseline``), never
+    carried over to another."""
+    if baseline.law != model:
+        raise BaselineModelError(baseline.law, model, what)
 
 
 # Effective parameters identified by ``servowatch calibrate --scenario healthy_noise`` on the

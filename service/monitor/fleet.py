@@ -9,19 +9,27 @@ use (``index_of``, ``update_arrays``, ``step_arrays``/``rows_of``, ``counters_of
 ``c_lk_changes_of``); with
 every actuator on the default, the numbers are those of a plain ``MonitorBank``.
 ``rebase`` moves an actuator to another baseline (auto-commissioning).
+
+A stored baseline identified for another process model than the fleet's is never used: the
+actuator runs on the default, uncommissioned, the refusal logged as an error naming both
+models and counted in ``refused`` (recalibrate it: ``servowatch calibrate --model M
+--actuator A --store ...``).
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 
 from numpy.typing import NDArray
 
 from service.monitor.bank import MonitorBank
-from service.monitor.config import Baseline, MonitorConfig
+from service.monitor.config import Baseline, BaselineModelError, MonitorConfig, check_baseline_model
 from service.monitor.outputs import BankRows, StepBlock
 
 __all__ = ["MonitorFleet", "Resolver"]
+
+log = logging.getLogger(__name__)
 
 Resolver = Callable[[str], tuple[Baseline, int | None]]
 """actuator key -> (its baseline, its baseline version in the store or None)."""
@@ -42,6 +50,8 @@ class MonitorFleet:
         self.baseline = self.bank.baseline
         self._resolve = resolve
         self.versions: dict[str, int | None] = {}  # actuator key -> baseline version
+        # actuator key -> the process model of the stored baseline it refused
+        self.refused: dict[str, str] = {}
 
     @property
     def ids(self) -> dict[str, int]:
@@ -63,6 +73,13 @@ class MonitorFleet:
         if k is not None:
             return k
         base, version = (None, None) if self._resolve is None else self._resolve(key)
+        if version is not None and base is not None:
+            try:
+                check_baseline_model(base, self.config.model, f"stored baseline v{version}")
+            except BaselineModelError as e:
+                log.error("%s: %s; monitoring it on the default baseline, uncommissioned", key, e)
+                self.refused[key] = base.law
+                base, version = None, None
         self.versions[key] = version
         return self.bank.index_of(key, None if version is None else base)
 

@@ -14,9 +14,11 @@ vector ``C_*`` (built by name from ``CST_FIELDS``), counter columns ``CNT_*`` an
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from models import eha_reduced as er
 from models import eha_reduced_wh as erw
@@ -44,7 +46,7 @@ from service.monitor.outputs import (
     RES_NIS_DOF,
     RES_OL,
 )
-from service.ukf import ukf_one, ukf_one_wh
+from service.ukf import ukf_again, ukf_again_wh, ukf_one, ukf_one_wh
 
 # filter state columns (X, P, OL rows)
 S_X_S, S_V_S, S_X_J, S_V_J, S_F_R, S_P_SR, S_C_LK, S_I_B = (
@@ -165,6 +167,82 @@ CNT_BAD_CHANNEL, CNT_SKIPPED_NAN = range(len(PREP_COUNTERS))
 STEP_COUNTERS: tuple[str, ...] = ("skipped_time", "missing_channel", "accepted")
 CNT_SKIPPED_TIME, CNT_MISSING_CHANNEL, CNT_ACCEPTED = range(len(STEP_COUNTERS))
 
+
+# -- the kernels' arguments, grouped (the bank builds them; kernels read fields by name) ----
+class BankState(NamedTuple):
+    """The bank's per-actuator state, one row per actuator (``MonitorBank``)."""
+
+    X: NDArray  # scaled filter state (n_act, n)
+    PP: NDArray  # its covariance (n_act, n, n)
+    OL: NDArray  # SI state of the parallel (open-loop) model (n_act, n)
+    T_LAST: NDArray  # time of the last accepted sample [s]
+    CARRY: NDArray  # (n_act, N_CARRY): CARRY_* columns
+    NIS_AVG: NDArray  # NIS/dof average
+    T_INIT: NDArray  # time of the last (re-)initialisation [s]
+    ALARM: NDArray  # alarm states (n_act, N_ALARMS)
+    PENDING: NDArray  # (n_act, N_PENDING): PEND_* columns
+
+
+class ModelRows(NamedTuple):
+    """Per-actuator rows of the process model on its baseline (one factory per process
+    model builds them: ``service.monitor.model_rows``)."""
+
+    q: NDArray  # process noise intensities, filter units (n_act, n)
+    R: NDArray  # measurement noise covariance, filter units (n_act, m, m)
+    scale: NDArray  # state scales (n_act, n): x_filter = x_SI / scale
+    zscale: NDArray  # channel scales (n_act, m)
+    prm: NDArray  # the model's parameter vector (n_act, n_prm)
+    cst: NDArray  # the bank's constants (n_act, len(CST_FIELDS)): C_* columns
+
+
+class Sigma(NamedTuple):
+    """Unscented-transform weights (``service.ukf.merwe_weights``) and the spread c."""
+
+    Wm: NDArray
+    Wc: NDArray
+    c: float
+
+
+class Samples(NamedTuple):
+    """A block of samples (``prepare_inputs``): actuator rows, times [s], scaled channels with
+    their mask, candidates (a usable time and value), measured current [A] and command [m]
+    (NaN: absent)."""
+
+    ks: NDArray
+    t: NDArray
+    z: NDArray
+    mask: NDArray
+    cand: NDArray
+    i_m: NDArray
+    x_c: NDArray
+
+
+class Stepped(NamedTuple):
+    """Per sample of a block: innovations, NIS, NIS average, whether it has an output row,
+    the snapshot its row is made of (X, diagonal of P, OL, T_INIT, NIS_AVG) and, per
+    actuator, the STEP_COUNTERS."""
+
+    y: NDArray
+    nis: NDArray
+    nis_avg: NDArray
+    acc: NDArray
+    SX: NDArray
+    SPD: NDArray
+    SOL: NDArray
+    STI: NDArray
+    SNA: NDArray
+    cnt: NDArray
+
+
+class Rows(NamedTuple):
+    """Output rows: est, res, health (``service.monitor.outputs``) and fire (FIRE_*)."""
+
+    est: NDArray
+    res: NDArray
+    health: NDArray
+    fire: NDArray
+
+
 UKF_FAILED = 2  # status of service.ukf.ukf_one: no positive definite factor
 # codes of step_one / block_steps
 STEP_OK = 0  # stepped
@@ -175,377 +253,289 @@ STEP_INIT = 3  # first sample or gap: (re-)initialise from this sample, not step
 
 
 @njit(cache=True, inline="always")
-def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws, wh):
-    """One UKF step on the bank's process model: WH (n = 10) or a C-type law (n = 8)."""
-    if wh:  # the WH process model (models.eha_reduced_wh)
+def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, w, prm, y, ws, n, again):
+    """One UKF step on the bank's process model: WH (n = 10) or a C-type law (n = 8);
+    ``again``: the last step redone with process noise q (``service.ukf.ukf_again``)."""
+    Wm, Wc, c = w.Wm, w.Wc, w.c
+    if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
+        if again:
+            return ukf_again_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
         return ukf_one_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
+    if again:
+        return ukf_again(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
     return ukf_one(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
 
 
-def _make_step_one(wh: bool):
-    """``step_one`` for the WH process model (wh) or the C-type laws: ``wh`` is a
-    compile-time constant, so a bank compiles only its own model's kernels."""
-
-    # called, not inlined: one compile for both of its callers
-    def step_one(
-        j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm,
-        Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-    ):  # fmt: skip
-        """Sample j of actuator k (in place on the bank arrays): inputs (measured current, else
-        the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average. Returns
-        STEP_OK, STEP_BROKEN (non-finite / not positive definite) or STEP_DIVERGED (NIS average).
-        q, R, scale, zscale, prm, cst hold one row per actuator (its baseline)."""
-        q_k, R_k, sc_k, zs_k, prm_k, cst_k = q[k], R[k], scale[k], zscale[k], prm[k], cst[k]
-        n = X.shape[1]
-        k_p, i_max = prm_k[er.K_K_P], prm_k[er.K_I_MAX]
-        dt = t[j] - T_LAST[k]
-        n_sub = max(1, int(math.ceil(dt / cst_k[C_H_MAX] - 1e-9)))
-        if wh:  # off mid stroke the smaller chamber is stiffer: shorter substeps
-            x_jm = max(abs(X[k, S_X_J] * sc_k[S_X_J]), abs(OL[k, S_X_J]))
-            n_sub = max(n_sub, n_substeps_wh_nb(x_jm, dt, prm_k))
-        if not math.isnan(i_m[j]):
-            i_f = i_m[j]
-        elif not math.isnan(x_c[j]):
-            i_f = min(max(k_p * (x_c[j] - X[k, S_X_J] * sc_k[S_X_J]), -i_max), i_max)
-        else:
-            i_f = CARRY[k, CARRY_I]
-        i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, S_X_J]), -i_max), i_max)
-        CARRY[k, CARRY_I] = i_f
-        # observability gate: C_Lk only from the valve's linear region at low speed
-        gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
-        if cst_k[C_GATE_FLOW_S] > 0.0 and abs(X[k, S_V_J]) > cst_k[C_GATE_FLOW_V_FAST]:
-            CARRY[k, CARRY_T_FAST] = t[j]  # only c_lk_gate_flow_s reads it
-        gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
-        # ... and with a pressure difference that carries a leak flow (C_Lk P12) above the flow
-        # error of the valve's null (docs/estimation.md, observability gate), judged on a low-pass
-        # of the measured P1 - P2 over the samples before this one: a gate on the sample's own
-        # noisy value opens on the samples whose noise raises |P12|, and near the threshold that
-        # selection biases C_Lk
-        if cst_k[C_GATE_P12] > 0.0:
-            both_p = mask[j, Z_P1] and mask[j, Z_P2]
-            p12_m = z[j, Z_P1] * zs_k[Z_P1] - z[j, Z_P2] * zs_k[Z_P2] if both_p else math.nan
-            tau = cst_k[C_GATE_P12_TAU]
-            p12_g = CARRY[k, CARRY_P12] if tau > 0.0 else p12_m
-            if not both_p:
-                gate = True  # no measured P12 in this sample: it carries no leak information
-            elif not math.isnan(p12_g):
-                gate = gate or abs(p12_g) < cst_k[C_GATE_P12]
-                # ... and, if set (off by default), with the jack's flow A |v_J| under a few
-                # times the baseline leak flow C_Lk |P12| (within gate_flow_s of the last fast
-                # motion, if that is set): a relative error of the modelled jack flow reads as
-                # a leak of that many times the error (docs/estimation.md,
-                # "A speed gate relative to the leak flow")
-                if cst_k[C_GATE_V_FLOW] > 0.0:
-                    recent = t[j] - CARRY[k, CARRY_T_FAST] < cst_k[C_GATE_FLOW_S]
-                    if cst_k[C_GATE_FLOW_S] <= 0.0 or recent:
-                        gate = gate or abs(X[k, S_V_J]) > cst_k[C_GATE_V_FLOW] * abs(p12_g)
-            if both_p and tau > 0.0:
-                CARRY[k, CARRY_P12] += (1.0 - math.exp(-dt / tau)) * (p12_m - CARRY[k, CARRY_P12])
-        c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
-        # the null bias i_b is learnt near null only: the spool model (a linear lag, no flow
-        # forces, no stroke limit) does not follow a spool opened past its underlap
-        hold_ib = abs(X[k, S_X_S]) > cst_k[C_GATE_I_B_XS]
-        b_prior, pb_prior = X[k, S_I_B], PP[k, S_I_B, S_I_B]
-        dof = 0.0
-        for r in range(mask.shape[1]):
-            if mask[j, r]:
-                dof += 1.0
-        # adaptive process noise (docs/estimation.md, "Adaptive process noise"): keep the prior,
-        # and if this sample's NIS/dof passes adapt_nis, redo the step with the plant states'
-        # process noise (not the parameters') scaled by NIS/dof / adapt_nis
-        thr = cst_k[C_ADAPT_NIS]
-        x_sv, q_sv, p_sv = tmp[n : 2 * n], tmp[2 * n : 3 * n], tmp[3 * n :]
-        if thr > 0.0:
-            for r in range(n):
-                x_sv[r] = X[k, r]
-                for s_ in range(n):
-                    p_sv[r * n + s_] = PP[k, r, s_]
-        nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, Wm, Wc,
-                         c, prm_k, y[j], ws, wh)  # fmt: skip
-        capped = False
-        g = 1.0
-        if thr > 0.0 and dof > 0.0 and nis_j > thr * dof:
-            # a sample no plant transient explains (a dead or swapped sensor): diverged
-            capped = nis_j > cst_k[C_ADAPT_REINIT] * dof
-            g = min(nis_j / (thr * dof), cst_k[C_ADAPT_MAX])
-        if cst_k[C_GATE_ADAPT] > 0.0 and g > cst_k[C_GATE_ADAPT]:
-            gate = True  # a transient the model does not explain: no leak information
-        if g > 1.0:
-            g_p = min(
-                g ** cst_k[C_ADAPT_P_SR], cst_k[C_ADAPT_MAX]
-            )  # P_SR's scale (exponent 0: held)
-            for r in range(n):
-                X[k, r] = x_sv[r]
-                for s_ in range(n):
-                    PP[k, r, s_] = p_sv[r * n + s_]
-                if r == S_P_SR:
-                    q_sv[r] = q_k[r] * g_p
-                else:
-                    q_sv[r] = q_k[r] * (1.0 if S_P_SR <= r <= S_I_B else g)
-            nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_sv, R_k, sc_k, zs_k,
-                             Wm, Wc, c, prm_k, y[j], ws, wh)  # fmt: skip
-        if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
-            X[k, S_C_LK] = c_prior
-            v_held = p_prior + q_k[S_C_LK] * dt
-            if cst_k[C_GATE_VAR_MAX] > 0.0:
-                v_held = max(p_prior, min(v_held, cst_k[C_GATE_VAR_MAX]))
-            PP[k, S_C_LK, S_C_LK] = v_held
-        elif cst_k[C_CUSUM_H] > 0.0:
-            # C_Lk change detector (docs/estimation.md, "C_Lk change detector (WH)"): the update
-            # standardised by its model variance (prior - posterior) is N(0, 1) and white while
-            # C_Lk holds still; a two-sided CUSUM of it past cusum_h reads a change, and the
-            # variance added lets the filter follow it at once
-            v_upd = p_prior + q_k[S_C_LK] * dt - PP[k, S_C_LK, S_C_LK]
-            if v_upd > 0.0:
-                u = (X[k, S_C_LK] - c_prior) / math.sqrt(v_upd)
-                gp = max(0.0, CARRY[k, CARRY_GP] + u - cst_k[C_CUSUM_NU])
-                gm = max(0.0, CARRY[k, CARRY_GM] - u - cst_k[C_CUSUM_NU])
-                if gp > cst_k[C_CUSUM_H] or gm > cst_k[C_CUSUM_H]:
-                    PP[k, S_C_LK, S_C_LK] += cst_k[C_CUSUM_KICK]
-                    CARRY[k, CARRY_N] += 1.0
-                    gp = gm = 0.0
-                CARRY[k, CARRY_GP] = gp
-                CARRY[k, CARRY_GM] = gm
-        if hold_ib:  # the same for i_b
-            X[k, S_I_B] = b_prior
-            PP[k, S_I_B, S_I_B] = pb_prior + q_k[S_I_B] * dt
-        nis[j] = nis_j
-        # the parallel (open-loop) model, driven by the command, with the estimated load
-        OL[k, S_F_R] = X[k, S_F_R] * sc_k[S_F_R]
-        h = dt / n_sub
-        spool_coef_nb(h, prm_k, coef)
-        if wh:
-            step_core_wh_nb(OL[k], i_ol, h, n_sub, prm_k, coef, tmp)
-        else:
-            step_core_nb(OL[k], i_ol, h, n_sub, prm_k, coef, tmp)
-        for r in range(n):
-            OL[k, r] = tmp[r]
-        # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
-        X[k, S_C_LK] = min(max(X[k, S_C_LK], 0.0), cst_k[C_C_LK_MAX])
-        X[k, S_P_SR] = min(max(X[k, S_P_SR], cst_k[C_P_VAP]), cst_k[C_P_SR_MAX])
-        a = 1.0 - math.exp(-dt / cst_k[C_NIS_TAU])
-        avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
-        nis_avg[j] = avg
-        ok = st != UKF_FAILED and math.isfinite(avg)
-        for r in range(n):
-            if not math.isfinite(X[k, r]):
-                ok = False
-            for s_ in range(n):
-                if not math.isfinite(PP[k, r, s_]):
-                    ok = False
-        T_LAST[k] = t[j]
-        if ok:
-            NIS_AVG[k] = avg
-            return STEP_DIVERGED if avg > cst_k[C_NIS_REINIT] or capped else STEP_OK
-        NIS_AVG[k] = 0.0
-        return STEP_BROKEN
-
-    # one qualified name per variant: its own cache index and symbol (variants of one name
-    # compiled in different processes would collide when loaded from the cache)
-    step_one.__qualname__ += "_wh" if wh else "_c"
-    return njit(cache=True)(step_one)
-
-
-def _make_row_one(wh: bool):
-    """``row_one`` for the WH process model (wh) or the C-type laws: ``wh`` is a
-    compile-time constant, so a bank compiles only its own model's kernels."""
-
-    # called, not inlined: one compile for both of its callers
-    def row_one(
-        j, kk, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
-        PENDING, cst, est, res, health, fire, xs, zo,
-    ):  # fmt: skip
-        """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
-        innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak
-        and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence,
-        the sigma gate and the leak alarm's supply-transient mask (fire: FIRE_RAISED or
-        FIRE_CLEARED this sample, else 0). The filter state is row kk of X, PD (the diagonal of
-        P), OL, T_INIT and NIS_AVG: the bank's row k, or the snapshot of sample j taken by
-        ``block_steps``; the alarm state (ALARM, PENDING) is the bank's row k. scale, zscale,
-        prm, cst hold one row per actuator (its baseline): row k."""
-        sc_k, zs_k, prm_k, cst_k = scale[k], zscale[k], prm[k], cst[k]
-        n = X.shape[1]
-        m = z.shape[1]
-        c_lk0, p_rated = cst_k[C_C_LK0], cst_k[C_P_RATED]
-        for r in range(N_STATES):
-            xs[r] = X[kk, r] * sc_k[r]
-            est[j, EST_STATE + 2 * r] = xs[r]
-            est[j, EST_STATE + 2 * r + 1] = math.sqrt(max(PD[kk, r], 0.0)) * sc_k[r]
-        if wh:  # WH chamber states: not output columns, P1 and P2 come through the measurement
-            for r in range(N_STATES, n):
-                xs[r] = X[kk, r] * sc_k[r]
-            measure_wh_nb(xs, prm_k, zo)
-        else:
-            measure_nb(xs, prm_k, zo)
-        est[j, EST_P12] = zo[Z_P1] - zo[Z_P2]
-        est[j, EST_C_LK_INCREASE] = xs[S_C_LK] - c_lk0
-        if wh:
-            measure_wh_nb(OL[kk], prm_k, zo)
-        else:
-            measure_nb(OL[kk], prm_k, zo)
-        dof = 0.0
-        for r in range(m):
-            res[j, RES_INNOV + r] = y[j, r] * zs_k[r]
-            if mask[j, r]:
-                dof += 1.0
-                res[j, RES_OL + r] = z[j, r] * zs_k[r] - zo[r]
-            else:
-                res[j, RES_OL + r] = 0.0
-        res[j, RES_NIS] = nis[j]
-        res[j, RES_NIS_DOF] = dof
-        lr = xs[S_C_LK] / c_lk0 if c_lk0 > 0 else 0.0
-        sr = xs[S_P_SR] / p_rated
-        sd_l = est[j, EST_C_LK_SIGMA] / c_lk0 if c_lk0 > 0 else 0.0
-        sd_s = est[j, EST_P_SR_SIGMA] / p_rated
-        armed = t[j] - T_INIT[kk] >= cst_k[C_ARM]
-        # a supply transient confounds the leak estimate (C_Lk and P_SR both explain the chamber
-        # pressures until P_SR has followed): the leak alarm keeps its state while the supply
-        # ratio leaves its lagged value by more than mask_supply, and mask_s after
-        # (docs/estimation.md, "Leak alarm during a supply transient")
-        masked = False
-        if cst_k[C_MASK_S] > 0.0:
-            sr_lag, t_lag = PENDING[k, PEND_SR_LAG], PENDING[k, PEND_T_LAG]
-            if math.isnan(sr_lag) or not t[j] > t_lag:
-                sr_lag = sr
-            elif abs(sr - sr_lag) > cst_k[C_MASK_SUPPLY]:
-                PENDING[k, PEND_MASK_END] = t[j] + cst_k[C_MASK_S]
-            if not math.isnan(t_lag) and t[j] > t_lag:
-                sr_lag += (1.0 - math.exp(-(t[j] - t_lag) / cst_k[C_MASK_TAU])) * (sr - sr_lag)
-            PENDING[k, PEND_SR_LAG] = sr_lag
-            PENDING[k, PEND_T_LAG] = t[j]
-            end = PENDING[k, PEND_MASK_END]
-            masked = (not math.isnan(end)) and t[j] < end
-        for a in range(N_ALARMS):
-            on = ALARM[k, a]
-            if a == ALARM_LEAK:
-                want = (
-                    lr <= cst_k[C_LEAK_CLEAR]
-                    if on
-                    else (lr >= cst_k[C_LEAK_RAISE] and sd_l < cst_k[C_LEAK_SIG])
-                )
-            else:
-                want = (
-                    sr >= cst_k[C_SUP_CLEAR]
-                    if on
-                    else (sr <= cst_k[C_SUP_RAISE] and sd_s < cst_k[C_SUP_SIG])
-                )
-            fire[j, a] = 0
-            if a == ALARM_LEAK and masked:
-                PENDING[k, a] = math.nan  # frozen: the persistence starts again after the mask
-            elif want and armed:
-                if math.isnan(PENDING[k, a]):
-                    PENDING[k, a] = t[j]
-                if t[j] - PENDING[k, a] >= cst_k[C_HOLD] - 1e-12:
-                    ALARM[k, a] = not on
-                    PENDING[k, a] = math.nan
-                    fire[j, a] = FIRE_CLEARED if on else FIRE_RAISED
-            else:
-                PENDING[k, a] = math.nan
-        health[j, HEALTH_LEAK_RATIO] = lr
-        health[j, HEALTH_SUPPLY_RATIO] = sr
-        for a in range(N_ALARMS):
-            health[j, HEALTH_ALARM + a] = 1.0 if ALARM[k, a] else 0.0
-        health[j, HEALTH_NIS_AVG] = NIS_AVG[kk]
-
-    # one qualified name per variant: its own cache index and symbol (variants of one name
-    # compiled in different processes would collide when loaded from the cache)
-    row_one.__qualname__ += "_wh" if wh else "_c"
-    return njit(cache=True)(row_one)
-
-
-_step_one_c = _make_step_one(False)
-_step_one_wh = _make_step_one(True)
-_row_one_c = _make_row_one(False)
-_row_one_wh = _make_row_one(True)
-
-
 @njit(cache=True, inline="always")
-def _step_one(
-    wh, j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-):  # fmt: skip
-    """``step_one`` of the WH or the C-type kernels (``wh``: a constant of the caller)."""
-    if wh:
-        return _step_one_wh(
-            j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-        )  # fmt: skip
-    return _step_one_c(
-        j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-    )  # fmt: skip
-
-
-@njit(cache=True, inline="always")
-def _row_one(
-    wh, j, kk, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM, PENDING, cst, est, res, health, fire, xs, zo,
-):  # fmt: skip
-    """``row_one`` of the WH or the C-type kernels (``wh``: a constant of the caller)."""
-    if wh:
-        _row_one_wh(
-            j, kk, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM, PENDING, cst, est, res, health, fire, xs, zo,
-        )  # fmt: skip
+def step_one(j, k, sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp):
+    """Sample j of actuator k (in place on the bank state ``bs``): inputs (measured current,
+    else the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average. Returns
+    STEP_OK, STEP_BROKEN (non-finite / not positive definite) or STEP_DIVERGED (NIS average).
+    sm: the ``Samples``; mr: the ``ModelRows``, row k; w: the ``Sigma`` weights."""
+    t, z, mask, i_m, x_c = sm.t, sm.z, sm.mask, sm.i_m, sm.x_c
+    X, PP, OL, T_LAST, CARRY, NIS_AVG = bs.X, bs.PP, bs.OL, bs.T_LAST, bs.CARRY, bs.NIS_AVG
+    q_k, R_k, sc_k, zs_k = mr.q[k], mr.R[k], mr.scale[k], mr.zscale[k]
+    prm_k, cst_k = mr.prm[k], mr.cst[k]
+    n = X.shape[1]
+    k_p, i_max = prm_k[er.K_K_P], prm_k[er.K_I_MAX]
+    dt = t[j] - T_LAST[k]
+    n_sub = max(1, int(math.ceil(dt / cst_k[C_H_MAX] - 1e-9)))
+    if n == N_STATES_WH:  # off mid stroke the smaller chamber is stiffer: shorter substeps
+        x_jm = max(abs(X[k, S_X_J] * sc_k[S_X_J]), abs(OL[k, S_X_J]))
+        n_sub = max(n_sub, n_substeps_wh_nb(x_jm, dt, prm_k))
+    if not math.isnan(i_m[j]):
+        i_f = i_m[j]
+    elif not math.isnan(x_c[j]):
+        i_f = min(max(k_p * (x_c[j] - X[k, S_X_J] * sc_k[S_X_J]), -i_max), i_max)
     else:
-        _row_one_c(
-            j, kk, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM, PENDING, cst, est, res, health, fire, xs, zo,
-        )  # fmt: skip
+        i_f = CARRY[k, CARRY_I]
+    i_ol = i_f if math.isnan(x_c[j]) else min(max(k_p * (x_c[j] - OL[k, S_X_J]), -i_max), i_max)
+    CARRY[k, CARRY_I] = i_f
+    # observability gate: C_Lk only from the valve's linear region at low speed
+    gate = abs(X[k, S_V_J]) > cst_k[C_GATE_V] or abs(X[k, S_X_S]) > cst_k[C_GATE_XS]
+    if cst_k[C_GATE_FLOW_S] > 0.0 and abs(X[k, S_V_J]) > cst_k[C_GATE_FLOW_V_FAST]:
+        CARRY[k, CARRY_T_FAST] = t[j]  # only c_lk_gate_flow_s reads it
+    gate = gate or NIS_AVG[k] > cst_k[C_GATE_NIS]
+    # ... and with a pressure difference that carries a leak flow (C_Lk P12) above the flow
+    # error of the valve's null (docs/estimation.md, observability gate), judged on a low-pass
+    # of the measured P1 - P2 over the samples before this one: a gate on the sample's own
+    # noisy value opens on the samples whose noise raises |P12|, and near the threshold that
+    # selection biases C_Lk
+    if cst_k[C_GATE_P12] > 0.0:
+        both_p = mask[j, Z_P1] and mask[j, Z_P2]
+        p12_m = z[j, Z_P1] * zs_k[Z_P1] - z[j, Z_P2] * zs_k[Z_P2] if both_p else math.nan
+        tau = cst_k[C_GATE_P12_TAU]
+        p12_g = CARRY[k, CARRY_P12] if tau > 0.0 else p12_m
+        if not both_p:
+            gate = True  # no measured P12 in this sample: it carries no leak information
+        elif not math.isnan(p12_g):
+            gate = gate or abs(p12_g) < cst_k[C_GATE_P12]
+            # ... and, if set (off by default), with the jack's flow A |v_J| under a few
+            # times the baseline leak flow C_Lk |P12| (within gate_flow_s of the last fast
+            # motion, if that is set): a relative error of the modelled jack flow reads as
+            # a leak of that many times the error (docs/estimation.md,
+            # "A speed gate relative to the leak flow")
+            if cst_k[C_GATE_V_FLOW] > 0.0:
+                recent = t[j] - CARRY[k, CARRY_T_FAST] < cst_k[C_GATE_FLOW_S]
+                if cst_k[C_GATE_FLOW_S] <= 0.0 or recent:
+                    gate = gate or abs(X[k, S_V_J]) > cst_k[C_GATE_V_FLOW] * abs(p12_g)
+        if both_p and tau > 0.0:
+            CARRY[k, CARRY_P12] += (1.0 - math.exp(-dt / tau)) * (p12_m - CARRY[k, CARRY_P12])
+    c_prior, p_prior = X[k, S_C_LK], PP[k, S_C_LK, S_C_LK]
+    # the null bias i_b is learnt near null only: the spool model (a linear lag, no flow
+    # forces, no stroke limit) does not follow a spool opened past its underlap
+    hold_ib = abs(X[k, S_X_S]) > cst_k[C_GATE_I_B_XS]
+    b_prior, pb_prior = X[k, S_I_B], PP[k, S_I_B, S_I_B]
+    dof = 0.0
+    for r in range(mask.shape[1]):
+        if mask[j, r]:
+            dof += 1.0
+    # adaptive process noise (docs/estimation.md, "Adaptive process noise"): if this
+    # sample's NIS/dof passes adapt_nis, redo the step from its prediction (kept in ws) with
+    # the plant states' process noise (not the parameters') scaled by NIS/dof / adapt_nis
+    thr = cst_k[C_ADAPT_NIS]
+    q_sv = tmp[n : 2 * n]
+    nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_k, R_k, sc_k, zs_k, w,
+                     prm_k, y[j], ws, n, False)  # fmt: skip
+    capped = False
+    g = 1.0
+    if thr > 0.0 and dof > 0.0 and nis_j > thr * dof:
+        # a sample no plant transient explains (a dead or swapped sensor): diverged
+        capped = nis_j > cst_k[C_ADAPT_REINIT] * dof
+        g = min(nis_j / (thr * dof), cst_k[C_ADAPT_MAX])
+    if cst_k[C_GATE_ADAPT] > 0.0 and g > cst_k[C_GATE_ADAPT]:
+        gate = True  # a transient the model does not explain: no leak information
+    if g > 1.0:
+        g_p = min(g ** cst_k[C_ADAPT_P_SR], cst_k[C_ADAPT_MAX])  # P_SR's scale (exponent 0: held)
+        for r in range(n):
+            if r == S_P_SR:
+                q_sv[r] = q_k[r] * g_p
+            else:
+                q_sv[r] = q_k[r] * (1.0 if S_P_SR <= r <= S_I_B else g)
+        nis_j, st = _ukf(X[k], PP[k], z[j], mask[j], i_f, dt, n_sub, q_sv, R_k, sc_k, zs_k,
+                         w, prm_k, y[j], ws, n, True)  # fmt: skip
+    if gate:  # Schmidt (consider) update of C_Lk: prior mean and variance, cross terms kept
+        X[k, S_C_LK] = c_prior
+        v_held = p_prior + q_k[S_C_LK] * dt
+        if cst_k[C_GATE_VAR_MAX] > 0.0:
+            v_held = max(p_prior, min(v_held, cst_k[C_GATE_VAR_MAX]))
+        PP[k, S_C_LK, S_C_LK] = v_held
+    elif cst_k[C_CUSUM_H] > 0.0:
+        # C_Lk change detector (docs/estimation.md, "C_Lk change detector (WH)"): the update
+        # standardised by its model variance (prior - posterior) is N(0, 1) and white while
+        # C_Lk holds still; a two-sided CUSUM of it past cusum_h reads a change, and the
+        # variance added lets the filter follow it at once
+        v_upd = p_prior + q_k[S_C_LK] * dt - PP[k, S_C_LK, S_C_LK]
+        if v_upd > 0.0:
+            u = (X[k, S_C_LK] - c_prior) / math.sqrt(v_upd)
+            gp = max(0.0, CARRY[k, CARRY_GP] + u - cst_k[C_CUSUM_NU])
+            gm = max(0.0, CARRY[k, CARRY_GM] - u - cst_k[C_CUSUM_NU])
+            if gp > cst_k[C_CUSUM_H] or gm > cst_k[C_CUSUM_H]:
+                PP[k, S_C_LK, S_C_LK] += cst_k[C_CUSUM_KICK]
+                CARRY[k, CARRY_N] += 1.0
+                gp = gm = 0.0
+            CARRY[k, CARRY_GP] = gp
+            CARRY[k, CARRY_GM] = gm
+    if hold_ib:  # the same for i_b
+        X[k, S_I_B] = b_prior
+        PP[k, S_I_B, S_I_B] = pb_prior + q_k[S_I_B] * dt
+    nis[j] = nis_j
+    # the parallel (open-loop) model, driven by the command, with the estimated load
+    OL[k, S_F_R] = X[k, S_F_R] * sc_k[S_F_R]
+    h = dt / n_sub
+    spool_coef_nb(h, prm_k, coef)
+    if n == N_STATES_WH:
+        step_core_wh_nb(OL[k], i_ol, h, n_sub, prm_k, coef, tmp)
+    else:
+        step_core_nb(OL[k], i_ol, h, n_sub, prm_k, coef, tmp)
+    for r in range(n):
+        OL[k, r] = tmp[r]
+    # constraints: C_Lk >= 0, P_vap <= P_SR <= rated
+    X[k, S_C_LK] = min(max(X[k, S_C_LK], 0.0), cst_k[C_C_LK_MAX])
+    X[k, S_P_SR] = min(max(X[k, S_P_SR], cst_k[C_P_VAP]), cst_k[C_P_SR_MAX])
+    a = 1.0 - math.exp(-dt / cst_k[C_NIS_TAU])
+    avg = NIS_AVG[k] + a * (nis_j / max(dof, 1.0) - NIS_AVG[k])
+    nis_avg[j] = avg
+    ok = st != UKF_FAILED and math.isfinite(avg)
+    for r in range(n):
+        if not math.isfinite(X[k, r]):
+            ok = False
+        for s_ in range(n):
+            if not math.isfinite(PP[k, r, s_]):
+                ok = False
+    T_LAST[k] = t[j]
+    if ok:
+        NIS_AVG[k] = avg
+        return STEP_DIVERGED if avg > cst_k[C_NIS_REINIT] or capped else STEP_OK
+    NIS_AVG[k] = 0.0
+    return STEP_BROKEN
 
 
-def _make_bank_step(wh: bool):
-    """``bank_step`` for the WH process model (wh) or the C-type laws: ``wh`` is a
-    compile-time constant, so a bank compiles only its own model's kernels."""
+@njit(cache=True, inline="always")
+def row_one(j, kk, k, X, PD, OL, T_INIT, NIS_AVG, mr, sm, y, nis, ALARM, PENDING, ro, xs, zo):
+    """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
+    innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak
+    and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence,
+    the sigma gate and the leak alarm's supply-transient mask (fire: FIRE_RAISED or
+    FIRE_CLEARED this sample, else 0). The filter state is row kk of X, PD (the diagonal of
+    P), OL, T_INIT and NIS_AVG: the bank's row k, or the snapshot of sample j taken by
+    ``block_steps``; the alarm state (ALARM, PENDING) is the bank's row k. scale, zscale,
+    prm, cst (``ModelRows`` mr) hold one row per actuator (its baseline): row k; sm: the
+    ``Samples``; ro: the ``Rows`` written."""
+    sc_k, zs_k, prm_k, cst_k = mr.scale[k], mr.zscale[k], mr.prm[k], mr.cst[k]
+    z, mask, t = sm.z, sm.mask, sm.t
+    est, res, health, fire = ro.est, ro.res, ro.health, ro.fire
+    n = X.shape[1]
+    m = z.shape[1]
+    c_lk0, p_rated = cst_k[C_C_LK0], cst_k[C_P_RATED]
+    wh = n == N_STATES_WH
+    for r in range(N_STATES):
+        xs[r] = X[kk, r] * sc_k[r]
+        est[j, EST_STATE + 2 * r] = xs[r]
+        est[j, EST_STATE + 2 * r + 1] = math.sqrt(max(PD[kk, r], 0.0)) * sc_k[r]
+    if wh:  # WH chamber states: not output columns, P1 and P2 come through the measurement
+        for r in range(N_STATES, n):
+            xs[r] = X[kk, r] * sc_k[r]
+        measure_wh_nb(xs, prm_k, zo)
+    else:
+        measure_nb(xs, prm_k, zo)
+    est[j, EST_P12] = zo[Z_P1] - zo[Z_P2]
+    est[j, EST_C_LK_INCREASE] = xs[S_C_LK] - c_lk0
+    if wh:
+        measure_wh_nb(OL[kk], prm_k, zo)
+    else:
+        measure_nb(OL[kk], prm_k, zo)
+    dof = 0.0
+    for r in range(m):
+        res[j, RES_INNOV + r] = y[j, r] * zs_k[r]
+        if mask[j, r]:
+            dof += 1.0
+            res[j, RES_OL + r] = z[j, r] * zs_k[r] - zo[r]
+        else:
+            res[j, RES_OL + r] = 0.0
+    res[j, RES_NIS] = nis[j]
+    res[j, RES_NIS_DOF] = dof
+    lr = xs[S_C_LK] / c_lk0 if c_lk0 > 0 else 0.0
+    sr = xs[S_P_SR] / p_rated
+    sd_l = est[j, EST_C_LK_SIGMA] / c_lk0 if c_lk0 > 0 else 0.0
+    sd_s = est[j, EST_P_SR_SIGMA] / p_rated
+    armed = t[j] - T_INIT[kk] >= cst_k[C_ARM]
+    # a supply transient confounds the leak estimate (C_Lk and P_SR both explain the chamber
+    # pressures until P_SR has followed): the leak alarm keeps its state while the supply
+    # ratio leaves its lagged value by more than mask_supply, and mask_s after
+    # (docs/estimation.md, "Leak alarm during a supply transient")
+    masked = False
+    if cst_k[C_MASK_S] > 0.0:
+        sr_lag, t_lag = PENDING[k, PEND_SR_LAG], PENDING[k, PEND_T_LAG]
+        if math.isnan(sr_lag) or not t[j] > t_lag:
+            sr_lag = sr
+        elif abs(sr - sr_lag) > cst_k[C_MASK_SUPPLY]:
+            PENDING[k, PEND_MASK_END] = t[j] + cst_k[C_MASK_S]
+        if not math.isnan(t_lag) and t[j] > t_lag:
+            sr_lag += (1.0 - math.exp(-(t[j] - t_lag) / cst_k[C_MASK_TAU])) * (sr - sr_lag)
+        PENDING[k, PEND_SR_LAG] = sr_lag
+        PENDING[k, PEND_T_LAG] = t[j]
+        end = PENDING[k, PEND_MASK_END]
+        masked = (not math.isnan(end)) and t[j] < end
+    for a in range(N_ALARMS):
+        on = ALARM[k, a]
+        if a == ALARM_LEAK:
+            want = (
+                lr <= cst_k[C_LEAK_CLEAR]
+                if on
+                else (lr >= cst_k[C_LEAK_RAISE] and sd_l < cst_k[C_LEAK_SIG])
+            )
+        else:
+            want = (
+                sr >= cst_k[C_SUP_CLEAR]
+                if on
+                else (sr <= cst_k[C_SUP_RAISE] and sd_s < cst_k[C_SUP_SIG])
+            )
+        fire[j, a] = 0
+        if a == ALARM_LEAK and masked:
+            PENDING[k, a] = math.nan  # frozen: the persistence starts again after the mask
+        elif want and armed:
+            if math.isnan(PENDING[k, a]):
+                PENDING[k, a] = t[j]
+            if t[j] - PENDING[k, a] >= cst_k[C_HOLD] - 1e-12:
+                ALARM[k, a] = not on
+                PENDING[k, a] = math.nan
+                fire[j, a] = FIRE_CLEARED if on else FIRE_RAISED
+        else:
+            PENDING[k, a] = math.nan
+    health[j, HEALTH_LEAK_RATIO] = lr
+    health[j, HEALTH_SUPPLY_RATIO] = sr
+    for a in range(N_ALARMS):
+        health[j, HEALTH_ALARM + a] = 1.0 if ALARM[k, a] else 0.0
+    health[j, HEALTH_NIS_AVG] = NIS_AVG[kk]
 
-    def bank_step(
-        ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale, zscale, Wm, Wc,
-        c, prm, cst, ws, y, nis, nis_avg, flag,
-    ):  # fmt: skip
-        """One sample for each actuator ks[j] through ``step_one``; flag[j] its return code."""
-        ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG = borrowed_all(
-            (ks, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG)
-        )
-        q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag = borrowed_all(
-            (q, R, scale, zscale, Wm, Wc, prm, cst, y, nis, nis_avg, flag)
-        )
-        ws = borrowed_all(ws)
-        coef = np.empty(4)
-        tmp = np.empty(X.shape[1] * (X.shape[1] + 3))  # model output, then step_one's scratch
-        for j in range(ks.shape[0]):
-            flag[j] = _step_one(
-                wh, j, ks[j], t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale,
-                zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-            )  # fmt: skip
 
-    # one qualified name per variant: its own cache index and symbol (variants of one name
-    # compiled in different processes would collide when loaded from the cache)
-    bank_step.__qualname__ += "_wh" if wh else "_c"
-    return njit(cache=True)(bank_step)
+@njit(cache=True)
+def bank_step(sm, bs, mr, w, ws, y, nis, nis_avg, flag):
+    """One sample for each actuator sm.ks[j] through ``step_one``; flag[j] its return code."""
+    sm, bs, mr = borrowed_all(sm), borrowed_all(bs), borrowed_all(mr)
+    wm, wc = borrowed_all((w.Wm, w.Wc))
+    w = Sigma(wm, wc, w.c)
+    ws = borrowed_all(ws)
+    y, nis, nis_avg, flag = borrowed_all((y, nis, nis_avg, flag))
+    n = bs.X.shape[1]
+    coef = np.empty(4)
+    tmp = np.empty(n * (n + 3))  # model output, then step_one's scratch
+    for j in range(sm.ks.shape[0]):
+        flag[j] = step_one(j, sm.ks[j], sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp)
 
 
-def _make_output_rows(wh: bool):
-    """``output_rows`` for the WH process model (wh) or the C-type laws: ``wh`` is a
-    compile-time constant, so a bank compiles only its own model's kernels."""
-
-    def output_rows(
-        X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t, T_INIT, NIS_AVG, ALARM, PENDING, cst,
-        est, res, health, fire,
-    ):  # fmt: skip
-        """The output row of each actuator ks[j] through ``row_one`` (PD: diagonals of P)."""
-        X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t = borrowed_all(
-            (X, PD, OL, ks, scale, zscale, prm, z, mask, y, nis, t)
-        )
-        T_INIT, NIS_AVG, ALARM, PENDING, cst, est, res, health, fire = borrowed_all(
-            (T_INIT, NIS_AVG, ALARM, PENDING, cst, est, res, health, fire)
-        )
-        xs = np.empty(X.shape[1])
-        zo = np.empty(z.shape[1])
-        for j in range(ks.shape[0]):
-            k = ks[j]
-            _row_one(
-                wh, j, k, k, X, PD, OL, T_INIT, NIS_AVG, scale, zscale, prm, z, mask, y, nis, t, ALARM,
-                PENDING, cst, est, res, health, fire, xs, zo,
-            )  # fmt: skip
-
-    # one qualified name per variant: its own cache index and symbol (variants of one name
-    # compiled in different processes would collide when loaded from the cache)
-    output_rows.__qualname__ += "_wh" if wh else "_c"
-    return njit(cache=True)(output_rows)
+@njit(cache=True)
+def output_rows(bs, PD, mr, sm, y, nis, ro):
+    """The output row of each actuator sm.ks[j] through ``row_one`` (PD: diagonals of P)."""
+    sm, bs, mr, ro = borrowed_all(sm), borrowed_all(bs), borrowed_all(mr), borrowed_all(ro)
+    PD, y, nis = borrowed_all((PD, y, nis))
+    xs = np.empty(bs.X.shape[1])
+    zo = np.empty(sm.z.shape[1])
+    for j in range(sm.ks.shape[0]):
+        k = sm.ks[j]
+        row_one(j, k, k, bs.X, PD, bs.OL, bs.T_INIT, bs.NIS_AVG, mr, sm, y, nis, bs.ALARM,
+                bs.PENDING, ro, xs, zo)  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
@@ -594,115 +584,67 @@ def prepare_inputs(ks, vals, present, use, zscale, cnt):
     return t_out, z, mask, cand, i_m, x_c
 
 
-def _make_block_steps(wh: bool):
-    """``block_steps`` for the WH process model (wh) or the C-type laws: ``wh`` is a
-    compile-time constant, so a bank compiles only its own model's kernels."""
-
-    # other threads (receivers, loggers) run meanwhile
-    def block_steps(
-        j0, emit0, ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT, q,
-        R, scale, zscale, Wm, Wc, c, prm, cst, max_gap, expect, ws, y, nis, nis_avg, acc, SX, SPD,
-        SOL, STI, SNA, cnt,
-    ):  # fmt: skip
-        """The samples j0.. of a block in order, each through the time checks and ``step_one``
-        (the code of the per-round path, so the same bits); after its step, the state a sample's
-        output row is made of (X, diagonal of P, OL, T_INIT, NIS_AVG of its actuator) is copied
-        into row j of SX, SPD, SOL, STI, SNA for ``block_rows``. Returns (j, code): code 0 when
-        done; 3 when sample j needs a (re-)initialisation (first sample or gap; not stepped), 1/2
-        when its step broke/diverged. The caller re-initialises and resumes with (j,
-        emit0=True), which takes sample j's snapshot without stepping it. acc[j]: sample j has an
-        output row; cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
-        # every array argument through borrowed_all (see service.ukf): the inlined step_one takes
-        # about 30 arrays, which numba would otherwise reference-count with atomic operations at
-        # every sample (about a fifth of the step)
-        ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT = borrowed_all(
-            (ks, t, z, mask, cand, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, T_INIT)
-        )
-        q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg = borrowed_all(
-            (q, R, scale, zscale, Wm, Wc, prm, cst, expect, y, nis, nis_avg)
-        )
-        acc, SX, SPD, SOL, STI, SNA, cnt = borrowed_all((acc, SX, SPD, SOL, STI, SNA, cnt))
-        ws = borrowed_all(ws)
-        m = z.shape[1]
-        n = X.shape[1]
-        coef = np.empty(4)
-        tmp = np.empty(n * (n + 3))  # model output, then step_one's scratch
-        for j in range(j0, ks.shape[0]):
-            k = ks[j]
-            if not (emit0 and j == j0):
-                if not cand[j]:
-                    continue
-                if t[j] <= T_LAST[k]:
-                    cnt[k, CNT_SKIPPED_TIME] += 1
-                    continue
-                for r in range(m):
-                    if expect[r] and not mask[j, r]:
-                        cnt[k, CNT_MISSING_CHANNEL] += 1
-                if not math.isfinite(T_LAST[k]) or t[j] - T_LAST[k] > max_gap:
-                    return j, STEP_INIT
-                cnt[k, CNT_ACCEPTED] += 1
-                code = _step_one(
-                    wh, j, k, t, z, mask, i_m, x_c, X, PP, OL, T_LAST, CARRY, NIS_AVG, q, R, scale,
-                    zscale, Wm, Wc, c, prm, cst, ws, y, nis, nis_avg, coef, tmp,
-                )  # fmt: skip
-                if code != STEP_OK:
-                    return j, code
-            acc[j] = True
-            for r in range(n):
-                SX[j, r] = X[k, r]
-                SPD[j, r] = PP[k, r, r]
-                SOL[j, r] = OL[k, r]
-            STI[j] = T_INIT[k]
-            SNA[j] = NIS_AVG[k]
-        return ks.shape[0], STEP_OK
-
-    # one qualified name per variant: its own cache index and symbol (variants of one name
-    # compiled in different processes would collide when loaded from the cache)
-    block_steps.__qualname__ += "_wh" if wh else "_c"
-    return njit(cache=True, nogil=True)(block_steps)
+@njit(cache=True, nogil=True)  # other threads (receivers, loggers) run meanwhile
+def block_steps(j0, emit0, sm, bs, mr, w, max_gap, expect, ws, so):
+    """The samples j0.. of a block (``Samples`` sm) in order, each through the time checks and
+    ``step_one`` on the bank state ``bs`` (the code of the per-round path, so the same bits);
+    after its step, the state a sample's output row is made of (X, diagonal of P, OL, T_INIT,
+    NIS_AVG of its actuator) is copied into row j of so.SX, SPD, SOL, STI, SNA (``Stepped``
+    so) for ``block_rows``. Returns (j, code): code 0 when done; 3 when sample j needs a
+    (re-)initialisation (first sample or gap; not stepped), 1/2 when its step
+    broke/diverged. The caller re-initialises and resumes with (j, emit0=True), which takes
+    sample j's snapshot without stepping it. so.acc[j]: sample j has an output row;
+    so.cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
+    # every array through borrowed_all (see service.ukf): numba would otherwise
+    # reference-count the arrays with atomic operations at every sample
+    sm, bs, mr, so = borrowed_all(sm), borrowed_all(bs), borrowed_all(mr), borrowed_all(so)
+    wm, wc = borrowed_all((w.Wm, w.Wc))
+    w = Sigma(wm, wc, w.c)
+    ws = borrowed_all(ws)
+    expect = borrowed_all((expect,))[0]
+    ks, t, mask, cand = sm.ks, sm.t, sm.mask, sm.cand
+    X, PP, OL, T_LAST = bs.X, bs.PP, bs.OL, bs.T_LAST
+    cnt = so.cnt
+    m = sm.z.shape[1]
+    n = X.shape[1]
+    coef = np.empty(4)
+    tmp = np.empty(n * (n + 3))  # model output, then step_one's scratch
+    for j in range(j0, ks.shape[0]):
+        k = ks[j]
+        if not (emit0 and j == j0):
+            if not cand[j]:
+                continue
+            if t[j] <= T_LAST[k]:
+                cnt[k, CNT_SKIPPED_TIME] += 1
+                continue
+            for r in range(m):
+                if expect[r] and not mask[j, r]:
+                    cnt[k, CNT_MISSING_CHANNEL] += 1
+            if not math.isfinite(T_LAST[k]) or t[j] - T_LAST[k] > max_gap:
+                return j, STEP_INIT
+            cnt[k, CNT_ACCEPTED] += 1
+            code = step_one(j, k, sm, bs, mr, w, ws, so.y, so.nis, so.nis_avg, coef, tmp)
+            if code != STEP_OK:
+                return j, code
+        so.acc[j] = True
+        for r in range(n):
+            so.SX[j, r] = X[k, r]
+            so.SPD[j, r] = PP[k, r, r]
+            so.SOL[j, r] = OL[k, r]
+        so.STI[j] = bs.T_INIT[k]
+        so.SNA[j] = bs.NIS_AVG[k]
+    return ks.shape[0], STEP_OK
 
 
-def _make_block_rows(wh: bool):
-    """``block_rows`` for the WH process model (wh) or the C-type laws: ``wh`` is a
-    compile-time constant, so a bank compiles only its own model's kernels."""
-
-    def block_rows(
-        ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t, ALARM, PENDING,
-        cst, est, res, health, fire,
-    ):  # fmt: skip
-        """The output rows of the samples with acc[j], in order, from their ``block_steps``
-        snapshots, through ``row_one`` (alarms: the bank's ALARM, PENDING)."""
-        ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask = borrowed_all(
-            (ks, acc, SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask)
-        )
-        y, nis, t, ALARM, PENDING, cst, est, res, health, fire = borrowed_all(
-            (y, nis, t, ALARM, PENDING, cst, est, res, health, fire)
-        )
-        xs = np.empty(SX.shape[1])
-        zo = np.empty(z.shape[1])
-        for j in range(ks.shape[0]):
-            if acc[j]:
-                _row_one(
-                    wh, j, j, ks[j], SX, SPD, SOL, STI, SNA, scale, zscale, prm, z, mask, y, nis, t,
-                    ALARM, PENDING, cst, est, res, health, fire, xs, zo,
-                )  # fmt: skip
-
-    # one qualified name per variant: its own cache index and symbol (variants of one name
-    # compiled in different processes would collide when loaded from the cache)
-    block_rows.__qualname__ += "_wh" if wh else "_c"
-    return njit(cache=True, nogil=True)(block_rows)
-
-
-# the kernels MonitorBank calls, by process model (``KERNELS[bank.wh]``): a C-type bank never
-# compiles the WH model's kernels (nor the WH bank the C-type ones)
-class _Kernels:
-    __slots__ = ("bank_step", "output_rows", "block_steps", "block_rows")
-
-    def __init__(self, wh: bool) -> None:
-        self.bank_step = _make_bank_step(wh)
-        self.output_rows = _make_output_rows(wh)
-        self.block_steps = _make_block_steps(wh)
-        self.block_rows = _make_block_rows(wh)
-
-
-KERNELS = {False: _Kernels(False), True: _Kernels(True)}
+@njit(cache=True, nogil=True)
+def block_rows(sm, so, mr, ALARM, PENDING, ro):
+    """The output rows of the samples with so.acc[j], in order, from their ``block_steps``
+    snapshots (``Stepped`` so), through ``row_one`` (alarms: the bank's ALARM, PENDING)."""
+    sm, so, mr, ro = borrowed_all(sm), borrowed_all(so), borrowed_all(mr), borrowed_all(ro)
+    ALARM, PENDING = borrowed_all((ALARM, PENDING))
+    xs = np.empty(so.SX.shape[1])
+    zo = np.empty(sm.z.shape[1])
+    for j in range(sm.ks.shape[0]):
+        if so.acc[j]:
+            row_one(j, j, sm.ks[j], so.SX, so.SPD, so.SOL, so.STI, so.SNA, mr, sm, so.y, so.nis,
+                    ALARM, PENDING, ro, xs, zo)  # fmt: skip

@@ -213,6 +213,8 @@ class StepBlock:
     acc: NDArray
     snap: tuple[NDArray, NDArray, NDArray, NDArray, NDArray]
     extra: dict[int, list[AlarmEvent]]
+    sm: tuple  # the same inputs as the kernels' Samples (service.monitor.kernels)
+    so: tuple  # the step's outputs as the kernels' Stepped
 
 
 def empty_rows() -> BankRows:
