@@ -38,6 +38,7 @@ def make_logs(folder: Path, units: int, flights: int, log_s: float) -> list[dict
     from models.scenario import Profile
     from service.calibration import calibrate, measured_run
     from service.flightrec import FlightRecord, write_flight_log
+    from service.model_choice import DEFAULT_MODEL
     from service.scenarios import load_scenario
 
     base = load_scenario("healthy_noise")
@@ -49,7 +50,7 @@ def make_logs(folder: Path, units: int, flights: int, log_s: float) -> list[dict
             sc = base.model_copy(update={"duration_s": log_s, "sensors": sens,
                                          "leak": Profile(initial=ratio * 2e-13)})  # fmt: skip
             segs.append(measured_run(sc)[1])
-        b = calibrate(segs[0], "C5")
+        b = calibrate(segs[0], DEFAULT_MODEL)
         for k in range(flights):
             m = segs[min(k * len(segs) // flights, len(segs) - 1)]
             rec = FlightRecord(f"AC{u:02d}", "eha", k, 1.7e9 + 86400.0 * k)

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from service.cliutil import emit_json, fail, finite_float, to_jsonable
+from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
 from service.store import StoreError
 from service.store.cli import add_store_argument, open_store_arg
@@ -38,7 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="planning horizon [flights] (default 20)",
     )  # fmt: skip
     p.add_argument("--logs", default=None, metavar="DIR", help="keep the logs in DIR")
-    p.add_argument("--model", default="C5", help="the monitor's process model (default C5)")
+    p.add_argument(
+        "--model", default=DEFAULT_MODEL, choices=MONITOR_MODELS,
+        help=f"the monitor's process model (default {DEFAULT_MODEL})",
+    )  # fmt: skip
     p.add_argument("--threshold", type=finite_float, default=None, help="C_Lk ratio at failure")
     p.add_argument("--workers", type=int, default=0, help="processes (default min(2, cores))")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")

@@ -266,7 +266,7 @@ def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, w, prm, y, ws, n, again):
     return ukf_one(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)  # called, not inlined: one compile for its two callers
 def step_one(j, k, sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp):
     """Sample j of actuator k (in place on the bank state ``bs``): inputs (measured current,
     else the ECU law on x_cmd), UKF step, parallel model, constraints, NIS average. Returns
@@ -411,7 +411,7 @@ def step_one(j, k, sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp):
     return STEP_BROKEN
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)  # called, not inlined: one compile for its two callers
 def row_one(j, kk, k, X, PD, OL, T_INIT, NIS_AVG, mr, sm, y, nis, ALARM, PENDING, ro, xs, zo):
     """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
     innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak

@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from service.model_choice import DEFAULT_MODEL
 from service.prognostics.metrics import LAMBDAS, score_unit
 
 __all__ = [
@@ -86,7 +87,7 @@ class FleetSimConfig:
     warn_p: float = 0.2
     n_samples: int = 2000
     workers: int = 0  # 0: min(2, cpu count)
-    model: str = "C5"
+    model: str = DEFAULT_MODEL
     log_dir: str | None = None
 
     def threshold(self) -> float:
