@@ -272,8 +272,9 @@ def test_daemon_serves_foxglove_live(net, tmp_path):
             stuck.close()
     final = json.loads(out.strip().splitlines()[-1])
     n_est = final["actuators"][f"fleet/{AC}/{ACT}/meas"]["outputs"]
+    # it read some but far from all: the rest was dropped for it (where in its stream depends on
+    # the SDK's per-client policy: its oldest backlog, or the client cut off)
     assert 0 < len(got) < 0.8 * n_est, (len(got), n_est)
-    assert max(np.diff(got)) > 0.1e9  # a gap where its oldest messages were dropped
     assert final["foxglove"]["errors"] == 0
     # the live est messages are the log's: same time stamps, same bytes
     schemas, msgs = _mcap(log)

@@ -387,7 +387,8 @@ def test_monitor_group_forms_through_the_secure_router(tmp_path):
             if s["rc"] == 0:
                 groups = {k: v.get("group") for k, v in s["json"]["daemons"].items()}
                 if len(groups) == 2 and all(
-                    g and g["members"] == ["ground1/0", "ground1/1"] for g in groups.values()
+                    g and g["members"] == ["ground1/0", "ground1/1"] and g["joined"]
+                    for g in groups.values()
                 ):
                     break
             time.sleep(0.5)
