@@ -36,6 +36,27 @@ def tls_overrides(args: argparse.Namespace, zenoh: dict[str, Any]) -> dict[str, 
     return {**zenoh, "tls": tls}
 
 
+def add_foxglove_arguments(
+    parser: argparse.ArgumentParser, *, what: str, every: int | None, every_help: str
+) -> None:
+    """``--foxglove HOST:PORT``, ``--foxglove-allow-remote`` and ``--foxglove-every N`` of
+    the commands that serve ``what`` live to Foxglove (run, replay)."""
+    parser.add_argument(
+        "--foxglove", default=None, metavar="HOST:PORT",
+        help=f"serve {what} live over the Foxglove WebSocket protocol (loopback unless "
+        "--foxglove-allow-remote)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--foxglove-allow-remote", action="store_true",
+        help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--foxglove-every", type=int, default=every, metavar="N",
+        help=f"send one row in N per topic to Foxglove (default: {every_help}; events all; "
+        "1 = every row)",
+    )  # fmt: skip
+
+
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """``--config``, ``--connect``, ``--listen``, ``--mode`` shared by the service commands."""
     parser.add_argument("--config", help="service TOML file (SERVOWATCH_* env overrides apply)")

@@ -68,19 +68,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--log-every", type=int, default=1, metavar="N",
         help="with --out: log est/residual/health every N outputs (default 1 = all)",
     )  # fmt: skip
-    p.add_argument(
-        "--foxglove", default=None, metavar="HOST:PORT",
-        help="serve the replay live over the Foxglove WebSocket protocol (loopback unless "
-        "--foxglove-allow-remote), paced by --speed",
-    )  # fmt: skip
-    p.add_argument(
-        "--foxglove-allow-remote", action="store_true",
-        help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
-    )  # fmt: skip
-    p.add_argument(
-        "--foxglove-every", type=int, default=10, metavar="N",
-        help="send one row in N per topic to Foxglove (default 10; events all; 1 = all)",
-    )  # fmt: skip
+    from service.cliargs import add_foxglove_arguments
+
+    add_foxglove_arguments(p, what="the replay, paced by --speed,", every=10, every_help="10")
     p.add_argument(
         "--foxglove-wait", type=float, default=0.0, metavar="S",
         help="with --foxglove: wait up to S seconds for a viewer to subscribe before starting",

@@ -63,20 +63,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="health store (SQLite path or postgresql:// URL; 'off': none); default: the "
         "config's store, else $SERVOWATCH_STORE or servowatch-data/health.sqlite",
     )  # fmt: skip
-    p.add_argument(
-        "--foxglove", default=None, metavar="HOST:PORT",
-        help="serve the channels live over the Foxglove WebSocket protocol (loopback unless "
-        "--foxglove-allow-remote; overrides [foxglove] listen)",
-    )  # fmt: skip
-    p.add_argument(
-        "--foxglove-allow-remote", action="store_true",
-        help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
-    )  # fmt: skip
-    p.add_argument(
-        "--foxglove-every", type=int, default=None, metavar="N",
-        help="send one row in N per topic to Foxglove (default: [foxglove] every, 10; events "
-        "all; 1 = every row)",
-    )  # fmt: skip
+    from service.cliargs import add_foxglove_arguments
+
+    add_foxglove_arguments(p, what="the channels (overrides [foxglove] listen)", every=None,
+                           every_help="[foxglove] every, 10")  # fmt: skip
     p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
 
