@@ -1,5 +1,5 @@
 """What any monitor could read from a suite member's sensors: an information bound per member
-of the duty-cycle suite (docs/estimation.md, "An information bound on the suite's targets").
+of the duty-cycle suite (docs/evaluation.md, "An information bound on the suite's targets").
 
     .venv/bin/python -m evaluation.bound --seeds 1-7 --workers 2 --known-plant   # 1 min
     .venv/bin/python -m evaluation.suite --seeds 1-7 --workers 2 --json s.json

@@ -291,7 +291,7 @@ def ecu_noisy_x_j(dc: DutyCycle) -> DutyCycle:
     """``dc`` with the ECU closing its position loop on the jack LVDT's noisy reading in both
     segments (``SensorNoise.ecu_noisy_x_j``; the same draws), as an actuator's ECU does,
     instead of on the true x_J. A diagnostic: the suite's bench leaves the loop noise-free,
-    so its current and spool follow the true jack (docs/estimation.md, "An information
+    so its current and spool follow the true jack (docs/evaluation.md, "An information
     bound on the suite's targets")."""
 
     def noisy_loop(sc: Scenario) -> Scenario:

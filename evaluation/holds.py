@@ -1,5 +1,5 @@
-"""The C_Lk a monitor's valve law reads at the HF plant's static holds (docs/estimation.md,
-"The laws at the HF plant's static holds" and "Stiction in the WH process model").
+"""The C_Lk a monitor's valve law reads at the HF plant's static holds (docs/evaluation.md,
+"The laws at the HF plant's static holds"; docs/estimation.md, "Stiction in the WH process model").
 
     .venv/bin/python -m evaluation.holds                       # a few seconds
     .venv/bin/python -m evaluation.holds --supply 1,0.7 --leak 1,5 --load 4000

@@ -1,5 +1,5 @@
-"""One member of the randomized estimation suite, as time windows (docs/estimation.md, "Large
-duty cycles (issue 10)"): where its C_Lk and P_SR estimates stand against the truth, and what the
+"""One member of the randomized estimation suite, as time windows (docs/evaluation.md, "The
+duty-cycle suite"): where its C_Lk and P_SR estimates stand against the truth, and what the
 jack does meanwhile.
 
     .venv/bin/python research/suite_member.py --seed 1 --index 11                # WH
@@ -59,7 +59,7 @@ def plot_member(
     path: str | Path,
     title: str = "",
 ) -> Path:
-    """One monitor run against its truth (docs/estimation.md, "Large duty cycles (issue 10)"):
+    """One monitor run against its truth (docs/evaluation.md, "The duty-cycle suite"):
     C_Lk / nominal with its 1-sigma band and the leak alarm level, P_SR [MPa], |P12| [MPa]
     and |v_J| [mm/s] of the truth with the observability gates (``gates``: p12 [Pa], v_j
     [m/s], leak_raise [x nominal]); alarms as (t, kind, state) lines."""

@@ -75,7 +75,7 @@ def test_walks_the_filter_uses():
 @pytest.mark.slow
 def test_no_false_leak_alarm_at_a_supply_drop_during_a_hold():
     """Suite member dc1_007 (a 1.71x leak ramp, then the supply drops to 0.62 rated during a
-    hold) on the louder C_Lk walk of docs/estimation.md ("WH against C5 over noise seeds"):
+    hold) on the louder C_Lk walk of docs/evaluation.md ("WH against C5 over noise seeds"):
     C_Lk read 2.7x for 70 ms before P_SR followed and, unmasked, raised a false leak alarm
     (the truth never passes the clear level)."""
     from evaluation.dutycycle import duty_cycle

@@ -1,4 +1,4 @@
-"""Filter changes for large duty cycles (docs/estimation.md, "Large duty cycles (issue 10)"): the
+"""Filter changes for large duty cycles (docs/evaluation.md, "The duty-cycle suite"): the
 equivalent spool opening beyond the underlap, the C_Lk observability gate, noise
 identification."""
 
