@@ -187,7 +187,7 @@ _M = len(MEAS_NAMES)
 _KERNEL = {"cache": True, "error_model": "numpy", "boundscheck": False}
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def _chol_upper(P, c, jit, U, n):
     """U upper triangular with U^T U = c P + jit I (P (n, n) read from its lower triangle),
     strictly lower part zeroed; row k of U is column k of the lower factor L = U^T. False
@@ -212,7 +212,7 @@ def _chol_upper(P, c, jit, U, n):
     return ok
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def _sigma_points_n(x, P, c, L, sig, n):
     """``_sigma_points`` for n states."""
     st = 0
@@ -237,7 +237,7 @@ def _sigma_points(x, P, c, A, L, sig):
     return _sigma_points_n(x, P, c, L, sig, x.shape[0])
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def _mean(X, W, mean, K, d):
     """mean = sum_k W[k] X[k] (rows of X (K, d))."""
     for r in range(d):
@@ -248,7 +248,7 @@ def _mean(X, W, mean, K, d):
             mean[r] += w * X[k, r]
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def _dev(X, mean, Wc, D, Dw, K, d):
     """D[k] = X[k] - mean and Dw[k] = Wc[k] D[k] (rows of (K, d))."""
     for k in range(K):
@@ -259,7 +259,7 @@ def _dev(X, mean, Wc, D, Dw, K, d):
             Dw[k, r] = w * v
 
 
-@njit(**_KERNEL, inline="always")
+@njit(**_KERNEL)
 def _cov(Dw, D, P, K, d):
     """P = sum_k Dw[k] D[k]^T, symmetric: the lower triangle P[r, s] = sum_k Dw[k, r] D[k, s]
     (s <= r, the terms of the plain formula in its order), mirrored."""
@@ -277,48 +277,32 @@ def _cov(Dw, D, P, K, d):
 
 
 @njit(**_KERNEL)
-def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
+def ukf_one(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, again):
     """One filter step in place (state xb (n,), covariance Pb (n, n), measurement zb (m,)
     with mask mb); ``ws`` is the workspace of ``workspace(n, m)``. Returns (NIS, status).
-    The prediction before the process noise is kept in ``ws`` for ``ukf_again``."""
+    The prediction before the process noise is kept in ``ws``; ``again`` True redoes the
+    last step from it with process noise ``q`` (its prediction, the propagated sigma points'
+    mean and covariance, with q dt added, then the update; xb, Pb are overwritten, their
+    values unused): the same bits as a step from that step's prior with ``q``, without
+    propagating the sigma points again. ``again`` is an argument, not a compile-time
+    constant: one compiled step serves both uses."""
     if xb.shape[0] != _N or zb.shape[0] != _M:
         raise ValueError("ukf_one: the model has 8 states and 5 measurement channels")
     return _ukf_core(
         xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N, False,
-        False,
+        again,
     )  # fmt: skip
 
 
 @njit(**_KERNEL)
-def ukf_one_wh(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
+def ukf_one_wh(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, again):
     """``ukf_one`` on the WH process model (``models.eha_reduced_wh``: 10 states, 21 sigma
     points; prm from its ``param_vector``)."""
     if xb.shape[0] != _N_WH or zb.shape[0] != _M:
         raise ValueError("ukf_one_wh: the model has 10 states and 5 measurement channels")
     return _ukf_core(
         xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N_WH,
-        True, False,
-    )  # fmt: skip
-
-
-@njit(**_KERNEL)
-def ukf_again(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
-    """The last ``ukf_one`` step on ``ws`` redone with process noise ``q``: its prediction
-    (the propagated sigma points' mean and covariance, kept in ``ws``) with q dt added, then
-    the update; xb, Pb are overwritten, their values unused. The same bits as ``ukf_one``
-    from that step's prior with ``q``, without propagating the sigma points again."""
-    return _ukf_core(
-        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N, False,
-        True,
-    )  # fmt: skip
-
-
-@njit(**_KERNEL)
-def ukf_again_wh(xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws):
-    """``ukf_again`` after ``ukf_one_wh``."""
-    return _ukf_core(
-        xb, Pb, zb, mb, i_in, dt, n_sub, q, R, scale, zscale, Wm, Wc, c, prm, yb, ws, _N_WH,
-        True, True,
+        True, again,
     )  # fmt: skip
 
 
@@ -329,7 +313,7 @@ def _ukf_core(
     """The step of ``ukf_one`` for n states (a constant of each caller): the C-type model
     (``models.eha_reduced``, wh False) or WH (``models.eha_reduced_wh``, wh True: its plant
     states are 0..3 and the chamber states 8..9; the parameter states 4..7 are copied
-    through by both models). ``again``: ``ukf_again``, the prediction from ``ws``."""
+    through by both models). ``again``: redo the last step from the prediction kept in ``ws``."""
     m = _M
     # every array through borrowed_all: no atomic reference counting in the step
     xb, Pb, zb, mb, yb, q, R, scale, zscale, Wm, Wc, prm = borrowed_all(
@@ -383,7 +367,7 @@ def _ukf_core(
         _mean(sig_f, Wm, xm, K, n)
         _dev(sig_f, xm, Wc, D, Dw, K, n)
         _cov(Dw, D, Pb, K, n)
-        for r in range(n):  # kept for ukf_again
+        for r in range(n):  # kept for a step again
             xm0[r] = xm[r]
             for s_ in range(n):
                 pc0[r, s_] = Pb[r, s_]
@@ -511,7 +495,7 @@ def workspace(n, m):
     redrawn (K, n); their measurements (K, m); model in/out (n,), (m,); means (n,), (m,);
     S and its factor (m, m); Pxz^T (m, n); gain^T | S^-1 y (m, n + 1); deviations and
     weighted deviations (K, n), (K, m); innovation (m,); spool transition (4,); model
-    stage scratch (K, 6); the prediction kept for ``ukf_again``: mean and status (n + 1,),
+    stage scratch (K, 6); the prediction kept for a step again: mean and status (n + 1,),
     covariance before the process noise (n, n)."""
     K = 2 * n + 1
     return (
@@ -535,16 +519,17 @@ def ukf_step_batch(
     B, n = x.shape
     m = z.shape[1]
     ws = workspace(n, m)
+    again = bool(False)  # a run-time flag, as the monitor's: the same compiled step
     for b in range(B):
         if n == _N_WH:  # the WH process model
             nis, st = ukf_one_wh(
                 x[b], P[b], z[b], mask[b], i_in[b], dt[b], n_sub[b], q, R, scale, zscale, Wm,
-                Wc, c, prm, y_out[b], ws,
+                Wc, c, prm, y_out[b], ws, again,
             )  # fmt: skip
         else:
             nis, st = ukf_one(
                 x[b], P[b], z[b], mask[b], i_in[b], dt[b], n_sub[b], q, R, scale, zscale, Wm, Wc,
-                c, prm, y_out[b], ws,
+                c, prm, y_out[b], ws, again,
             )  # fmt: skip
         nis_out[b] = nis
         status[b] = st

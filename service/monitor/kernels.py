@@ -46,7 +46,7 @@ from service.monitor.outputs import (
     RES_NIS_DOF,
     RES_OL,
 )
-from service.ukf import ukf_again, ukf_again_wh, ukf_one, ukf_one_wh
+from service.ukf import ukf_one, ukf_one_wh
 
 # filter state columns (X, P, OL rows)
 S_X_S, S_V_S, S_X_J, S_V_J, S_F_R, S_P_SR, S_C_LK, S_I_B = (
@@ -255,15 +255,12 @@ STEP_INIT = 3  # first sample or gap: (re-)initialise from this sample, not step
 @njit(cache=True, inline="always")
 def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, w, prm, y, ws, n, again):
     """One UKF step on the bank's process model: WH (n = 10) or a C-type law (n = 8);
-    ``again``: the last step redone with process noise q (``service.ukf.ukf_again``)."""
+    ``again``: the last step redone with process noise q (``service.ukf.ukf_one``)."""
     Wm, Wc, c = w.Wm, w.Wc, w.c
+    redo = bool(again)  # a run-time flag, not a literal: one compiled step for both uses
     if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
-        if again:
-            return ukf_again_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
-        return ukf_one_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
-    if again:
-        return ukf_again(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
-    return ukf_one(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws)
+        return ukf_one_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws, redo)
+    return ukf_one(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws, redo)
 
 
 @njit(cache=True)  # called, not inlined: one compile for its two callers
