@@ -519,7 +519,7 @@ def ukf_step_batch(
     B, n = x.shape
     m = z.shape[1]
     ws = workspace(n, m)
-    again = bool(False)  # a run-time flag, as the monitor's: the same compiled step
+    again = bool(False)  # noqa: UP018 - a run-time flag, not a literal: the monitor's compiled step
     for b in range(B):
         if n == _N_WH:  # the WH process model
             nis, st = ukf_one_wh(
