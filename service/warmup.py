@@ -13,6 +13,9 @@ compile a group first says so on stderr (:func:`announce`).
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -80,6 +83,24 @@ def _monitor() -> None:
     _monitor_run("C5")
 
 
+def _ukf_step(model: str) -> None:
+    """One UKF step of ``model``'s process model, called directly with the argument types of
+    the monitor's ``step_one`` (plain C-contiguous arrays, a run-time flag): compiled in a
+    process of its own beside the rest of the monitor, which then loads it from the cache."""
+    import numpy as np
+
+    from service.monitor import MonitorBank, MonitorConfig
+    from service.ukf import merwe_weights, ukf_one, ukf_one_wh, workspace
+
+    bank = MonitorBank(MonitorConfig(model=model))
+    n, m = len(bank.scale), len(bank._zscale)
+    w = merwe_weights(n, 0.5)
+    step = ukf_one_wh if model == "WH" else ukf_one
+    step(np.zeros(n), np.eye(n), np.zeros(m), np.ones(m, np.bool_), 0.0, 1e-3, 1, bank._q,
+         np.ascontiguousarray(bank.R), bank.scale, bank._zscale, w.Wm, w.Wc, w.c, bank._prm,
+         np.zeros(m), workspace(n, m), False)  # fmt: skip
+
+
 def _log() -> None:
     """The MCAP log's encoder and reader: run, replay."""
     from service.log import codec as logcodec
@@ -96,6 +117,26 @@ GROUPS: dict[str, Callable[[], None]] = {
 # what `servowatch warmup` compiles by default: what the demo, the daemon, the replay and the
 # virtual actuator need; the other groups compile on their first use (announced) or --all
 DEFAULT_GROUPS = ("models", "monitor", "log")
+
+# A cold warm-up runs in parts, each in a process of its own, on as many cores as there are
+# (``jobs``): the two UKF steps, the monitor's largest kernels, compile beside each other and
+# beside the log's kernels; the rest of the monitor waits for them and for the HF bench.
+# part: (warm-up, the parts it waits for when they run too, CPU seconds of its compile: the
+# longest ready part starts first)
+PARTS: dict[str, tuple[Callable[[], None], tuple[str, ...], float]] = {
+    "ukf_wh": (lambda: _ukf_step("WH"), (), 30.0),
+    "ukf_c": (lambda: _ukf_step("C5"), (), 20.0),
+    "monitor": (_monitor, ("ukf_wh", "ukf_c", "models"), 25.0),
+    "log": (_log, (), 20.0),
+    "valves": (_valves, (), 15.0),
+    "models": (_models, (), 5.0),
+}
+GROUP_PARTS = {
+    "models": ("models",),
+    "monitor": ("ukf_wh", "ukf_c", "monitor"),
+    "log": ("log",),
+    "valves": ("valves",),
+}
 
 WHAT = {
     "models": "the HF bench kernels",
@@ -132,10 +173,116 @@ def _entries(group: str) -> list:
     return [codec._encode, codec._scan, codec._fill, codec._objects]
 
 
-def warm_up(groups: tuple[str, ...] | None = None) -> float:
-    """Run every compiled path (or those of ``groups``) briefly; return the wall time [s]."""
+def _part_entries(part: str) -> list:
+    if part in ("ukf_wh", "ukf_c"):
+        from service import ukf
+
+        return [ukf.ukf_one_wh if part == "ukf_wh" else ukf.ukf_one]
+    return _entries(part)
+
+
+def default_jobs() -> int:
+    """Processes of a cold warm-up: one per core, at most 4."""
+    return max(1, min(os.cpu_count() or 1, 4))
+
+
+def _parts_of(groups: tuple[str, ...], cold_only: bool) -> list[str]:
+    """The parts of ``groups``; ``cold_only``: those whose kernels numba's cache lacks, of the
+    groups it lacks."""
+    parts = []
+    for g in groups:
+        if cold_only and is_cached(g):
+            continue
+        parts += [p for p in GROUP_PARTS[g] if not (cold_only and all_cached(p))]
+    return parts
+
+
+def all_cached(part: str) -> bool:
+    from service.compat.numba import has_cached_code
+
+    return all(has_cached_code(d) for d in _part_entries(part))
+
+
+def _run_part(part: str, record: bool, t0: float, stream) -> list[tuple]:
+    """Run one part here, announcing each kernel it compiles on ``stream`` (the seconds since
+    ``t0``, a wall clock); ``record``: return its compile rows (group, kernel, signatures,
+    own s, total s)."""
+    from numba.core import event
+
+    rec = _CompileTimes()
+    depth = [0]
+
+    def on_start(ev) -> None:
+        depth[0] += 1
+        rec.on_start(ev)
+
+    def on_end(ev) -> None:
+        depth[0] -= 1
+        rec.on_end(ev)
+        if depth[0] == 0 and stream is not None:
+            f = ev.data["dispatcher"].py_func
+            print(f"servowatch:   compiled {f.__module__}.{f.__qualname__} "
+                  f"({time.time() - t0:.0f} s)", file=stream, flush=True)  # fmt: skip
+
+    with event.install_listener("numba:compile", _listener(on_start, on_end)):
+        PARTS[part][0]()
+    group = next(g for g, ps in GROUP_PARTS.items() if part in ps)
+    return [(group, k, rec.count[k], rec.own[k], rec.total[k]) for k in rec.own] if record else []
+
+
+def run_parts(
+    parts: list[str], jobs: int | None = None, record: bool = False, stream=None
+) -> tuple[list[tuple], float]:
+    """Run the warm-up ``parts``: in this process when ``jobs`` is 1 or there is one part,
+    else each in a process of its own, ``jobs`` at a time, a part starting once the parts it
+    waits for have ended (the longest first). Compiles are announced on ``stream``. Returns
+    the compile rows (``record``) and the wall time [s]."""
+    t0 = time.time()
+    jobs = default_jobs() if jobs is None else max(1, jobs)
+    rows: list[tuple] = []
+    if jobs == 1 or len(parts) <= 1:
+        for p in parts:
+            rows += _run_part(p, record, t0, stream)
+        return rows, time.time() - t0
+    env = {**os.environ, "SERVOWATCH_WARMUP_T0": repr(t0)}
+    try:  # a file stream takes the parts' lines as they come; another one, when they end
+        err = stream.fileno() if stream is not None else subprocess.DEVNULL
+    except (AttributeError, OSError, ValueError):
+        err = subprocess.PIPE
+    todo, running = list(parts), {}
+    while todo or running:
+        ready = [p for p in todo if not any(d in todo or d in running for d in PARTS[p][1])]
+        for p in sorted(ready, key=lambda q: -PARTS[q][2])[: jobs - len(running)]:
+            cmd = [sys.executable, "-m", "service.warmup", "--part", p]
+            running[p] = subprocess.Popen(
+                cmd + (["--record"] if record else []), env=env, text=True,
+                stdout=subprocess.PIPE, stderr=err,
+            )  # fmt: skip
+            todo.remove(p)
+        for p, proc in list(running.items()):
+            if proc.poll() is None:
+                continue
+            out, lines = proc.communicate()
+            if lines:
+                stream.write(lines)
+            del running[p]
+            if proc.returncode != 0:
+                for q in running.values():
+                    q.kill()
+                raise RuntimeError(f"warm-up part {p!r} failed (exit {proc.returncode})")
+            if record and out.strip():
+                rows += [tuple(r) for r in json.loads(out)]
+        time.sleep(0.05)
+    return rows, time.time() - t0
+
+
+def warm_up(groups: tuple[str, ...] | None = None, jobs: int | None = None) -> float:
+    """Run every compiled path (or those of ``groups``) briefly, the cold ones on ``jobs``
+    processes (:func:`run_parts`); return the wall time [s]."""
     t0 = time.perf_counter()
-    for name in DEFAULT_GROUPS if groups is None else groups:
+    groups = DEFAULT_GROUPS if groups is None else groups
+    run_parts(_parts_of(groups, cold_only=True), jobs)
+    for name in groups:  # the rest loads from the cache
         GROUPS[name]()
     return time.perf_counter() - t0
 
@@ -181,21 +328,14 @@ def _listener(on_start: Callable, on_end: Callable):
 
 
 def table(
-    groups: tuple[str, ...] | None = None,
+    groups: tuple[str, ...] | None = None, jobs: int | None = None
 ) -> tuple[list[tuple[str, str, int, float, float]], float]:
     """Warm up with numba's compile events recorded: rows (group, kernel, signatures, own s,
-    total s), slowest first, and the wall time."""
-    from numba.core import event
-
-    rows = []
-    t0 = time.perf_counter()
-    for g in DEFAULT_GROUPS if groups is None else groups:
-        rec = _CompileTimes()
-        with event.install_listener("numba:compile", _listener(rec.on_start, rec.on_end)):
-            GROUPS[g]()
-        rows += [(g, k, rec.count[k], rec.own[k], rec.total[k]) for k in rec.own]
+    total s), slowest first, and the wall time (the cold parts on ``jobs`` processes)."""
+    groups = DEFAULT_GROUPS if groups is None else groups
+    rows, wall = run_parts(_parts_of(groups, cold_only=False), jobs, record=True)
     rows.sort(key=lambda r: -r[3])
-    return rows, time.perf_counter() - t0
+    return rows, wall
 
 
 def is_cached(group: str) -> bool:
@@ -212,38 +352,27 @@ def monitor_group(model: str) -> str:
     return "monitor"
 
 
-def ensure(*groups: str, always: bool = False, stream=None) -> float:
+def ensure(*groups: str, always: bool = False, stream=None, jobs: int | None = None) -> float:
     """Compile the kernels of ``groups`` that numba's cache lacks, before a command uses
     them, saying so on ``stream`` (stderr): what, an estimate, then a line per kernel as it
-    is compiled. Silent and cheap when they are cached (``always``: run the warm-up anyway,
-    loading from the cache). Returns the wall time spent [s]."""
-    from numba.core import event
-
+    is compiled, on ``jobs`` processes. Silent and cheap when they are cached (``always``:
+    run the warm-up anyway, loading from the cache). Returns the wall time spent [s]."""
     out = sys.stderr if stream is None else stream
     t0 = time.perf_counter()
     cold = [g for g in groups if not is_cached(g)]
-    todo = list(groups) if always else cold
     if cold:
-        est = sum(ESTIMATE_S[g] for g in cold)
+        n = default_jobs() if jobs is None else jobs
+        est = sum(ESTIMATE_S[g] for g in cold) / min(n, 2)
         print(
             f"servowatch: compiling {', '.join(WHAT[g] for g in cold)} (first run, about "
-            f"{est:.0f} s on 2 cores; cached afterwards; `servowatch warmup` does it ahead)...",
+            f"{est:.0f} s on {n} core{'s' if n > 1 else ''}; cached afterwards; `servowatch "
+            "warmup` does it ahead)...",
             file=out, flush=True,
         )  # fmt: skip
-    depth = [0]
-
-    def on_start(ev) -> None:
-        depth[0] += 1
-
-    def on_end(ev) -> None:
-        depth[0] -= 1
-        if depth[0] == 0:
-            f = ev.data["dispatcher"].py_func
-            print(f"servowatch:   compiled {f.__module__}.{f.__qualname__} "
-                  f"({time.perf_counter() - t0:.0f} s)", file=out, flush=True)  # fmt: skip
-
-    with event.install_listener("numba:compile", _listener(on_start, on_end)):
-        for g in todo:
+        # a part's lines go straight to a file stream; another stream gets them from here
+        run_parts(_parts_of(tuple(cold), cold_only=True), jobs, stream=out)
+    if always:
+        for g in groups:
             GROUPS[g]()
     if cold:
         print(f"servowatch: kernels compiled in {time.perf_counter() - t0:.0f} s", file=out,
@@ -261,13 +390,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--group", action="append", choices=tuple(GROUPS), default=None,
                     help="only this group of kernels (repeatable; default: models, monitor, "
                     "log; valves: compiled on first use)")  # fmt: skip
+    ap.add_argument("--jobs", type=int, default=None, help="processes of a cold warm-up "
+                    "(default: one per core, at most 4)")  # fmt: skip
+    ap.add_argument("--part", choices=tuple(PARTS), help=argparse.SUPPRESS)
+    ap.add_argument("--record", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.part:  # one part of a parallel warm-up (run_parts)
+        t0 = float(os.environ.get("SERVOWATCH_WARMUP_T0", time.time()))
+        rows = _run_part(a.part, a.record, t0, sys.stderr)
+        if a.record:
+            print(json.dumps(rows))
+        return 0
     groups = tuple(a.group) if a.group else None
     if not a.table:
-        dt = warm_up(groups)
+        dt = warm_up(groups, a.jobs)
         print(f"servowatch: compiled kernels ready ({dt:.1f} s)", file=sys.stderr)
         return 0
-    rows, wall = table(groups)
+    rows, wall = table(groups, a.jobs)
     print_table(rows, wall)
     return 0
 

@@ -48,3 +48,23 @@ def test_ensure_is_silent_when_cached():
 def test_warmup_help_names_the_groups():
     r = subprocess.run([*servowatch_exe(), "warmup", "--help"], capture_output=True, text=True)
     assert r.returncode == 0 and "valves" in r.stdout, r.stderr
+
+
+@pytest.mark.slow
+def test_a_parallel_cold_warmup_compiles_each_kernel_once(tmp_path):
+    """Two processes: the UKF steps compile beside the log's kernels, and the rest of the
+    monitor loads them from the cache (its argument types are those of ``step_one``); no
+    kernel is compiled twice."""
+    import json
+
+    r = _warmup(tmp_path, "--group", "monitor", "--group", "log", "--jobs", "2", "--table",
+                "--json")  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(r.stdout)["kernels"]
+    names = [k["kernel"] for k in rows]
+    for k in ("service.ukf.ukf_one", "service.ukf.ukf_one_wh",
+              "service.monitor.kernels.step_one", "service.log.codec._objects"):  # fmt: skip
+        assert names.count(k) == 1, (k, names)
+    assert all(k["signatures"] == 1 for k in rows if k["kernel"].startswith("service.ukf.ukf_"))
+    again = _warmup(tmp_path, "--group", "monitor", "--group", "log", "--jobs", "2")
+    assert again.returncode == 0 and "compiling" not in again.stderr, again.stderr
