@@ -122,7 +122,7 @@ DEFAULT_GROUPS = ("models", "monitor", "log")
 # (``jobs``): the two UKF steps, the monitor's largest kernels, compile beside each other and
 # beside the log's kernels; the rest of the monitor waits for them and for the HF bench.
 # part: (warm-up, the parts it waits for when they run too, CPU seconds of its compile: the
-# longest ready part starts first)
+# ready part on the longest chain starts first)
 PARTS: dict[str, tuple[Callable[[], None], tuple[str, ...], float]] = {
     "ukf_wh": (lambda: _ukf_step("WH"), (), 30.0),
     "ukf_c": (lambda: _ukf_step("C5"), (), 20.0),
@@ -230,6 +230,14 @@ def _run_part(part: str, record: bool, t0: float, stream) -> list[tuple]:
     return [(group, k, rec.count[k], rec.own[k], rec.total[k]) for k in rec.own] if record else []
 
 
+def _path_s(part: str, parts: list[str]) -> float:
+    """CPU seconds from the start of ``part`` to the end of the longest chain of ``parts``
+    that waits for it (the critical path first: a small part that the monitor waits for
+    starts before a larger one that nothing waits for)."""
+    after = [_path_s(q, parts) for q in parts if part in PARTS[q][1]]
+    return PARTS[part][2] + max(after, default=0.0)
+
+
 def run_parts(
     parts: list[str], jobs: int | None = None, record: bool = False, stream=None
 ) -> tuple[list[tuple], float]:
@@ -252,7 +260,7 @@ def run_parts(
     todo, running = list(parts), {}
     while todo or running:
         ready = [p for p in todo if not any(d in todo or d in running for d in PARTS[p][1])]
-        for p in sorted(ready, key=lambda q: -PARTS[q][2])[: jobs - len(running)]:
+        for p in sorted(ready, key=lambda q: -_path_s(q, parts))[: jobs - len(running)]:
             cmd = [sys.executable, "-m", "service.warmup", "--part", p]
             running[p] = subprocess.Popen(
                 cmd + (["--record"] if record else []), env=env, text=True,

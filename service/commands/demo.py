@@ -36,10 +36,10 @@ _ACTUATOR_MAIN = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--duration", type=finite_float, default=25.0, help="actuator run time [s] (default 25)"
+        "--duration", type=finite_float, default=15.0, help="actuator run time [s] (default 15)"
     )
     p.add_argument(
-        "--inject-at", type=finite_float, default=7.0, help="leak injection time [s] (default 7)"
+        "--inject-at", type=finite_float, default=5.0, help="leak injection time [s] (default 5)"
     )
     p.add_argument(
         "--leak",
