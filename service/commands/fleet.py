@@ -87,8 +87,27 @@ def _ratio(row: dict[str, Any]) -> float | None:
     return finite_or_none(last.get("c_lk_ratio"))
 
 
+def life_and_trend(row: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """Where a unit stands on the life axis its history supports, and its C_Lk-ratio trend
+    on that axis: ``({"value", "unit"}, {"value", "unit"} or None)``. A history that counts
+    flights (its RUL's ``axis``) gives the flights so far and the trend per 10 flights (the
+    stored slope per operating hour times the hours per flight); another gives operating
+    hours and the trend per 100 h."""
+    rul = row.get("rul") or {}
+    slope = finite_or_none((row.get("trend") or {}).get("slope_per_h"))
+    if rul.get("axis") == "flights":
+        hpf = finite_or_none(rul.get("hours_per_flight"))
+        life = {"value": finite_or_none(rul.get("t_now")), "unit": "flights"}
+        rate = None if slope is None or hpf is None else {"value": slope * hpf * 10.0,
+                                                          "unit": "per 10 flights"}  # fmt: skip
+        return life, rate
+    life = {"value": float(row.get("op_time_s") or 0.0) / 3600.0, "unit": "h"}
+    return life, None if slope is None else {"value": slope * 100.0, "unit": "per 100 h"}
+
+
 def rank_fleet(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """``rows`` (``fleet_summary()``) sorted by urgency, each with ``rank`` and ``rul_interval``."""
+    """``rows`` (``fleet_summary()``) sorted by urgency, each with ``rank``, ``rul_interval``,
+    ``life`` and ``trend_rate`` (:func:`life_and_trend`)."""
 
     def key(r: dict[str, Any]) -> tuple[float, int, float, str]:
         iv = rul_interval(r.get("rul"))
@@ -98,7 +117,9 @@ def rank_fleet(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
     out = []
     for i, r in enumerate(sorted(rows, key=key), 1):
-        out.append({"rank": i, **r, "rul_interval": rul_interval(r.get("rul"))})
+        life, rate = life_and_trend(r)
+        out.append({"rank": i, **r, "rul_interval": rul_interval(r.get("rul")), "life": life,
+                    "trend_rate": rate})  # fmt: skip
     return out
 
 
@@ -108,18 +129,26 @@ def _f(v: Any, spec: str, scale: float = 1.0) -> str:
 
 
 def format_fleet(ranked: list[dict[str, Any]]) -> str:
-    """A fixed-width table of the ranked fleet."""
+    """A fixed-width table of the ranked fleet: life and trend on each unit's life axis
+    (flights, or operating hours: ``fl``, ``h``)."""
     head = (
-        f"{'#':>4} {'actuator':<22} {'comm':<4} {'periods':>7} {'op h':>8} {'C_Lk/base':>9} "
-        f"{'trend /100h':>15} {'P_SR min MPa':>12} {'RUL median [90%] unit':>30} "
+        f"{'#':>4} {'actuator':<22} {'comm':<4} {'periods':>7} {'life':>8} {'C_Lk/base':>9} "
+        f"{'trend':>20} {'P_SR min MPa':>12} {'RUL median [90%] unit':>30} "
         f"{'P(hor)':>6} {'alarms':>6}"
     )
     lines = [head, "-" * len(head)]
+    short = {"flights": "fl", "h": "h", "per 10 flights": "/10 fl", "per 100 h": "/100 h"}
     for r in ranked:
         last = r.get("last") or {}
-        tr = r.get("trend") or {}
-        slope = finite_or_none(tr.get("slope_per_h"))
-        trend = "-" if slope is None else f"{tr.get('label', '')} {slope * 100:+.2f}"
+        life, rate = r["life"], r["trend_rate"]
+        life_s = (
+            "-"
+            if life["value"] is None
+            else f"{life['value']:.{0 if life['unit'] == 'flights' else 1}f} {short[life['unit']]}"
+        )
+        trend = "-"
+        if rate is not None:
+            trend = f"{(r.get('trend') or {}).get('label', '')} {rate['value']:+.2f}{short[rate['unit']]}"
         iv = r.get("rul_interval")
         if iv and iv["median"] is not None:
             rul = f"{iv['median']:.0f} [{_f(iv['lo'], '.0f')}-{_f(iv['hi'], '.0f')}] {iv['unit']}"
@@ -129,8 +158,8 @@ def format_fleet(ranked: list[dict[str, Any]]) -> str:
             rul = "-"
         lines.append(
             f"{r['rank']:>4} {r['actuator']:<22} {'yes' if r['commissioned'] else 'NO':<4} "
-            f"{r['periods']:>7} {r['op_time_s'] / 3600:>8.1f} {_f(last.get('c_lk_ratio'), '.3f'):>9} "
-            f"{trend:>15} {_f(last.get('p_sr_min'), '.2f', 1e-6):>12} {rul:>30} "
+            f"{r['periods']:>7} {life_s:>8} {_f(last.get('c_lk_ratio'), '.3f'):>9} "
+            f"{trend:>20} {_f(last.get('p_sr_min'), '.2f', 1e-6):>12} {rul:>30} "
             f"{_f(iv and iv['p_horizon'], '.2f'):>6} {_alarm_count(r):>6}"
         )
     return "\n".join(lines)

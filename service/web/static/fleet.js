@@ -68,6 +68,13 @@ function rulText(u) {
   return `${fmt(iv.median, 0)} [${fmt(iv.lo, 0)}-${fmt(iv.hi, 0)}] ${unit}${days}`;
 }
 
+function lifeText(u) {
+  // flights so far, or operating hours: the life axis the unit's history supports
+  const l = u.life;
+  if (!l || num(l.value) === null) return "-";
+  return l.unit === "flights" ? `${fmt(l.value, 0)} flights` : `${fmt(l.value, 1)} h`;
+}
+
 function flightsText(u) {
   const iv = u.rul_interval;
   if (!iv || num(iv.median_flights) === null) return "-";
@@ -133,7 +140,8 @@ function renderTable() {
     if (u.actuator === selected) tr.classList.add("selected");
     const last = u.last || {};
     const tr_ = u.trend || {};
-    const slope = num(tr_.slope_per_h);
+    const rate = u.trend_rate;  // the C_Lk-ratio trend on the unit's life axis
+    const slope = rate ? num(rate.value) : null;
     tr.appendChild(el("td", { class: "rank" }, u.rank));
     tr.appendChild(el("td", { class: "unit" }, u.actuator));
     const st = el("td", { class: "status", title: u.status_reason || "" });
@@ -141,7 +149,7 @@ function renderTable() {
     tr.appendChild(st);
     tr.appendChild(el("td", { class: "ratio" }, fmt(last.c_lk_ratio, 3)));
     tr.appendChild(el("td", { class: "trend " + (tr_.label || "") },
-      slope === null ? "-" : `${tr_.label || ""} ${(slope * 100 >= 0 ? "+" : "")}${(slope * 100).toFixed(2)}`.trim()));
+      slope === null ? "-" : `${tr_.label || ""} ${slope >= 0 ? "+" : ""}${slope.toFixed(2)} ${rate.unit}`.trim()));
     tr.appendChild(el("td", { class: "psr" }, fmt(last.p_sr_min, 2, 1e-6)));
     tr.appendChild(el("td", { class: "rul" }, rulText(u)));
     const bar = el("td", { class: "bar" });
@@ -150,7 +158,7 @@ function renderTable() {
     tr.appendChild(el("td", { class: "flights" }, flightsText(u)));
     tr.appendChild(el("td", { class: "phor" }, u.rul_interval ? fmt(u.rul_interval.p_horizon, 2) : "-"));
     tr.appendChild(el("td", { class: "alarms" }, Math.max(u.alarms || 0, u.alarm_events || 0)));
-    tr.appendChild(el("td", { class: "oph" }, fmt(u.op_time_s, 1, 1 / 3600)));
+    tr.appendChild(el("td", { class: "life" }, lifeText(u)));
     tr.appendChild(liveCell(u.actuator));
     tr.addEventListener("click", () => { location.hash = "unit=" + encodeURIComponent(u.actuator); });
     tbody.appendChild(tr);
