@@ -10,11 +10,12 @@ interval are scored like the RUL (``metrics.score_unit``; coverage from mid-life
 flights (from the ``min_history``-th on, before the end of life).
 
 What the oracle misses is unpredictable by construction: no predictor that sees only the past
-can do better on average. It never misses a knee (it knows the law); the RUL, which sees only
-the indicator, cannot know a knee before it shows.
+can do better on average. It knows a knee ahead (it knows the law), which the RUL, seeing only
+the indicator, cannot; ``--knee-unforeseen`` gives it only the first rate until the knee.
 
     .venv/bin/python -m evaluation.rul_oracle --truth t33.json --json
     .venv/bin/python -m evaluation.rul_oracle --acceptance 101 --units 10 --flights 30
+    .venv/bin/python -m evaluation.rul_oracle --acceptance 101 --knee-unforeseen
 
 The future factors: ``fleet-sim`` hours per flight = the unit's mean x U(0.8, 1.2) (the mean
 of ``draw_units``, drawn again from the truth's seed), load U(0.6, 1.4) (``load`` law: wear per flight
@@ -60,6 +61,9 @@ class OracleUnit:
     future: Sampler
     eol_flight: float
     flown: int
+    law_at: Callable[[float], Callable[[np.ndarray], np.ndarray]] | None = None
+    """The law as the predictor may know it at a damage (None: ``ratio`` throughout); a law
+    that changes ahead without a precursor (a knee) is known only once passed."""
 
 
 def oracle_rul(
@@ -80,7 +84,8 @@ def oracle_rul(
         [np.full((n, 1), d_now), np.full((n, 1), d_next), d_next + np.cumsum(steps, axis=1)],
         axis=1,
     )  # column j at x = k + 1 + j
-    r = u.ratio(d)
+    r = (u.law_at(d_now) if u.law_at is not None else u.ratio)(d)
+    r[:, 0] = u.ratio(np.array([d_now]))[0]  # the reading now is seen, not predicted
     above = r >= thr
     hit = above.any(axis=1)
     c = np.argmax(above, axis=1)
@@ -202,9 +207,12 @@ def fleetsim_units(truth: dict) -> list[OracleUnit]:
     return out
 
 
-def acceptance_units(seed: int, units: int, flights: int, thr: float) -> list[OracleUnit]:
+def acceptance_units(
+    seed: int, units: int, flights: int, thr: float, knee_foreseen: bool = True
+) -> list[OracleUnit]:
     """The oracle's view of the acceptance fleet (``tests.acceptance_fleet.draw``; the
-    flights flown: up to the one reaching the threshold)."""
+    flights flown: up to the one reaching the threshold). ``knee_foreseen`` False: before a
+    two-rate unit's knee the oracle knows only the first rate (the knee has no precursor)."""
     from tests.acceptance_fleet import draw, ratio_of
 
     out = []
@@ -221,8 +229,19 @@ def acceptance_units(seed: int, units: int, flights: int, thr: float) -> list[Or
         def ratio(d, u=u):
             return ratio_of(u, d, thr)
 
+        law_at = None
+        if u["law"] == "two_rate" and not knee_foreseen:
+            p = u["params"]
+            knee_d = p["knee"] * p["life"]
+            at = p["knee"] / (p["knee"] + p["k"] * (1 - p["knee"]))
+
+            def law_at(d_now, ratio=ratio, knee_d=knee_d, at=at, life=p["life"]):
+                if d_now >= knee_d:
+                    return ratio
+                return lambda d: 1 + (thr - 1) * at * np.asarray(d, float) / knee_d
+
         out.append(OracleUnit(u["actuator"], u["law"], inc, ratio, future,
-                              float(u["eol_flight"]), flown))  # fmt: skip
+                              float(u["eol_flight"]), flown, law_at))  # fmt: skip
     return out
 
 
@@ -234,6 +253,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--units", type=int, default=10, help="acceptance fleet units (default 10)")
     ap.add_argument("--flights", type=int, default=30, help="acceptance fleet flights (30)")
     ap.add_argument("--draws", type=int, default=2000, help="Monte-Carlo draws per prediction")
+    ap.add_argument(
+        "--knee-unforeseen", action="store_true",
+        help="acceptance fleet: the two-rate knee unknown to the oracle until passed",
+    )  # fmt: skip
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     from service.prognostics.rul import default_threshold_ratio
@@ -245,7 +268,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         us = fleetsim_units(tr)
     else:
         thr = default_threshold_ratio()
-        us = acceptance_units(a.acceptance, a.units, a.flights, thr)
+        us = acceptance_units(a.acceptance, a.units, a.flights, thr, not a.knee_unforeseen)
     ev = score_oracle(us, thr, n=a.draws)
     if a.json:
         print(json.dumps({k: v for k, v in ev.items() if k != "units"}))

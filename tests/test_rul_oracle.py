@@ -86,3 +86,19 @@ def test_acceptance_oracle_reproduces_the_truth_schedule():
         assert np.allclose(ratio_of(u, d, THR), u["ratio_schedule"], rtol=0, atol=1e-12)
     us = acceptance_units(7, 5, 14, THR)
     assert [u.law for u in us] == ["none", "quadratic", "two_rate", "sqrt_then_exp", "cycles"]
+
+
+def test_knee_unforeseen_oracle_predicts_the_first_rate_before_the_knee():
+    thr = 11.0
+    seen = {u.actuator: u for u in acceptance_units(101, 10, 30, thr)}
+    blind = {u.actuator: u for u in acceptance_units(101, 10, 30, thr, knee_foreseen=False)}
+    u = next(v for v in seen.values() if v.law == "two_rate")
+    b = blind[u.actuator]
+    assert b.law_at is not None and u.law_at is None
+    # before the knee the blind oracle expects the slow rate to last: a longer RUL
+    m_seen = np.median(oracle_rul(u, 7, thr, n=400))
+    m_blind = np.median(oracle_rul(b, 7, thr, n=400))
+    assert m_blind > 1.5 * m_seen
+    # once past the knee both know it
+    k = int(u.eol_flight) - 2
+    assert np.median(oracle_rul(b, k, thr, n=400)) == np.median(oracle_rul(u, k, thr, n=400))
