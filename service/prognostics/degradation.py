@@ -197,12 +197,23 @@ def _grid(model: str, t: NDArray) -> NDArray:
     return np.zeros(1)
 
 
-def _fit_model(model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPrior):
-    """Gaussian posteriors and log evidences of one model over its grid (batched)."""
+def _fit_model(
+    model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPrior,
+    chol: NDArray | None = None,
+):  # fmt: skip
+    """Gaussian posteriors and log evidences of one model over its grid (batched). ``chol``:
+    the Cholesky factor C of the noise covariance (then ``sigma`` is 1): the model is whitened
+    by C^-1 and the evidence corrected by -log|C|."""
     grid = _grid(model, t)
     if len(grid) == 0:
         return grid, np.full(0, -np.inf), np.zeros((0, 0)), np.zeros((0, 0, 0))
     Phi = np.stack([_basis(model, t, float(e)) for e in grid])  # (G, n, p)
+    logdet_c = 0.0
+    if chol is not None:
+        c_inv = np.linalg.inv(chol)  # n x n, once per model: whitening is then a product
+        Phi = c_inv @ Phi
+        y = c_inv @ y
+        logdet_c = float(np.log(np.diagonal(chol)).sum())
     m0 = np.asarray(prior.mean, float)
     v0 = np.asarray(prior.sd, float) ** 2
     s2 = sigma * sigma
@@ -219,6 +230,7 @@ def _fit_model(model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPri
         + 0.5 * np.einsum("gp,gp->g", b, mn)
         - 0.5 * float(np.log(v0).sum())
         - 0.5 * logdet_A
+        - logdet_c
     )
     cov = np.linalg.inv(A)
     return grid, logev, mn, cov
@@ -253,15 +265,37 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
     q2_f = prior.q2_rel / scale
     fit.q2 = (k0 * q2_f + n_q * q2_u) / (k0 + n_q) if n_q else q2_f
     # the wear's own spread per step, against the measurement noise of the increments (the
-    # unit's, shrunk toward the fleet's)
+    # unit's, shrunk toward the fleet's; with neither, all of sigma counts as measurement
+    # noise, the cautious reading)
     s2m_u, n_m = measurement_noise(_increments(t * scale, y, fit)[0])
-    s2m = s2m_u
-    if prior.sigma_m2 is not None:
-        s2m = (k0 * prior.sigma_m2 + n_m * s2m_u) / (k0 + n_m)
+    s2m_f = prior.sigma_m2 if prior.sigma_m2 is not None else sigma**2
+    s2m = (k0 * s2m_f + n_m * s2m_u) / (k0 + n_m)
     cv2_u, n_c = usage_spread(t * scale, y, fit, s2m)
     fit.cv2 = (k0 * prior.cv2 + n_c * cv2_u) / (k0 + n_c) if n_c else prior.cv2
     fit.dt = float(np.mean(np.diff(t * scale))) if len(t) > 1 else 1.0
+    if fit.cv2 > 0 and len(t) >= 6:
+        fit = _refit_with_wear_spread(t, y, sigma, prior, t_now, scale, fit, s2m)
     return fit
+
+
+def _refit_with_wear_spread(t, y, sigma, prior, t_now, scale, fit: Fit, s2m: float) -> Fit:
+    """The posterior again under the noise model the RUL's spread uses: measurement noise
+    sigma_m^2 plus the wear's own spread accumulated along the path, Cov(y_i, y_j) =
+    sigma_m^2 delta_ij + V_min(i,j), V_k = cv^2 sum_l<k s_l^2 / dt_l (``usage_spread``; s_l the
+    first fit's path increments). A path whose wear per step varies is then not read as a
+    curve (a chance acceleration over a few flights weighs as the random walk it is)."""
+    tt = t * scale
+    dt = np.diff(tt)
+    mp = fit.mean_path(tt)
+    inc = np.where(dt > 0, np.diff(mp) ** 2 / np.where(dt > 0, dt, 1.0), 0.0)
+    v = np.concatenate(([0.0], np.cumsum(fit.cv2 * inc)))
+    if v[-1] <= 0:
+        return fit
+    idx = np.arange(len(t))
+    cov = max(s2m, 1e-6) * np.eye(len(t)) + v[np.minimum.outer(idx, idx)]
+    out = _posterior(t, y, sigma, prior, t_now, scale, np.linalg.cholesky(cov))
+    out.q2, out.cv2, out.dt = fit.q2, fit.cv2, fit.dt
+    return out
 
 
 def _increments(t: NDArray, y: NDArray, fit: Fit) -> tuple[NDArray, NDArray]:
@@ -314,12 +348,14 @@ def _lag1(r: NDArray, max_rho: float = 0.9) -> float:
     return min(max(float(r[1:] @ r[:-1]) / den, 0.0), max_rho)
 
 
-def _posterior(t, y, sigma, prior, t_now, scale) -> Fit:
-    """The models' posteriors at a fixed sigma (``fit_history``)."""
+def _posterior(t, y, sigma, prior, t_now, scale, chol=None) -> Fit:
+    """The models' posteriors at a fixed sigma, or a noise covariance's Cholesky factor
+    ``chol`` (``fit_history``)."""
     grids, post, means, covs, logz = {}, {}, {}, {}, {}
     tot = []
     for m in MODELS:
-        g, le, mn, cv = _fit_model(m, t, y, sigma, prior.weights[m])
+        g, le, mn, cv = _fit_model(m, t, y, 1.0 if chol is not None else sigma,
+                                   prior.weights[m], chol)  # fmt: skip
         grids[m], means[m], covs[m] = g, mn, cv
         if len(g) == 0 or prior.p_model.get(m, 0.0) <= 0:
             logz[m] = -math.inf
