@@ -16,6 +16,7 @@ the indicator, cannot; ``--knee-unforeseen`` gives it only the first rate until 
     .venv/bin/python -m evaluation.rul_oracle --truth t33.json --json
     .venv/bin/python -m evaluation.rul_oracle --acceptance 101 --units 10 --flights 30
     .venv/bin/python -m evaluation.rul_oracle --acceptance 101 --knee-unforeseen
+    .venv/bin/python -m evaluation.rul_oracle --drawn 1-30      # fleet-sim truths, no logs
 
 The future factors: ``fleet-sim`` hours per flight = the unit's mean x U(0.8, 1.2) (the mean
 of ``draw_units``, drawn again from the truth's seed), load U(0.6, 1.4) (``load`` law: wear per flight
@@ -42,6 +43,7 @@ __all__ = [
     "score_oracle",
     "fleetsim_units",
     "acceptance_units",
+    "drawn_fleet_truth",
 ]
 
 Sampler = Callable[[np.random.Generator, tuple[int, int]], np.ndarray]
@@ -207,6 +209,24 @@ def fleetsim_units(truth: dict) -> list[OracleUnit]:
     return out
 
 
+def drawn_fleet_truth(
+    seed: int, actuators: int = 12, flights: int = 30, thr: float | None = None
+) -> dict:
+    """A ``fleet-sim --truth`` object of ``draw_units`` alone (no logs, no ingest): each unit
+    flown up to the flight that reaches the threshold, as ``simulate_unit`` does."""
+    from dataclasses import asdict
+
+    from service.prognostics.fleetsim import FleetSimConfig, draw_units
+
+    cfg = FleetSimConfig(actuators=actuators, flights=flights, seed=seed, threshold_ratio=thr)
+    units = []
+    for u in draw_units(cfg):
+        r = u.ratios()[:flights]
+        above = np.flatnonzero(r >= cfg.threshold())
+        units.append({**asdict(u), "flown": int(above[0]) + 1 if len(above) else flights})
+    return {"seed": seed, "threshold_ratio": cfg.threshold(), "units": units}
+
+
 def acceptance_units(
     seed: int, units: int, flights: int, thr: float, knee_foreseen: bool = True
 ) -> list[OracleUnit]:
@@ -250,6 +270,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     g = ap.add_mutually_exclusive_group(required=True)
     g.add_argument("--truth", help="a fleet-sim --truth file")
     g.add_argument("--acceptance", type=int, metavar="SEED", help="the acceptance fleet's seed")
+    g.add_argument(
+        "--drawn", metavar="A-B",
+        help="fleet-sim seeds A..B drawn without logs (12 units, 30 flights): per seed and mean",
+    )  # fmt: skip
     ap.add_argument("--units", type=int, default=10, help="acceptance fleet units (default 10)")
     ap.add_argument("--flights", type=int, default=30, help="acceptance fleet flights (30)")
     ap.add_argument("--draws", type=int, default=2000, help="Monte-Carlo draws per prediction")
@@ -261,6 +285,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     a = ap.parse_args(argv)
     from service.prognostics.rul import default_threshold_ratio
 
+    if a.drawn:
+        lo, _, hi = a.drawn.partition("-")
+        per = []
+        for sd in range(int(lo), int(hi or lo) + 1):
+            tr = drawn_fleet_truth(sd)
+            ev = score_oracle(fleetsim_units(tr), tr["threshold_ratio"], n=a.draws)
+            per.append((sd, ev["alpha_lambda_pct"], ev["interval_coverage_pct"]))
+        al = [x[1] for x in per if x[1] is not None]
+        cv = [x[2] for x in per if x[2] is not None]
+        out = {"seeds": [x[0] for x in per], "alpha_lambda_pct": [x[1] for x in per],
+               "interval_coverage_pct": [x[2] for x in per],
+               "mean_alpha_lambda_pct": float(np.mean(al)), "min_alpha_lambda_pct": min(al),
+               "mean_interval_coverage_pct": float(np.mean(cv)),
+               "min_interval_coverage_pct": min(cv)}  # fmt: skip
+        if a.json:
+            print(json.dumps(out))
+        else:
+            for sd, x, c in per:
+                print(f"seed {sd:<4} alpha-lambda {x:5.1f} %  coverage {c:5.1f} %")
+            print(f"mean alpha-lambda {out['mean_alpha_lambda_pct']:.1f} % (min {min(al):.1f}), "
+                  f"coverage {out['mean_interval_coverage_pct']:.1f} % (min {min(cv):.1f})")  # fmt: skip
+        return 0
     if a.truth:
         with open(a.truth) as f:
             tr = json.load(f)

@@ -11,11 +11,11 @@ import numpy as np
 from evaluation.rul_oracle import (
     OracleUnit,
     acceptance_units,
+    drawn_fleet_truth,
     fleetsim_units,
     oracle_rul,
     score_oracle,
 )
-from service.prognostics.fleetsim import FleetSimConfig, draw_units
 
 THR = 10.0
 
@@ -61,15 +61,8 @@ def test_oracle_on_fleet_sim_truth_misses_only_load_wear():
     thr = 11.0
     acc: dict[str, list[float]] = {}
     for seed in (1, 2, 3):
-        units = []
-        for u in draw_units(
-            FleetSimConfig(actuators=12, flights=30, seed=seed, threshold_ratio=thr)
-        ):
-            r = u.ratios()[:30]
-            above = np.flatnonzero(r >= thr)
-            d = {**u.__dict__, "flown": int(above[0]) + 1 if len(above) else 30}
-            units.append(d)
-        truth = json.loads(json.dumps({"seed": seed, "threshold_ratio": thr, "units": units}))
+        truth = json.loads(json.dumps(drawn_fleet_truth(seed, thr=thr)))  # as a truth file
+        assert truth["units"][0]["flown"] <= 30
         for law, v in score_oracle(fleetsim_units(truth), thr, n=500)["by_law"].items():
             acc.setdefault(law, []).append(v["alpha_lambda_pct"])
     for law in ("linear", "exponential", "power"):
