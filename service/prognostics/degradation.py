@@ -25,6 +25,13 @@ to AR(1) errors) and the posterior computed again, so the intervals widen rather
 a misfitting model. The path's diffusion about the model (``diffusion``) spreads each
 draw's crossing time to first order (a drifted random walk's first passage).
 
+Wear spread: the wear per step varies (hours, load, cycles per flight), so the path is a
+random walk about its trend. The measurement noise sigma_m^2 and the wear's squared
+coefficient of variation cv^2 are told apart by the lag-one autocovariance of the increments
+(``measurement_noise``, ``usage_spread``); the posterior is then computed again under that
+noise model, Cov = sigma_m^2 I + the spread accumulated along the path
+(``_refit_with_wear_spread``), and each draw's crossing is spread by cv sqrt(steps ahead).
+
 Prior: w ~ N(m0, V0) (per model, learned from the fleet, ``FleetPrior``), eta uniform on its
 grid, sigma^2 fixed per unit (its robust first-difference estimate shrunk toward the fleet's).
 Then the posterior of w for each eta is Gaussian (precision A = V0^-1 + Phi'Phi / sigma^2)
