@@ -14,6 +14,10 @@ Wear laws (true C_Lk ratio against the unit's cumulative operating hours h, or c
 - ``cycles``: linear in the number of actuator cycles, which differ per flight (x 0.3-2).
 
     .venv/bin/python -m tests.acceptance_fleet --seed 101 --units 8 --flights 30 --json
+
+``--work DIR`` keeps the logs, the store (``DIR/acceptance.sqlite``) and the truth
+(``DIR/truth.json``, the format of ``fleet-sim --truth``); ``--score-only`` then scores the
+stored histories again without generating or ingesting (``fleetsim.evaluate_store``).
 """
 
 from __future__ import annotations
@@ -38,20 +42,24 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
     n = 5 * flights
     for i in range(units):
         law = LAWS[i % len(LAWS)]
-        hours = rng.uniform(0.6, 4.0) * rng.uniform(0.7, 1.3, n)
+        base_h = rng.uniform(0.6, 4.0)
+        hours = base_h * rng.uniform(0.7, 1.3, n)
         cyc = rng.uniform(0.3, 2.0, n)
         h = np.concatenate(([0.0], np.cumsum(hours)[:-1]))
         c = np.concatenate(([0.0], np.cumsum(cyc)[:-1]))
         life = rng.uniform(0.5, 1.3) * float(np.sum(hours[:flights]))  # hours to the threshold
         x = h / life  # 1 at the end of life (hours laws)
+        par: dict[str, float] = {"life": life}
         if law == "none":
             r = np.ones(n)
         elif law == "quadratic":
             f = rng.uniform(0.1, 0.6)  # share of the linear term at the end of life
+            par["f"] = f
             r = 1 + (thr - 1) * (f * x + (1 - f) * x**2)
         elif law == "two_rate":
             knee = rng.uniform(0.3, 0.6)
             k = rng.uniform(4.0, 8.0)
+            par.update(knee=knee, k=k)
             at_knee = knee / (knee + k * (1 - knee))
             r = 1 + (thr - 1) * np.where(x < knee, x / knee * at_knee,
                                          at_knee + (x - knee) / (1 - knee) * (1 - at_knee))  # fmt: skip
@@ -59,9 +67,11 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
             g = rng.uniform(2.0, 3.5)
             a = rng.uniform(0.5, 1.5)
             cc = (thr - 1 - a) / math.expm1(g)
+            par.update(g=g, a=a, cc=cc)
             r = 1 + a * np.sqrt(x) + cc * np.expm1(g * x)
         else:  # cycles
-            xc = c / (rng.uniform(0.5, 1.3) * float(np.sum(cyc[:flights])))
+            par["life"] = rng.uniform(0.5, 1.3) * float(np.sum(cyc[:flights]))  # in cycles
+            xc = c / par["life"]
             r = 1 + (thr - 1) * xc
         per_day = rng.choice([1, 2, 4])
         starts, day = [], 0
@@ -79,8 +89,29 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
             "ratio_schedule": r.tolist(), "start_unix": starts[:n], "eol_flight": eol,
             "noise": float(rng.uniform(0.7, 1.6)), "load": float(rng.uniform(0.7, 1.3)),
             "log_s": float(rng.uniform(1.5, 3.0)),
+            "base_h": float(base_h), "hours": hours.tolist(), "cycles": cyc.tolist(),
+            "params": {k: float(v) for k, v in par.items()},
         })  # fmt: skip
     return out
+
+
+def ratio_of(u: dict, d: float | np.ndarray, thr: float) -> np.ndarray:
+    """True ratio of unit ``u`` (a ``draw`` entry) at damage ``d``: cumulative operating
+    hours, or actuator cycles for the ``cycles`` law (the law of ``draw``, for oracles)."""
+    x = np.asarray(d, float) / u["params"]["life"]
+    p, law = u["params"], u["law"]
+    if law == "none":
+        return np.ones_like(x)
+    if law in ("quadratic",):
+        return 1 + (thr - 1) * (p["f"] * x + (1 - p["f"]) * x**2)
+    if law == "two_rate":
+        knee, k = p["knee"], p["k"]
+        at = knee / (knee + k * (1 - knee))
+        return 1 + (thr - 1) * np.where(x < knee, x / knee * at,
+                                        at + (x - knee) / (1 - knee) * (1 - at))  # fmt: skip
+    if law == "sqrt_then_exp":
+        return 1 + p["a"] * np.sqrt(x) + p["cc"] * np.expm1(p["g"] * x)
+    return 1 + (thr - 1) * x
 
 
 def write_logs(units: list[dict], flights: int, thr: float, folder: Path, seed: int) -> None:
@@ -120,9 +151,7 @@ def write_logs(units: list[dict], flights: int, thr: float, folder: Path, seed: 
 def run(seed: int, units: int, flights: int, work: Path) -> dict:
     """Generate, ingest through the CLI, evaluate; the metrics of ``fleet-sim --evaluate``."""
     from service.cli import main
-    from service.prognostics.fleetsim import FleetSimConfig, evaluate
     from service.prognostics.rul import default_threshold_ratio
-    from service.store import open_store
 
     thr = default_threshold_ratio()
     truth = draw(seed, units, flights, thr)
@@ -137,14 +166,33 @@ def run(seed: int, units: int, flights: int, work: Path) -> dict:
             raise RuntimeError(f"calibrate failed on {f0}")
     if main(["replay", str(logs), "--store", str(store), "--json"]) != 0:
         raise RuntimeError("replay failed")
-    with open_store(store) as st:
-        results = [{"truth": {k: v for k, v in u.items() if k != "ratio_schedule"},
-                    "periods": [p.to_dict() for p in st.periods(u["actuator"])]}
-                   for u in truth]  # fmt: skip
-    cfg = FleetSimConfig(actuators=units, flights=flights, seed=seed, threshold_ratio=thr)
-    ev = evaluate(results, cfg)
+    tr = {
+        "seed": seed,
+        "threshold_ratio": thr,
+        "flights": flights,
+        "units": [{k: v for k, v in u.items() if k != "ratio_schedule"} for u in truth],
+    }
+    (work / "truth.json").write_text(json.dumps(tr, default=_plain) + "\n")
+    return score(work)
+
+
+def _plain(v):
+    return v.item() if hasattr(v, "item") else str(v)
+
+
+def score(work: Path) -> dict:
+    """The metrics of ``fleet-sim --evaluate`` on the store and truth kept in ``work``."""
+    from service.prognostics.fleetsim import FleetSimConfig, evaluate_store
+    from service.store import open_store
+
+    tr = json.loads((work / "truth.json").read_text())
+    units, flights, seed = len(tr["units"]), tr["flights"], tr["seed"]
+    cfg = FleetSimConfig(actuators=units, flights=flights, seed=seed,
+                         threshold_ratio=tr["threshold_ratio"])  # fmt: skip
+    with open_store(work / "acceptance.sqlite") as st:
+        ev = evaluate_store(st, tr, cfg)
     ev["fleet"] = {"seed": seed, "units": units, "flights": flights,
-                   "laws": [u["law"] for u in truth]}  # fmt: skip
+                   "laws": [u["law"] for u in tr["units"]]}  # fmt: skip
     return ev
 
 
@@ -154,15 +202,21 @@ def main_cli() -> int:
     ap.add_argument("--units", type=int, default=8)
     ap.add_argument("--flights", type=int, default=30)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--work", default=None, metavar="DIR", help="keep logs, store and truth")
+    ap.add_argument("--score-only", action="store_true", help="score the store kept in --work")
     a = ap.parse_args()
     import contextlib
     import io
 
+    if a.score_only and a.work is None:
+        ap.error("--score-only needs --work")
     with (
         tempfile.TemporaryDirectory(prefix="acceptance-") as tmp,
         contextlib.redirect_stdout(io.StringIO()),
     ):
-        ev = run(a.seed, a.units, a.flights, Path(tmp))
+        work = Path(a.work) if a.work else Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        ev = score(work) if a.score_only else run(a.seed, a.units, a.flights, work)
     keys = ("alpha_lambda_pct", "interval_coverage_pct", "interval_coverage_all_pct",
             "kendall_tau", "kendall_tau_min", "healthy_max_p_horizon", "relative_accuracy_pct",
             "scored_units", "healthy_units")  # fmt: skip

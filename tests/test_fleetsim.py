@@ -72,6 +72,16 @@ def test_fleet_sim_end_to_end(tmp_path, capsys):
             est = np.array([p.c_lk_ratio for p in ps])
             assert np.max(np.abs(est - np.array(u["ratio"]))) < 0.05 * max(u["ratio"]) + 0.05
             assert st.rul(u["actuator"]) is not None
+    # the scoring alone on the stored histories and the truth file: the same figures
+    assert main(["fleet-sim", "--score-only", "--store", str(store), "--truth", str(truth),
+                 "--json"]) == 0  # fmt: skip
+    again = json.loads(capsys.readouterr().out)
+    for k in ("alpha_lambda_pct", "interval_coverage_pct", "kendall_tau",
+              "healthy_max_p_horizon", "scored_units", "by_law"):  # fmt: skip
+        assert again[k] == out[k], k
+    assert main(["fleet-sim", "--score-only", "--store", str(tmp_path / "none.sqlite"),
+                 "--truth", str(truth)]) == 2  # fmt: skip
+    assert "--store" in capsys.readouterr().err
     # the RUL command on the same store, with the fan plot
     png = tmp_path / "fan.png"
     assert main(["rul", "--store", str(store), "--json", "--png", str(png)]) == 0

@@ -31,6 +31,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_store_argument(p)
     p.add_argument("--truth", default="fleet-sim-truth.json", help="truth JSON file")
     p.add_argument("--evaluate", action="store_true", help="score the RUL predictions")
+    p.add_argument(
+        "--score-only", action="store_true",
+        help="score the RUL on the existing --store against the existing --truth file "
+        "(no simulation, no ingest; the fleet's seed and threshold from the truth)",
+    )  # fmt: skip
     p.add_argument("--eval-every", type=int, default=1, help="predict every k-th flight")
     p.add_argument("--segment-s", type=finite_float, default=2.0, help="bench seconds per flight")
     p.add_argument("--horizon-h", type=finite_float, default=50.0, help="planning horizon [h]")
@@ -53,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     from service.prognostics.rul import RulConfig, compute_rul
     from service.warmup import ensure
 
+    if args.score_only:
+        return _score_only(args)
     ensure("models", "monitor")
 
     if args.actuators < 1 or args.flights < 2:
@@ -119,7 +126,50 @@ def run(args: argparse.Namespace) -> int:
         out.update({k: v for k, v in ev.items() if k != "units"})
         out["eval_wall_s"] = time.perf_counter() - t0 - sim["wall_s"]
     out["wall_s"] = time.perf_counter() - t0
-    if args.json:
+    return _print(out, args.json)
+
+
+def _score_only(args: argparse.Namespace) -> int:
+    """``--score-only``: ``fleetsim.evaluate_store`` on the stored histories and the truth."""
+    from service.prognostics.fleetsim import FleetSimConfig, evaluate_store
+
+    if args.eval_every < 1 or args.horizon_h <= 0:
+        return fail("need --eval-every >= 1, --horizon-h > 0")
+    try:
+        truth = json.loads(Path(args.truth).read_text())
+    except (OSError, ValueError) as e:
+        return fail(f"--truth: {e}")
+    if not isinstance(truth, dict):
+        return fail("--truth: not a fleet-sim truth object")
+    thr = args.threshold if args.threshold is not None else truth.get("threshold_ratio")
+    t0 = time.perf_counter()
+    try:
+        store = open_store_arg(args, create=False)
+    except StoreError as e:
+        return fail(str(e))
+    with store:
+        units = truth.get("units") or []
+        cfg = FleetSimConfig(
+            actuators=len(units), seed=int(truth.get("seed", 0)), threshold_ratio=thr,
+            eval_every=args.eval_every, horizon_h=args.horizon_h,
+            horizon_flights=args.horizon_flights,
+        )  # fmt: skip
+        prog = Progress("evaluate")
+        try:
+            ev = evaluate_store(store, truth, cfg, progress=prog)
+        except ValueError as e:
+            return fail(str(e))
+        prog.done()
+        url = store.url
+    out = {"store": url, "truth": args.truth, "seed": cfg.seed,
+           "threshold_ratio": cfg.threshold(), "healthy_units": ev["healthy_units"]}  # fmt: skip
+    out.update({k: v for k, v in ev.items() if k != "units"})
+    out["eval_wall_s"] = time.perf_counter() - t0
+    return _print(out, args.json)
+
+
+def _print(out: dict, as_json: bool) -> int:
+    if as_json:
         emit_json(out)
         return 0
     for k, v in out.items():

@@ -25,6 +25,13 @@ to AR(1) errors) and the posterior computed again, so the intervals widen rather
 a misfitting model. The path's diffusion about the model (``diffusion``) spreads each
 draw's crossing time to first order (a drifted random walk's first passage).
 
+Wear spread: the wear per step varies (hours, load, cycles per flight), so the path is a
+random walk about its trend. The measurement noise sigma_m^2 and the wear's squared
+coefficient of variation cv^2 are told apart by the lag-one autocovariance of the increments
+(``measurement_noise``, ``usage_spread``); the posterior is then computed again under that
+noise model, Cov = sigma_m^2 I + the spread accumulated along the path
+(``_refit_with_wear_spread``), and each draw's crossing is spread by cv sqrt(steps ahead).
+
 Prior: w ~ N(m0, V0) (per model, learned from the fleet, ``FleetPrior``), eta uniform on its
 grid, sigma^2 fixed per unit (its robust first-difference estimate shrunk toward the fleet's).
 Then the posterior of w for each eta is Gaussian (precision A = V0^-1 + Phi'Phi / sigma^2)
@@ -104,6 +111,7 @@ class FleetPrior:
     t_scale: float | None = None
     q2_rel: float = 0.0  # fleet's path diffusion, q^2 t_scale (ratio^2 per history span)
     cv2: float = 0.0  # fleet's usage spread per observation step (``usage_spread``)
+    sigma_m2: float | None = None  # fleet's measurement noise variance (``measurement_noise``)
     kappa: float = 1.0  # interval widening learned by hindcasts on the fleet (``hindcast``)  # T of u = t / T (None: each history's own span)
 
     def as_dict(self) -> dict:
@@ -118,6 +126,7 @@ class FleetPrior:
             "t_scale": self.t_scale,
             "q2_rel": self.q2_rel,
             "cv2": self.cv2,
+            "sigma_m2": self.sigma_m2,
             "kappa": self.kappa,
         }
 
@@ -172,6 +181,22 @@ def _basis(model: str, t: NDArray, eta: float) -> NDArray:
     raise ValueError(f"unknown model {model!r}")
 
 
+def _basis_grid(model: str, t: NDArray, grid: NDArray) -> NDArray:
+    """``_basis`` at every eta of ``grid`` at once, (G, len(t), p)."""
+    g = np.asarray(grid, float)[:, None]
+    one = np.ones((len(g), len(t)))
+    if model == "exponential":
+        cols = [one, np.expm1(g * t[None, :]) / g]
+    elif model == "step":
+        d = t[None, :] - g
+        cols = [one, (d > 0).astype(float), np.maximum(d, 0.0)]
+    elif model == "power":
+        cols = [one, np.maximum(t, 0.0)[None, :] ** g]
+    else:
+        return np.stack([_basis(model, t, float(e)) for e in grid])
+    return np.stack(cols, axis=2)
+
+
 def noise_sigma(y: NDArray) -> float:
     """Robust indicator noise from second differences (blind to a linear trend, a step
     spoils only three of them): 1.4826 MAD(diff2 y) / sqrt(6); NaN below 4 points."""
@@ -195,12 +220,23 @@ def _grid(model: str, t: NDArray) -> NDArray:
     return np.zeros(1)
 
 
-def _fit_model(model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPrior):
-    """Gaussian posteriors and log evidences of one model over its grid (batched)."""
+def _fit_model(
+    model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPrior,
+    chol: NDArray | None = None,
+):  # fmt: skip
+    """Gaussian posteriors and log evidences of one model over its grid (batched). ``chol``:
+    the Cholesky factor C of the noise covariance (then ``sigma`` is 1): the model is whitened
+    by C^-1 and the evidence corrected by -log|C|."""
     grid = _grid(model, t)
     if len(grid) == 0:
         return grid, np.full(0, -np.inf), np.zeros((0, 0)), np.zeros((0, 0, 0))
-    Phi = np.stack([_basis(model, t, float(e)) for e in grid])  # (G, n, p)
+    Phi = _basis_grid(model, t, grid)  # (G, n, p)
+    logdet_c = 0.0
+    if chol is not None:
+        c_inv = np.linalg.inv(chol)  # n x n, once per model: whitening is then a product
+        Phi = c_inv @ Phi
+        y = c_inv @ y
+        logdet_c = float(np.log(np.diagonal(chol)).sum())
     m0 = np.asarray(prior.mean, float)
     v0 = np.asarray(prior.sd, float) ** 2
     s2 = sigma * sigma
@@ -217,6 +253,7 @@ def _fit_model(model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPri
         + 0.5 * np.einsum("gp,gp->g", b, mn)
         - 0.5 * float(np.log(v0).sum())
         - 0.5 * logdet_A
+        - logdet_c
     )
     cov = np.linalg.inv(A)
     return grid, logev, mn, cov
@@ -250,31 +287,77 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
     q2_u, n_q = diffusion(t * scale, y - fit.mean_path(t * scale))
     q2_f = prior.q2_rel / scale
     fit.q2 = (k0 * q2_f + n_q * q2_u) / (k0 + n_q) if n_q else q2_f
-    cv2_u, n_c = usage_spread(t * scale, y, fit, sigma)
+    # the wear's own spread per step, against the measurement noise of the increments (the
+    # unit's, shrunk toward the fleet's; with neither, all of sigma counts as measurement
+    # noise, the cautious reading)
+    s2m_u, n_m = measurement_noise(_increments(t * scale, y, fit)[0])
+    s2m_f = prior.sigma_m2 if prior.sigma_m2 is not None else sigma**2
+    s2m = (k0 * s2m_f + n_m * s2m_u) / (k0 + n_m)
+    cv2_u, n_c = usage_spread(t * scale, y, fit, s2m)
     fit.cv2 = (k0 * prior.cv2 + n_c * cv2_u) / (k0 + n_c) if n_c else prior.cv2
     fit.dt = float(np.mean(np.diff(t * scale))) if len(t) > 1 else 1.0
+    if fit.cv2 > 0 and len(t) >= 6:
+        fit = _refit_with_wear_spread(t, y, sigma, prior, t_now, scale, fit, s2m)
     return fit
 
 
-def usage_spread(t: NDArray, y: NDArray, fit: Fit, sigma: float) -> tuple[float, int]:
-    """Squared coefficient of variation cv^2 of the wear per step of the life axis (units
-    that fly longer or harder some flights wear more in them): the increments y_k+1 - y_k
-    against the posterior-mean path's e_k = y_k+1 - y_k - s_k (s_k the path's increment
-    over dt_k) have E[e_k^2] = 2 sigma^2 + cv^2 s_k^2 / dt_k; cv^2 by least squares through
-    the origin, floored at 0, and the number of increments it rests on (0: too few)."""
-    if len(t) < 6:
-        return 0.0, 0
+def _refit_with_wear_spread(t, y, sigma, prior, t_now, scale, fit: Fit, s2m: float) -> Fit:
+    """The posterior again under the noise model the RUL's spread uses: measurement noise
+    sigma_m^2 plus the wear's own spread accumulated along the path, Cov(y_i, y_j) =
+    sigma_m^2 delta_ij + V_min(i,j), V_k = cv^2 sum_l<k s_l^2 / dt_l (``usage_spread``; s_l the
+    first fit's path increments). A path whose wear per step varies is then not read as a
+    curve (a chance acceleration over a few flights weighs as the random walk it is)."""
+    tt = t * scale
+    dt = np.diff(tt)
+    mp = fit.mean_path(tt)
+    inc = np.where(dt > 0, np.diff(mp) ** 2 / np.where(dt > 0, dt, 1.0), 0.0)
+    v = np.concatenate(([0.0], np.cumsum(fit.cv2 * inc)))
+    if v[-1] <= 0:
+        return fit
+    idx = np.arange(len(t))
+    cov = max(s2m, 1e-6) * np.eye(len(t)) + v[np.minimum.outer(idx, idx)]
+    out = _posterior(t, y, sigma, prior, t_now, scale, np.linalg.cholesky(cov))
+    out.q2, out.cv2, out.dt = fit.q2, fit.cv2, fit.dt
+    return out
+
+
+def _increments(t: NDArray, y: NDArray, fit: Fit) -> tuple[NDArray, NDArray]:
+    """The increments y_k+1 - y_k about the posterior-mean path's, e_k = y_k+1 - y_k - s_k,
+    and x_k = s_k^2 / dt_k (s_k the path's increment over dt_k), over the steps dt_k > 0."""
     dt = np.diff(t)
     ok = dt > 0
-    if ok.sum() < 5:
-        return 0.0, 0
     mp = fit.mean_path(t)
-    e = np.diff(y)[ok] - np.diff(mp)[ok]
-    x = np.diff(mp)[ok] ** 2 / dt[ok]
-    den = float(x @ x)
-    if den <= 0:
+    return np.diff(y)[ok] - np.diff(mp)[ok], np.diff(mp)[ok] ** 2 / dt[ok]
+
+
+def measurement_noise(e: NDArray) -> tuple[float, int]:
+    """Variance sigma_m^2 of the indicator's measurement noise from the increments ``e`` about
+    the path (``_increments``): e_k = s_k eps_k + v_k+1 - v_k (eps the wear's own variation
+    per step, v the measurement noise, both independent) has lag-one autocovariance
+    -sigma_m^2 whatever the wear's variation, so sigma_m^2 = -gamma_1 (clipped to
+    [0, gamma_0 / 2]); and the number of products it rests on (0: fewer than 5)."""
+    e = np.asarray(e, float)
+    if len(e) < 6:
         return 0.0, 0
-    return max(float((e**2 - 2 * sigma**2) @ x) / den, 0.0), int(ok.sum())
+    g0 = float(np.mean(e**2))
+    g1 = float(np.mean(e[1:] * e[:-1]))
+    return min(max(-g1, 0.0), 0.5 * g0), len(e) - 1
+
+
+def usage_spread(t: NDArray, y: NDArray, fit: Fit, s2m: float) -> tuple[float, int]:
+    """Squared coefficient of variation cv^2 of the wear per step of the life axis (units
+    that fly longer or harder some flights wear more in them): E[e_k^2] = 2 sigma_m^2 +
+    cv^2 s_k^2 / dt_k (``_increments``; ``s2m`` = sigma_m^2, ``measurement_noise``). cv^2 by
+    the method of moments over the steps whose expected wear stands above the measurement
+    noise (x_k > 2 sigma_m^2; a path without wear says nothing of its spread), floored at 0,
+    and the number of steps it rests on (0: fewer than 3)."""
+    if len(t) < 6:
+        return 0.0, 0
+    e, x = _increments(t, y, fit)
+    sig = x > 2.0 * s2m
+    if sig.sum() < 3 or float(np.sum(x[sig])) <= 0:
+        return 0.0, 0
+    return max(float(np.sum(e[sig] ** 2 - 2.0 * s2m)) / float(np.sum(x[sig])), 0.0), int(sig.sum())
 
 
 def _lag1(r: NDArray, max_rho: float = 0.9) -> float:
@@ -288,12 +371,14 @@ def _lag1(r: NDArray, max_rho: float = 0.9) -> float:
     return min(max(float(r[1:] @ r[:-1]) / den, 0.0), max_rho)
 
 
-def _posterior(t, y, sigma, prior, t_now, scale) -> Fit:
-    """The models' posteriors at a fixed sigma (``fit_history``)."""
+def _posterior(t, y, sigma, prior, t_now, scale, chol=None) -> Fit:
+    """The models' posteriors at a fixed sigma, or a noise covariance's Cholesky factor
+    ``chol`` (``fit_history``)."""
     grids, post, means, covs, logz = {}, {}, {}, {}, {}
     tot = []
     for m in MODELS:
-        g, le, mn, cv = _fit_model(m, t, y, sigma, prior.weights[m])
+        g, le, mn, cv = _fit_model(m, t, y, 1.0 if chol is not None else sigma,
+                                   prior.weights[m], chol)  # fmt: skip
         grids[m], means[m], covs[m] = g, mn, cv
         if len(g) == 0 or prior.p_model.get(m, 0.0) <= 0:
             logz[m] = -math.inf
@@ -448,6 +533,8 @@ def learn_fleet_prior(
     sig = []
     q2s: list[float] = []
     cv2s: list[float] = []
+    s2ms: list[float] = []
+    fits: list[tuple[NDArray, NDArray, Fit]] = []
     used = 0
     for t, y in histories:
         t, y = np.asarray(t, float), np.asarray(y, float)
@@ -460,9 +547,10 @@ def learn_fleet_prior(
         if math.isfinite(s):
             sig.append(s)
         f = fit_history(t, y, base)
-        c2, n_c = usage_spread(t, y, f, f.sigma)
-        if n_c and f.best() not in ("none",):
-            cv2s.append(c2)
+        fits.append((t, y, f))
+        s2m_u, n_m = measurement_noise(_increments(t, y, f)[0])
+        if n_m:
+            s2ms.append(s2m_u)
         q2_u, n_q = diffusion(t, y - f.mean_path(t))
         if n_q:
             q2s.append(q2_u * base.t_scale if base.t_scale else q2_u * float(t[-1]))
@@ -472,6 +560,11 @@ def learn_fleet_prior(
         ws[best].append(f.means[best][g])
     if used == 0:
         return base
+    s2m_f = float(np.median(s2ms)) if s2ms else None
+    for t, y, f in fits:
+        c2, n_c = usage_spread(t, y, f, s2m_f if s2m_f is not None else 0.0)
+        if n_c and f.best() != "none":
+            cv2s.append(c2)
     tot = sum(counts.values())
     weights = {}
     for m in MODELS:
@@ -495,6 +588,7 @@ def learn_fleet_prior(
         t_scale=base.t_scale,
         q2_rel=float(np.median(q2s)) if q2s else base.q2_rel,
         cv2=float(np.median(cv2s)) if cv2s else base.cv2,
+        sigma_m2=s2m_f if s2m_f is not None else base.sigma_m2,
         kappa=hindcast(histories, replace(base, units=used), min_points=2 * min_points),
     )
 

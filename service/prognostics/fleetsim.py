@@ -52,6 +52,7 @@ __all__ = [
     "simulate_unit",
     "run_fleet_sim",
     "evaluate",
+    "evaluate_store",
     "kendall_tau",
     "WEAR_LAWS",
     "MODEL_LAWS",
@@ -121,6 +122,7 @@ class UnitTruth:
     eol_h: float = math.inf
     eol_flight: float = math.inf
     flown: int = 0
+    usage_h: float = math.nan  # mean operating hours per flight (the draws' scale)
 
     def damage(self) -> np.ndarray:
         """Damage before each flight of the schedule: operating hours (``load``: hours times
@@ -219,6 +221,7 @@ def draw_units(cfg: FleetSimConfig) -> list[UnitTruth]:
             f"FS{cfg.seed}-{i:03d}/eha", i, law, w, plant, hours.tolist(), load.tolist(),
             starts[:n_sched], log_s.tolist(), float(rng.uniform(0.8, 1.5)),
         )  # fmt: skip
+        unit.usage_h = float(hpf)
         _set_eol(unit, thr)
         units.append(unit)
     return units
@@ -560,6 +563,35 @@ def evaluate(
         "lambdas": list(LAMBDAS),
         "units": units,
     }
+
+
+def evaluate_store(store, truth: dict, cfg: FleetSimConfig | None = None, **kw) -> dict:
+    """``evaluate`` on an already-ingested ``store`` (a ``HealthStore``) against a truth file's
+    content (``fleet-sim --truth``: {"seed", "threshold_ratio", "units": [UnitTruth dicts]};
+    each unit needs ``actuator``, ``law``, ``eol_flight`` and ``flown``): the scoring alone,
+    without simulating or ingesting again. ``cfg`` defaults to the truth's seed and threshold;
+    ``kw`` go to ``evaluate``."""
+    units = truth.get("units")
+    if not isinstance(units, list) or not units:
+        raise ValueError("truth: no units")
+    have = set(store.actuators())
+    results = []
+    for u in units:
+        for k in ("actuator", "law", "eol_flight", "flown"):
+            if k not in u:
+                raise ValueError(f"truth: unit without {k!r}")
+        a = u["actuator"]
+        if a not in have:
+            raise ValueError(f"truth: actuator {a!r} is not in the store")
+        eol = u["eol_flight"]
+        tr = {**u, "eol_flight": math.inf if eol is None else float(eol)}
+        results.append({"truth": tr, "periods": [p.to_dict() for p in store.periods(a)]})
+    if cfg is None:
+        cfg = FleetSimConfig(
+            actuators=len(units), seed=int(truth.get("seed", 0)),
+            threshold_ratio=truth.get("threshold_ratio"),
+        )  # fmt: skip
+    return evaluate(results, cfg, **kw)
 
 
 def hist_heads(hist: dict, k: int) -> list:

@@ -192,12 +192,18 @@ def rul_of_history(
         return out
     fit = fit_history(t, y, prior)
     rng = np.random.default_rng(cfg.seed)
+    kappa = prior.kappa if prior is not None else 1.0
     cross = sample_crossing(fit, thr, cfg.n_samples, rng)
     rul = np.maximum(cross - h.t_now(), 0.0)  # periods after the last observable one count
-    kappa = prior.kappa if prior is not None else 1.0
     fin = np.isfinite(rul) & (rul > 0)
-    if kappa > 1.0 and fin.sum() > 1:
-        # the fleet's hindcast widening, about the median in log space (stays > 0)
+    med_all = float(np.quantile(rul, 0.5, method="inverted_cdf"))
+    # the hindcast measured the fleet's errors on predictions within a history span ahead
+    reach = prior.t_scale if prior is not None and prior.t_scale else math.inf
+    if kappa > 1.0 and fin.sum() > 1 and med_all <= reach:
+        # the fleet's hindcast widening, about the median in log space (stays > 0), where
+        # the hindcast measured it: a median RUL within the fleet's typical history span.
+        # Beyond it, or with a median of "never", the posterior's spread stands (widening a
+        # far tail would pull crossings hundreds of flights ahead into the horizon)
         lm = float(np.median(np.log(rul[fin])))
         rul = rul.copy()
         rul[fin] = np.exp(lm + kappa * (np.log(rul[fin]) - lm))
