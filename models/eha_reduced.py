@@ -323,7 +323,7 @@ def spool_coef_nb(h, prm, coef):
 _DV = 1e-5  # velocity increment of the finite-difference Jacobian [m/s]
 
 
-@njit(**_NB, inline="always")
+@njit(**_NB)  # called, not inlined: one compile for the filter and the parallel model
 def step_core_nb(x, i, h, n_sub, prm, coef, out):
     """``step_nb`` with the spool transition ``coef`` of the substep h precomputed."""
     x_s, v_s, x_j, v_j = x[0], x[1], x[2], x[3]

@@ -298,7 +298,7 @@ def n_substeps_nb(x_j, dt, prm):
     return max(1, n_h, int(math.ceil(dt * prm[K_WH_LAM0] * v0 / v_min / RK4_H_TARGET - 1e-9)))
 
 
-@njit(**_NB, inline="always")
+@njit(**_NB)  # called, not inlined: one compile for the filter and the parallel model
 def step_core_nb(x, i, h, n_sub, prm, coef, out):
     """Scalar ``step`` with the spool transition ``coef`` of the substep h precomputed:
     x (10,) -> out (10,)."""
