@@ -13,11 +13,11 @@ KERNELS_ALL := $(VENV)/.kernels-all-stamp
 
 .PHONY: demo fleet-page test test-fast lint format bench evaluate clean
 
+# --no-compile: Python byte-compiles the modules a command imports on their first use, not
+# every module of every package at install time (half the install's time)
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	# --no-compile: Python byte-compiles the modules a command imports on first use, not
-	# every module of every package at install time (half the install's time)
 	$(PY) -m pip install -q --no-compile -e '.[dev]'
 	touch $(STAMP)
 
