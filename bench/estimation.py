@@ -153,8 +153,13 @@ def speed_arrays(samples: list[dict], n_act: int, per_call: int = 10, model: str
     return float(np.median(dts[5:]) * 1e6 / (n_act * per_call))
 
 
-def speed_kernel(samples: list[dict], n_act: int, model: str = "C5") -> float:
-    """The compiled UKF step alone (no sample parsing, no output dicts), per actuator."""
+def speed_kernel(
+    samples: list[dict], n_act: int, model: str = "C5", n_sub: int | None = None
+) -> float:
+    """The compiled UKF step alone (no sample parsing, no output dicts), per actuator;
+    ``n_sub``: the model's integration substeps per 1 ms sample instead of its own (WH: 3
+    RK4 substeps at mid stroke, which its chamber mode needs for stability; 1 times what the
+    step would cost with an integrator stable in one)."""
     bank = MonitorBank(MonitorConfig(model=model))
     ids = [f"act{k:03d}" for k in range(n_act)]
     for s in samples[:2]:
@@ -165,6 +170,7 @@ def speed_kernel(samples: list[dict], n_act: int, model: str = "C5") -> float:
     z = np.tile(np.array([[1.1e-5 / bank._zscale[0], 0.0, 12.4, 8.4, 0.0]]), (n_act, 1))
     mask = np.tile(np.array([[True, True, True, True, False]]), (n_act, 1))
     n_s = max(1, int(np.ceil(1e-3 / bank._cst[0] - 1e-9)))  # substeps at 1 ms (h_max)
+    n_s = n_s if n_sub is None else n_sub
     i_in, dt, n_sub = np.full(n_act, 2e-4), np.full(n_act, 1e-3), np.full(n_act, n_s, np.int64)
     y, nis, st = np.zeros((n_act, 5)), np.zeros(n_act), np.zeros(n_act, np.int64)
     dts = []
@@ -290,6 +296,9 @@ def speed_models(n: int, fleet: int, models: tuple[str, ...], repeats: int = 3) 
             samples, fleet, model=m
         ),
         f"kernel{fleet}_us_per_actuator": lambda m: speed_kernel(samples, fleet, m),
+        f"kernel{fleet}_one_substep_us_per_actuator": lambda m: speed_kernel(
+            samples, fleet, m, n_sub=1
+        ),
     }
     vals: dict = {m: {k: [] for k in paths} for m in models}
     for _ in range(repeats):
