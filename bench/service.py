@@ -138,6 +138,9 @@ class _NullBank:
     def counters_of(self, key: str) -> dict[str, int]:
         return {}
 
+    def c_lk_changes_of(self, key: str) -> int:
+        return 0
+
     def update_arrays(self, ks, t, channels):
         import numpy as np
 
@@ -206,10 +209,10 @@ def _daemon(args: argparse.Namespace) -> int:
                 break
         # report how long the queue takes to empty once the generator has stopped
         t0 = time.monotonic()
-        while d._queue and time.monotonic() - t0 < args.drain_cap:
+        while d.queued and time.monotonic() - t0 < args.drain_cap:
             time.sleep(0.02)
         drain = time.monotonic() - t0
-        left = len(d._queue)
+        left = d.queued
         cpu_s = time.process_time() - cpu0
         st = d.stop()
     if prof is not None:
