@@ -57,7 +57,6 @@ __all__ = [
 ]
 
 
-
 def warm_up() -> None:
     """Compile (or load from the cache) the kernels of the write and read paths."""
     fmt = row_format(("seq", "x"), frozenset({"seq"}))
