@@ -1,9 +1,9 @@
 """An ``McapLogger`` in a child process: JSON encoding and MCAP writing on another core.
 
-The daemon (and a replay with ``--out``) hand it whole blocks once per tick: received
-measurement payloads (decoded again in the child) and numpy blocks of outputs. The child
-writes them with ``McapLogger.log_block``; if the parent dies, the child sees its pipe close
-and finishes the file.
+The daemon (and a replay with ``--out``) hand it whole blocks once per tick: the accepted
+measurements and the outputs as the numpy arrays the daemon already decoded (pickled through
+the pipe; the child decodes nothing). The child writes them with ``McapLogger.log_block``; if
+the parent dies, the child sees its pipe close and finishes the file.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def _log_process_entry() -> None:
 
 
 def _log_process_main(conn, path: str, kwargs: dict) -> None:
-    """Child process of :class:`ProcessLogger`: decode forwarded messages, write the MCAP."""
+    """Child process of :class:`ProcessLogger`: write the forwarded blocks to the MCAP."""
     import signal as _signal
 
     from service.log import McapLogger
@@ -92,16 +92,7 @@ def _log_process_main(conn, path: str, kwargs: dict) -> None:
 def _write_batch(lg: Any, batch: Sequence[tuple]) -> None:
     """Write one batch of queued records (see :class:`ProcessLogger`)."""
     for rec in batch:
-        kind = rec[0]
-        if kind == "m":  # (m, topic, payload, indices or None)
-            _, topic, payload, idx = rec
-            a = m.decode_meas_arrays(payload, max(len(payload), m.MAX_BYTES))
-            vals = meas_log_values(a)
-            t = a.t
-            if idx is not None:
-                vals, t = vals[idx], t[idx]
-            lg.log_block(topic, t, MEAS_LOG_FIELDS, vals, int_fields=("seq",))
-        elif kind == "b":  # (b, topic, t, names, values, int_fields)
+        if rec[0] == "b":  # (b, topic, t, names, values, int_fields)
             lg.log_block(rec[1], rec[2], rec[3], rec[4], int_fields=rec[5])
         else:  # (l, topic, t, msg)
             lg.log(rec[1], rec[2], rec[3])
@@ -111,9 +102,8 @@ class ProcessLogger:
     """An ``McapLogger`` in a child process, fed through a pipe once per worker tick.
 
     JSON encoding and MCAP writing (about half of the per-sample cost) then run on another
-    core instead of sharing the daemon's GIL with decoding and the monitors. Measurement
-    messages are forwarded as the received payload plus the indices of the accepted samples;
-    the child decodes them again. Same ``log``/``close``/``paths`` interface; ``commit``
+    core instead of sharing the daemon's GIL with decoding and the monitors. Blocks go as
+    the arrays they are (measurements too: the child decodes nothing). Same ``log``/``close``/``paths`` interface; ``commit``
     sends what was logged since the last call. If the daemon dies, the child sees the pipe
     close and finishes the file (a ``kill -9`` of both loses at most ``flush_s``).
     """
@@ -150,10 +140,6 @@ class ProcessLogger:
     def log(self, topic: str, t: float, msg: Any) -> None:
         """Queue one message (sent at the next ``commit``)."""
         self._buf.append(("l", topic, t, msg))
-
-    def log_payload(self, topic: str, payload: bytes, idx: list[int] | None) -> None:
-        """Queue the samples ``idx`` (None = all) of a received measurement message."""
-        self._buf.append(("m", topic, payload, idx))
 
     def log_block(
         self, topic: str, t: Any, names: Sequence[str], values: Any, *, int_fields=()

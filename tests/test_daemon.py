@@ -385,7 +385,7 @@ def test_daemon_status_shows_a_failure_in_the_log_process():
     d = Daemon(cfg, log_path="/dev/full", bank=SpyBank())
     try:
         _feed(d)
-        assert wait_until(lambda: (d.logger.commit(), d.status()["log_failure"])[1], 20)
+        assert wait_until(lambda: (d.outputs.logger.commit(), d.status()["log_failure"])[1], 20)
         st = d.status()
         assert "No space left" in st["log_failure"] and st["state"] == "degraded"
     finally:
