@@ -1,8 +1,8 @@
 """The daemon as a member of a monitor group (``[group]``, docs/design.md, "Monitor
 groups"): its group token, the other members' tokens, everyone's health outputs, and what
 ownership changes mean for the pipeline (a released unit's period ends and its stream state
-is forgotten; a unit with measurements but no member's output is ``unmonitored``). The ownership rules themselves are
-``service.daemon.group.MonitorGroup``.
+is forgotten; a unit with measurements but no member's output is ``unmonitored``). The
+ownership rules themselves are ``service.daemon.group.MonitorGroup``.
 """
 
 from __future__ import annotations
