@@ -22,15 +22,11 @@ import numpy as np
 
 from service import messages as m
 
-__all__ = ["ProcessLogger", "MEAS_LOG_FIELDS", "meas_log_values"]
+__all__ = ["ProcessLogger", "MEAS_LOG_FIELDS"]
 
-#: fields of a logged measurement, in the key order of ``messages.decode_meas_dicts``
+#: fields of a logged measurement, in the key order of ``messages.decode_meas_dicts``: the
+#: channels (NaN: absent), seq and t
 MEAS_LOG_FIELDS: tuple[str, ...] = (*m.CHANNELS, "seq", "t")
-
-
-def meas_log_values(a: m.MeasArrays, j0: int = 0) -> np.ndarray:
-    """(n, 9) values of the samples j0.. in ``MEAS_LOG_FIELDS`` order (NaN: absent)."""
-    return np.column_stack([a.values[j0:], a.seq[j0:], a.t[j0:]])
 
 
 def _log_process_entry() -> None:
@@ -94,6 +90,14 @@ def _write_batch(lg: Any, batch: Sequence[tuple]) -> None:
     for rec in batch:
         if rec[0] == "b":  # (b, topic, t, names, values, int_fields)
             lg.log_block(rec[1], rec[2], rec[3], rec[4], int_fields=rec[5])
+        elif rec[0] == "s":  # (s, topics, counts, t bytes, names, values bytes, int_fields)
+            _, topics, counts, t, names, values, int_fields = rec
+            t = np.frombuffer(t, np.float64)
+            values = np.frombuffer(values, np.float64).reshape(len(t), len(names))
+            k = 0
+            for topic, n in zip(topics, counts, strict=True):
+                lg.log_block(topic, t[k : k + n], names, values[k : k + n], int_fields=int_fields)
+                k += n
         else:  # (l, topic, t, msg)
             lg.log(rec[1], rec[2], rec[3])
 
@@ -146,6 +150,24 @@ class ProcessLogger:
     ) -> None:
         """Queue N messages of one topic as arrays (``McapLogger.log_block``)."""
         self._buf.append(("b", topic, t, tuple(names), values, tuple(int_fields)))
+
+    def log_blocks(
+        self,
+        topics: Sequence[str],
+        counts: Sequence[int],
+        t: Any,
+        names: Sequence[str],
+        values: Any,
+        *,
+        int_fields=(),
+    ) -> None:
+        """Queue consecutive blocks of several topics with the same fields as one record:
+        rows ``sum(counts[:i]) :`` + ``counts[i]`` of ``t`` and ``values`` on ``topics[i]``
+        (sent as float64 bytes: a pickled numpy array costs tens of microseconds)."""
+        t = np.ascontiguousarray(t, np.float64).tobytes()
+        values = np.ascontiguousarray(values, np.float64).tobytes()
+        self._buf.append(("s", list(topics), list(counts), t, tuple(names), values,
+                          tuple(int_fields)))  # fmt: skip
 
     def _handle(self, kind: str, rest: list) -> None:
         if kind in ("paths", "closed"):

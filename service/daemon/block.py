@@ -51,8 +51,20 @@ class Block:
     rows: Any = None  # the monitor's ``BankRows`` (None: no output, or the monitor failed)
     states: dict[int, Any] = field(default_factory=dict)  # bank row -> ActuatorState
     new_rows: list[tuple[int, Any, dict[str, Any]]] = field(default_factory=list)  # to track
+    _cat: tuple | None = field(default=None, repr=False)
 
     @property
     def samples(self) -> int:
         """Accepted samples in the block."""
         return sum(len(p.a.t) - p.j0 for p in self.parts)
+
+    def arrays(self) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+        """The accepted samples of every part, in order: ``(seq, t, channels)`` (made once)."""
+        if self._cat is None:
+            ps = self.parts
+            self._cat = (
+                np.concatenate([p.a.seq[p.j0 :] for p in ps]),
+                np.concatenate([p.a.t[p.j0 :] for p in ps]),
+                np.concatenate([p.a.values[p.j0 :] for p in ps]),
+            )
+        return self._cat

@@ -96,8 +96,7 @@ class MonitorStage:
                 blk.states[row] = p.st
                 rows_of.append(row)
             ks = np.repeat(np.array(rows_of, np.int64), sizes)
-            t = np.concatenate([p.a.t[p.j0 :] for p in parts])
-            ch = np.concatenate([p.a.values[p.j0 :] for p in parts])
+            _, t, ch = blk.arrays()
             recv = np.repeat(np.array([p.t_recv for p in parts]), sizes)
             rows = b.update_arrays(ks, t, ch)
             blk.ks = ks

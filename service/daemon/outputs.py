@@ -19,6 +19,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from service import messages as m
 from service.config import ServiceConfig
 from service.daemon.block import Block, Part
@@ -27,7 +29,7 @@ from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.systemd import sd_notify
 from service.fanout import FanOut
 from service.jsonutil import flat
-from service.proclog import MEAS_LOG_FIELDS, ProcessLogger, meas_log_values
+from service.proclog import MEAS_LOG_FIELDS, ProcessLogger
 from service.prognostics import PeriodConfig
 
 __all__ = ["Outputs", "default_log_path", "open_logger", "store_target"]
@@ -131,11 +133,16 @@ class Outputs:
     def write(self, blk: Block) -> None:
         """A tick's block: its events and measurements in arrival order, then its output
         rows (log blocks, events, publishing, periods); the log committed."""
+        run: list[Part] = []  # consecutive parts: their samples are a run of blk.arrays()
+        off = 0
         for e in blk.log:
             if isinstance(e, Part):
-                self._log_meas(e)
+                run.append(e)
             else:
+                off = self._log_meas(blk, run, off)
+                run = []
                 self.service_event(*e)
+        self._log_meas(blk, run, off)
         for row, st, info in blk.new_rows:
             self.fanout.track(row, st.aircraft, st.actuator, **info)
         rows = blk.rows
@@ -155,18 +162,41 @@ class Outputs:
                     log.info("alarm %s %s: %s", st.name, kind, d)
         self.commit()
 
-    def _log_meas(self, p: Part) -> None:
-        """The accepted samples of a message on the actuator's ``meas`` topic."""
-        st, a, j0 = p.st, p.a, p.j0
-        topic = m.mcap_topic(st.aircraft, st.actuator, "meas")
-        vals = meas_log_values(a, j0)
+    def _log_meas(self, blk: Block, run: list[Part], off: int) -> int:
+        """The accepted samples of the messages ``run`` (samples ``off``.. of the block's
+        arrays), each on its actuator's ``meas`` topic, as one record for a logger with
+        ``log_blocks`` (the log process). Returns the offset after the run."""
+        if not run:
+            return off
+        seq, t, ch = blk.arrays()
+        topics = [m.mcap_topic(p.st.aircraft, p.st.actuator, "meas") for p in run]
+        counts = [len(p.a.t) - p.j0 for p in run]
+        end = off + sum(counts)
+        vals = np.column_stack([ch[off:end], seq[off:end], t[off:end]])  # MEAS_LOG_FIELDS
+        ts = t[off:end]
+        many = getattr(self.logger, "log_blocks", None)
         try:
-            self.logger.log_block(topic, a.t[j0:], MEAS_LOG_FIELDS, vals, int_fields=("seq",))
+            if many is not None:
+                many(topics, counts, ts, MEAS_LOG_FIELDS, vals, int_fields=("seq",))
+            else:
+                k = 0
+                for topic, n in zip(topics, counts, strict=True):
+                    self.logger.log_block(
+                        topic, ts[k : k + n], MEAS_LOG_FIELDS, vals[k : k + n], int_fields=("seq",)
+                    )
+                    k += n
         except Exception:  # kept in logger.failure and logged there; monitoring goes on
             self.errors += 1
         fx = self.foxglove
-        if fx is not None and fx.wants(topic):
-            fx.log_block(topic, a.t[j0:], MEAS_LOG_FIELDS, vals, int_fields=("seq",))
+        if fx is not None:
+            k = 0
+            for topic, n in zip(topics, counts, strict=True):
+                if fx.wants(topic):
+                    fx.log_block(
+                        topic, ts[k : k + n], MEAS_LOG_FIELDS, vals[k : k + n], int_fields=("seq",)
+                    )
+                k += n
+        return end
 
     def service_event(
         self, st: ActuatorState, kind: str, t: float | None, value: Any = None
