@@ -544,7 +544,7 @@ def main(argv=None) -> int:
         try:
             row = run_one(
                 n, args.rate, dur, mon, args.spm, args.publish_every, args.drain_cap, le,
-                args.profile, args.gather, model, tree,
+                args.profile, args.gather, model=model, tree=tree,
             )  # fmt: skip
         except Exception as e:  # report the others
             print(f"  failed: {e}", file=sys.stderr, flush=True)
