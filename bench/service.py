@@ -158,8 +158,11 @@ def _daemon(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    if args.tree:  # another checkout's daemon (--compare-tree)
+    if args.tree:  # another checkout's daemon (--compare-tree), its log process too
         sys.path.insert(0, str(Path(args.tree).resolve()))
+        os.environ["PYTHONPATH"] = os.pathsep.join(
+            [str(Path(args.tree).resolve()), *filter(None, [os.environ.get("PYTHONPATH")])]
+        )
     import zenoh
 
     from service.config import ServiceConfig, ZenohSettings
