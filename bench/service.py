@@ -158,11 +158,10 @@ def _daemon(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    if args.tree:  # another checkout's daemon (--compare-tree), its log process too
+    if args.tree:  # another checkout's daemon (--compare-tree), its log process too (a
+        # ``python -c`` child has the working directory first on its path)
         sys.path.insert(0, str(Path(args.tree).resolve()))
-        os.environ["PYTHONPATH"] = os.pathsep.join(
-            [str(Path(args.tree).resolve()), *filter(None, [os.environ.get("PYTHONPATH")])]
-        )
+        os.chdir(Path(args.tree).resolve())
     import zenoh
 
     from service.config import ServiceConfig, ZenohSettings
