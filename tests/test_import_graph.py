@@ -133,6 +133,8 @@ def test_the_cycle_finder_finds_cycles():
 def test_the_graph_sees_type_checking_and_function_imports():
     g = import_graph()
     assert "service.daemon.intake" in g["service.daemon.core"]
+    assert "service.config" in g["service.cliargs"]  # under TYPE_CHECKING, and in a function
+    assert "service.store.writer" in g["service.daemon.outputs"]  # in __init__ only
     assert len(g) > 50 and sum(map(len, g.values())) > 100
 
 
