@@ -138,6 +138,9 @@ class _NullBank:
     def counters_of(self, key: str) -> dict[str, int]:
         return {}
 
+    def c_lk_changes_of(self, key: str) -> int:
+        return 0
+
     def update_arrays(self, ks, t, channels):
         import numpy as np
 
@@ -155,8 +158,10 @@ def _daemon(args: argparse.Namespace) -> int:
     import signal
     import threading
 
-    if args.tree:  # another checkout's daemon (--compare-tree)
+    if args.tree:  # another checkout's daemon (--compare-tree), its log process too (a
+        # ``python -c`` child has the working directory first on its path)
         sys.path.insert(0, str(Path(args.tree).resolve()))
+        os.chdir(Path(args.tree).resolve())
     import zenoh
 
     from service.config import ServiceConfig, ZenohSettings
@@ -206,10 +211,10 @@ def _daemon(args: argparse.Namespace) -> int:
                 break
         # report how long the queue takes to empty once the generator has stopped
         t0 = time.monotonic()
-        while d._queue and time.monotonic() - t0 < args.drain_cap:
+        while d.queued and time.monotonic() - t0 < args.drain_cap:
             time.sleep(0.02)
         drain = time.monotonic() - t0
-        left = len(d._queue)
+        left = d.queued
         cpu_s = time.process_time() - cpu0
         st = d.stop()
     if prof is not None:
@@ -541,7 +546,7 @@ def main(argv=None) -> int:
         try:
             row = run_one(
                 n, args.rate, dur, mon, args.spm, args.publish_every, args.drain_cap, le,
-                args.profile, args.gather, model, tree,
+                args.profile, args.gather, model=model, tree=tree,
             )  # fmt: skip
         except Exception as e:  # report the others
             print(f"  failed: {e}", file=sys.stderr, flush=True)

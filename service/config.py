@@ -33,7 +33,6 @@ from pydantic import (
 from pydantic_settings import NoDecode
 from pydantic_settings.exceptions import SettingsError
 
-from service.cliargs import add_tls_arguments, tls_overrides  # re-exported
 from service.compat.pydantic_settings import MappingEnvSource
 from service.monitor import MonitorConfig
 from service.zenoh_util import EndpointError, check_endpoint, diagnose_link, make_config
@@ -49,8 +48,6 @@ __all__ = [
     "SessionError",
     "AuthError",
     "load_config",
-    "add_tls_arguments",
-    "tls_overrides",
     "ENV_PREFIX",
     "EXIT_UNREACHABLE",
     "EXIT_REFUSED",

@@ -1,9 +1,9 @@
 """An ``McapLogger`` in a child process: JSON encoding and MCAP writing on another core.
 
-The daemon (and a replay with ``--out``) hand it whole blocks once per tick: received
-measurement payloads (decoded again in the child) and numpy blocks of outputs. The child
-writes them with ``McapLogger.log_block``; if the parent dies, the child sees its pipe close
-and finishes the file.
+The daemon (and a replay with ``--out``) hand it whole blocks once per tick: the accepted
+measurements and the outputs as the numpy arrays the daemon already decoded (pickled through
+the pipe; the child decodes nothing). The child writes them with ``McapLogger.log_block``; if
+the parent dies, the child sees its pipe close and finishes the file.
 """
 
 from __future__ import annotations
@@ -22,15 +22,11 @@ import numpy as np
 
 from service import messages as m
 
-__all__ = ["ProcessLogger", "MEAS_LOG_FIELDS", "meas_log_values"]
+__all__ = ["ProcessLogger", "MEAS_LOG_FIELDS"]
 
-#: fields of a logged measurement, in the key order of ``messages.decode_meas_dicts``
+#: fields of a logged measurement, in the key order of ``messages.decode_meas_dicts``: the
+#: channels (NaN: absent), seq and t
 MEAS_LOG_FIELDS: tuple[str, ...] = (*m.CHANNELS, "seq", "t")
-
-
-def meas_log_values(a: m.MeasArrays, j0: int = 0) -> np.ndarray:
-    """(n, 9) values of the samples j0.. in ``MEAS_LOG_FIELDS`` order (NaN: absent)."""
-    return np.column_stack([a.values[j0:], a.seq[j0:], a.t[j0:]])
 
 
 def _log_process_entry() -> None:
@@ -43,7 +39,7 @@ def _log_process_entry() -> None:
 
 
 def _log_process_main(conn, path: str, kwargs: dict) -> None:
-    """Child process of :class:`ProcessLogger`: decode forwarded messages, write the MCAP."""
+    """Child process of :class:`ProcessLogger`: write the forwarded blocks to the MCAP."""
     import signal as _signal
 
     from service.log import McapLogger
@@ -92,17 +88,16 @@ def _log_process_main(conn, path: str, kwargs: dict) -> None:
 def _write_batch(lg: Any, batch: Sequence[tuple]) -> None:
     """Write one batch of queued records (see :class:`ProcessLogger`)."""
     for rec in batch:
-        kind = rec[0]
-        if kind == "m":  # (m, topic, payload, indices or None)
-            _, topic, payload, idx = rec
-            a = m.decode_meas_arrays(payload, max(len(payload), m.MAX_BYTES))
-            vals = meas_log_values(a)
-            t = a.t
-            if idx is not None:
-                vals, t = vals[idx], t[idx]
-            lg.log_block(topic, t, MEAS_LOG_FIELDS, vals, int_fields=("seq",))
-        elif kind == "b":  # (b, topic, t, names, values, int_fields)
+        if rec[0] == "b":  # (b, topic, t, names, values, int_fields)
             lg.log_block(rec[1], rec[2], rec[3], rec[4], int_fields=rec[5])
+        elif rec[0] == "s":  # (s, topics, counts, t bytes, names, values bytes, int_fields)
+            _, topics, counts, t, names, values, int_fields = rec
+            t = np.frombuffer(t, np.float64)
+            values = np.frombuffer(values, np.float64).reshape(len(t), len(names))
+            k = 0
+            for topic, n in zip(topics, counts, strict=True):
+                lg.log_block(topic, t[k : k + n], names, values[k : k + n], int_fields=int_fields)
+                k += n
         else:  # (l, topic, t, msg)
             lg.log(rec[1], rec[2], rec[3])
 
@@ -111,9 +106,8 @@ class ProcessLogger:
     """An ``McapLogger`` in a child process, fed through a pipe once per worker tick.
 
     JSON encoding and MCAP writing (about half of the per-sample cost) then run on another
-    core instead of sharing the daemon's GIL with decoding and the monitors. Measurement
-    messages are forwarded as the received payload plus the indices of the accepted samples;
-    the child decodes them again. Same ``log``/``close``/``paths`` interface; ``commit``
+    core instead of sharing the daemon's GIL with decoding and the monitors. Blocks go as
+    the arrays they are (measurements too: the child decodes nothing). Same ``log``/``close``/``paths`` interface; ``commit``
     sends what was logged since the last call. If the daemon dies, the child sees the pipe
     close and finishes the file (a ``kill -9`` of both loses at most ``flush_s``).
     """
@@ -151,15 +145,29 @@ class ProcessLogger:
         """Queue one message (sent at the next ``commit``)."""
         self._buf.append(("l", topic, t, msg))
 
-    def log_payload(self, topic: str, payload: bytes, idx: list[int] | None) -> None:
-        """Queue the samples ``idx`` (None = all) of a received measurement message."""
-        self._buf.append(("m", topic, payload, idx))
-
     def log_block(
         self, topic: str, t: Any, names: Sequence[str], values: Any, *, int_fields=()
     ) -> None:
         """Queue N messages of one topic as arrays (``McapLogger.log_block``)."""
         self._buf.append(("b", topic, t, tuple(names), values, tuple(int_fields)))
+
+    def log_blocks(
+        self,
+        topics: Sequence[str],
+        counts: Sequence[int],
+        t: Any,
+        names: Sequence[str],
+        values: Any,
+        *,
+        int_fields=(),
+    ) -> None:
+        """Queue consecutive blocks of several topics with the same fields as one record:
+        rows ``sum(counts[:i]) :`` + ``counts[i]`` of ``t`` and ``values`` on ``topics[i]``
+        (sent as float64 bytes: a pickled numpy array costs tens of microseconds)."""
+        t = np.ascontiguousarray(t, np.float64).tobytes()
+        values = np.ascontiguousarray(values, np.float64).tobytes()
+        self._buf.append(("s", list(topics), list(counts), t, tuple(names), values,
+                          tuple(int_fields)))  # fmt: skip
 
     def _handle(self, kind: str, rest: list) -> None:
         if kind in ("paths", "closed"):

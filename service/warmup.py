@@ -168,9 +168,9 @@ def _entries(group: str) -> list:
 
         return [compiled._integrate_hf, kernels.bank_step, kernels.output_rows, kernels.block_steps,
                 kernels.block_rows, kernels.prepare_inputs, wire_kernels.unpack_checked]  # fmt: skip
-    from service.log import codec
+    from service.log import codec_read, codec_write
 
-    return [codec._encode, codec._scan, codec._fill, codec._objects]
+    return [codec_write._encode, codec_read._scan, codec_read._fill, codec_read._objects]
 
 
 def _part_entries(part: str) -> list:

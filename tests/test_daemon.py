@@ -385,7 +385,7 @@ def test_daemon_status_shows_a_failure_in_the_log_process():
     d = Daemon(cfg, log_path="/dev/full", bank=SpyBank())
     try:
         _feed(d)
-        assert wait_until(lambda: (d.logger.commit(), d.status()["log_failure"])[1], 20)
+        assert wait_until(lambda: (d.outputs.logger.commit(), d.status()["log_failure"])[1], 20)
         st = d.status()
         assert "No space left" in st["log_failure"] and st["state"] == "degraded"
     finally:
@@ -427,3 +427,36 @@ def test_daemon_log_and_its_replay_hold_the_same_outputs(tmp_path):
         assert a[k].tobytes() == b[k].tobytes(), k
     n_out = d.status()["actuators"][KEY]["outputs"]
     assert len(a["/fleet/AC001/elevator_L/est"]) >= n_out // 3
+
+
+def test_the_log_process_writes_what_the_in_process_log_writes(tmp_path):
+    """The log process receives the accepted measurements as arrays (it decodes nothing):
+    its file holds the same messages, byte for byte, as the in-process McapLogger's, for
+    whole messages, partly accepted ones (duplicates cut off the start, a sample ahead of
+    the stream the end), both payload formats and absent channels (NaN -> null)."""
+    from mcap.reader import make_reader
+
+    msgs = [
+        m.encode_meas([sample(k, x_j=1e-3, p1=12e6, p2=8e6) for k in range(0, 10)]),
+        m.encode_meas([sample(k) for k in range(5, 15)], fmt="json"),  # 5..9 duplicates
+        m.encode_meas([sample(k) for k in range(15, 20)] + [sample(20, t=1e6)]),  # 20 ahead
+        m.encode_meas([{k: v for k, v in sample(k).items() if k != "p_sr"} for k in range(21, 30)]),
+    ]
+
+    def run(process: bool) -> list[tuple]:
+        path = tmp_path / f"p{int(process)}.mcap"
+        cfg = ServiceConfig(rotate_bytes=None, rotate_s=None)
+        d = Daemon(cfg, log_path=path, log_process=process)
+        for p in msgs:
+            d.submit(KEY, p)
+        d.process_pending()
+        st = d.stop()
+        assert st["actuators"][KEY]["samples"] == 29
+        with open(path, "rb") as f:
+            r = make_reader(f)
+            return [(c.topic, msg.log_time, msg.data) for _, c, msg in r.iter_messages()
+                    if c.topic.endswith("/meas")]  # fmt: skip
+
+    got, want = run(True), run(False)
+    assert len(want) == 10 + 5 + 5 + 9
+    assert got == want

@@ -76,15 +76,15 @@ def test_status_names_the_monitor_model(tmp_path, model):
     p.write_text(f'store = "off"\n[monitor]\nmodel = "{model}"\n')
     cfg = load_config(p, environ={})
     d = Daemon(cfg, logger=NullLogger())
-    assert d.bank.config.model == model
-    assert d.bank.baseline == Baseline.default(model)
+    assert d.monitor.bank.config.model == model
+    assert d.monitor.bank.baseline == Baseline.default(model)
     assert d.status()["model"] == model
     d.stop()
 
 
 def test_status_names_the_model_the_default_config_runs():
     d = Daemon(ServiceConfig(), logger=NullLogger())
-    assert d.status()["model"] == d.bank.config.model == d.bank.baseline.law
+    assert d.status()["model"] == d.monitor.bank.config.model == d.monitor.bank.baseline.law
     d.stop()
 
 

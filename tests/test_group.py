@@ -143,7 +143,7 @@ def test_daemon_releases_and_takes_back_a_unit_afresh():
     from service import messages as m
 
     d, lg, _ = make(group={"name": "g", "takeover_s": 5.0})
-    g = d.group
+    g = d.member.group
     me = g.me  # ground1/0, the default station and shard
     unit = next(
         u for u in UNITS

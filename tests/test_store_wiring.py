@@ -169,7 +169,7 @@ def test_daemon_commissioned_flags_periods_and_flush_on_stop(odd, tmp_path):
     )  # fmt: skip
     d = Daemon(cfg, log_path=tmp_path / "d.mcap", log_process=False, gather_s=0)
     sess = _Session()
-    d.fanout.session = sess
+    d.outputs.fanout.session = sess
     meas = _run(1.0, seed=13, duration_s=2.5)
     n = len(meas["t"])
     for key in ("fleet/AC1/odd/meas", "fleet/AC1/twin/meas"):
@@ -222,7 +222,7 @@ def test_auto_commissioning_from_healthy_looking_data(tmp_path):
     while d.queued:
         d.process_pending()
     for _ in range(600):  # the calibration runs in a background thread
-        if d.commissioner._ready:
+        if d.monitor.commissioner._ready:
             break
         time.sleep(0.05)
     for k, v in pays.items():
@@ -234,7 +234,7 @@ def test_auto_commissioning_from_healthy_looking_data(tmp_path):
     assert st["fleet/AC1/new/meas"]["commissioned"] is True
     assert st["fleet/AC1/new/meas"]["baseline_version"] == 1
     assert st["fleet/AC1/odd/meas"]["commissioned"] is False
-    assert d.commissioner.rejected.get("fleet/AC1/odd/meas", 0) > 0
+    assert d.monitor.commissioner.rejected.get("fleet/AC1/odd/meas", 0) > 0
     d.stop()
     with open_store(store) as s:
         rec = s.latest_baseline("AC1/new")

@@ -329,7 +329,7 @@ def run(args: argparse.Namespace) -> int:
                 a = next(iter(st["actuators"].values()), None)
                 if t_first is None:  # first message received (not processed: the demo
                     # clock follows the actuator even while the daemon is catching up)
-                    t_first = next(iter(daemon.first_arrival.values()), None)
+                    t_first = next(iter(daemon.intake.first_arrival.values()), None)
                 t_run = 0.0 if t_first is None else time.monotonic() - t_first
                 if fault is None and t_first is not None and t_run >= args.inject_at:
                     ack = send_fault(

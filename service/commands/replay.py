@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
             check_baseline_model(baseline, cfg.monitor.model, str(cfg.baseline))
         except BaselineModelError as e:
             return fail(str(e))
-    from service.daemon.core import store_target
+    from service.daemon.outputs import store_target
     from service.prognostics import PeriodConfig
 
     store = store_target(args.store or (cfg.store if cfg is not None else None))

@@ -1,7 +1,11 @@
-"""The monitoring daemon: ``core`` (the :class:`Daemon`), ``intake`` (per-actuator state and
-the acceptance checks), ``status`` (the snapshot's percentiles and state), ``systemd``
-(sd_notify, watchdog), ``ratelimit``. The output fan-out is ``service.fanout`` (shared with
-the replay); the command-line helpers are ``service.cliargs``."""
+"""The monitoring daemon as a pipeline (docs/design.md, "The daemon's pipeline"): ``intake``
+(the receive queue, per-actuator state and the acceptance checks), ``monitoring`` (the monitor
+stage), ``outputs`` (log, fan-out, store, live feed), one ``block.Block`` per tick between
+them; ``member`` and ``group`` (monitor groups), ``commission`` (auto-commissioning),
+``status`` (the snapshot), ``systemd`` (sd_notify, watchdog), ``ratelimit``; ``core`` (the
+:class:`Daemon`: Zenoh entities, the worker, start/stop). The output fan-out is
+``service.fanout`` (shared with the replay); the command-line helpers are
+``service.cliargs``."""
 
 from service.daemon.core import EXIT_LOG_FAILURE, Daemon, default_log_path
 from service.daemon.intake import MAX_ACTUATORS, ActuatorState

@@ -14,16 +14,14 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
 
 from service import messages as m
-from service.monitor import HEALTH_KEYS, RES_KEYS, Baseline
-
-if TYPE_CHECKING:
-    from service.daemon.core import Daemon
+from service.monitor import HEALTH_KEYS, RES_KEYS, Baseline, MonitorFleet
 
 __all__ = ["Commissioner"]
 
@@ -46,12 +44,23 @@ class _Collect:
 
 
 class Commissioner:
-    """Collects, judges and calibrates the first data of uncommissioned actuators."""
+    """Collects, judges and calibrates the first data of uncommissioned actuators of
+    ``fleet``; records their baselines in the store at ``store_url`` and moves them to it,
+    telling the outputs by ``retrack(row, c_lk0=, info=)`` (``FanOut.retrack``)."""
 
-    def __init__(self, daemon: Daemon, duration_s: float, min_in_band: float) -> None:
+    def __init__(
+        self,
+        fleet: MonitorFleet,
+        store_url: str,
+        retrack: Callable[..., None],
+        duration_s: float,
+        min_in_band: float,
+    ) -> None:
         if not duration_s > 0:
             raise ValueError("auto_commission_s must be > 0")
-        self.d = daemon
+        self.fleet = fleet
+        self.store_url = store_url
+        self.retrack = retrack
         self.duration_s = float(duration_s)
         self.min_in_band = float(min_in_band)
         self._col: dict[str, _Collect] = {}
@@ -68,7 +77,7 @@ class Commissioner:
             ready, self._ready = self._ready, []
         for key, base, version in ready:
             self._apply(key, base, version)
-        fleet = self.d.bank
+        fleet = self.fleet
         owner = ks[rows.index] if len(rows.index) else ks[:0]
         for _st, key, a, j0, _ in parts:
             if fleet.versions.get(key) is not None or key in self._busy:
@@ -110,11 +119,11 @@ class Commissioner:
             t = np.concatenate(c.t)
             ch = np.concatenate(c.ch)
             meas = {"t": t, **{k: ch[:, j] for k, j in _WIRE.items()}}
-            base = calibrate(meas, self.d.bank.config.model)
+            base = calibrate(meas, self.fleet.config.model)
             base = base.model_copy(update={"source": f"auto-commissioning of {name}"})
             figures = {"samples": int(len(t)), "duration_s": float(t[-1] - t[0]),
                        "nis_in_band": c.in_band / c.rows}  # fmt: skip
-            with open_store(self.d.store_url) as s:
+            with open_store(self.store_url) as s:
                 rec = s.add_baseline(name, base.model_dump(), "auto-commissioning", figures)
             with self._lock:
                 self._ready.append((key, base, rec.version))
@@ -125,10 +134,10 @@ class Commissioner:
                 self._busy.discard(key)
 
     def _apply(self, key: str, base: Baseline, version: int) -> None:
-        fleet = self.d.bank
+        fleet = self.fleet
         fleet.rebase(key, base, version)
         row = fleet.ids[key]
         info = {"commissioned": True, "baseline_version": version}
-        self.d.fanout.retrack(row, c_lk0=base.c_lk, info=info)
+        self.retrack(row, c_lk0=base.c_lk, info=info)
         self._busy.discard(key)
         self.commissioned.append(key)

@@ -1,5 +1,6 @@
-"""The daemon's intake: per-actuator state, decoding failures by reason, and the sequence and
-time checks that decide which samples of a message are accepted.
+"""The daemon's intake, the pipeline's first stage (:class:`Intake`): the receive queue,
+per-actuator state, decoding failures by reason, and the sequence and time checks that decide
+which samples of a message are accepted.
 
 A sample is accepted when its time is later than the actuator's last accepted sample and
 plausible (``ClockCheck``): not ahead of the last accepted sample by much more than its
@@ -16,7 +17,10 @@ live input.
 
 from __future__ import annotations
 
+import logging
 import math
+import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -25,9 +29,12 @@ from typing import Any
 import numpy as np
 
 from service import messages as m
+from service.daemon.block import Block, Event, Part
 from service.daemon.ratelimit import RateLimitedLog
 
-__all__ = ["ActuatorState", "ClockCheck", "MAX_ACTUATORS", "accept", "reason_of"]
+__all__ = ["ActuatorState", "ClockCheck", "Intake", "MAX_ACTUATORS", "accept", "reason_of"]
+
+log = logging.getLogger("servowatch.daemon")
 
 #: actuators a daemon tracks at most; samples of further ones count as ``unknown_actuator``
 MAX_ACTUATORS = 1000
@@ -258,3 +265,185 @@ def accept(
     st.last_seq, st.last_t = int(seq[j1 - 1]), float(t[j1 - 1])
     st.samples += j1 - j0
     return j0, j1
+
+
+class Intake:
+    """The pipeline's first stage: the receive queue, per-actuator stream state, decoding and
+    the acceptance checks. ``submit`` (any thread) queues a message; ``take`` (the worker)
+    drains the queue into a :class:`~service.daemon.block.Block`."""
+
+    def __init__(
+        self,
+        *,
+        queue_size: int,
+        max_bytes: int,
+        clock: ClockCheck,
+        max_batch: int,
+        bad_log: RateLimitedLog,
+    ) -> None:
+        self.queue_size = queue_size
+        self.max_bytes = max_bytes
+        self.clock = clock
+        self.max_batch = max_batch
+        self.bad_log = bad_log
+        self.actuators: dict[str, ActuatorState] = {}
+        self.unknown: dict[str, int] = {}  # reason -> count, for keys that name no actuator
+        self._queue: deque = deque()
+        self._arrival: dict[str, float] = {}  # key -> time.monotonic() of the last message
+        self.first_arrival: dict[str, float] = {}  # key -> time.monotonic() of the first one
+        self.alive_tokens: dict[str, bool] = {}  # fleet/{ac}/{act}/alive -> token present
+        self._sources: dict[str, str] = {}  # advanced publisher id -> key
+        self._lock = threading.Lock()  # guards the structure of self.actuators
+        self.wake = threading.Event()  # set when the worker has something to do
+        self.queue_high = 0
+
+    # -- any thread ---------------------------------------------------------------------
+    def submit(self, key: str, payload: bytes, t_recv: float | None = None) -> bool:
+        """Queue one message (never blocks); False if the queue was full (drop counted)."""
+        if len(self._queue) >= self.queue_size:
+            self._count("dropped", key, 1)
+            return False
+        t_recv = time.monotonic() if t_recv is None else t_recv
+        self._arrival[key] = t_recv  # for silence detection, even while the worker lags
+        if key not in self.first_arrival:
+            self.first_arrival[key] = t_recv
+        self._queue.append((key, payload, t_recv))
+        n = len(self._queue)
+        if n > self.queue_high:
+            self.queue_high = n
+        if n == 1 or n % 64 == 0:
+            self.wake.set()
+        return True
+
+    def source(self, source_id: str, key: str) -> None:
+        """Publisher ``source_id`` sends on ``key`` (to count its misses)."""
+        self._sources[source_id] = key
+
+    def key_of_source(self, source_id: str) -> str:
+        return self._sources.get(source_id, "")
+
+    def missed(self, key: str, n: int) -> ActuatorState | None:
+        """``n`` messages on ``key`` that the transport could not recover."""
+        return self._count("missed", key, n)
+
+    def alive(self, key: str, present: bool) -> None:
+        """An actuator's liveliness token appeared or vanished."""
+        self.alive_tokens[key] = present
+
+    def _count(self, what: str, key: str, n: int) -> ActuatorState | None:
+        st = self.state_for_key(key)
+        if st is not None:
+            setattr(st, what, getattr(st, what) + n)
+        else:
+            self.unknown[what] = self.unknown.get(what, 0) + n
+        return st
+
+    @property
+    def queued(self) -> int:
+        """Messages waiting in the receive queue."""
+        return len(self._queue)
+
+    def state_for_key(self, key: str) -> ActuatorState | None:
+        """The state of the actuator of meas key ``key`` (made on first use; None for a key
+        that names no actuator or beyond ``MAX_ACTUATORS``)."""
+        st = self.actuators.get(key)
+        if st is not None:
+            return st
+        try:
+            aircraft, actuator = m.parse_meas_key(key)
+        except m.MessageError:
+            return None
+        with self._lock:
+            st = self.actuators.get(key)
+            if st is None:
+                if len(self.actuators) >= MAX_ACTUATORS:
+                    return None
+                st = ActuatorState(aircraft, actuator)
+                self.actuators[key] = st
+                log.info("new actuator %s", st.name)
+        return st
+
+    # -- the worker ---------------------------------------------------------------------
+    def take(self) -> Block | None:
+        """Drain up to ``max_batch`` messages: decode, check, accept. None if none queued."""
+        q = self._queue
+        if not q:
+            return None
+        msgs = []
+        while q and len(msgs) < self.max_batch:
+            msgs.append(q.popleft())
+        blk = Block()
+        now = time.time()
+
+        def on_restart(st: ActuatorState, t: float, seq: int, back: bool = False) -> None:
+            if back:  # time went back: the filter restarts
+                blk.restarts.append(f"fleet/{st.aircraft}/{st.actuator}/meas")
+            blk.log.append(Event(st, "restart", t, seq))
+
+        for key, payload, t_recv in msgs:
+            st = self.state_for_key(key)
+            if st is None:
+                reason = "unknown_actuator" if key.endswith("/meas") else "invalid_key"
+                try:
+                    m.parse_meas_key(key)
+                except m.MessageError:
+                    reason = "invalid_key"
+                self.unknown[reason] = self.unknown.get(reason, 0) + 1
+                self.bad_log.warning("key:" + reason, "%s: %s", reason, key[:200])
+                continue
+            st.messages += 1
+            st.last_recv = t_recv
+            if st.silent:
+                st.silent = False
+                blk.log.append(Event(st, "resumed", st.last_t))
+            try:
+                a = m.decode_meas_arrays(payload, self.max_bytes)
+            except m.MessageError as e:
+                reason = reason_of(e)
+                st.count_bad(reason)
+                self.bad_log.warning(st.name, "bad message from %s: %s (%s)", st.name, e, reason)
+                continue
+            j0, j1 = accept(st, a, self.bad_log, on_restart, self.clock, now)
+            if j0 >= j1:
+                continue
+            if j1 < len(a.t):
+                a = m.MeasArrays(a.seq[:j1], a.t[:j1], a.values[:j1])
+            p = Part(st, key, a, j0, t_recv)
+            blk.parts.append(p)
+            blk.log.append(p)
+        return blk
+
+    def silent(self, now: float, silence_s: float) -> list[tuple[str, ActuatorState, float]]:
+        """Mark actuators silent after ``silence_s`` without a message: (key, state, seconds
+        since its last message) of the new ones."""
+        out = []
+        for key, st in list(self.actuators.items()):
+            last = self._arrival.get(key, st.last_recv)
+            if not st.silent and last is not None and now - last > silence_s:
+                st.silent = True
+                out.append((key, st, now - last))
+        return out
+
+    def forget(self, key: str) -> ActuatorState | None:
+        """The stream state of ``key`` starts afresh (a unit another group member took)."""
+        st = self.actuators.get(key)
+        if st is not None:
+            st.first_seq = st.last_seq = st.last_t = st.period = st.resync = None
+            st.refused = 0
+            st.silent = True
+        return st
+
+    def status(self, now: float) -> dict[str, Any]:
+        """Queue, unknown keys, liveliness and each actuator's entry (``now``:
+        ``time.monotonic()``). May raise RuntimeError on a torn read (retry)."""
+        with self._lock:
+            acts = {k: st.snapshot(now) for k, st in list(self.actuators.items())}
+        return {
+            "queue": self.queued,
+            "queue_high": self.queue_high,
+            "queue_size": self.queue_size,
+            "unknown": dict(self.unknown),
+            "alive_tokens": sorted(k for k, v in self.alive_tokens.items() if v),
+            "lost_tokens": sorted(k for k, v in self.alive_tokens.items() if not v),
+            "actuators": acts,
+        }
