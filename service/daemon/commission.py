@@ -18,10 +18,10 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
 
 from service import messages as m
 from service.monitor import HEALTH_KEYS, RES_KEYS, Baseline, MonitorFleet
+from service.prognostics.indicators import nis_band
 
 __all__ = ["Commissioner"]
 
@@ -92,7 +92,7 @@ class Commissioner:
             c.ch.append(np.asarray(a.values[j0:], float))
             dof = r[:, _DOF].astype(int)
             ok = dof > 0
-            lo, hi = chi2.ppf(0.025, dof[ok]), chi2.ppf(0.975, dof[ok])
+            lo, hi = nis_band(dof[ok])
             c.rows += int(ok.sum())
             c.in_band += int(((r[ok, _NIS] >= lo) & (r[ok, _NIS] <= hi)).sum())
             if c.span() >= self.duration_s:

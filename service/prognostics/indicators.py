@@ -27,25 +27,39 @@ idempotent.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from service.store.records import AlarmEvent, Period
 
-__all__ = ["PeriodConfig", "PeriodAccumulator", "BAD_COUNTERS", "periods_of_rows"]
+__all__ = ["PeriodConfig", "PeriodAccumulator", "BAD_COUNTERS", "periods_of_rows", "nis_band"]
 
 BAD_COUNTERS: tuple[str, ...] = ("skipped_nan", "skipped_time", "bad_channel")
 """Monitor counters (``MonitorBank.counters_of``) that count a bad sample or channel."""
 
 _MAX_DOF = 8
-_BAND = np.array(
-    [(0.0, math.inf)] + [(chi2.ppf(0.025, d), chi2.ppf(0.975, d)) for d in range(1, _MAX_DOF + 1)]
-)
+
+
+@functools.cache
+def _band() -> NDArray:
+    from scipy.stats import chi2  # here, not at import: seconds off every daemon's start
+
+    return np.array(
+        [(0.0, math.inf)]
+        + [(chi2.ppf(0.025, d), chi2.ppf(0.975, d)) for d in range(1, _MAX_DOF + 1)]
+    )
+
+
+def nis_band(dof: NDArray) -> tuple[NDArray, NDArray]:
+    """The NIS's 95 % band (chi-square quantiles 2.5 % and 97.5 %) for integer degrees of
+    freedom ``dof`` in 1.._MAX_DOF (8)."""
+    b = _band()
+    return b[dof, 0], b[dof, 1]
 
 
 @dataclass(frozen=True)
@@ -233,7 +247,7 @@ class PeriodAccumulator:
                 nd = nis[ok] / dof[ok]
                 o.nis_sum += float(nd.sum())
                 o.nis_n += int(ok.sum())
-                lo, hi = _BAND[dof[ok], 0], _BAND[dof[ok], 1]
+                lo, hi = nis_band(dof[ok])
                 o.in_band += int(((nis[ok] >= lo) & (nis[ok] <= hi)).sum())
         for j, (col, kind) in enumerate(self._alarm_cols):
             on = health[:, col] > 0.5
