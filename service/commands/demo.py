@@ -151,37 +151,28 @@ def plot_demo(log_path: Path, png: Path, t_inject: float | None, c_true: float |
     import numpy as np
 
     from models.params import EHAParams
-    from service.log import read_log
+    from service.log.blocks import read_blocks
 
     base = f"/fleet/{AIRCRAFT}/{ACTUATOR}/"
-    est, health, meas, events = [], [], [], []
+    # the fields of each series, read as arrays by the compiled reader
+    fields = {"est": ("c_lk", "c_lk_sigma"), "health": ("leak_ratio", "alarm_leak"),
+              "meas": ("x_cmd", "x_j")}  # fmt: skip
+    parts: dict[str, list] = {k: [] for k in fields}
     n = 0
-    for topic, t, msg in read_log(log_path):
-        n += 1
-        if topic == base + "est":
-            est.append((t, msg.get("c_lk"), msg.get("c_lk_sigma")))
-        elif topic == base + "health":
-            health.append((t, msg.get("leak_ratio"), msg.get("alarm_leak")))
-        elif topic == base + "meas" and n % 5 == 0:
-            meas.append((t, msg.get("x_cmd"), msg.get("x_j")))
-        elif topic == base + "events":
-            events.append((t, msg.get("kind"), msg.get("state")))
-    if not est:
+    for b in read_blocks(log_path, topics=[base + k for k in fields]):
+        kind = b.topic[len(base) :]
+        cols = [b.values[:, b.names.index(f)] if f in b.names else np.full(len(b.t), np.nan)
+                for f in fields[kind]]  # fmt: skip
+        parts[kind].append(np.column_stack([b.t, *cols]))
+        n += len(b.t)
+    E, H, M = (np.concatenate(parts[k]) if parts[k] else np.empty((0, 3)) for k in fields)
+    if not len(E):
         return n
-    t0 = min(x[0] for x in est + meas)
-
-    def num(v: Any, default: float = np.nan) -> float:
-        return default if v is None else float(v)
-
-    E = np.array([(t - t0, num(c), num(s)) for t, c, s in est], float)
-    H = np.array([(t - t0, num(r), num(a, 0.0)) for t, r, a in health], float)
-    M = np.array(
-        [
-            (t - t0, c if c is not None else np.nan, x if x is not None else np.nan)
-            for t, c, x in meas
-        ],
-        float,
-    )
+    M = M[::5]
+    t0 = min(E[0, 0], M[0, 0]) if len(M) else E[0, 0]
+    for a in (E, H, M):
+        a[:, 0] -= t0
+    H[:, 2] = np.nan_to_num(H[:, 2])  # an alarm flag absent: off
     fig, ax = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
     ax[0].plot(E[:, 0], E[:, 1], lw=0.8, label="estimated $C_{Lk}$")
     ax[0].fill_between(
@@ -468,7 +459,7 @@ def final_events(path: Path) -> list[tuple[float, str, str]]:
     from service.log import read_log
 
     out = []
-    for topic, t, msg in read_log(path):
+    for topic, t, msg in read_log(path, match=lambda topic: topic.endswith("/events")):
         if topic.endswith("/events"):
             out.append((t, str(msg.get("kind")), str(msg.get("state"))))
     return out
