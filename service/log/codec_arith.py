@@ -23,6 +23,16 @@ _HIDDEN = np.uint64(1 << 52)
 _SIGN = np.uint64(1 << 63)
 
 
+def readonly(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a``: the kernels take their inputs read-only, whatever the
+    caller holds (a chunk's bytes and the log process's arrays come from ``np.frombuffer``,
+    read-only; the daemon's own arrays are writable), so that numba compiles one signature,
+    the one the warm-up compiles, and not a second on first use."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 @njit(**_INLINE)
 def _umul128(a, b):
     a0 = a & _LO32

@@ -18,6 +18,7 @@ from service.log.codec_arith import (
     _U32,
     MSG_OPCODE,
     _umul128,
+    readonly,
 )
 
 # ----------------------------------------------------------------------------- tables
@@ -440,7 +441,7 @@ def parse_objects(
     1/0, strings -> NaN, numbers equal to ``float(text)``; ``None`` if any object is not
     understood (then use ``json.loads``).
     """
-    ok, ks, kl, vals = _objects(buf, offs, lens)
+    ok, ks, kl, vals = _objects(readonly(buf), offs, lens)
     return (ks, kl, vals) if ok else None
 
 
@@ -493,6 +494,7 @@ def scan_records(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Records of a decompressed chunk: (opcode, body start, body length, channel id or -1,
     log_time) arrays. Raises ValueError if a record overruns the chunk."""
+    buf = readonly(buf)
     status, n = _scan(buf)
     if status:
         raise ValueError(

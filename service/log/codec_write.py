@@ -21,6 +21,7 @@ from service.log.codec_arith import (
     _U1,
     _shr128,
     _umul128,
+    readonly,
 )
 
 # ----------------------------------------------------------------------------- tables
@@ -410,7 +411,8 @@ def encode_records(
     n = values.shape[0]
     buf = np.empty(n * fmt.max_len, np.uint8)
     ends = np.empty(n, np.int64)
-    end = _encode(values, fmt.isint, fmt.keys, fmt.key_off, channel_id, seq0, log_times, buf, ends)
+    end = _encode(readonly(values), fmt.isint, fmt.keys, fmt.key_off, channel_id, seq0,
+                  log_times, buf, ends)  # fmt: skip
     return buf[:end], ends
 
 
