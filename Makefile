@@ -13,13 +13,14 @@ KERNELS_ALL := $(VENV)/.kernels-all-stamp
 
 .PHONY: demo fleet-page test test-fast lint format bench evaluate clean
 
-# the packages and the project byte-compiled on every core (pip alone compiles on one; a
-# machine with PYTHONDONTWRITEBYTECODE set would otherwise compile them in every process)
+# Python byte-compiles the modules a command imports on their first import (--no-compile:
+# not every module of every package at install time, half the install's time); the targets
+# here let it write those caches even where the environment says not to, or every process
+# would compile its imports again
+unexport PYTHONDONTWRITEBYTECODE
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q --no-compile -e '.[dev]'
-	$(PY) -m compileall -q -q -j 0 $(VENV)/lib models service evaluation || true
 	touch $(STAMP)
 
 $(KERNELS): $(STAMP) $(KERNEL_SRC)
