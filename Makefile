@@ -20,6 +20,7 @@ KERNELS_ALL := $(VENV)/.kernels-all-stamp
 unexport PYTHONDONTWRITEBYTECODE
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --no-compile --upgrade pip
 	$(PY) -m pip install -q --no-compile -e '.[dev]'
 	touch $(STAMP)
 
