@@ -144,10 +144,10 @@ WHAT = {
     "monitor": "the monitor kernels",
     "log": "the MCAP log kernels",
 }
-# CPU seconds of each group's first compile on this project's 2-core VM, from `servowatch
-# warmup --table` (numba compiles on one core: the wall time of an idle machine); the
-# estimate a compiling command prints
-ESTIMATE_S = {"models": 10.0, "monitor": 80.0, "log": 25.0, "valves": 20.0}
+# CPU seconds of each group's first compile on this project's 2-core VM, with the start-up
+# of its processes (`time servowatch warmup --group G` from a cold cache); a compiling
+# command prints their sum over the cores it uses (at most 2: the parts wait for each other)
+ESTIMATE_S = {"models": 10.0, "monitor": 60.0, "log": 25.0, "valves": 20.0}
 
 
 # the kernels each group's warm-up calls from Python (numba's cache of these tells whether
