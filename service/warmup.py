@@ -13,6 +13,7 @@ compile a group first says so on stderr (:func:`announce`).
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import subprocess
@@ -187,17 +188,13 @@ def default_jobs() -> int:
 
 
 def _parts_of(groups: tuple[str, ...], cold_only: bool) -> list[str]:
-    """The parts of ``groups``; ``cold_only``: those whose kernels numba's cache lacks, of the
-    groups it lacks."""
-    parts = []
-    for g in groups:
-        if cold_only and is_cached(g):
-            continue
-        parts += [p for p in GROUP_PARTS[g] if not (cold_only and all_cached(p))]
-    return parts
+    """The parts of ``groups`` (the callers pass the groups numba's cache lacks);
+    ``cold_only``: those whose own kernels it lacks."""
+    return [p for g in groups for p in GROUP_PARTS[g] if not (cold_only and _part_cached(p))]
 
 
-def all_cached(part: str) -> bool:
+def _part_cached(part: str) -> bool:
+    """True when numba's cache holds the kernels that ``part`` calls from Python."""
     from service.compat.numba import has_cached_code
 
     return all(has_cached_code(d) for d in _part_entries(part))
@@ -286,15 +283,10 @@ def run_parts(
 
 def warm_up(groups: tuple[str, ...] | None = None, jobs: int | None = None) -> float:
     """Run every compiled path (or those of ``groups``) briefly, the cold ones on ``jobs``
-    processes (:func:`run_parts`); return the wall time [s]."""
-    t0 = time.perf_counter()
+    processes: :func:`ensure` with ``always``, its messages discarded. Returns the wall
+    time [s]."""
     groups = DEFAULT_GROUPS if groups is None else groups
-    cold = [g for g in groups if not is_cached(g)]
-    run_parts(_parts_of(tuple(cold), cold_only=True), jobs)
-    for name in groups:  # the cached ones exercised here (loaded from the cache)
-        if name not in cold:
-            GROUPS[name]()
-    return time.perf_counter() - t0
+    return ensure(*groups, always=True, stream=io.StringIO(), jobs=jobs)
 
 
 class _CompileTimes:

@@ -459,7 +459,6 @@ def final_events(path: Path) -> list[tuple[float, str, str]]:
     from service.log import read_log
 
     out = []
-    for topic, t, msg in read_log(path, match=lambda topic: topic.endswith("/events")):
-        if topic.endswith("/events"):
-            out.append((t, str(msg.get("kind")), str(msg.get("state"))))
+    for _, t, msg in read_log(path, match=lambda topic: topic.endswith("/events")):
+        out.append((t, str(msg.get("kind")), str(msg.get("state"))))
     return out
