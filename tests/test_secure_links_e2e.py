@@ -114,11 +114,7 @@ def test_secure_router_restart_loses_no_cached_sample(tmp_path):
             assert daemon.poll() is None, (tmp_path / "daemon.err").read_text()[-3000:]
             assert time.monotonic() < deadline, "no daemon status"
             time.sleep(0.5)
-        act = st.popen(
-            ["actuator", "--scenario", "healthy_noise", "--aircraft", AC, "--actuator", ACT,
-             "--rate", "250", "--cache-s", "60", "--json", *st.flags("sim-AC001")],
-            "actuator",
-        )  # fmt: skip
+        act = st.actuator("--cache-s", "60")
         while _samples(_status(st, st.ep)) < 250:
             assert act.poll() is None, (tmp_path / "actuator.err").read_text()[-3000:]
             assert time.monotonic() < deadline, "no stream reached the daemon"
@@ -179,11 +175,7 @@ def test_two_linked_secure_stations_carry_meas_to_the_other_daemon(tmp_path):
             assert daemon.poll() is None, (tmp_path / "daemon_b.err").read_text()[-3000:]
             assert time.monotonic() < deadline, "no daemon status on B"
             time.sleep(0.5)
-        act = st.popen(
-            ["actuator", "--scenario", "healthy_noise", "--aircraft", AC, "--actuator", ACT,
-             "--rate", "250", "--duration", "4", "--json", *st.flags("sim-AC001")],
-            "actuator",
-        )  # fmt: skip
+        act = st.actuator("--duration", "4")
         assert act.wait(120) == 0, (tmp_path / "actuator.err").read_text()[-3000:]
         a = json.loads((tmp_path / "actuator.out").read_text().strip().splitlines()[-1])
         time.sleep(1.5)

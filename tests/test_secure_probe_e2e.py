@@ -72,19 +72,8 @@ def probe(tmp_path_factory):
             assert daemon.poll() is None, (tmp / "daemon.err").read_text()[-3000:]
             assert time.monotonic() < deadline, "no daemon status"
             time.sleep(0.5)
-        act = st.popen(
-            ["actuator", "--scenario", "healthy_noise", "--aircraft", AC, "--actuator", ACT,
-             "--rate", "250", "--json", *st.flags("sim-AC001")],
-            "actuator",
-        )  # fmt: skip
-        from service.store import open_store
-
-        open_store(tmp / "web.sqlite").close()
-        web = st.popen(
-            ["web", "--store", str(tmp / "web.sqlite"), "--listen", "127.0.0.1:0",
-             "--refresh", "1", "--config", str(SECURE / "dashboard.toml")],
-            "web", env=st.env("dashboard"),
-        )  # fmt: skip
+        act = st.actuator()
+        web = st.web()
         time.sleep(3.0)
         r["before"] = _daemon_status(st, "s_before")
 

@@ -99,6 +99,27 @@ class Station:
         self.procs.append(p)
         return p
 
+    def web(self) -> subprocess.Popen:
+        """The fleet page on an empty store, with live status through the secure router as
+        the dashboard role (``deploy/secure/dashboard.toml``)."""
+        from service.store import open_store
+
+        open_store(self.tmp / "web.sqlite").close()
+        return self.popen(
+            ["web", "--store", str(self.tmp / "web.sqlite"), "--listen", "127.0.0.1:0",
+             "--refresh", "1", "--config", str(SECURE / "dashboard.toml")],
+            "web", env=self.env("dashboard"),
+        )  # fmt: skip
+
+    def actuator(self, *extra: str) -> subprocess.Popen:
+        """The virtual actuator AC001's, on the healthy scenario at 250 Hz, as sim-AC001
+        (``extra``: more of its flags)."""
+        return self.popen(
+            ["actuator", "--scenario", "healthy_noise", "--aircraft", AC, "--actuator", ACT,
+             "--rate", "250", *extra, "--json", *self.flags("sim-AC001")],
+            "actuator",
+        )  # fmt: skip
+
     def run(self, args: list[str], tag: str, env=None, role=False, timeout=60.0) -> dict:
         """Run to the end: ``{"rc", "out", "err", "json"}``."""
         return self.result(self.popen(args, tag, env, role), tag, timeout)
@@ -160,19 +181,8 @@ def station(tmp_path_factory):
             assert time.monotonic() < deadline
             time.sleep(0.1)
         # the fleet page with live status through the secure router, as the dashboard role
-        from service.store import open_store
-
-        open_store(tmp / "web.sqlite").close()
-        web = st.popen(
-            ["web", "--store", str(tmp / "web.sqlite"), "--listen", "127.0.0.1:0",
-             "--refresh", "1", "--config", str(SECURE / "dashboard.toml")],
-            "web", env=st.env("dashboard"),
-        )  # fmt: skip
-        act = st.popen(
-            ["actuator", "--scenario", "healthy_noise", "--aircraft", AC, "--actuator", ACT,
-             "--rate", "250", "--json", *st.flags("sim-AC001")],
-            "actuator",
-        )  # fmt: skip
+        web = st.web()
+        act = st.actuator()
         time.sleep(3.0)
         # the refused cases and the legitimate commands, all at once while the actuator runs
         spoof = [
