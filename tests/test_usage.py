@@ -292,3 +292,44 @@ def test_replay_store_writes_usage_end_to_end(tmp_path):
     assert main(["replay", str(log), "--store", str(store), "--json"]) == 0
     with open_store(store) as s:
         assert s.count_periods() == 1
+
+
+def _used_period(k: int, flight: int, travel: float, load: float | None) -> Period:
+    return Period(**{**_old_period(k).to_dict(), "flight": flight, "usage_travel_m": travel,
+                     "usage_load_travel_j": math.nan if load is None else load,
+                     "usage_load2_travel_n2m": math.nan if load is None else 1e3 * load,
+                     "usage_reversals": 10.0, "usage_loaded_s": 45.0 if load else math.nan,
+                     "usage_pressurised_s": 90.0})  # fmt: skip
+
+
+def test_fleet_text_json_and_the_unit_view_show_usage(store_url, capsys):
+    import json
+
+    from service.cli import main
+    from service.web.view import fleet_view, unit_view
+
+    with open_store(store_url) as s:
+        # two flights of two 90 s periods, one flight with usage but no pressures, one old
+        s.add_periods([_used_period(0, 1, 2.0, 4000.0), _used_period(1, 1, 1.0, 2000.0),
+                       _used_period(2, 2, 3.0, 6000.0), _used_period(3, 2, 3.0, 6000.0),
+                       _used_period(4, 3, 0.5, None), _old_period(5)])  # fmt: skip
+    assert main(["fleet", "--store", store_url, "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)["fleet"]
+    u = row["usage"]
+    hours = 5 * 90 / 3600  # the 5 periods with usage
+    assert u["periods"] == 5 and u["travel_m"] == pytest.approx(9.5)
+    assert u["travel_m_per_h"] == pytest.approx(9.5 / hours)
+    assert u["load_travel_j_per_h"] == pytest.approx(18000.0 / (4 * 90 / 3600))
+    assert main(["fleet", "--store", store_url]) == 0
+    text = capsys.readouterr().out.splitlines()
+    assert "travel m/h" in text[1] and "|F|trav kJ/h" in text[1]
+    assert text[3].split()[-2:] == [f"{9.5 / hours:.2f}", f"{18.0 / (4 * 90 / 3600):.1f}"]
+    with open_store(store_url) as s:
+        fv = fleet_view(s)
+        assert fv["fleet"][0]["usage"]["travel_m"] == pytest.approx(9.5)
+        uv = unit_view(s, "AC1/ail_L")
+    # per flight: flights 1-3 carry usage (flight 5's one period does not), flights 1-2 load
+    assert uv["usage"] == {"flights": 3, "travel_m": pytest.approx(9.5 / 3),
+                           "reversals": pytest.approx(50 / 3), "load_flights": 2,
+                           "load_travel_j": pytest.approx(9000.0)}  # fmt: skip
+    assert [p["usage_travel_m"] for p in uv["periods"]] == [2.0, 1.0, 3.0, 3.0, 0.5, None]

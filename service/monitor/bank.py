@@ -184,6 +184,7 @@ class MonitorBank:
         self._rows: list | None = None
         self._vec_cache: dict[str, tuple] = {}
         self.usage_config = UsageConfig()  # thresholds of the usage figures (service.monitor.usage)
+        self.usage_rates = True  # False: no usage rates (BankRows.usage None; bench/usage.py)
         self._alloc(capacity)
 
     _ROW_VECTORS = ("scale", "_zscale", "_q", "R", "_prm", "_cst")
@@ -262,8 +263,10 @@ class MonitorBank:
         for k in range(len(self.x)):
             self.r_use[k] = self._usage_row(self.r_base[k][0])
 
-    def _usage(self, ks, acc, snap: bool, X, z, mask) -> NDArray:
+    def _usage(self, ks, acc, snap: bool, X, z, mask) -> NDArray | None:
         """Usage rates (``service.monitor.usage.USAGE_KEYS``) of the rows with ``acc``."""
+        if not self.usage_rates:
+            return None
         u = np.zeros((len(ks), N_USAGE))
         usage_rows(ks, acc, snap, X, self.r_scale, self.r_zscale, S_V_J, S_X_J, S_P_SR, z,
                    mask, Z_P1, Z_P2, self.r_use, self.ustate, u)  # fmt: skip
@@ -422,7 +425,7 @@ class MonitorBank:
             res=np.concatenate([p[3] for p in parts])[order],
             health=np.concatenate([p[4] for p in parts])[order],
             events=RowEvents.of([evs[j] for j in order]),
-            usage=np.concatenate([p[6] for p in parts])[order],
+            usage=None if parts[0][6] is None else np.concatenate([p[6] for p in parts])[order],
         )
 
     # -- block path ----------------------------------------------------------------------
@@ -602,7 +605,7 @@ class MonitorBank:
             res=res[sel],
             health=health[sel],
             events=RowEvents(len(sel), at),
-            usage=usage[sel],
+            usage=None if usage is None else usage[sel],
         )
 
     def _run_rounds(self, samples, out) -> None:
