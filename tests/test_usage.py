@@ -333,3 +333,36 @@ def test_fleet_text_json_and_the_unit_view_show_usage(store_url, capsys):
                            "reversals": pytest.approx(50 / 3), "load_flights": 2,
                            "load_travel_j": pytest.approx(9000.0)}  # fmt: skip
     assert [p["usage_travel_m"] for p in uv["periods"]] == [2.0, 1.0, 3.0, 3.0, 0.5, None]
+
+
+@pytest.mark.slow
+def test_the_daemon_writes_usage_with_its_periods(tmp_path):
+    """Live periods: the daemon's store writer gets usage, the same as a replay of the same
+    samples in one block would give over the same periods (both cut 1 s windows)."""
+    from service.config import PrognosticsSettings, ServiceConfig
+    from service.daemon import Daemon
+    from service.messages import encode_meas
+
+    sim, meas = _scenario_run(duration_s=2.5, seed=9)
+    store = tmp_path / "d.sqlite"
+    cfg = ServiceConfig(store=str(store), publish_every=1000,
+                        prognostics=PrognosticsSettings(period_window_s=1.0))  # fmt: skip
+    d = Daemon(cfg, log_path=tmp_path / "d.mcap", log_process=False, gather_s=0)
+    ch = [c for c in ("x_cmd", "i", "x_s", "x_j", "p1", "p2") if c in meas]
+    n = len(meas["t"])
+    for a in range(0, n, 50):
+        rows = [{"seq": j, "t": float(meas["t"][j]), **{c: float(meas[c][j]) for c in ch}}
+                for j in range(a, min(a + 50, n))]  # fmt: skip
+        d.submit("fleet/AC1/ail_L/meas", encode_meas(rows))
+    while d.queued:
+        d.process_pending()
+    d.stop()
+    with open_store(store) as s:
+        ps = s.periods("AC1/ail_L")
+        assert len(ps) == 3 and {p.source for p in ps} == {"live:ground1/0"}
+    dt = np.diff(sim.t, prepend=0.0)
+    assert sum(p.usage_travel_m for p in ps) == pytest.approx(
+        np.sum(np.abs(sim.v_j) * dt), rel=0.03
+    )
+    assert all(p.usage_load_travel_j > 0 for p in ps)
+    assert [p.usage_pressurised_s for p in ps] == pytest.approx([p.op_time_s for p in ps])
