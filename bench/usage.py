@@ -10,7 +10,7 @@ samples, quadratic), the alternative that docs/decisions/0017-usage-from-the-est
 weighed.
 
 Speed: ``update_arrays`` per actuator and sample with the usage rates on and off
-(``MonitorBank.usage_rates``), on the same blocks, the two alternating for ``--repeats``
+(``MonitorBank.usage.enabled``), on the same blocks, the two alternating for ``--repeats``
 rounds (median of each block's time, best round).
 
     .venv/bin/python bench/usage.py [--scenarios healthy_noise est_large_steps ...]
@@ -112,7 +112,7 @@ def speed(n_act: int, n: int, repeats: int, per_call: int = 10) -> dict:
     for r in range(repeats):
         for mode in ("on", "off") if r % 2 == 0 else ("off", "on"):
             bank = MonitorBank(MonitorConfig())
-            bank.usage_rates = mode == "on"
+            bank.usage.enabled = mode == "on"
             rows = [bank.index_of(f"act{k:03d}") for k in range(n_act)]
             ks = np.repeat(np.array(rows, np.int64), per_call)
             dts = []
@@ -126,12 +126,12 @@ def speed(n_act: int, n: int, repeats: int, per_call: int = 10) -> dict:
             res[mode].append(float(np.median(dts[5:]) * 1e6 / (n_act * per_call)))
     on, off = min(res["on"]), min(res["off"])
     # the usage kernel alone on the last block's rows (the same call as in rows_of), best of 200
-    bank.usage_rates = True
+    bank.usage.enabled = True
     sb = bank.step_arrays(ks, t, ch)
     kern = []
     for _ in range(200):
         t0 = pc()
-        bank._usage(sb.ks, sb.so.acc, True, sb.so.SX, sb.sm.z, sb.sm.mask)
+        bank.usage.rates(sb.ks, sb.so.acc, True, sb.so.SX, bank.mr, sb.sm.z, sb.sm.mask)
         kern.append(pc() - t0)
     return {"us_per_sample_kernel": float(min(kern) * 1e6 / len(ks)),"actuators": n_act, "samples": n, "per_call": per_call, "repeats": repeats,
             "us_per_sample_on": on, "us_per_sample_off": off,

@@ -18,6 +18,7 @@ from service.prognostics.indicators import PeriodAccumulator, PeriodConfig
 from service.store import Period, open_store
 from service.store.records import USAGE_FIELDS
 from service.store.schema import MIGRATIONS
+from service.store.usage import USAGE_TOTALS
 
 AREA, P_RATED = 1e-3, 20e6
 # columns of the filter state the kernel reads (C-type order: x_s, v_s, x_j, v_j, f_r, p_sr)
@@ -209,8 +210,7 @@ def test_migration_5_keeps_an_old_store_and_reads_null_usage(store_url, monkeypa
                                                 if c not in USAGE_FIELDS))  # fmt: skip
         for name in ("_SUMMARY_COLS", "_FLEET_COLS"):
             m.setattr(health, name, tuple(c for c in getattr(health, name)
-                                          if c not in health._USAGE_TOTALS))  # fmt: skip
-        m.setattr(health.HealthStore, "_summarise", _summarise_v3(health.HealthStore._summarise))
+                                          if c not in USAGE_TOTALS))  # fmt: skip
         with open_store(store_url) as s:
             assert s.schema_version() == 3
             assert s.add_periods([_old_period(k) for k in range(3)]) == 3
@@ -234,18 +234,6 @@ def test_migration_5_keeps_an_old_store_and_reads_null_usage(store_url, monkeypa
         assert u["reversals_per_h"] == pytest.approx(12.0 / 0.025)
         assert row["last"]["usage_travel_m"] == 1.5
         assert s.check() == []
-
-
-def _summarise_v3(summarise):
-    """The summary update of a version-3 store: no usage totals to keep."""
-
-    def f(s, fresh):
-        s.update({c: 0 for c in ("usage_periods", "usage_op_time_s", "usage_travel_m",
-                                 "usage_reversals", "usage_load_op_time_s",
-                                 "usage_load_travel_j")})  # fmt: skip
-        summarise(s, fresh)
-
-    return staticmethod(f)
 
 
 def test_fleet_usage_of_a_store_without_usage(store_url):
@@ -366,3 +354,13 @@ def test_the_daemon_writes_usage_with_its_periods(tmp_path):
     )
     assert all(p.usage_load_travel_j > 0 for p in ps)
     assert [p.usage_pressurised_s for p in ps] == pytest.approx([p.op_time_s for p in ps])
+
+
+@pytest.mark.parametrize("value", [-1.0, math.inf])
+def test_a_period_refuses_negative_or_infinite_usage(value):
+    with pytest.raises(
+        ValueError, match="usage_load_travel_j: expected a finite number >= 0 or NaN"
+    ):
+        Period(**{**_old_period(0).to_dict(), "usage_load_travel_j": value})
+    with pytest.raises(ValueError, match="UsageConfig.reversal_m"):
+        UsageConfig(reversal_m=value)
