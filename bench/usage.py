@@ -75,7 +75,7 @@ def accuracy(name: str) -> dict:
     got = {f: getattr(p, f) for f in FIGURES}
     dt = np.diff(rows.t, prepend=rows.t[0])
     v_sg = savgol_filter(np.asarray(meas["x_j"])[rows.index], 51, 2, deriv=1, delta=1e-3)
-    return {"scenario": name, "duration_s": sc.duration_s, "usage": got, "truth": truth,
+    return {"scenario": Path(name).stem, "duration_s": sc.duration_s, "usage": got, "truth": truth,
             "travel_savgol_m": float(np.sum(np.abs(v_sg) * dt))}  # fmt: skip
 
 
@@ -87,12 +87,12 @@ def _err(a: float, b: float) -> str:
 
 def print_accuracy(rows: list[dict]) -> None:
     print("usage per period against the HF bench's truth (one period per scenario):")
-    print(f"  {'scenario':32s} {'travel':>18s} {'|F| travel':>18s} {'F^2 travel':>10s} "
+    print(f"  {'scenario':24s} {'travel':>18s} {'|F| travel':>18s} {'F^2 travel':>10s} "
           f"{'reversals':>10s} {'loaded s':>16s} {'pressurised s':>14s} {'savgol travel':>14s}")  # fmt: skip
     for r in rows:
         u, t = r["usage"], r["truth"]
         print(
-            f"  {r['scenario']:32s} "
+            f"  {r['scenario']:24s} "
             f"{u['usage_travel_m'] * 1e3:7.2f} mm {_err(u['usage_travel_m'], t['usage_travel_m']):>8s} "
             f"{u['usage_load_travel_j']:7.1f} J {_err(u['usage_load_travel_j'], t['usage_load_travel_j']):>8s} "
             f"{_err(u['usage_load2_travel_n2m'], t['usage_load2_travel_n2m']):>10s} "
