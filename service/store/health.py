@@ -31,7 +31,7 @@ from service.store.records import (
 )
 from service.store.schema import LATEST_VERSION, MIGRATIONS, RECENT_WINDOW, RECOMPUTE_TRENDS
 
-__all__ = ["HealthStore", "StoreError", "open_store", "trend_of", "describe_url"]
+__all__ = ["HealthStore", "StoreError", "open_store", "trend_of", "describe_url", "READ_TIMEOUT_S"]
 
 # column order of the periods table as written (the key first)
 _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
@@ -59,6 +59,8 @@ _SUMMARY_COLS: tuple[str, ...] = (
 )
 _FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c != "recent")
 _CHUNK = 500  # parameters per IN (...) list
+#: a read-only command waits at most this long for a writer's lock [s] (docs/cli.md)
+READ_TIMEOUT_S = 5.0
 
 
 class StoreError(RuntimeError):
@@ -122,10 +124,11 @@ class _SQLite(_Backend):
     def __init__(self, path: Path, timeout_s: float = 30.0, read_only: bool = False) -> None:
         super().__init__()
         self.path = path
-        self.conn = sqlite3.connect(str(path), timeout=timeout_s, isolation_level=None)
-        if read_only:  # a reader: no journal-mode change, and this connection cannot write
+        if read_only:  # a reader: opened read only, no journal-mode change, never a write
+            self.conn = _sqlite_read_only(path, timeout_s)
             self.conn.execute("PRAGMA query_only=ON")
         else:
+            self.conn = sqlite3.connect(str(path), timeout=timeout_s, isolation_level=None)
             self.conn.execute("PRAGMA journal_mode=WAL")
             # WAL + NORMAL: a killed process loses nothing committed; power loss may lose the
             # last transactions but never leaves a half-written one
@@ -160,6 +163,33 @@ class _SQLite(_Backend):
         self.conn.execute("COMMIT")
 
 
+def _sqlite_read_only(path: Path, timeout_s: float) -> sqlite3.Connection:
+    """A connection that cannot write ``path``: ``mode=ro``, so a store in a read-only
+    folder or file reads too. A WAL store whose ``-shm`` cannot be created there (no writer
+    has it open) is read as ``immutable`` when it has no ``-wal`` content to miss; with
+    one, a ``StoreError`` says why (a writer must checkpoint it, or copy the store)."""
+    from urllib.parse import quote
+
+    uri = "file:" + quote(str(path.resolve())) + "?mode=ro"
+    conn = sqlite3.connect(uri, uri=True, timeout=timeout_s, isolation_level=None)
+    try:
+        conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+        return conn
+    except sqlite3.OperationalError as e:
+        conn.close()
+        if getattr(e, "sqlite_errorname", "") not in ("SQLITE_CANTOPEN", "SQLITE_READONLY"):
+            raise
+        wal = path.with_name(path.name + "-wal")
+        if wal.exists() and wal.stat().st_size > 0:
+            raise StoreError(
+                f"store: {path}: cannot read it in place: its write-ahead log {wal.name} "
+                f"holds data and its shared-memory file cannot be created there ({e}); "
+                "open it once with write access (a writer checkpoints it) or copy the store "
+                "and its -wal file to a writable folder"
+            ) from e
+    return sqlite3.connect(uri + "&immutable=1", uri=True, timeout=timeout_s, isolation_level=None)
+
+
 class _Postgres(_Backend):
     name = "postgresql"
     for_update = " FOR UPDATE"
@@ -177,8 +207,10 @@ class _Postgres(_Backend):
             msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             raise StoreError(f"store: cannot connect to {describe_url(url)}: {msg}") from e
         self.cur = self.conn.cursor()
-        if read_only:  # every transaction of this session is read only
+        if read_only:  # every transaction of this session is read only, and waits for a
+            # writer's lock (a migration's) at most timeout_s
             self.cur.execute("SET default_transaction_read_only = on")
+            self.cur.execute(f"SET lock_timeout = {int(timeout_s * 1000)}")
 
     def sql(self, text: str) -> str:
         return text.replace("?", "%s")
@@ -202,6 +234,16 @@ class _Postgres(_Backend):
 
     def lock_migrations(self) -> None:
         self.execute("SELECT pg_advisory_xact_lock(7431201)")
+
+
+def _engine_error(e: BaseException) -> bool:
+    """Whether ``e`` is an error of a store engine (sqlite3, psycopg)."""
+    return type(e).__module__.split(".")[0] in ("sqlite3", "psycopg")
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
 
 
 def _float(v: Any) -> float:
@@ -349,6 +391,18 @@ class HealthStore:
         """The highest migration applied (0 for an empty store)."""
         row = self._b.execute("SELECT MAX(version) FROM schema_migrations").fetchone()
         return int(row[0] or 0)
+
+    def check_writable(self) -> None:
+        """Raise ``StoreError`` when this store cannot be written (a read-only file, folder
+        or database, no write privilege): a write that changes nothing, rolled back.
+        ``open_store`` checks it for a writer, before the writer's work."""
+        try:
+            with self._b.transaction():
+                self._b.execute("DELETE FROM schema_migrations WHERE version < 0")
+        except Exception as e:
+            if isinstance(e, StoreError) or not _engine_error(e):
+                raise
+            raise StoreError(f"store {self.where}: cannot be written: {_first_line(e)}") from e
 
     # -- actuators ------------------------------------------------------------------------
     def _ensure(self, actuator: str) -> None:
@@ -724,8 +778,10 @@ def open_store(
     """Open (migrating as needed) the store at a ``postgresql://`` URL or a SQLite file
     path; a missing SQLite file (and its directory) is created unless ``create`` is False.
     ``read_only``: never create, never migrate, and a connection that cannot write (SQLite
-    ``query_only``, PostgreSQL ``default_transaction_read_only``); a store whose schema is
-    not this servowatch's is a ``StoreError``."""
+    ``mode=ro``, PostgreSQL ``default_transaction_read_only``), waiting for a writer's lock
+    at most ``timeout_s`` (``READ_TIMEOUT_S`` for the commands); a store whose schema is
+    not this servowatch's is a ``StoreError``. A writer's store is checked writable
+    (``HealthStore.check_writable``) before it is returned."""
     if read_only:
         create = False
     if isinstance(url_or_path, os.PathLike):
@@ -753,10 +809,22 @@ def open_store(
         except (OSError, sqlite3.Error) as e:
             raise StoreError(f"store: cannot open SQLite file {path}: {e}") from e
     try:
-        return HealthStore(backend, text, read_only)
-    except sqlite3.DatabaseError as e:
+        store = HealthStore(backend, text, read_only)
+        if not read_only:
+            store.check_writable()
+        return store
+    except Exception as e:
         backend.close()
-        raise StoreError(f"store: {describe_url(text)} is not a usable health store: {e}") from e
+        if isinstance(e, StoreError) or not _engine_error(e):
+            raise
+        if "lock" in str(e).lower():
+            raise StoreError(
+                f"store: {describe_url(text)} is busy: a writer held its lock longer than "
+                f"{timeout_s:g} s ({_first_line(e)})"
+            ) from e
+        raise StoreError(
+            f"store: {describe_url(text)} is not a usable health store: {_first_line(e)}"
+        ) from e
     except BaseException:
         backend.close()
         raise
