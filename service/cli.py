@@ -132,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("interrupted", file=sys.stderr)
         return 130
     except Exception as e:
-        code = _one_line(e)
+        code = _one_line(e, args)
         if code is None:
             raise
         return code
@@ -141,7 +141,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 _STORE_ENGINES = ("sqlite3", "psycopg")
 
 
-def _one_line(e: Exception) -> int | None:
+def _one_line(e: Exception, args: argparse.Namespace) -> int | None:
     """Report a failure a user can cause as one line on stderr and return its exit code;
     None for anything else (a bug: its traceback is kept)."""
     from service.cliutil import EXIT_IO, EXIT_USAGE, CommandError, _cause, fail
@@ -157,8 +157,13 @@ def _one_line(e: Exception) -> int | None:
         return fail(f"{where}{_cause(e)} (the command stopped here; outputs written so far "
                     "may be incomplete)", EXIT_IO)  # fmt: skip
     if type(e).__module__.split(".")[0] in _STORE_ENGINES:
-        return fail(f"store: {_cause(e)} (the command stopped here; the store keeps every "
-                    "write committed before: each write is one transaction)", EXIT_IO)  # fmt: skip
+        from service.store import default_store, describe_url
+
+        target = getattr(args, "store", None) or default_store()
+        what = "is damaged" if "malformed" in str(e) or "not a database" in str(e) else "failed"
+        return fail(f"--store {describe_url(str(target))} {what}: {_cause(e)} (the command "
+                    "stopped here; each store write is one transaction: what was committed "
+                    "before stays, nothing is half-written)", EXIT_IO)  # fmt: skip
     return None
 
 

@@ -136,11 +136,14 @@ def refuse_output_is_input(
     return None
 
 
-def check_writable(what: str, path: PathArg, *, directory: bool = False) -> str | None:
+def check_writable(
+    what: str, path: PathArg, *, directory: bool = False, makes_folders: bool = False
+) -> str | None:
     """The refusal when ``path`` cannot be written (its folder missing, not writable or on
     a read-only file system, or the path a directory / not one), without creating it; None
     when it can. ``directory``: ``path`` is a folder that will hold the outputs (created
-    when missing)."""
+    when missing); ``makes_folders``: the writer creates missing folders (the MCAP logger,
+    the store), so the nearest existing one must be writable."""
     p = _fs_path(path)
     if p is None:
         return None
@@ -149,6 +152,8 @@ def check_writable(what: str, path: PathArg, *, directory: bool = False) -> str 
     target = p
     if not os.path.exists(p):
         target = os.path.dirname(os.path.abspath(p))
+        if not (directory or makes_folders) and not os.path.isdir(target):
+            return f"{what} {p}: no such folder {target}"
         while not os.path.exists(target):  # a folder that will be created: its parent
             parent = os.path.dirname(target)
             if parent == target:
@@ -173,20 +178,27 @@ def _read_only_fs(path: str) -> bool:
         return False
 
 
+#: outputs whose writer creates missing folders: MCAP logs and the store
+_MAKES_FOLDERS = ("--out", "--log", "--store")
+
+
 def check_outputs(
     outputs: Iterable[tuple[str, PathArg]],
     inputs: Iterable[tuple[str, PathArg]] = (),
     *,
     directories: Iterable[tuple[str, PathArg]] = (),
+    makes_folders: Iterable[str] = _MAKES_FOLDERS,
 ) -> None:
     """A command's output checks, before its work: no output is an input
     (``refuse_output_is_input``) and each can be written (``check_writable``); raises
-    ``CommandError`` (exit 2) naming the first that fails. ``directories``: output folders."""
+    ``CommandError`` (exit 2) naming the first that fails. ``directories``: output folders;
+    ``makes_folders``: the outputs whose missing folders the writer creates."""
     outputs, directories = list(outputs), list(directories)
+    makes = set(makes_folders)
     msg = refuse_output_is_input(outputs + directories, inputs)
     if msg is None:
         for what, p in outputs:
-            msg = check_writable(what, p)
+            msg = check_writable(what, p, makes_folders=what in makes)
             if msg is not None:
                 break
     if msg is None:

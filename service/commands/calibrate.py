@@ -161,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(
         [("--out", args.out), ("--store", store_path_arg(args) if args.actuator else None)],
         [("--scenario", scenario_path), ("--log", args.log)],
+        makes_folders=("--store",),  # --out: a JSON file in an existing folder
     )
     store = None
     if args.actuator is not None:

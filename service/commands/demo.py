@@ -218,8 +218,12 @@ def plot_demo(log_path: Path, png: Path, t_inject: float | None, c_true: float |
         f"servowatch demo: {AIRCRAFT}/{ACTUATOR}, leak injected at {(t_inject or t0) - t0:.1f} s"
     )
     fig.tight_layout()
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
+    from service.plots import save_png
+
+    try:
+        save_png(fig, png, 110)
+    finally:
+        plt.close(fig)
     return n
 
 

@@ -249,8 +249,12 @@ def plot(res: dict, path: str | Path, baseline) -> None:
         "red = alarm raised, green = cleared"
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    from service.plots import save_png
+
+    try:
+        save_png(fig, path, 90)
+    finally:
+        plt.close(fig)
 
 
 def write_mcap(res: dict, path: str | Path) -> None:

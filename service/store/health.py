@@ -803,6 +803,8 @@ def open_store(
             raise StoreError(f"store: {path} is a directory; expected a SQLite file path")
         if not create and not path.exists():
             raise StoreError(f"store: {path} does not exist (no health store there yet)")
+        if not create and path.is_file() and path.stat().st_size == 0:
+            raise StoreError(f"store: {path} is an empty file (0 bytes), not a health store")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             backend = _SQLite(path, timeout_s, read_only)
