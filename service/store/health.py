@@ -21,6 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from service.store.access import StoreError, engine_error, first_line, sqlite_read_only
 from service.store.records import (
     PERIOD_FIELDS,
     PERIOD_FLOAT_FIELDS,
@@ -61,10 +62,6 @@ _FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c != "recent")
 _CHUNK = 500  # parameters per IN (...) list
 #: a read-only command waits at most this long for a writer's lock [s] (docs/cli.md)
 READ_TIMEOUT_S = 5.0
-
-
-class StoreError(RuntimeError):
-    """The store cannot be opened or used (bad URL/path, newer schema, unreachable server)."""
 
 
 def _dumps(obj: Any) -> str:
@@ -125,7 +122,7 @@ class _SQLite(_Backend):
         super().__init__()
         self.path = path
         if read_only:  # a reader: opened read only, no journal-mode change, never a write
-            self.conn = _sqlite_read_only(path, timeout_s)
+            self.conn = sqlite_read_only(path, timeout_s)
             self.conn.execute("PRAGMA query_only=ON")
         else:
             self.conn = sqlite3.connect(str(path), timeout=timeout_s, isolation_level=None)
@@ -161,33 +158,6 @@ class _SQLite(_Backend):
             raise
         self._depth = 0
         self.conn.execute("COMMIT")
-
-
-def _sqlite_read_only(path: Path, timeout_s: float) -> sqlite3.Connection:
-    """A connection that cannot write ``path``: ``mode=ro``, so a store in a read-only
-    folder or file reads too. A WAL store whose ``-shm`` cannot be created there (no writer
-    has it open) is read as ``immutable`` when it has no ``-wal`` content to miss; with
-    one, a ``StoreError`` says why (a writer must checkpoint it, or copy the store)."""
-    from urllib.parse import quote
-
-    uri = "file:" + quote(str(path.resolve())) + "?mode=ro"
-    conn = sqlite3.connect(uri, uri=True, timeout=timeout_s, isolation_level=None)
-    try:
-        conn.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
-        return conn
-    except sqlite3.OperationalError as e:
-        conn.close()
-        if getattr(e, "sqlite_errorname", "") not in ("SQLITE_CANTOPEN", "SQLITE_READONLY"):
-            raise
-        wal = path.with_name(path.name + "-wal")
-        if wal.exists() and wal.stat().st_size > 0:
-            raise StoreError(
-                f"store: {path}: cannot read it in place: its write-ahead log {wal.name} "
-                f"holds data and its shared-memory file cannot be created there ({e}); "
-                "open it once with write access (a writer checkpoints it) or copy the store "
-                "and its -wal file to a writable folder"
-            ) from e
-    return sqlite3.connect(uri + "&immutable=1", uri=True, timeout=timeout_s, isolation_level=None)
 
 
 class _Postgres(_Backend):
@@ -234,16 +204,6 @@ class _Postgres(_Backend):
 
     def lock_migrations(self) -> None:
         self.execute("SELECT pg_advisory_xact_lock(7431201)")
-
-
-def _engine_error(e: BaseException) -> bool:
-    """Whether ``e`` is an error of a store engine (sqlite3, psycopg)."""
-    return type(e).__module__.split(".")[0] in ("sqlite3", "psycopg")
-
-
-def _first_line(e: BaseException) -> str:
-    text = str(e).strip()
-    return text.splitlines()[0] if text else type(e).__name__
 
 
 def _float(v: Any) -> float:
@@ -400,9 +360,9 @@ class HealthStore:
             with self._b.transaction():
                 self._b.execute("DELETE FROM schema_migrations WHERE version < 0")
         except Exception as e:
-            if isinstance(e, StoreError) or not _engine_error(e):
+            if isinstance(e, StoreError) or not engine_error(e):
                 raise
-            raise StoreError(f"store {self.where}: cannot be written: {_first_line(e)}") from e
+            raise StoreError(f"store {self.where}: cannot be written: {first_line(e)}") from e
 
     # -- actuators ------------------------------------------------------------------------
     def _ensure(self, actuator: str) -> None:
@@ -804,7 +764,7 @@ def open_store(
         if not create and not path.exists():
             raise StoreError(f"store: {path} does not exist (no health store there yet)")
         if not create and path.is_file() and path.stat().st_size == 0:
-            raise StoreError(f"store: {path} is an empty file (0 bytes), not a health store")
+            raise StoreError(f"store: {path} is an empty file (0 bytes): not a health store yet")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             backend = _SQLite(path, timeout_s, read_only)
@@ -817,15 +777,15 @@ def open_store(
         return store
     except Exception as e:
         backend.close()
-        if isinstance(e, StoreError) or not _engine_error(e):
+        if isinstance(e, StoreError) or not engine_error(e):
             raise
         if "lock" in str(e).lower():
             raise StoreError(
                 f"store: {describe_url(text)} is busy: a writer held its lock longer than "
-                f"{timeout_s:g} s ({_first_line(e)})"
+                f"{timeout_s:g} s ({first_line(e)})"
             ) from e
         raise StoreError(
-            f"store: {describe_url(text)} is not a usable health store: {_first_line(e)}"
+            f"store: {describe_url(text)} is not a usable health store: {first_line(e)}"
         ) from e
     except BaseException:
         backend.close()
