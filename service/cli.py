@@ -160,7 +160,12 @@ def _one_line(e: Exception, args: argparse.Namespace) -> int | None:
         from service.store import default_store, describe_url
 
         target = getattr(args, "store", None) or default_store()
-        what = "is damaged" if "malformed" in str(e) or "not a database" in str(e) else "failed"
+        text = str(e).lower()
+        if "lock" in text:  # a reader's lock wait (READ_TIMEOUT_S) or a writer's ran out
+            return fail(f"--store {describe_url(str(target))} is busy: a writer held its lock "
+                        f"longer than this command waits ({_cause(e)}); nothing was written, "
+                        "try again", EXIT_USAGE)  # fmt: skip
+        what = "is damaged" if "malformed" in text or "not a database" in text else "failed"
         return fail(f"--store {describe_url(str(target))} {what}: {_cause(e)} (the command "
                     "stopped here; each store write is one transaction: what was committed "
                     "before stays, nothing is half-written)", EXIT_IO)  # fmt: skip

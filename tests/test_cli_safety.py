@@ -471,3 +471,25 @@ def test_demo_whose_log_fails_exits_non_zero_and_says_so(tmp_path):
     assert summary["log_failure"] and "No space left" in summary["log_failure"]
     assert "Traceback" not in r.stderr
     assert "the MCAP log failed" in r.stderr
+
+
+def test_fleet_on_postgresql_waits_for_a_writers_lock_at_most_the_timeout(pg_cluster):
+    if pg_cluster is None:
+        if os.environ.get("SERVOWATCH_REQUIRE_PG") == "1":
+            pytest.fail("PostgreSQL required (SERVOWATCH_REQUIRE_PG=1)")
+        pytest.skip("PostgreSQL tests skipped: no server binaries")
+    import psycopg
+
+    url = pg_cluster.create_database()
+    with open_store(url) as s:
+        s.add_periods([make_period(ACT, k) for k in range(6)])
+    with psycopg.connect(url) as writer:  # a migration's lock, held
+        writer.execute("LOCK TABLE summary IN ACCESS EXCLUSIVE MODE")
+        t0 = time.perf_counter()
+        r = _cli("fleet", "--json", "--store", url, timeout=60)  # today: waits for ever
+        wall = time.perf_counter() - t0
+        writer.rollback()
+    assert r.returncode == EXIT_USAGE, r.stderr
+    _one_line_error(r.stderr, "is busy")
+    assert READ_TIMEOUT_S <= wall < READ_TIMEOUT_S + 10.0, wall
+    assert json.loads(_cli("fleet", "--json", "--store", url).stdout)["fleet"][0]["periods"] == 6
