@@ -769,7 +769,8 @@ def open_store(
             path.parent.mkdir(parents=True, exist_ok=True)
             backend = _SQLite(path, timeout_s, read_only)
         except (OSError, sqlite3.Error) as e:
-            raise StoreError(f"store: cannot open SQLite file {path}: {e}") from e
+            ro = "" if os.access(path.parent, os.W_OK) else " (its folder is read only)"
+            raise StoreError(f"store: cannot open SQLite file {path}: {e}{ro}") from e
     try:
         store = HealthStore(backend, text, read_only)
         if not read_only:
