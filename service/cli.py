@@ -2,7 +2,11 @@
 
 Each command module exposes ``NAME``, ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``. SI units in and out; ``--json`` prints exactly one JSON object on stdout.
-Bad arguments exit 2 (argparse), a bad input file exits 2 with a message naming it.
+Bad arguments exit 2 (argparse), a bad input file exits 2 with a message naming it; the exit
+codes are ``service.cliutil.EXIT_*`` (docs/cli.md, "Exit codes"). Whatever a user can cause
+ends in one line on stderr, never a traceback: a command raises ``CommandError`` (its message
+and code), and ``main`` turns a ``StoreError`` (exit 2), an ``OSError`` or a store engine's
+error met during the work (exit 5) into one line as a backstop.
 """
 
 from __future__ import annotations
@@ -127,6 +131,45 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Exception as e:
+        code = _one_line(e, args)
+        if code is None:
+            raise
+        return code
+
+
+_STORE_ENGINES = ("sqlite3", "psycopg")
+
+
+def _one_line(e: Exception, args: argparse.Namespace) -> int | None:
+    """Report a failure a user can cause as one line on stderr and return its exit code;
+    None for anything else (a bug: its traceback is kept)."""
+    from service.cliutil import EXIT_IO, EXIT_USAGE, CommandError, _cause, fail
+
+    if isinstance(e, CommandError):
+        return fail(str(e), e.code)
+    from service.store import StoreError
+
+    if isinstance(e, StoreError):
+        return fail(str(e), EXIT_USAGE)
+    if isinstance(e, OSError):
+        where = f"{e.filename}: " if e.filename else ""
+        return fail(f"{where}{_cause(e)} (the command stopped here; outputs written so far "
+                    "may be incomplete)", EXIT_IO)  # fmt: skip
+    if type(e).__module__.split(".")[0] in _STORE_ENGINES:
+        from service.store import default_store, describe_url
+
+        target = getattr(args, "store", None) or default_store()
+        text = str(e).lower()
+        if "lock" in text:  # a reader's lock wait (READ_TIMEOUT_S) or a writer's ran out
+            return fail(f"--store {describe_url(str(target))} is busy: a writer held its lock "
+                        f"longer than this command waits ({_cause(e)}); nothing was written, "
+                        "try again", EXIT_USAGE)  # fmt: skip
+        what = "is damaged" if "malformed" in text or "not a database" in text else "failed"
+        return fail(f"--store {describe_url(str(target))} {what}: {_cause(e)} (the command "
+                    "stopped here; each store write is one transaction: what was committed "
+                    "before stays, nothing is half-written)", EXIT_IO)  # fmt: skip
+    return None
 
 
 if __name__ == "__main__":

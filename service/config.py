@@ -35,6 +35,7 @@ from pydantic_settings.exceptions import SettingsError
 
 from service.compat.pydantic_settings import MappingEnvSource
 from service.monitor import MonitorConfig
+from service.strictnum import bool_in_number
 from service.zenoh_util import EndpointError, check_endpoint, diagnose_link, make_config
 
 __all__ = [
@@ -407,6 +408,12 @@ def _variable(environ: Mapping[str, str], loc: list[str]) -> tuple[str, str] | N
     return None
 
 
+def _get(data: Mapping[str, Any], loc: tuple[str, ...]) -> Any:
+    for k in loc:
+        data = data[int(k)] if isinstance(data, list) else data[k]
+    return data
+
+
 def load_config(
     path: str | Path | None = None, *, environ: Mapping[str, str] | None = None
 ) -> ServiceConfig:
@@ -431,8 +438,15 @@ def load_config(
         field = str(e).split('"')[1] if '"' in str(e) else None
         hit = _variable(env, [field]) if field else None
         raise ConfigError(f"invalid value: {e}", field, hit[0] if hit else "environment") from None
+    merged = _merge(data, overrides)
+    hit = bool_in_number(ServiceConfig, merged)
+    if hit is not None:  # pydantic would read true as 1 (rotate_bytes = true: 1 byte)
+        got = _get(merged, hit)
+        raise ConfigError(
+            f"expected a number, got the boolean {str(got).lower()}", ".".join(hit), source
+        )
     try:
-        return ServiceConfig.model_validate(_merge(data, overrides))
+        return ServiceConfig.model_validate(merged)
     except ValidationError as e:
         # name the variable when the failing field came from the environment
         first = e.errors()[0]

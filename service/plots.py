@@ -12,6 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 __all__ = [
+    "save_png",
     "plot_characteristic",
     "plot_simulation",
     "plot_comparison",
@@ -25,13 +26,23 @@ _SIGNALS = (
 )
 
 
+def save_png(fig, path: str | Path, dpi: int) -> Path:
+    """Write ``fig`` to ``path`` as PNG at ``dpi`` through a file this function opens, so
+    that a failed write (disk full, ``/dev/full``) raises its OSError: given the path,
+    matplotlib's PNG writer loses the error of the file's close and leaves a truncated file."""
+    path = Path(path)
+    with open(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=dpi)
+    return path
+
+
 def _save(fig, path: str | Path, dpi: int = 100) -> Path:
     """Lay out ``fig``, write it to ``path`` as PNG at ``dpi`` and close it."""
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return path
+    try:
+        return save_png(fig, path, dpi)
+    finally:
+        plt.close(fig)
 
 
 def _axes(ax, xlabel: str, ylabel: str, legend: str) -> None:

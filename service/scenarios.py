@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import tomllib
 from pathlib import Path
 
 from pydantic import ValidationError
 
 from models.scenario import Scenario
+from service.strictnum import bool_in_number
 
 __all__ = ["ScenarioError", "load_scenario", "SCENARIO_DIR", "resolve_scenario"]
 
@@ -19,12 +21,27 @@ class ScenarioError(ValueError):
 
 
 def resolve_scenario(name_or_path: str | Path) -> Path:
-    """A path as given, or a bundled scenario by name (``paper_bench`` -> scenarios/paper_bench.toml)."""
-    p = Path(name_or_path)
-    if p.exists():
+    """The scenario file of an argument: a bare name of a bundled scenario (``paper_bench``:
+    no folder, no ``.toml``) is always the bundled one (scenarios/paper_bench.toml), whatever
+    the working directory holds; anything else is a path (``./demo`` for a local file named
+    like a bundled scenario), or, when no such file exists, the bundled file of that name."""
+    text = str(name_or_path)
+    p = Path(text)
+    bare = (
+        text
+        and "/" not in text
+        and os.sep not in text
+        and not text.endswith(".toml")
+        and text not in (".", "..")
+    )
+    if bare and (SCENARIO_DIR / f"{text}.toml").is_file():
+        return SCENARIO_DIR / f"{text}.toml"
+    if p.is_file():
         return p
+    if p.exists():
+        raise ScenarioError(f"{name_or_path}: not a scenario file (a directory?)")
     for cand in (SCENARIO_DIR / p.name, SCENARIO_DIR / f"{p.name}.toml"):
-        if cand.exists():
+        if cand.is_file():
             return cand
     raise ScenarioError(f"{name_or_path}: no such scenario file")
 
@@ -37,6 +54,11 @@ def load_scenario(path: str | Path) -> Scenario:
     except (OSError, tomllib.TOMLDecodeError) as e:
         raise ScenarioError(f"{p}: cannot read scenario: {e}") from e
     data.setdefault("name", p.stem)
+    hit = bool_in_number(Scenario, data)
+    if hit is not None:  # pydantic would read true as 1.0
+        raise ScenarioError(
+            f"{p}: invalid scenario:\n  {'.'.join(hit)}: expected a number, got a boolean"
+        )
     try:
         return Scenario.model_validate(data)
     except ValidationError as e:

@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as e:
             return fail(str(e))
     try:
-        store = open_store_arg(args, create=False)
+        store = open_store_arg(args, create=False, read_only=True)
     except StoreError as e:
         return fail(str(e))
     with store:

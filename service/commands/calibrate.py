@@ -13,16 +13,17 @@ one of them (else exit 2), and without ``--actuator`` a log of one actuator name
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
 
-from service.cliutil import emit_json, fail
+from service.cliutil import check_outputs, emit_json, fail, writing
 from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
-from service.scenarios import ScenarioError, load_scenario
+from service.scenarios import ScenarioError, load_scenario, resolve_scenario
 from service.store import StoreError, check_actuator
-from service.store.cli import add_store_argument, open_store_arg
+from service.store.cli import add_store_argument, open_store_arg, store_path_arg
 
 NAME = "calibrate"
 HELP = "identify the monitor's nominal (baseline) parameters from a healthy run"
@@ -58,9 +59,17 @@ def log_actuators(path: str) -> list[str]:
     return log_units(path)
 
 
+MIN_SAMPLES = 200  # a healthy run shorter than this cannot be calibrated on
+
+
 def meas_from_log(path: str, actuator: str | None = None) -> dict[str, np.ndarray]:
     """Measured arrays from the ``.../meas`` topic of ``actuator`` (``AC/ACT``; None: the
-    first ``.../meas`` topic) of an MCAP log."""
+    first ``.../meas`` topic) of an MCAP log.
+
+    Checked, not trusted (a foreign log): a message that is not a JSON object, or whose
+    channel is not a number, is a ``ValueError`` naming the message; samples whose time
+    repeats or steps back are dropped, as the daemon's intake drops them, and fewer than
+    ``MIN_SAMPLES`` left (constant timestamps) is a ``ValueError`` that counts them."""
     from service.log import read_log
 
     rows: list[dict] = []
@@ -72,11 +81,51 @@ def meas_from_log(path: str, actuator: str | None = None) -> dict[str, np.ndarra
             topic0 = topic
         if topic != topic0:
             continue
+        if not isinstance(msg, dict):
+            raise ValueError(
+                f"{topic} message {len(rows)} at t = {t:.6g} s is a JSON "
+                f"{type(msg).__name__}, not an object of channels"
+            )
         rows.append({"t": t, **msg})
     if not rows:
         raise ValueError("no .../meas topic")
     keys = [k for k in ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2") if k in rows[0]]
-    return {k: np.array([float(r.get(k, np.nan)) for r in rows]) for k in keys}
+    out: dict[str, np.ndarray] = {}
+    for k in keys:
+        col = np.empty(len(rows))
+        for j, r in enumerate(rows):
+            v = r.get(k)
+            if v is None:  # null: a non-finite value as the logger writes it
+                col[j] = np.nan
+            elif isinstance(v, bool) or not isinstance(v, int | float):
+                raise ValueError(f"{topic0} message {j}: {k} = {v!r} is not a number")
+            else:
+                col[j] = v
+        out[k] = col
+    t = out["t"]
+    finite = np.all(np.isfinite(np.column_stack(list(out.values()))), axis=1)
+    keep = finite.copy()
+    last = -np.inf
+    for j in np.flatnonzero(finite):  # the intake's rule: a sample must move the time on
+        if t[j] > last:
+            last = t[j]
+        else:
+            keep[j] = False
+    n, n_keep = len(t), int(keep.sum())
+    dropped_t = int(finite.sum()) - n_keep
+    if n_keep < MIN_SAMPLES:
+        raise ValueError(
+            f"{topic0}: {n_keep} usable samples of {n} ({dropped_t} repeat or step back the "
+            f"time, {n - int(finite.sum())} hold a non-finite value); calibration needs at "
+            f"least {MIN_SAMPLES} with increasing time"
+        )
+    if n_keep < n:
+        print(
+            f"servowatch calibrate: {path}: dropped {n - n_keep} of {n} samples "
+            f"({dropped_t} repeat or step back the time, {n - int(finite.sum())} non-finite)",
+            file=sys.stderr,
+        )
+    return {k: v[keep] for k, v in out.items()}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -105,6 +154,15 @@ def run(args: argparse.Namespace) -> int:
         return fail("--store needs --actuator AC/ACT (the actuator the baseline belongs to)")
     if args.out is None and args.actuator is None:
         return fail("give --out FILE.json and/or --actuator AC/ACT (to record it in --store)")
+    try:
+        scenario_path = None if args.scenario is None else resolve_scenario(args.scenario)
+    except ScenarioError as e:
+        return fail(str(e))
+    check_outputs(
+        [("--out", args.out), ("--store", store_path_arg(args) if args.actuator else None)],
+        [("--scenario", scenario_path), ("--log", args.log)],
+        makes_folders=("--store",),  # --out: a JSON file in an existing folder
+    )
     store = None
     if args.actuator is not None:
         try:
@@ -147,7 +205,8 @@ def _run(args: argparse.Namespace, store) -> int:
     prog.done()
     base = base.model_copy(update={"source": f"calibrated on {source}"})
     if args.out is not None:
-        base.save(args.out)
+        with writing("--out", args.out, so_far="nothing was stored"):
+            base.save(args.out)
     wall_s = time.perf_counter() - t0
     out = {
         "source": source,

@@ -9,7 +9,7 @@ import numpy as np
 
 from models.params import EHAParams, simplified_params
 from models.valve_laws import LAW_NAMES, p12
-from service.cliutil import emit_json, finite_float, float_list
+from service.cliutil import check_outputs, emit_json, finite_float, float_list, writing
 
 NAME = "characteristic"
 HELP = "P12-x_S valve characteristic of one model, parameterised by the jack flow Q_J"
@@ -50,6 +50,7 @@ def characteristic(
 
 
 def run(args: argparse.Namespace) -> int:
+    check_outputs([("--png", args.png)])
     base = EHAParams()
     params = base if args.c_lk is None else base.with_overrides(c_lk=args.c_lk)
     if args.c_lk is not None and args.c_lk < 0:
@@ -79,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
     if args.png:
         from service.plots import plot_characteristic
 
-        plot_characteristic(x_s, q_j, curves, args.model, p_sr, args.png)
+        with writing("--png", args.png):
+            plot_characteristic(x_s, q_j, curves, args.model, p_sr, args.png)
     if args.json:
         emit_json({"model": args.model, "params": info, "x_s": x_s, "q_j": q_j, "p12": curves})
         return 0

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cliutil import emit_json, fail
+from service.cliutil import check_outputs, emit_json, fail, writing
 from service.progress import Progress
-from service.scenarios import SCENARIO_DIR, ScenarioError, load_scenario
+from service.scenarios import SCENARIO_DIR, ScenarioError, load_scenario, resolve_scenario
 
 NAME = "compare"
 HELP = "run HF and every simplified model on a scenario or a suite: NRMSE tables, costs, plot"
@@ -195,6 +195,7 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as e:
         return fail(str(e))
+    check_outputs([("--png", args.png)], [("--scenario", resolve_scenario(args.scenario))])
     from service.warmup import ensure
 
     ensure("models", "valves")
@@ -209,7 +210,8 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             return fail(f"--plot-models: unknown model(s) {unknown}; expected {SIMPLIFIED}")
         sel = {"HF": results["HF"], **{m: results[m] for m in shown}}
-        plot_comparison(sel, args.png, title=f"{scenario.name}: HF against {', '.join(shown)}")
+        with writing("--png", args.png):
+            plot_comparison(sel, args.png, title=f"{scenario.name}: HF against {', '.join(shown)}")
     if args.json:
         emit_json(out)
         return 0

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from service.cliutil import emit_json, fail, finite_float
+from service.cliutil import EXIT_IO, check_outputs, emit_json, fail, finite_float
 
 NAME = "demo"
 HELP = "Self-contained live demo: router, virtual actuator with a leak, daemon, MCAP, plot."
@@ -218,8 +218,12 @@ def plot_demo(log_path: Path, png: Path, t_inject: float | None, c_true: float |
         f"servowatch demo: {AIRCRAFT}/{ACTUATOR}, leak injected at {(t_inject or t0) - t0:.1f} s"
     )
     fig.tight_layout()
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
+    from service.plots import save_png
+
+    try:
+        save_png(fig, png, 110)
+    finally:
+        plt.close(fig)
     return n
 
 
@@ -249,6 +253,7 @@ def run(args: argparse.Namespace) -> int:
         scenario = str(resolve_scenario(args.scenario))
     except ScenarioError as e:
         return fail(str(e))
+    check_outputs([("--out", args.out), ("--plot", args.plot or None)], [("--scenario", scenario)])
     try:
         fx = None if args.foxglove is None else FoxgloveSettings(listen=args.foxglove)
     except ValueError as e:
@@ -258,7 +263,7 @@ def run(args: argparse.Namespace) -> int:
     ensure("models", "monitor", "log")  # a first run compiles here, and says so
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    if out.exists():
+    if out.is_file() and not out.is_symlink():  # a new log (never a device's node)
         out.unlink()
     ep = loopback(free_port())
     cfg = ServiceConfig(
@@ -382,8 +387,9 @@ def run(args: argparse.Namespace) -> int:
     a = next(iter(final.get("actuators", {}).values()), None)
     if a is None:
         return fail("the virtual actuator published nothing; its log:\n" + act_err[-2000:], 1)
+    log_failure = final.get("log_failure")
     png = None
-    if args.plot:
+    if args.plot and not log_failure:
         png = Path(args.plot)
         try:
             plot_demo(out, png, t_inject_sample, args.leak if fault and fault["ok"] else None)
@@ -394,7 +400,7 @@ def run(args: argparse.Namespace) -> int:
     first_raise = next(
         (
             e
-            for e in final_events(out)
+            for e in ([] if log_failure else final_events(out))
             if e[1] == "leak"
             and e[2] == "raised"
             and t_inject_sample is not None
@@ -417,15 +423,27 @@ def run(args: argparse.Namespace) -> int:
         "leak_detected_after_s": None if first_raise is None else first_raise[0] - t_inject_sample,
         "leak_events": len(leak_events),
         "wall_s": time.time() - t_start_wall,
+        "log_failure": log_failure,
     }
+    code = 0
+    if log_failure:  # the daemon's rule (`servowatch run` exits 5): never a complete-looking log
+        code = EXIT_IO
+        print(f"servowatch: error: --out {out}: the MCAP log failed: {log_failure} (it holds "
+              "only what was written before; no plot)", file=sys.stderr)  # fmt: skip
     if args.json:
         emit_json(summary)
-        return 0
+        return code
     print("\nsummary")
-    print(
-        f"  log            {summary['log']} ({summary['samples']} samples logged, "
-        f"{summary['dropped']} dropped, {summary['bad']} bad)"
-    )
+    if log_failure:
+        print(
+            f"  log            {summary['log']} FAILED: {log_failure} ({summary['samples']} "
+            "samples received, the log holds only those written before the failure)"
+        )
+    else:
+        print(
+            f"  log            {summary['log']} ({summary['samples']} samples logged, "
+            f"{summary['dropped']} dropped, {summary['bad']} bad)"
+        )
     print(f"  plot           {summary['plot']}")
     print(f"  fault          {fault['message'] if fault else 'not injected'}")
     print(
@@ -451,7 +469,7 @@ def run(args: argparse.Namespace) -> int:
         f"p99 {_fmt(lat.get('p99'))} ms"
     )
     print(f"  wall time      {summary['wall_s']:.1f} s")
-    return 0
+    return code
 
 
 def final_events(path: Path) -> list[tuple[float, str, str]]:

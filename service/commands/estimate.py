@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from service.cliutil import emit_json, fail
+from service.cliutil import check_outputs, emit_json, fail, writing
 from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
-from service.scenarios import ScenarioError, load_scenario
+from service.scenarios import ScenarioError, load_scenario, resolve_scenario
 
 NAME = "estimate"
 HELP = "run the HF bench on a scenario and the degradation monitor (UKF) on its signals"
@@ -249,8 +249,12 @@ def plot(res: dict, path: str | Path, baseline) -> None:
         "red = alarm raised, green = cleared"
     )
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    from service.plots import save_png
+
+    try:
+        save_png(fig, path, 90)
+    finally:
+        plt.close(fig)
 
 
 def write_mcap(res: dict, path: str | Path) -> None:
@@ -281,6 +285,10 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as e:
         return fail(str(e))
+    check_outputs(
+        [("--png", args.png), ("--out", args.out)],
+        [("--scenario", resolve_scenario(args.scenario)), ("--baseline", args.baseline)],
+    )
     from service.monitor import Baseline, BaselineModelError, MonitorConfig, check_baseline_model
     from service.warmup import ensure, monitor_group
 
@@ -304,9 +312,11 @@ def run(args: argparse.Namespace) -> int:
     res = evaluate(scenario, config, baseline, progress=prog, keep_outputs=True)
     prog.done()
     if args.png:
-        plot(res, args.png, baseline)
+        with writing("--png", args.png):
+            plot(res, args.png, baseline)
     if args.out:
-        write_mcap(res, args.out)
+        with writing("--out", args.out, so_far=f"--png {args.png} written" if args.png else None):
+            write_mcap(res, args.out)
     summary = {k: v for k, v in res.items() if not k.startswith("_")}
     if args.json:
         emit_json(summary)

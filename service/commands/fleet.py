@@ -173,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     if args.top is not None and args.top < 1:
         return fail("--top must be >= 1")
     try:
-        store = open_store_arg(args, create=False)
+        store = open_store_arg(args, create=False, read_only=True)
     except StoreError as e:
         return fail(str(e))
     with store:

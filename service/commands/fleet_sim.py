@@ -12,11 +12,11 @@ import json
 import time
 from pathlib import Path
 
-from service.cliutil import emit_json, fail, finite_float, to_jsonable
+from service.cliutil import check_outputs, emit_json, fail, finite_float, to_jsonable, writing
 from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
 from service.store import StoreError
-from service.store.cli import add_store_argument, open_store_arg
+from service.store.cli import add_store_argument, open_store_arg, store_path_arg
 
 NAME = "fleet-sim"
 HELP = "simulated fleet with hidden wear laws into the store; --evaluate scores the RUL"
@@ -60,6 +60,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.score_only:
         return _score_only(args)
+    check_outputs(
+        [("--truth", args.truth), ("--store", store_path_arg(args))],
+        directories=[("--logs", args.logs)],
+    )
     ensure("models", "monitor")
 
     if args.actuators < 1 or args.flights < 2:
@@ -95,10 +99,8 @@ def run(args: argparse.Namespace) -> int:
         "threshold_ratio": cfg.threshold(),
         "units": [u["truth"] for u in units],
     }
-    try:
+    with writing("--truth", args.truth, so_far=f"the fleet's periods and RUL are in {url}"):
         Path(args.truth).write_text(json.dumps(to_jsonable(truth), indent=1) + "\n")
-    except OSError as e:
-        return fail(f"--truth: {e}")
     out = {
         "actuators": cfg.actuators,
         "flights": cfg.flights,
@@ -143,8 +145,8 @@ def _score_only(args: argparse.Namespace) -> int:
         return fail("--truth: not a fleet-sim truth object")
     thr = args.threshold if args.threshold is not None else truth.get("threshold_ratio")
     t0 = time.perf_counter()
-    try:
-        store = open_store_arg(args, create=False)
+    try:  # scoring reads the store only
+        store = open_store_arg(args, create=False, read_only=True)
     except StoreError as e:
         return fail(str(e))
     with store:

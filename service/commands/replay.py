@@ -174,6 +174,11 @@ def run(args: argparse.Namespace) -> int:
     if cfg is not None:
         pr = cfg.prognostics
         pc = PeriodConfig(silence_s=pr.period_silence_s, window_s=pr.period_window_s)
+    from service.cliutil import check_outputs
+
+    inputs = [("LOG", f) for lg in logs for f in (rotated_files(lg) or [lg])]
+    inputs += [("--config", args.config), ("baseline", cfg.baseline if cfg is not None else None)]
+    check_outputs([("--out", args.out), ("--store", store)], inputs)  # before any write
     if store is not None:
         from service.store import StoreError, open_store
 

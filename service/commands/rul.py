@@ -13,9 +13,9 @@ from __future__ import annotations
 import argparse
 import time
 
-from service.cliutil import emit_json, fail, finite_float
+from service.cliutil import check_outputs, emit_json, fail, finite_float, writing
 from service.store import StoreError
-from service.store.cli import add_store_argument, open_store_arg
+from service.store.cli import add_store_argument, open_store_arg, store_path_arg
 
 NAME = "rul"
 HELP = "remaining useful life of each actuator (median, 90 % interval, horizon probability)"
@@ -51,7 +51,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=20.0,
         help="planning horizon [flights] for histories that count flights (default 20)",
     )
-    p.add_argument("--no-save", action="store_true", help="do not write the RUL to the store")
+    p.add_argument(
+        "--no-save", action="store_true",
+        help="do not write the RUL to the store (the store is then opened read only)",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--png", metavar="F", help="RUL fan plot of --actuator (or the most urgent)")
 
@@ -76,9 +79,10 @@ def run(args: argparse.Namespace) -> int:
             return fail(f"--tolerance-m: {e}")
     cfg = RulConfig(threshold_ratio=thr, horizon_h=args.horizon_h,
                     horizon_flights=args.horizon_flights)  # fmt: skip
+    check_outputs([("--png", args.png)], [("--store", store_path_arg(args))])
     t0 = time.perf_counter()
-    try:
-        store = open_store_arg(args, create=False)
+    try:  # --no-save only reads: the store opened read only (never migrated, never written)
+        store = open_store_arg(args, create=False, read_only=args.no_save)
     except StoreError as e:
         return fail(str(e))
     with store:
@@ -92,7 +96,11 @@ def run(args: argparse.Namespace) -> int:
             from service.prognostics.plot import plot_rul_fan
 
             target = args.actuator or _most_urgent(results)
-            png = str(plot_rul_fan(history_of(target, store.periods(target)), prior, cfg, args.png))
+            saved = "the RUL was stored" if not args.no_save else "nothing was stored"
+            with writing("--png", args.png, so_far=saved):
+                png = str(
+                    plot_rul_fan(history_of(target, store.periods(target)), prior, cfg, args.png)
+                )
     wall = time.perf_counter() - t0
     if args.json:
         emit_json(

@@ -10,7 +10,7 @@ import sys
 import threading
 import time
 
-from service.cliutil import emit_json, fail
+from service.cliutil import check_outputs, emit_json, fail
 
 NAME = "run"
 HELP = "Run the monitoring daemon: subscribe, monitor each actuator, publish, log to MCAP."
@@ -127,6 +127,10 @@ def run(args: argparse.Namespace) -> int:
 
     store = args.store or cfg.store or default_store()
     cfg = cfg.model_copy(update={"store": store})
+    check_outputs(
+        [("--log", args.log), ("--store", None if store == "off" else store)],
+        [("--config", args.config), ("baseline", cfg.baseline)],
+    )
     if args.no_rotate:
         cfg = cfg.model_copy(update={"rotate_bytes": None, "rotate_s": None})
     setup_logging(cfg.log_level, not args.plain_logs)

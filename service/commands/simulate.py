@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cliutil import emit_json, fail
+from service.cliutil import check_outputs, emit_json, fail, writing
 from service.progress import Progress
-from service.scenarios import ScenarioError, load_scenario
+from service.scenarios import ScenarioError, load_scenario, resolve_scenario
 
 NAME = "simulate"
 HELP = "run the EHA bench on a scenario with one valve model (HF, A, B, C1, C3, C5, WH)"
@@ -82,6 +82,10 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
     except ScenarioError as e:
         return fail(str(e))
+    check_outputs(
+        [("--out", args.out), ("--png", args.png)],
+        [("--scenario", resolve_scenario(args.scenario))],
+    )
     from models.eha import simulate
     from service.warmup import ensure
 
@@ -95,11 +99,13 @@ def run(args: argparse.Namespace) -> int:
         res.wall_s = time.perf_counter() - t0
     out = summary(res, scenario.name)
     if args.out:
-        write_mcap(res, args.out, scenario.name)
+        with writing("--out", args.out):
+            write_mcap(res, args.out, scenario.name)
     if args.png:
         from service.plots import plot_simulation
 
-        plot_simulation(res, args.png, title=f"{scenario.name}: valve {args.valve}")
+        with writing("--png", args.png, so_far=f"--out {args.out} written" if args.out else None):
+            plot_simulation(res, args.png, title=f"{scenario.name}: valve {args.valve}")
     if args.json:
         emit_json(out)
         return 0

@@ -19,7 +19,7 @@ import signal
 import sys
 import threading
 
-from service.cliutil import fail
+from service.cliutil import check_outputs, fail, writing
 
 NAME = "web"
 HELP = "serve the fleet health page (ranked RUL, trends, alarms) over HTTP, read only"
@@ -94,7 +94,8 @@ def _snapshot(srv, url: str, out: str, unit: str | None) -> int:
     worker.start()
     try:
         page = url + (f"#unit={quote(unit, safe='')}" if unit else "")
-        path = screenshot(page, out)
+        with writing("--snapshot", out):
+            path = screenshot(page, out)
     except BrowserError as e:
         return fail(f"--snapshot: {e}", 1)
     finally:
@@ -120,8 +121,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         return fail(str(e))
     target = args.store if args.store is not None else default_store()
+    check_outputs([("--snapshot", args.snapshot)], [("--store", target)])
     try:
-        with open_store_arg(args, create=False) as store:
+        with open_store_arg(args, create=False, read_only=True) as store:
             where = store.where
     except StoreError as e:
         return fail(str(e))

@@ -59,7 +59,9 @@ def plot_rul_fan(h: History, prior: FleetPrior | None, cfg: RulConfig, path: str
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    from service.plots import save_png
+
+    try:
+        return save_png(fig, path, 110)
+    finally:
+        plt.close(fig)

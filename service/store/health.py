@@ -21,6 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from service.store.access import StoreError, engine_error, first_line, sqlite_read_only
 from service.store.records import (
     PERIOD_FIELDS,
     PERIOD_FLOAT_FIELDS,
@@ -32,7 +33,7 @@ from service.store.records import (
 from service.store.schema import LATEST_VERSION, MIGRATIONS, RECENT_WINDOW, RECOMPUTE_TRENDS
 from service.store.usage import USAGE_TOTALS, add_usage, usage_totals
 
-__all__ = ["HealthStore", "StoreError", "open_store", "trend_of", "describe_url"]
+__all__ = ["HealthStore", "StoreError", "open_store", "trend_of", "describe_url", "READ_TIMEOUT_S"]
 
 # column order of the periods table as written (the key first)
 _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
@@ -61,10 +62,8 @@ _SUMMARY_COLS: tuple[str, ...] = (
 )
 _FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c != "recent")
 _CHUNK = 500  # parameters per IN (...) list
-
-
-class StoreError(RuntimeError):
-    """The store cannot be opened or used (bad URL/path, newer schema, unreachable server)."""
+#: a read-only command waits at most this long for a writer's lock [s] (docs/cli.md)
+READ_TIMEOUT_S = 5.0
 
 
 def _dumps(obj: Any) -> str:
@@ -124,10 +123,11 @@ class _SQLite(_Backend):
     def __init__(self, path: Path, timeout_s: float = 30.0, read_only: bool = False) -> None:
         super().__init__()
         self.path = path
-        self.conn = sqlite3.connect(str(path), timeout=timeout_s, isolation_level=None)
-        if read_only:  # a reader: no journal-mode change, and this connection cannot write
+        if read_only:  # a reader: opened read only, no journal-mode change, never a write
+            self.conn = sqlite_read_only(path, timeout_s)
             self.conn.execute("PRAGMA query_only=ON")
         else:
+            self.conn = sqlite3.connect(str(path), timeout=timeout_s, isolation_level=None)
             self.conn.execute("PRAGMA journal_mode=WAL")
             # WAL + NORMAL: a killed process loses nothing committed; power loss may lose the
             # last transactions but never leaves a half-written one
@@ -179,8 +179,10 @@ class _Postgres(_Backend):
             msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             raise StoreError(f"store: cannot connect to {describe_url(url)}: {msg}") from e
         self.cur = self.conn.cursor()
-        if read_only:  # every transaction of this session is read only
+        if read_only:  # every transaction of this session is read only, and waits for a
+            # writer's lock (a migration's) at most timeout_s
             self.cur.execute("SET default_transaction_read_only = on")
+            self.cur.execute(f"SET lock_timeout = {int(timeout_s * 1000)}")
 
     def sql(self, text: str) -> str:
         return text.replace("?", "%s")
@@ -351,6 +353,18 @@ class HealthStore:
         """The highest migration applied (0 for an empty store)."""
         row = self._b.execute("SELECT MAX(version) FROM schema_migrations").fetchone()
         return int(row[0] or 0)
+
+    def check_writable(self) -> None:
+        """Raise ``StoreError`` when this store cannot be written (a read-only file, folder
+        or database, no write privilege): a write that changes nothing, rolled back.
+        ``open_store`` checks it for a writer, before the writer's work."""
+        try:
+            with self._b.transaction():
+                self._b.execute("DELETE FROM schema_migrations WHERE version < 0")
+        except Exception as e:
+            if isinstance(e, StoreError) or not engine_error(e):
+                raise
+            raise StoreError(f"store {self.where}: cannot be written: {first_line(e)}") from e
 
     # -- actuators ------------------------------------------------------------------------
     def _ensure(self, actuator: str) -> None:
@@ -728,8 +742,10 @@ def open_store(
     """Open (migrating as needed) the store at a ``postgresql://`` URL or a SQLite file
     path; a missing SQLite file (and its directory) is created unless ``create`` is False.
     ``read_only``: never create, never migrate, and a connection that cannot write (SQLite
-    ``query_only``, PostgreSQL ``default_transaction_read_only``); a store whose schema is
-    not this servowatch's is a ``StoreError``."""
+    ``mode=ro``, PostgreSQL ``default_transaction_read_only``), waiting for a writer's lock
+    at most ``timeout_s`` (``READ_TIMEOUT_S`` for the commands); a store whose schema is
+    not this servowatch's is a ``StoreError``. A writer's store is checked writable
+    (``HealthStore.check_writable``) before it is returned."""
     if read_only:
         create = False
     if isinstance(url_or_path, os.PathLike):
@@ -751,16 +767,31 @@ def open_store(
             raise StoreError(f"store: {path} is a directory; expected a SQLite file path")
         if not create and not path.exists():
             raise StoreError(f"store: {path} does not exist (no health store there yet)")
+        if not create and path.is_file() and path.stat().st_size == 0:
+            raise StoreError(f"store: {path} is an empty file (0 bytes): not a health store yet")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             backend = _SQLite(path, timeout_s, read_only)
         except (OSError, sqlite3.Error) as e:
-            raise StoreError(f"store: cannot open SQLite file {path}: {e}") from e
+            ro = "" if os.access(path.parent, os.W_OK) else " (its folder is read only)"
+            raise StoreError(f"store: cannot open SQLite file {path}: {e}{ro}") from e
     try:
-        return HealthStore(backend, text, read_only)
-    except sqlite3.DatabaseError as e:
+        store = HealthStore(backend, text, read_only)
+        if not read_only:
+            store.check_writable()
+        return store
+    except Exception as e:
         backend.close()
-        raise StoreError(f"store: {describe_url(text)} is not a usable health store: {e}") from e
+        if isinstance(e, StoreError) or not engine_error(e):
+            raise
+        if "lock" in str(e).lower():
+            raise StoreError(
+                f"store: {describe_url(text)} is busy: a writer held its lock longer than "
+                f"{timeout_s:g} s ({first_line(e)})"
+            ) from e
+        raise StoreError(
+            f"store: {describe_url(text)} is not a usable health store: {first_line(e)}"
+        ) from e
     except BaseException:
         backend.close()
         raise
