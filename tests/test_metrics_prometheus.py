@@ -23,6 +23,8 @@ import pytest
 
 from service.monitor import Baseline
 from service.zenoh_util import free_port
+from tests.test_grafana import DASH as DASHBOARD
+from tests.test_grafana import _exprs
 from tests.test_service_e2e import Net, act_samples, cli
 
 pytestmark = pytest.mark.slow
@@ -102,7 +104,8 @@ def test_prometheus_scrapes_the_injected_leak(tmp_path):
     """A leak of 8e-13 injected into a running virtual actuator: through Prometheus's HTTP
     API, ``servowatch_unit_alarm{kind="leak"}`` of the unit is 1 and its
     ``servowatch_unit_leak_ratio`` is within 15 % of 8e-13 over the baseline C_Lk; the target
-    is up and the daemon's sample counter and latency histogram are there."""
+    is up and the daemon's sample counter and latency histogram are there; every query of the
+    Grafana dashboard runs on this server, those of the unit's ratios with data."""
     exe = prometheus_binary()
     mport = free_port()
     n = Net()
@@ -149,6 +152,22 @@ def test_prometheus_scrapes_the_injected_leak(tmp_path):
         assert float(samples[0]["value"][1]) > 500
         p99 = prom.query("histogram_quantile(0.99, servowatch_latency_seconds_bucket)")
         assert 0.0 < float(p99[0]["value"][1]) < 5.0
+        # every query of the Grafana dashboard is valid PromQL to this server, and the unit
+        # row's ratios have data for the unit
+        dash = json.loads(DASHBOARD.read_text())
+        sub = {"$station": ".*", "$aircraft": AC, "$actuator": ACT, "$__rate_interval": "1m"}
+        empty = []
+        for e in _exprs(dash):
+            q = e
+            for k, v in sub.items():
+                q = q.replace(k, v)
+            if e.startswith("label_values("):  # Grafana's own function: its selector inside
+                q = q[len("label_values(") : q.rindex(",")]
+            if not prom.query(q):
+                empty.append(e)
+        for want in ("unit_leak_ratio", "unit_supply_ratio", "unit_nis_in_band_ratio",
+                     "unit_alarm", "samples_total", "latency_seconds_bucket"):  # fmt: skip
+            assert not [e for e in empty if f"servowatch_{want}{{" in e], (want, empty)
         a.send_signal(signal.SIGTERM)
         a.communicate(timeout=30)
         d.send_signal(signal.SIGTERM)
