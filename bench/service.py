@@ -684,9 +684,49 @@ def _metrics_cost(args: argparse.Namespace) -> int:
               f"{cost:>15}")  # fmt: skip
     print("cpu = the daemon process's CPU time (all threads, the endpoint's too) over the run; "
           "throughput cost = 1 - median cpu/sample without / with the endpoint")  # fmt: skip
+    print(
+        "one scrape in process (the status snapshot and its exposition; CPU time, median of "
+        "20): " + ", ".join(f"{n} units {ms:.2f} ms" for n, ms in scrape_cpu_ms((10, 100, 1000)))
+    )
     if args.json:
         print(json.dumps(rows))
     return 0
+
+
+def scrape_cpu_ms(units: tuple[int, ...]) -> list[tuple[int, float]]:
+    """CPU milliseconds of one scrape (``Daemon.status()`` and its exposition) of a daemon
+    that monitors ``n`` units (20 samples each, the real monitor), for each ``n``."""
+    import statistics
+
+    from prometheus_client.exposition import generate_latest
+
+    from service import messages as m
+    from service.actuator import VirtualActuator
+    from service.config import MetricsSettings, ServiceConfig
+    from service.daemon import Daemon
+    from service.scenarios import load_scenario
+
+    base = VirtualActuator(load_scenario("demo"), rate_hz=1000.0).produce(20)
+    out = []
+    for n in units:
+        tmp = tempfile.mkdtemp(prefix="servowatch-bench-")
+        cfg = ServiceConfig(store="off", metrics=MetricsSettings(listen="127.0.0.1:0"))
+        d = Daemon(cfg, log_path=Path(tmp) / "s.mcap", log_process=False, gather_s=0,
+                   max_batch=100_000)  # fmt: skip
+        for a in range(n):
+            rows = [dict(s, seq=k, t=1.0 + k / 1000.0) for k, s in enumerate(base)]
+            d.submit(m.KEY_MEAS.format(aircraft=f"AC{a // 4:03d}", actuator=f"act{a % 4}"),
+                     m.encode_meas(rows))  # fmt: skip
+        while d.queued:
+            d.process_pending()
+        times = []
+        for _ in range(20):
+            t0 = time.process_time()
+            generate_latest(d.metrics.registry)
+            times.append(time.process_time() - t0)
+        d.stop()
+        out.append((n, 1e3 * statistics.median(times)))
+    return out
 
 
 if __name__ == "__main__":
