@@ -303,6 +303,14 @@ class _Handler(BaseHTTPRequestHandler):
     do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _refuse  # noqa: N815
 
 
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A client gone mid-answer (reset, timeout) is logged, not printed to stderr."""
+        log.debug("metrics request from %s failed", client_address, exc_info=True)
+
+
 class MetricsServer:
     """The endpoint on ``host:port`` (port 0: a free one, ``address`` tells which) over
     ``status()``; bound at construction (an address in use raises OSError), served by
@@ -326,13 +334,15 @@ class MetricsServer:
                 "allowed_hosts": None if allow_remote else _loopback_names(host),
             },
         )
-        cls: type[ThreadingHTTPServer] = ThreadingHTTPServer
+        cls: type[ThreadingHTTPServer] = _Server
         if ":" in host:
             import socket
 
-            cls = type("_V6", (ThreadingHTTPServer,), {"address_family": socket.AF_INET6})
-        self._srv = cls((host, port), handler)
-        self._srv.daemon_threads = True
+            cls = type("_V6", (_Server,), {"address_family": socket.AF_INET6})
+        try:
+            self._srv = cls((host, port), handler)
+        except OSError as e:  # an address in use, a host not on this machine
+            raise OSError(e.errno, f"metrics endpoint {host}:{port}: {e.strerror}") from None
         self._thread: threading.Thread | None = None
 
     @property

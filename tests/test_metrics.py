@@ -188,6 +188,18 @@ def test_loopback_unless_allowed(tmp_path):
     assert load_config(p, environ={}).metrics.listen == "127.0.0.1:9464"
 
 
+def test_a_port_in_use_is_named(tmp_path):
+    import socket
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        cfg = ServiceConfig(store="off", metrics=MetricsSettings(listen=f"127.0.0.1:{port}"))
+        with pytest.raises(OSError, match=f"metrics endpoint 127.0.0.1:{port}"):
+            Daemon(cfg, log_path=tmp_path / "d.mcap", log_process=False)
+
+
 def test_run_refuses_a_remote_metrics_address():
     r = subprocess.run(
         [sys.executable, "-m", "service.cli", "run", "--metrics", "0.0.0.0:9464", "--connect",
