@@ -36,6 +36,13 @@ is apart and does not change): throughput on a saturated CPU is its inverse, so
 ``cost = 1 - cpu_without / cpu_with`` is the fraction of throughput a viewer takes.
 
     .venv/bin/python bench/service.py --viewer-cost --actuators 10 --duration 10 --repeat 3
+
+``--metrics-cost``: the cost of the OpenMetrics endpoint (``--metrics``, ``[metrics]``,
+docs/dashboard.md, "Prometheus"), the same way: the same load without the endpoint, then
+with it and a scraper in this process (``GET /metrics`` every second: 15 times Prometheus's
+default rate), alternating run by run. Also reported: the scrape's own time (median, max).
+
+    .venv/bin/python bench/service.py --metrics-cost --actuators 10 --duration 10 --repeat 3
 """
 
 from __future__ import annotations
@@ -179,6 +186,12 @@ def _daemon(args: argparse.Namespace) -> int:
         zenoh=ZenohSettings(mode="client", connect=[args.connect]),
     )
     bank = _NullBank() if args.monitor == "null" else None
+    if args.metrics:
+        from service.config import MetricsSettings
+
+        cfg = cfg.model_copy(
+            update={"metrics": MetricsSettings(listen=f"127.0.0.1:{args.metrics}")}
+        )
     if args.foxglove:
         from service.config import FoxgloveSettings
 
@@ -246,10 +259,11 @@ def run_one(
     every: int = 10,
     model: str | None = None,
     tree: str | None = None,
+    scrape_s: float | None = None,
 ) -> dict:
     """One benchmark run; returns the row of the table. ``viewer``: None (no Foxglove
     server), "layout" (a viewer of one actuator's layout topics) or "all" (of every
-    channel)."""
+    channel). ``scrape_s``: serve ``--metrics`` and scrape it every ``scrape_s`` seconds."""
     import zenoh
 
     from service.log import read_log
@@ -257,7 +271,9 @@ def run_one(
 
     ep = loopback(free_port())
     fx_port = free_port()
+    m_port = free_port()
     view = None
+    scraper = None
     router = zenoh.open(make_config("router", [ep]))
     tmp = tempfile.mkdtemp(prefix="servowatch-bench-")
     log = Path(tmp) / "bench.mcap"
@@ -287,6 +303,7 @@ def run_one(
                 *(["--foxglove", str(fx_port), "--foxglove-every", str(every)] if viewer else []),
                 *(["--model", model] if model else []),
                 *(["--tree", tree] if tree else []),
+                *(["--metrics", str(m_port)] if scrape_s else []),
             ],
             stdout=subprocess.PIPE,
             text=True,
@@ -294,6 +311,8 @@ def run_one(
         assert dproc.stdout.readline().strip() == "ready"
         if viewer:
             view = _Viewer(fx_port, viewer)
+        if scrape_s:
+            scraper = _Scraper(m_port, scrape_s)
         time.sleep(0.5)
         g = subprocess.run(
             [
@@ -325,6 +344,8 @@ def run_one(
         router.close()
         if view is not None:
             view.close()
+        if scraper is not None:
+            scraper.close()
     logged = sum(1 for topic, _t, _m in read_log(log) if topic.endswith("/meas"))
     acts = st["actuators"].values()
     processed = sum(a["outputs"] for a in acts)
@@ -364,6 +385,10 @@ def run_one(
         "viewer_msgs": 0 if view is None else view.received,
         "viewer_subscriptions": 0 if view is None else len(view.subs),
         "feed": st.get("foxglove"),
+        "scrape_s": scrape_s,
+        "scrapes": 0 if scraper is None else len(scraper.times),
+        "scrape_ms": [] if scraper is None else [1e3 * x for x in scraper.times],
+        "scrape_errors": 0 if scraper is None else scraper.errors,
         "keeps_up": st["dropped"] == 0
         and st["drain_s"] < 1.0
         and st["samples"] == gen["sent_samples"]
@@ -427,6 +452,37 @@ class _Viewer:
         self._stop.set()
         self._t.join(5)
         self.c.close()
+
+
+class _Scraper:
+    """``GET /metrics`` of the daemon every ``every_s`` seconds in a thread, timed."""
+
+    def __init__(self, port: int, every_s: float) -> None:
+        import threading
+
+        self.url = f"http://127.0.0.1:{port}/metrics"
+        self.every_s = every_s
+        self.times: list[float] = []
+        self.errors = 0
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+        self._t.start()
+
+    def _run(self) -> None:
+        import urllib.request
+
+        while not self._stop.wait(self.every_s):
+            t0 = time.perf_counter()
+            try:
+                with urllib.request.urlopen(self.url, timeout=5) as r:
+                    r.read()
+                self.times.append(time.perf_counter() - t0)
+            except OSError:
+                self.errors += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self._t.join(10)
 
 
 def print_cost(rows: list[dict]) -> None:
@@ -498,6 +554,12 @@ def main(argv=None) -> int:
     p.add_argument("--gather", type=float, default=0.005, help="daemon batch gathering [s]")
     p.add_argument("--profile", action="store_true", help="profile the daemon's worker")
     p.add_argument("--foxglove", type=int, default=None, help=argparse.SUPPRESS)  # _daemon
+    p.add_argument("--metrics", type=int, default=None, help=argparse.SUPPRESS)  # _daemon
+    p.add_argument(
+        "--metrics-cost", action="store_true",
+        help="the cost of the OpenMetrics endpoint: runs without it, and with it scraped every "
+        "second (default 10 actuators, real monitor)",
+    )  # fmt: skip
     p.add_argument("--foxglove-every", type=int, default=10, help=argparse.SUPPRESS)
     p.add_argument("--repeat", type=int, default=1, help="--viewer-cost: runs per setting")
     p.add_argument(
@@ -516,6 +578,8 @@ def main(argv=None) -> int:
         return _daemon(args)
     if args.viewer_cost:
         return _viewer_cost(args)
+    if args.metrics_cost:
+        return _metrics_cost(args)
     default_plan = args.actuators is None and args.monitor is None
     if not default_plan:
         plan = [(args.actuators or 20, args.monitor or "real", args.log_every)]
@@ -583,6 +647,86 @@ def _viewer_cost(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(rows))
     return 0
+
+
+def _metrics_cost(args: argparse.Namespace) -> int:
+    import statistics
+
+    n, mon = args.actuators or 10, args.monitor or "real"
+    rows = []
+    for scrape_s in [None, 1.0] * args.repeat:
+        what = f"scraped every {scrape_s:g} s" if scrape_s else "off"
+        print(f"run: {n} actuators x {args.rate:g} Hz, {args.duration:g} s, monitor {mon}, "
+              f"metrics {what} ...",
+              file=sys.stderr, flush=True)  # fmt: skip
+        row = run_one(
+            n, args.rate, args.duration, mon, args.spm, args.publish_every, args.drain_cap,
+            args.log_every, False, args.gather, scrape_s=scrape_s,
+        )  # fmt: skip
+        print("  " + json.dumps(row), file=sys.stderr, flush=True)
+        rows.append(row)
+    print(f"servowatch metrics endpoint cost ({os.cpu_count()} CPUs): {n} actuators x "
+          f"{args.rate:g} Hz, {args.duration:g} s, monitor {mon}")  # fmt: skip
+    print(f"{'metrics':>16} {'runs':>4} {'samples':>8} {'dropped':>7} {'scrapes':>7} "
+          f"{'scrape ms p50/max':>17} {'cpu us/sample (each run)':>28} {'median':>7} "
+          f"{'throughput cost':>15}")  # fmt: skip
+    med = {}
+    for key in (None, 1.0):
+        v = [r for r in rows if r["scrape_s"] == key]
+        med[key] = statistics.median(r["cpu_us_per_sample"] for r in v)
+        ms = [x for r in v for x in r["scrape_ms"]]
+        sc = "-" if not ms else f"{statistics.median(ms):.1f}/{max(ms):.1f}"
+        cost = "-" if key is None else f"{100 * (1 - med[None] / med[key]):.1f} %"
+        each = " ".join(f"{r['cpu_us_per_sample']:.1f}" for r in v)
+        label = "off" if key is None else f"scraped every {key:g} s"
+        print(f"{label:>16} {len(v):>4} {v[0]['accepted']:>8} {max(r['dropped'] for r in v):>7} "
+              f"{sum(r['scrapes'] for r in v):>7} {sc:>17} {each:>28} {med[key]:>7.2f} "
+              f"{cost:>15}")  # fmt: skip
+    print("cpu = the daemon process's CPU time (all threads, the endpoint's too) over the run; "
+          "throughput cost = 1 - median cpu/sample without / with the endpoint")  # fmt: skip
+    print(
+        "one scrape in process (the status snapshot and its exposition; CPU time, median of "
+        "20): " + ", ".join(f"{n} units {ms:.2f} ms" for n, ms in scrape_cpu_ms((10, 100, 1000)))
+    )
+    if args.json:
+        print(json.dumps(rows))
+    return 0
+
+
+def scrape_cpu_ms(units: tuple[int, ...]) -> list[tuple[int, float]]:
+    """CPU milliseconds of one scrape (``Daemon.status()`` and its exposition) of a daemon
+    that monitors ``n`` units (20 samples each, the real monitor), for each ``n``."""
+    import statistics
+
+    from prometheus_client.exposition import generate_latest
+
+    from service import messages as m
+    from service.actuator import VirtualActuator
+    from service.config import MetricsSettings, ServiceConfig
+    from service.daemon import Daemon
+    from service.scenarios import load_scenario
+
+    base = VirtualActuator(load_scenario("demo"), rate_hz=1000.0).produce(20)
+    out = []
+    for n in units:
+        tmp = tempfile.mkdtemp(prefix="servowatch-bench-")
+        cfg = ServiceConfig(store="off", metrics=MetricsSettings(listen="127.0.0.1:0"))
+        d = Daemon(cfg, log_path=Path(tmp) / "s.mcap", log_process=False, gather_s=0,
+                   max_batch=100_000)  # fmt: skip
+        for a in range(n):
+            rows = [dict(s, seq=k, t=1.0 + k / 1000.0) for k, s in enumerate(base)]
+            d.submit(m.KEY_MEAS.format(aircraft=f"AC{a // 4:03d}", actuator=f"act{a % 4}"),
+                     m.encode_meas(rows))  # fmt: skip
+        while d.queued:
+            d.process_pending()
+        times = []
+        for _ in range(20):
+            t0 = time.process_time()
+            generate_latest(d.metrics.registry)
+            times.append(time.process_time() - t0)
+        d.stop()
+        out.append((n, 1e3 * statistics.median(times)))
+    return out
 
 
 if __name__ == "__main__":

@@ -325,6 +325,34 @@ class FoxgloveSettings(BaseModel):
         return check_listen(self.listen, allow_remote=self.allow_remote)
 
 
+class MetricsSettings(BaseModel):
+    """The daemon's OpenMetrics endpoint (``service.metrics``, docs/dashboard.md,
+    "Prometheus"): loopback unless ``allow_remote`` (docs/security.md, "HTTP")."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    listen: str = Field("127.0.0.1:9464", description="HOST:PORT of the /metrics endpoint")
+    allow_remote: bool = Field(
+        False, description="allow a non-loopback host (only behind an authenticating TLS proxy)"
+    )
+
+    @model_validator(mode="after")
+    def _loopback(self) -> MetricsSettings:
+        from service.listen import check_listen
+
+        check_listen(
+            self.listen, allow_remote=self.allow_remote, flag="listen",
+            what="the metrics endpoint", allow="allow_remote = true",
+        )  # fmt: skip
+        return self
+
+    def host_port(self) -> tuple[str, int]:
+        """(host, port) of ``listen``."""
+        from service.listen import check_listen
+
+        return check_listen(self.listen, allow_remote=self.allow_remote)
+
+
 class ServiceConfig(BaseModel):
     """Settings of ``servowatch run`` (and defaults for demo and replay)."""
 
@@ -362,6 +390,9 @@ class ServiceConfig(BaseModel):
     )
     foxglove: FoxgloveSettings | None = Field(
         None, description="serve the channels live to Foxglove (None: no server)"
+    )
+    metrics: MetricsSettings | None = Field(
+        None, description="serve OpenMetrics for Prometheus on /metrics (None: no endpoint)"
     )
 
 

@@ -25,6 +25,7 @@ row of the same sample; what is published is a transport choice of its own.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -64,6 +65,7 @@ class _Target:
     publishers: dict[str, Any] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)  # added to each published health
     acc: PeriodAccumulator | None = None
+    nis_in_band: float | None = None  # of its last closed period
 
 
 class FanOut:
@@ -157,6 +159,16 @@ class FanOut:
         self._deliver(closed, [tg.acc for tg in tgs if tg.acc is not None])
         return len(closed)
 
+    def nis_in_band_of(self, row: int | None) -> float | None:
+        """Fraction of bank row ``row``'s outputs whose NIS lies in its 95 % band, over its
+        open operating period (over its last closed one while the open one has none yet);
+        None without periods (no store) or before any."""
+        tg = self._targets.get(row) if row is not None else None
+        if tg is None or tg.acc is None:
+            return None
+        v = tg.acc.nis_in_band()
+        return v if v is not None else tg.nis_in_band
+
     def outputs_of(self, row: int) -> int:
         """Outputs of bank row ``row`` so far."""
         return self._targets[row].outputs
@@ -188,6 +200,9 @@ class FanOut:
                     rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt, usage=u
                 )
                 self._deliver(closed, [tg.acc])
+                if closed:
+                    v = closed[-1].nis_in_band
+                    tg.nis_in_band = v if math.isfinite(v) else None
             if lg is not None or lv is not None:
                 sel = g[(num % self.log_every == 0) | ev]
                 if len(sel):

@@ -197,8 +197,8 @@ def test_daemon_commissioned_flags_periods_and_flush_on_stop(odd, tmp_path):
     from service.commands.status import format_status
 
     text = format_status({"monitor/ground1/0/status": final})
-    assert "AC1/odd" in text and "baseline v1" in text and "3 periods, RUL - h" in text
-    assert "commissioned: false" in text
+    assert "AC1/odd" in text and "baseline v1" in text and "3 periods, RUL -" in text
+    assert "NOT COMMISSIONED" in text and "RUL - h" not in text
 
 
 def test_auto_commissioning_from_healthy_looking_data(tmp_path):

@@ -173,3 +173,32 @@ def test_unit_view_shows_its_usage(tmp_path):
     )
     assert "1.80 m, 7.2 kJ, 36 reversals per flight (2 flights)" in facts
     assert "not recorded" in old.find("dl", id="unit-facts").text()
+
+
+# the page's width at a window of W px, the "monitored by" column shown with its longest text
+# (as with `--connect`): [page scroll width, window width, table's right edge]
+_WIDTH_JS = """(() => {
+  document.body.classList.remove('live-off');
+  for (const td of document.querySelectorAll('td.c-live')) td.textContent = 'UNMONITORED (owner ground2/1)';
+  const d = document.documentElement;
+  return [d.scrollWidth, d.clientWidth, document.getElementById('fleet').getBoundingClientRect().right];
+})()"""
+
+
+@pytest.mark.parametrize("unit", [None, CRITICAL])
+def test_page_fits_1280_px_without_a_horizontal_scroll(tmp_path, unit):
+    """At 1280 x 900 CSS px, the table with every column (the live one too) and, opened, a
+    unit's chart lie inside the window: nothing to scroll sideways."""
+    from service.web.browser import evaluate
+
+    db = str(tmp_path / "h.sqlite")
+    fill_store(db)
+    ready = "document.body.dataset.fleetReady === '1'"
+    path = "/"
+    if unit is not None:
+        path += "#unit=" + quote(unit, safe="")
+        ready += f" && document.body.dataset.unitReady === '{unit}'"
+    with web_process(db) as url:
+        scroll_w, client_w, right = evaluate(url + path, _WIDTH_JS, size=(1280, 900), ready=ready)
+    assert client_w == 1280
+    assert scroll_w <= client_w and right <= client_w

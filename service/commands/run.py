@@ -67,6 +67,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     add_foxglove_arguments(p, what="the channels (overrides [foxglove] listen)", every=None,
                            every_help="[foxglove] every, 10")  # fmt: skip
+    p.add_argument(
+        "--metrics", default=None, metavar="HOST:PORT",
+        help="serve OpenMetrics for Prometheus on http://HOST:PORT/metrics (overrides "
+        "[metrics] listen; loopback unless --metrics-allow-remote)",
+    )  # fmt: skip
+    p.add_argument(
+        "--metrics-allow-remote", action="store_true",
+        help="allow a non-loopback --metrics host (only behind an authenticating TLS proxy)",
+    )  # fmt: skip
     p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
 
@@ -95,6 +104,27 @@ def foxglove_override(cfg, listen: str | None, allow_remote: bool, every: int | 
     return cfg.model_copy(update={"foxglove": FoxgloveSettings.model_validate(fx)})
 
 
+def metrics_override(cfg, listen: str | None, allow_remote: bool):
+    """``cfg`` with ``--metrics HOST:PORT`` and ``--metrics-allow-remote`` applied."""
+    from service.config import ConfigError, MetricsSettings
+    from service.listen import check_listen
+
+    if listen is None and not allow_remote:
+        return cfg
+    mc = cfg.metrics.model_dump() if cfg.metrics is not None else {}
+    if listen is not None:
+        check_listen(
+            listen, allow_remote=allow_remote or bool(mc.get("allow_remote")),
+            flag="--metrics", what="the metrics endpoint", allow="--metrics-allow-remote",
+        )  # fmt: skip
+        mc["listen"] = listen
+    elif cfg.metrics is None:
+        raise ConfigError("--metrics-allow-remote needs --metrics or [metrics]", None, None)
+    if allow_remote:
+        mc["allow_remote"] = True
+    return cfg.model_copy(update={"metrics": MetricsSettings.model_validate(mc)})
+
+
 def _check_identity(cfg) -> None:
     """Warn when the daemon's certificate is not ``monitor.<station>.<shard>``: the secure
     station's rules let each daemon identity hold only its own status and tokens, so another
@@ -121,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         cfg = service_config_from_args(args)
         cfg = foxglove_override(cfg, args.foxglove, args.foxglove_allow_remote, args.foxglove_every)
+        cfg = metrics_override(cfg, args.metrics, args.metrics_allow_remote)
     except (ConfigError, ValueError) as e:
         return fail(str(e))
     from service.store import default_store

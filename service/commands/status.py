@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 from service.cliutil import emit_json, fail
 
@@ -38,6 +39,78 @@ def _fmt(v, spec: str = ".3g") -> str:
     return "-" if v is None else format(v, spec)
 
 
+def _num(v) -> float | None:
+    """``v`` as a finite float, else None (a status field may be null, absent or NaN)."""
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        return None
+    return float(v)
+
+
+def _pct(v) -> str:
+    n = _num(v)
+    return "-" if n is None else f"{100.0 * n:.0f} %"
+
+
+def format_rul(rul: dict | None) -> str:
+    """A stored RUL on its history's own axis: ``RUL 42 flights [5-80] ~12 d`` (a history
+    that counts flights: flights, its 90 % interval and calendar days where known), ``RUL
+    120 h [30-400]`` (operating hours), ``RUL - (insufficient history)``, ``RUL none
+    predicted``, or ``RUL -`` without one."""
+    from service.commands.fleet import rul_interval
+
+    iv = rul_interval(rul if isinstance(rul, dict) else None)
+    if iv is None:
+        return "RUL -"
+    med = iv["median"]
+    if med is None:
+        why = rul.get("status")
+        if why == "insufficient history":
+            return "RUL - (insufficient history)"
+        return "RUL none predicted" if rul.get("periods") else "RUL -"
+    unit = "flights" if iv["unit"] == "flights" else "h"
+    text = f"RUL {med:.0f} {unit} [{_fmt(iv['lo'], '.0f')}-{_fmt(iv['hi'], '.0f')}]"
+    if unit == "flights" and iv["median_days"] is not None:
+        text += f" ~{iv['median_days']:.0f} d"
+    return text
+
+
+def format_unit(a: dict) -> list[str]:
+    """The lines of one unit of a daemon's status, every value chosen by name (a model that
+    adds or reorders estimate fields changes nothing here): counters; C_Lk with its
+    1-sigma [m^3/(s Pa)], the leak and supply ratios over the baseline, the NIS in band;
+    then silence, active alarms, commissioning and baseline version, periods and RUL."""
+    est = a.get("est") if isinstance(a.get("est"), dict) else {}
+    health = a.get("health") if isinstance(a.get("health"), dict) else {}
+    c_lk, c_sig = _num(est.get("c_lk")), _num(est.get("c_lk_sigma"))
+    head = (
+        f"  {a.get('aircraft')}/{a.get('actuator')}: {a.get('samples')} samples, "
+        f"dropped {a.get('dropped')}, gaps {a.get('gaps')}, bad {a.get('bad_total', 0)}"
+    )
+    ind = (
+        f"    C_Lk {_fmt(c_lk)} +- {_fmt(c_sig, '.2g')} m^3/(s Pa), "
+        f"leak ratio {_fmt(_num(health.get('leak_ratio')))}, "
+        f"supply ratio {_fmt(_num(health.get('supply_ratio')))}, "
+        f"NIS in band {_pct(a.get('nis_in_band'))}"
+    )
+    flags = []
+    if a.get("silent"):
+        flags.append("SILENT")
+    alarms = [x for x in a.get("alarms") or [] if isinstance(x, dict)]
+    if alarms:
+        flags.append(
+            "ALARM " + ", ".join(f"{x.get('kind')} ({_fmt(_num(x.get('value')))})" for x in alarms)
+        )
+    else:
+        flags.append("no alarm")
+    if a.get("commissioned") is False:
+        flags.append("NOT COMMISSIONED (default baseline)")
+    elif a.get("commissioned"):
+        flags.append(f"commissioned, baseline v{a.get('baseline_version')}")
+    if "periods" in a:
+        flags.append(f"{a['periods']} periods, {format_rul(a.get('rul'))}")
+    return [head, ind, "    " + "; ".join(flags)]
+
+
 def format_status(daemons: dict) -> str:
     """Human-readable table of the daemons' status."""
     lines = []
@@ -70,28 +143,7 @@ def format_status(daemons: dict) -> str:
                 f"{fx.get('sent')} sent, {fx.get('dropped')} dropped"
             )
         for _name, a in sorted(st.get("actuators", {}).items()):
-            est = ", ".join(
-                f"{k}={_fmt(v)}"
-                for k, v in list(a.get("est", {}).items())[:4]
-                if isinstance(v, int | float)
-            )
-            flags = []
-            if a.get("silent"):
-                flags.append("SILENT")
-            if a.get("alarms"):
-                flags.append("ALARM " + ",".join(str(x.get("kind")) for x in a["alarms"]))
-            if a.get("commissioned") is False:
-                flags.append("commissioned: false")
-            elif a.get("commissioned"):
-                flags.append(f"baseline v{a.get('baseline_version')}")
-            if "periods" in a:
-                rul = (a.get("rul") or {}).get("median_h")
-                flags.append(f"{a['periods']} periods, RUL {_fmt(rul, '.0f')} h")
-            lines.append(
-                f"  {a['aircraft']}/{a['actuator']}: {a['samples']} samples, "
-                f"dropped {a['dropped']}, gaps {a['gaps']}, bad {a['bad']}, {est} "
-                + " ".join(flags)
-            )
+            lines.extend(format_unit(a))
     return "\n".join(lines) if lines else "no daemon answered"
 
 

@@ -101,6 +101,14 @@ class Daemon:
             self.member = GroupMember(
                 config.group, self.station, self.shard, self.intake.submit, config.max_bytes
             )
+        self.metrics = None  # the OpenMetrics endpoint, bound first: a port in use fails here
+        if config.metrics is not None:
+            from service.metrics import MetricsServer
+
+            host, port = config.metrics.host_port()
+            self.metrics = MetricsServer(
+                self.status, host, port, allow_remote=config.metrics.allow_remote
+            )
         store_url = store_target(config.store)
         baseline = Baseline.load(config.baseline) if config.baseline and bank is None else None
         self.monitor = MonitorStage(config.monitor, baseline, store_url=store_url, bank=bank)
@@ -290,6 +298,9 @@ class Daemon:
                 )
             except Exception as e:  # an older zenoh without history: data silence still works
                 log.warning("no liveliness subscriber: %s", e)
+        if self.metrics is not None:
+            self.metrics.start()
+            log.info("metrics on http://%s:%d/metrics", *self.metrics.address)
         warm = self.monitor.warm_up()
         if warm > 0.05:
             log.info("monitor warm-up (JIT) took %.2f s", warm)
@@ -332,6 +343,8 @@ class Daemon:
         self.outputs.close()
         self._closed = True
         final = self.status()
+        if self.metrics is not None:
+            self.metrics.close()
         log.info(
             "daemon stopped: %s samples, %s dropped, %s bad",
             final["samples"],

@@ -21,7 +21,10 @@ from service.daemon.commission import Commissioner
 from service.daemon.status import percentiles
 from service.monitor import Baseline, MonitorBank, MonitorConfig, MonitorFleet
 
-__all__ = ["MonitorStage"]
+__all__ = ["LATENCY_BUCKETS_S", "MonitorStage"]
+
+#: upper bounds of the latency histogram's buckets [s] (receipt -> health output)
+LATENCY_BUCKETS_S = np.array([0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5])
 
 log = logging.getLogger("servowatch.daemon")
 
@@ -48,6 +51,9 @@ class MonitorStage:
         self._row_key: dict[int, str] = {}  # bank row -> meas key
         self.latency: deque = deque(maxlen=50000)  # receipt -> health output [s]
         self.age: deque = deque(maxlen=50000)  # sample time t -> health output [s] (Unix t)
+        # every output's latency since the start, as cumulative counts (the metrics' histogram)
+        self.latency_counts = np.zeros(len(LATENCY_BUCKETS_S) + 1, np.int64)  # last: +Inf
+        self.latency_sum_s = 0.0
         self.commissioner: Commissioner | None = None
         self.errors = 0
 
@@ -105,7 +111,12 @@ class MonitorStage:
                 return
             blk.rows = rows
             now_m, now_w = time.monotonic(), time.time()
-            self.latency.extend((now_m - recv[idx]).tolist())
+            lat = now_m - recv[idx]
+            self.latency.extend(lat.tolist())
+            self.latency_counts += np.bincount(
+                np.searchsorted(LATENCY_BUCKETS_S, lat), minlength=len(self.latency_counts)
+            )
+            self.latency_sum_s += float(lat.sum())
             old = rows.t > 1e9  # Unix-time sample clock: end-to-end age is meaningful
             if old.any():
                 self.age.extend((now_w - rows.t[old]).tolist())
@@ -179,6 +190,11 @@ class MonitorStage:
             "age_ms": {
                 "p50": None if a50 is None else 1e3 * a50,
                 "p99": None if a99 is None else 1e3 * a99,
+            },
+            "latency_hist": {  # cumulative since the start: counts per bucket (le), sum
+                "le_s": LATENCY_BUCKETS_S.tolist(),
+                "counts": self.latency_counts.tolist(),
+                "sum_s": self.latency_sum_s,
             },
             "errors": self.errors,
         }

@@ -307,9 +307,12 @@ class Outputs:
         except Exception as e:  # kept in logger.failure
             log.error("closing the MCAP log failed: %s", e)
 
-    def unit_status(self, name: str) -> dict[str, Any]:
-        """Stored periods and the last RUL of actuator ``name`` (empty without a store)."""
-        return self.store.info(name) if self.store is not None else {}
+    def unit_status(self, name: str, row: int | None = None) -> dict[str, Any]:
+        """Stored periods and the last RUL of actuator ``name`` (none without a store) and
+        the NIS in band of bank row ``row`` (``FanOut.nis_in_band_of``)."""
+        out = self.store.info(name) if self.store is not None else {}
+        out["nis_in_band"] = self.fanout.nis_in_band_of(row)
+        return out
 
     def status(self) -> dict[str, Any]:
         """The log's paths and failure, the store writer's and the live feed's state."""

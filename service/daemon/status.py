@@ -44,7 +44,7 @@ def snapshot(
     (station, shard, key_expr, started), ``intake.status(now)`` (queue, actuators,
     liveliness), ``monitor.status()`` and ``unit_status(key)`` (model, latency, each
     actuator's monitor counters and commissioning), ``outputs.status()`` and
-    ``unit_status(name)`` (log, store, live feed), ``member`` (a ``GroupMember`` or None);
+    ``unit_status(name, row)`` (log, store, live feed, the unit's NIS in band), ``member`` (a ``GroupMember`` or None);
     ``busy_s`` and ``errors`` are the worker's."""
     now = time.monotonic()
     for attempt in range(5):  # the worker mutates counters meanwhile: retry a torn read
@@ -59,7 +59,8 @@ def snapshot(
                         released.append(a["aircraft"] + "/" + a["actuator"])
             for k, a in acts.items():
                 a.update(monitor.unit_status(k))
-                a.update(outputs.unit_status(a["aircraft"] + "/" + a["actuator"]))
+                name = a["aircraft"] + "/" + a["actuator"]
+                a.update(outputs.unit_status(name, monitor.row_of(k)))
             mon = monitor.status()
             break
         except RuntimeError:  # "changed size during iteration"
@@ -90,6 +91,7 @@ def snapshot(
             "unknown": ins["unknown"],
             "errors": errors,
             "latency_ms": mon["latency_ms"],
+            "latency_hist": mon.get("latency_hist"),
             "age_ms": mon["age_ms"],
             "busy_fraction": busy_s / up if up > 0 else 0.0,
             "actuators": acts,

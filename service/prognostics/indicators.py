@@ -232,6 +232,12 @@ class PeriodAccumulator:
         ev, self._events = self._events, []
         return ev
 
+    def nis_in_band(self) -> float | None:
+        """Fraction of the open period's rows whose NIS lies in its 95 % band (None without
+        an open period or before its first row with a NIS)."""
+        o = self._open
+        return o.in_band / o.nis_n if o is not None and o.nis_n else None
+
     # -- internals ------------------------------------------------------------------------
     def _bad_delta(self, counters: Mapping[str, int] | None) -> int:
         if counters is None:
