@@ -19,9 +19,12 @@ the indicator, cannot; ``--knee-unforeseen`` gives it only the first rate until 
     .venv/bin/python -m evaluation.rul_oracle --drawn 1-30      # fleet-sim truths, no logs
 
 The future factors: ``fleet-sim`` hours per flight = the unit's mean x U(0.8, 1.2) (the mean
-of ``draw_units``, drawn again from the truth's seed), load U(0.6, 1.4) (``load`` law: wear per flight
-hours x load^2); the acceptance fleet's hours = the unit's base x U(0.7, 1.3), cycles
-U(0.3, 2.0) (``tests.acceptance_fleet.draw``).
+of ``draw_units``, drawn again from the truth's seed), load = the operator's mean load x
+U(0.65, 1.35) (``load`` law: wear per flight hours x load^2), amplitude = the operator's mean
+x U(0.75, 1.25) (``usage`` law: wear per flight hours x load x amplitude, the load-weighted
+travel); the ``knee`` law is known with its knee. The acceptance fleet's hours = the unit's
+base x U(0.7, 1.3), cycles U(0.3, 2.0), load and amplitude about the unit's profile
+(``tests.acceptance_fleet.draw``).
 """
 
 from __future__ import annotations
@@ -167,8 +170,11 @@ def score_oracle(
 
 def _fleetsim_ratio(law: str, w: dict) -> Callable[[np.ndarray], np.ndarray]:
     def ratio(d: np.ndarray) -> np.ndarray:
-        if law in ("linear", "load"):
+        if law in ("linear", "load", "usage"):
             return 1.0 + w["k"] * d
+        if law == "knee":
+            dk = w["d_k"]
+            return 1.0 + w["k"] * np.minimum(d, dk) + w["m"] * w["k"] * np.maximum(d - dk, 0.0)
         if law == "exponential":
             return 1.0 + w["a"] * np.expm1(w["b"] * d)
         if law == "power":
@@ -195,13 +201,18 @@ def fleetsim_units(truth: dict) -> list[OracleUnit]:
         h = np.asarray(u["flight_hours"], float)
         if a.actuator != u["actuator"] or not np.array_equal(a.flight_hours, h):
             raise ValueError(f"truth of {u['actuator']} is not fleet-sim's draw of its seed")
-        load = np.asarray(u["flight_load"], float)
-        inc = h * load**2 if law == "load" else h
+        inc = a.increments()
         hpf = a.usage_h
+        prof = a.profile
 
-        def future(rng, shape, hpf=hpf, law=law):
+        def future(rng, shape, hpf=hpf, law=law, prof=prof):
             x = hpf * rng.uniform(0.8, 1.2, shape)
-            return x * rng.uniform(0.6, 1.4, shape) ** 2 if law == "load" else x
+            if law == "load":
+                return x * (prof["load"] * rng.uniform(0.65, 1.35, shape)) ** 2
+            if law == "usage":
+                return (x * prof["load"] * rng.uniform(0.65, 1.35, shape)
+                        * prof["amp"] * rng.uniform(0.75, 1.25, shape))  # fmt: skip
+            return x
 
         eol = u["eol_flight"]
         out.append(OracleUnit(u["actuator"], law, inc, _fleetsim_ratio(law, u["wear"]), future,
@@ -233,18 +244,24 @@ def acceptance_units(
     """The oracle's view of the acceptance fleet (``tests.acceptance_fleet.draw``; the
     flights flown: up to the one reaching the threshold). ``knee_foreseen`` False: before a
     two-rate unit's knee the oracle knows only the first rate (the knee has no precursor)."""
-    from tests.acceptance_fleet import draw, ratio_of
+    from tests.acceptance_fleet import draw, increments, ratio_of
 
     out = []
     for u in draw(seed, units, flights, thr):
         cyc = u["law"] == "cycles"
-        inc = np.asarray(u["cycles"] if cyc else u["hours"], float)
+        inc = increments(u)
         r = np.asarray(u["ratio_schedule"][:flights])
         above = np.flatnonzero(r >= thr)
         flown = int(above[0]) + 1 if len(above) else flights
 
-        def future(rng, shape, cyc=cyc, base=u["base_h"]):
-            return rng.uniform(0.3, 2.0, shape) if cyc else base * rng.uniform(0.7, 1.3, shape)
+        def future(rng, shape, cyc=cyc, base=u["base_h"], u=u):
+            if cyc:
+                return rng.uniform(0.3, 2.0, shape)
+            x = base * rng.uniform(0.7, 1.3, shape)
+            if u["law"] == "usage":
+                x = (x * u["load"] * rng.uniform(0.7, 1.3, shape)
+                     * u["amp"] * rng.uniform(0.7, 1.3, shape))  # fmt: skip
+            return x
 
         def ratio(d, u=u):
             return ratio_of(u, d, thr)

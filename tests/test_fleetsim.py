@@ -31,7 +31,24 @@ def test_truth_end_of_life_crosses_the_threshold():
         days = np.diff(u.flight_start_unix) / 86400.0
         assert days.min() >= 0 and days.max() < 30
         assert set(np.round(u.log_s[1:], 3)) <= {1.5, 2.0, 6.0}
-        assert min(u.flight_load) >= 0.6 and max(u.flight_load) <= 1.4
+        # each flight's load and amplitude about the operator's profile
+        load, amp = np.asarray(u.flight_load), np.asarray(u.flight_amp)
+        assert 0.8 <= u.profile["load"] <= 1.2 and 0.85 <= u.profile["amp"] <= 1.15
+        assert np.all(np.abs(load / u.profile["load"] - 1.0) <= 0.35)
+        assert np.all(np.abs(amp / u.profile["amp"] - 1.0) <= 0.25)
+        assert np.std(load * amp) / np.mean(load * amp) > 0.15  # the usage varies per flight
+        if u.law == "knee":
+            # slow, then m times faster from the knee, linear after it, no jump
+            d = u.damage()
+            dk, m, k = u.wear["d_k"], u.wear["m"], u.wear["k"]
+            assert 4.0 <= m <= 8.0
+            assert u.ratio_at(dk) == pytest.approx(1.0 + k * dk)
+            assert u.ratio_at(dk + 1.0) - u.ratio_at(dk) == pytest.approx(m * k)
+            assert np.allclose(r, [u.ratio_at(x) for x in d])
+        if u.law == "usage":
+            inc = np.diff(u.damage())
+            h = np.asarray(u.flight_hours[:-1])
+            assert np.allclose(inc, h * load[:-1] * np.array([u.amp(i) for i in range(len(h))]))
         # plant variation within the stated tolerances
         assert 85.0 <= u.plant["mass"] <= 130.0
         assert 0.9e-4 <= u.plant["u1"] <= 1.2e-4
