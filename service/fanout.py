@@ -183,8 +183,9 @@ class FanOut:
             em = Emitted(row, f"{tg.aircraft}/{tg.actuator}", len(g), int(g[-1]))
             if tg.acc is not None:
                 cnt = self.counters(row) if self.counters is not None else None
+                u = None if rows.usage is None else rows.usage[g]
                 closed = tg.acc.add_rows(
-                    rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt
+                    rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt, usage=u
                 )
                 self._deliver(closed, [tg.acc])
             if lg is not None or lv is not None:

@@ -165,10 +165,11 @@ def _entries(group: str) -> list:
     if group == "monitor":
         from models import compiled
         from service import wire_kernels
-        from service.monitor import kernels
+        from service.monitor import kernels, usage
 
         return [compiled._integrate_hf, kernels.bank_step, kernels.output_rows, kernels.block_steps,
-                kernels.block_rows, kernels.prepare_inputs, wire_kernels.unpack_checked]  # fmt: skip
+                kernels.block_rows, kernels.prepare_inputs, usage.usage_rows,
+                wire_kernels.unpack_checked]  # fmt: skip
     from service.log import codec_read, codec_write
 
     return [codec_write._encode, codec_read._scan, codec_read._fill, codec_read._objects]

@@ -160,7 +160,7 @@ class RowEvents(Sequence):
 class BankRows:
     """Outputs of ``MonitorBank.update_rows``: one row per accepted sample, in input order.
     Columns are named by ``EST_KEYS``, ``RES_KEYS`` and ``HEALTH_KEYS`` (same values as the
-    dicts of ``MonitorOutput``)."""
+    dicts of ``MonitorOutput``); ``usage`` by ``service.monitor.usage.USAGE_KEYS``."""
 
     index: NDArray  # (R,) position of each accepted sample in the input sequence
     t: NDArray  # (R,)
@@ -168,6 +168,9 @@ class BankRows:
     res: NDArray  # (R, len(RES_KEYS))
     health: NDArray  # (R, len(HEALTH_KEYS))
     events: RowEvents  # a sequence of lists, one per row
+    # (R, len(service.monitor.usage.USAGE_KEYS)): the usage rates of each row (what wears the
+    # seals and the spool; not logged, not published); None from a source that has none
+    usage: NDArray | None = None
     _lists: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _n_out: int = field(default=0, init=False, repr=False, compare=False)
 

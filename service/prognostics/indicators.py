@@ -17,7 +17,12 @@ A period closes when the actuator goes silent (no sample for ``silence_s``) or a
   lies in the two-sided 95 % chi-square band of its degrees of freedom;
 - alarms raised (rising edges of the health alarm flags, every kind) and data quality: the
   increase of the monitor's rejection counters (skipped_nan, skipped_time, bad_channel) and
-  the transport's dropped messages, as given by the caller.
+  the transport's dropped messages, as given by the caller;
+- usage (``BankRows.usage``, the rates of ``service.monitor.usage``): travel, load-weighted
+  travel, time under load and at pressure, each the sum of its rate times the sample
+  intervals that count as operating time (the same intervals as ``op_time_s``), and the
+  reversals; NaN when any of the period's rows came without usage (the load figures also
+  when none of its rows had both chamber pressures).
 
 No I/O: the daemon and the replay feed rows (``MonitorBank.update_arrays`` / ``rows_of``)
 and write the returned periods to the store. Given the same rows it returns the same
@@ -35,6 +40,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from service.monitor.usage_config import (
+    U_LOAD2_SPEED,
+    U_LOAD_SPEED,
+    U_LOADED,
+    U_PRESSURISED,
+    U_REVERSAL,
+    U_SPEED,
+)
 from service.store.records import AlarmEvent, Period
 
 __all__ = ["PeriodConfig", "PeriodAccumulator", "BAD_COUNTERS", "periods_of_rows", "nis_band"]
@@ -94,6 +107,10 @@ class _Open:
         self.alarms = 0
         self.bad = 0
         self.dropped = 0
+        # usage: travel, |F| travel, F^2 travel, loaded s, pressurised s, reversals
+        self.usage = np.zeros(6)
+        self.usage_all = True  # every row came with usage
+        self.usage_load = False  # some row had a load figure
 
 
 class PeriodAccumulator:
@@ -153,9 +170,11 @@ class PeriodAccumulator:
         counters: Mapping[str, int] | None = None,
         dropped: int = 0,
         flight: int | None = None,
+        usage: NDArray | None = None,
     ) -> list[Period]:
         """Fold rows (t (n,), est (n, len(est_keys)), health, res) into periods; returns the
-        periods closed by them. ``counters``: the monitor's cumulative counters of this
+        periods closed by them. ``usage``: the rows' usage rates (``BankRows.usage``; None:
+        the periods these rows fall in get NaN usage). ``counters``: the monitor's cumulative counters of this
         actuator after these rows (the increase of ``BAD_COUNTERS`` is charged to the open
         period); ``dropped``: messages lost in transport since the last call; ``flight``:
         flight number recorded on a period opened by these rows."""
@@ -192,7 +211,8 @@ class PeriodAccumulator:
             b_w = a + int(np.searchsorted(t[a:stop], o.start_t + cfg.window_s, side="left"))
             b = max(min(stop, b_w), a + 1)
             sl = slice(a, b)
-            self._fold(o, t[sl], est[sl], health[sl], None if res is None else res[sl])
+            self._fold(o, t[sl], est[sl], health[sl], None if res is None else res[sl],
+                       None if usage is None else usage[sl])  # fmt: skip
             self._last_t = float(t[b - 1])
             a = b
         return closed
@@ -221,10 +241,32 @@ class PeriodAccumulator:
         self._counters = now
         return sum(max(now[k] - prev[k], 0) for k in BAD_COUNTERS)
 
-    def _fold(self, o: _Open, t: NDArray, est: NDArray, health: NDArray, res: NDArray | None):
+    def _fold(
+        self,
+        o: _Open,
+        t: NDArray,
+        est: NDArray,
+        health: NDArray,
+        res: NDArray | None,
+        usage: NDArray | None,
+    ) -> None:
         cfg = self.cfg
         dt = np.diff(np.concatenate(([o.end_t if o.n else t[0]], t)))
         o.op += float(dt[dt <= cfg.max_dt_s].sum())
+        if usage is None:
+            o.usage_all = False
+        else:
+            w = np.where(dt <= cfg.max_dt_s, dt, 0.0)  # the intervals of op_time_s
+            o.usage[0] += float(w @ usage[:, U_SPEED])
+            o.usage[4] += float(w @ usage[:, U_PRESSURISED])
+            o.usage[5] += float(usage[:, U_REVERSAL].sum())
+            fin = np.isfinite(usage[:, U_LOAD_SPEED])
+            if fin.any():
+                o.usage_load = True
+                wf = w[fin]
+                o.usage[1] += float(wf @ usage[fin, U_LOAD_SPEED])
+                o.usage[2] += float(wf @ usage[fin, U_LOAD2_SPEED])
+                o.usage[3] += float(wf @ usage[fin, U_LOADED])
         o.end_t = float(t[-1])
         o.n += len(t)
         c, cs = est[:, self._i_c], est[:, self._i_cs]
@@ -269,6 +311,8 @@ class PeriodAccumulator:
             sig = float(1.4826 * np.median(np.abs(c - med)))
         else:
             med = sig = math.nan
+        u = o.usage if o.usage_all else np.full(6, math.nan)
+        ul = u if o.usage_load else np.full(6, math.nan)
         return Period(
             actuator=self.actuator,
             start_t=o.start_t,
@@ -289,6 +333,12 @@ class PeriodAccumulator:
             bad_samples=o.bad,
             dropped=o.dropped,
             source=self.source,
+            usage_travel_m=float(u[0]),
+            usage_load_travel_j=float(ul[1]),
+            usage_load2_travel_n2m=float(ul[2]),
+            usage_reversals=float(u[5]),
+            usage_loaded_s=float(ul[3]),
+            usage_pressurised_s=float(u[4]),
         )
 
 
@@ -301,6 +351,7 @@ def periods_of_rows(
     health: NDArray,
     res: NDArray | None = None,
     config: PeriodConfig | None = None,
+    usage: NDArray | None = None,
     **keys: Sequence[str],
 ) -> list[Period]:
     """All periods of one actuator's complete rows (``add_rows`` then ``flush``); ``keys``
@@ -316,4 +367,4 @@ def periods_of_rows(
         keys.get("res_keys", RES_KEYS) if res is not None else None,
         config,
     )
-    return acc.add_rows(t, est, health, res) + acc.flush()
+    return acc.add_rows(t, est, health, res, usage=usage) + acc.flush()

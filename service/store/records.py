@@ -20,6 +20,7 @@ __all__ = [
     "PERIOD_FIELDS",
     "PERIOD_FLOAT_FIELDS",
     "PERIOD_INT_FIELDS",
+    "USAGE_FIELDS",
     "check_actuator",
 ]
 
@@ -74,6 +75,12 @@ class Period:
     none); ``c_lk_ratio`` is ``c_lk_mean`` over the baseline's C_Lk. ``nis_in_band`` is a
     fraction in [0, 1]. ``source`` names what produced it (a log file id, ``live:station``);
     ``(actuator, source, start_t)`` identifies a period in the store.
+
+    The ``usage_*`` fields are what wears the seals and the spool in the period
+    (docs/prognostics.md, section 1, "Usage"): jack travel [m], load-weighted travel
+    (integral of |F_J| |v_J| dt [J] and of F_J^2 |v_J| dt [N^2 m]), reversals (a whole number),
+    time under load and time at pressure [s]; NaN where unknown (a period stored before
+    migration 5, rows without usage; the load figures also without both chamber pressures).
     """
 
     actuator: str
@@ -96,6 +103,12 @@ class Period:
     dropped: int
     source: str
     start_unix: float | None = None
+    usage_travel_m: float = math.nan
+    usage_load_travel_j: float = math.nan
+    usage_load2_travel_n2m: float = math.nan
+    usage_reversals: float = math.nan
+    usage_loaded_s: float = math.nan
+    usage_pressurised_s: float = math.nan
 
     def __post_init__(self) -> None:
         check_actuator(self.actuator)
@@ -121,6 +134,21 @@ class Period:
             raise ValueError(f"source: expected a non-empty string, got {self.source!r}")
         if self.start_unix is not None:
             _check_finite("start_unix", self.start_unix)
+        for name in USAGE_FIELDS:
+            v = getattr(self, name)
+            if not (math.isnan(v) or (math.isfinite(v) and v >= 0)):
+                raise ValueError(f"{name}: expected a finite number >= 0 or NaN, got {v!r}")
+
+    def __eq__(self, other: object) -> bool:
+        """Field by field, a NaN equal to a NaN (an unknown indicator reads back as NaN; two
+        records of the same period are equal whichever backend they came through)."""
+        if other.__class__ is not self.__class__:
+            return NotImplemented
+        for f in PERIOD_FIELDS:
+            a, b = getattr(self, f), getattr(other, f)
+            if a != b and not (isinstance(a, float) and isinstance(b, float) and a != a and b != b):
+                return False
+        return True
 
     def to_dict(self) -> dict[str, Any]:
         """The fields as a plain dict."""
@@ -128,8 +156,10 @@ class Period:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Period:
-        """Inverse of ``to_dict``; ``None`` in a float field reads as NaN."""
-        kw = {k: d[k] for k in PERIOD_FIELDS if k != "start_unix"}
+        """Inverse of ``to_dict``; ``None`` in a float field reads as NaN, as does a usage
+        field the dict lacks (a period written before them)."""
+        kw = {k: d[k] if k not in USAGE_FIELDS else d.get(k) for k in PERIOD_FIELDS}
+        del kw["start_unix"]
         su = d.get("start_unix")
         kw["start_unix"] = None if su is None or not math.isfinite(float(su)) else float(su)
         for k in PERIOD_FLOAT_FIELDS:
@@ -171,6 +201,15 @@ PERIOD_INT_FIELDS: tuple[str, ...] = (
     "bad_samples",
     "dropped",
 )
+USAGE_FIELDS: tuple[str, ...] = (
+    "usage_travel_m",
+    "usage_load_travel_j",
+    "usage_load2_travel_n2m",
+    "usage_reversals",
+    "usage_loaded_s",
+    "usage_pressurised_s",
+)
+"""The usage fields of a period (migration 5), in the order of ``service.monitor.usage``."""
 PERIOD_FLOAT_FIELDS: tuple[str, ...] = (
     "start_t",
     "end_t",
@@ -183,4 +222,5 @@ PERIOD_FLOAT_FIELDS: tuple[str, ...] = (
     "i_b_mean",
     "nis_mean",
     "nis_in_band",
+    *USAGE_FIELDS,
 )

@@ -98,12 +98,37 @@ _V2: tuple[str, ...] = (
 # calendar time of a period's first sample (Unix s; None where the log does not give it)
 _V3: tuple[str, ...] = ("ALTER TABLE periods ADD COLUMN start_unix DOUBLE PRECISION",)
 
+# what wears the seals and the spool, per period (service.store.records.USAGE_FIELDS; NULL in
+# the periods stored before), and the running totals of the summary row that the fleet view
+# divides by the operating time they cover: over the periods with usage (travel, reversals)
+# and over those with a load figure (load-weighted travel). Version 4 is another change's;
+# the migrations need not be contiguous (each above the store's version is applied, in order)
+_V5: tuple[str, ...] = (
+    "ALTER TABLE periods ADD COLUMN usage_travel_m DOUBLE PRECISION",
+    "ALTER TABLE periods ADD COLUMN usage_load_travel_j DOUBLE PRECISION",
+    "ALTER TABLE periods ADD COLUMN usage_load2_travel_n2m DOUBLE PRECISION",
+    "ALTER TABLE periods ADD COLUMN usage_reversals DOUBLE PRECISION",
+    "ALTER TABLE periods ADD COLUMN usage_loaded_s DOUBLE PRECISION",
+    "ALTER TABLE periods ADD COLUMN usage_pressurised_s DOUBLE PRECISION",
+    "ALTER TABLE summary ADD COLUMN usage_periods BIGINT NOT NULL DEFAULT 0",
+    "ALTER TABLE summary ADD COLUMN usage_op_time_s DOUBLE PRECISION NOT NULL DEFAULT 0",
+    "ALTER TABLE summary ADD COLUMN usage_travel_m DOUBLE PRECISION NOT NULL DEFAULT 0",
+    "ALTER TABLE summary ADD COLUMN usage_reversals DOUBLE PRECISION NOT NULL DEFAULT 0",
+    "ALTER TABLE summary ADD COLUMN usage_load_op_time_s DOUBLE PRECISION NOT NULL DEFAULT 0",
+    "ALTER TABLE summary ADD COLUMN usage_load_travel_j DOUBLE PRECISION NOT NULL DEFAULT 0",
+)
+
 # (version, description, statements): append only; never edit a released migration. A
 # statement is SQL, or RECOMPUTE_TRENDS (a data step run by the store in the same transaction)
 MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
     (1, "actuators, baselines, periods, alarms, rul, per-actuator summary", _V1),
     (2, "C_Lk-ratio trend columns in the summary", _V2),
     (3, "calendar time of each period", _V3),
+    (
+        5,
+        "usage per period (travel, load-weighted travel, reversals, time under load and at pressure)",
+        _V5,
+    ),
 )
 
 LATEST_VERSION = MIGRATIONS[-1][0]
