@@ -137,9 +137,10 @@ def score_oracle(
         s = score_unit(t, med, eol)
         t_s = t[0]
         tol = 1e-9 * eol  # a crossing between two known readings is exact: no rounding miss
-        cov = [lo[i] - tol <= eol - t[i] <= hi[i] + tol for i in range(len(t))
-               if t[i] >= t_s + 0.5 * (eol - t_s)]  # fmt: skip
-        b = by_law.setdefault(u.law, {"acc": [], "ra": [], "cov": []})
+        mid = [i for i in range(len(t)) if t[i] >= t_s + 0.5 * (eol - t_s)]
+        cov = [lo[i] - tol <= eol - t[i] <= hi[i] + tol for i in mid]
+        b = by_law.setdefault(u.law, {"acc": [], "ra": [], "cov": [], "width": []})
+        b["width"].extend(hi[i] - lo[i] for i in mid)
         b["acc"].extend(s.accurate)
         b["ra"].append(max(s.relative_accuracy[0], 0.0))
         b["cov"].extend(cov)
@@ -149,17 +150,24 @@ def score_oracle(
     def pct(v: list) -> float | None:
         return 100.0 * float(np.mean(v)) if v else None
 
-    every = {k: [x for b in by_law.values() for x in b[k]] for k in ("acc", "ra", "cov")}
+    every = {k: [x for b in by_law.values() for x in b[k]]
+             for k in ("acc", "ra", "cov", "width")}  # fmt: skip
+
+    def med(v: list) -> float | None:
+        return float(np.median(v)) if v else None
+
     return {
         "alpha_lambda_pct": pct(every["acc"]),
         "relative_accuracy_pct": pct(every["ra"]),
         "interval_coverage_pct": pct(every["cov"]),
+        "interval_width_median_flights": med(every["width"]),
         "scored_units": len(rows),
         "by_law": {
             law: {
                 "units": len(b["ra"]),
                 "alpha_lambda_pct": pct(b["acc"]),
                 "interval_coverage_pct": pct(b["cov"]),
+                "interval_width_median_flights": med(b["width"]),
             }  # fmt: skip
             for law, b in by_law.items()
         },
@@ -336,7 +344,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if a.json:
         print(json.dumps({k: v for k, v in ev.items() if k != "units"}))
         return 0
-    for k in ("alpha_lambda_pct", "relative_accuracy_pct", "interval_coverage_pct"):
+    for k in (
+        "alpha_lambda_pct",
+        "relative_accuracy_pct",
+        "interval_coverage_pct",
+        "interval_width_median_flights",
+    ):
         print(f"{k:<24} {ev[k]:.1f}" if ev[k] is not None else f"{k:<24} -")
     for law, v in ev["by_law"].items():
         al, cv = v["alpha_lambda_pct"], v["interval_coverage_pct"]

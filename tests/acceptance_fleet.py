@@ -246,6 +246,7 @@ def main_cli() -> int:
         work.mkdir(parents=True, exist_ok=True)
         ev = score(work) if a.score_only else run(a.seed, a.units, a.flights, work)
     keys = ("alpha_lambda_pct", "interval_coverage_pct", "interval_coverage_all_pct",
+            "interval_width_median_flights",
             "kendall_tau", "kendall_tau_min", "healthy_max_p_horizon", "relative_accuracy_pct",
             "scored_units", "healthy_units")  # fmt: skip
     if a.json:

@@ -458,7 +458,7 @@ def evaluate(
     ``prior_every`` flights), on the life axis of flights, scored against the truth:
     alpha-lambda (+-20 %) and relative accuracy at lambda 0.5-0.9 (``metrics.score_unit``),
     the share of 90 % intervals that hold the true RUL from mid-life on (and over all
-    predictions before the end of life), Kendall's tau of the fleet's order (median RUL,
+    predictions before the end of life) and their median width [flights], Kendall's tau of the fleet's order (median RUL,
     ``servowatch fleet``'s key) against the true RUL at each checkpoint with at least three
     units, and the healthy units' largest probability of crossing within the horizon.
     ``learn(histories) -> prior`` (default ``rul.fleet_prior`` on the histories: the fleet
@@ -545,8 +545,11 @@ def evaluate(
             cov = [x[2] <= eol - x[0] <= x[3] for x in before if x[2] is not None]
             cov_mid = [x[2] <= eol - x[0] <= x[3] for x in before
                        if x[2] is not None and x[0] >= t_s + 0.5 * (eol - t_s)]  # fmt: skip
+            width = [x[3] - x[2] for x in before
+                     if x[2] is not None and x[0] >= t_s + 0.5 * (eol - t_s)]  # fmt: skip
             cov_all.extend(cov)
-            by_law.setdefault(tr["law"], {"acc": [], "ra": [], "ph": [], "cov": []})
+            by_law.setdefault(tr["law"], {"acc": [], "ra": [], "ph": [], "cov": [], "width": []})
+            by_law[tr["law"]]["width"].extend(width)
             by_law[tr["law"]]["acc"].extend(s.accurate)
             by_law[tr["law"]]["ra"].append(s.relative_accuracy[0])
             by_law[tr["law"]]["ph"].append(s.horizon_frac)
@@ -570,6 +573,11 @@ def evaluate(
     ra = [x for law in laws for x in by_law[law]["ra"]]
     ph = [x for law in laws for x in by_law[law]["ph"]]
     cov = [x for law in laws for x in by_law[law]["cov"]]
+    width = [x for law in laws for x in by_law[law]["width"]]
+
+    def med(v: list) -> float | None:
+        return float(np.median(v)) if v else None
+
     return {
         "axis": "flights",
         "alpha_lambda_pct": pct(acc),
@@ -577,6 +585,7 @@ def evaluate(
         "prognostic_horizon_pct": pct(ph),
         "interval_coverage_pct": pct(cov),
         "interval_coverage_all_pct": pct(cov_all),
+        "interval_width_median_flights": med(width),
         "kendall_tau": float(np.mean(taus)) if taus else None,
         "kendall_tau_min": float(np.min(taus)) if taus else None,
         "kendall_checkpoints": len(taus),
@@ -589,6 +598,7 @@ def evaluate(
                 "relative_accuracy_pct": ra_pct(v["ra"]),
                 "prognostic_horizon_pct": pct(v["ph"]),
                 "interval_coverage_pct": pct(v["cov"]),
+                "interval_width_median_flights": med(v["width"]),
             }
             for law, v in by_law.items()
             if law != "none"

@@ -312,17 +312,26 @@ def rul_of_history(
     return out
 
 
-def axis_fits(h: History, prior: FleetPrior | None) -> dict[str, tuple]:
-    """The history fitted on each life axis the fleet prior admits (``p_axis`` > 0) and the
-    history supports: {axis: (Fit, None)} for its own axis, {axis: (Fit, (positions of every
-    period, usage ref))} for a usage axis."""
+AXIS_MIN_P = 0.1
+"""A usage axis is fitted only where the fleet's ``p_axis`` gives it at least this much (an
+axis no wearing unit of the fleet chose stays below it: 1 / (units + axes))."""
+
+
+def axis_fits(
+    h: History, prior: FleetPrior | None, min_p: float = AXIS_MIN_P, wearing_only: bool = False
+) -> dict[str, tuple]:
+    """The history fitted on each life axis the fleet prior admits (``p_axis`` >= ``min_p``)
+    and the history supports: {axis: (Fit, None)} for its own axis, {axis: (Fit, (positions
+    of every period, usage ref))} for a usage axis. ``wearing_only``: no usage axis for a
+    history whose best model on its own axis is ``none``."""
     t, y = h.observed()
-    out: dict[str, tuple] = {h.axis: (fit_history(t, y, prior), None)}
-    if prior is None or h.axis != "flights":
+    own = fit_history(t, y, prior)
+    out: dict[str, tuple] = {h.axis: (own, None)}
+    if prior is None or h.axis != "flights" or (wearing_only and own.best() == "none"):
         return out
     ok = np.isfinite(h.y)
     for a in h.axes()[1:]:
-        if prior.p_axis.get(a, 0.0) <= 0:
+        if prior.p_axis.get(a, 0.0) < min_p:
             continue
         ref = prior.usage_ref.get(a)
         x = h.usage_life(a, ref)
@@ -417,7 +426,7 @@ def learn_axes(hs: Sequence[History], prior: FleetPrior, min_points: int = 8) ->
     for h in hs:
         if np.isfinite(h.y).sum() < min_points or h.axis != "flights":
             continue
-        fits = axis_fits(h, probe)
+        fits = axis_fits(h, probe, 0.0, wearing_only=True)
         if len(fits) < 2:
             continue
         lz = {a: f.log_marginal(prior.p_model) for a, (f, _) in fits.items()}
