@@ -85,9 +85,17 @@ def test_fleet_sim_end_to_end(tmp_path, capsys):
             assert [p.flight for p in ps] == list(range(u["flown"]))
             assert [p.start_unix for p in ps] == u["flight_start_unix"][: u["flown"]]
             assert st.latest_baseline(u["actuator"]) is not None
-            # the indicator follows the hidden truth (calibrated on the first flight)
+            # the indicator follows the hidden truth (calibrated on the first flight); a
+            # 1.5 s log at 1.45x the sensor noise reads a healthy unit within 10 %
             est = np.array([p.c_lk_ratio for p in ps])
-            assert np.max(np.abs(est - np.array(u["ratio"]))) < 0.05 * max(u["ratio"]) + 0.05
+            err = np.abs(est - np.array(u["ratio"]))
+            assert np.max(err) < 0.05 * max(u["ratio"]) + 0.11
+            assert np.median(err) < 0.03 * max(u["ratio"]) + 0.03
+            # and the monitor's usage follows each flight's load x amplitude
+            lt = np.array([p.usage_load_travel_j / p.op_time_s for p in ps])[1:]
+            true = np.array([u["flight_load"][k] * u["flight_amp"][k] for k in range(1, len(ps))])
+            if len(lt) >= 4:
+                assert np.corrcoef(lt, true)[0, 1] > 0.8
             assert st.rul(u["actuator"]) is not None
     # the scoring alone on the stored histories and the truth file: the same figures
     assert main(["fleet-sim", "--score-only", "--store", str(store), "--truth", str(truth),

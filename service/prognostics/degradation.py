@@ -181,9 +181,11 @@ class Fit:
         t = np.asarray(t, float) / self.t_scale
         y = np.zeros_like(t)
         for m in MODELS:
-            for g, pw in enumerate(self.post[m]):
-                if pw > 1e-9:
-                    y += pw * (_basis(m, t, self.grids[m][g]) @ self.means[m][g])
+            g = np.flatnonzero(self.post[m] > 1e-9)
+            if len(g) == 0:
+                continue
+            phi = _basis_grid(m, t, self.grids[m][g])  # (G, n, p)
+            y += np.einsum("g,gnp,gp->n", self.post[m][g], phi, self.means[m][g])
         return y
 
 
