@@ -312,16 +312,12 @@ def rul_of_history(
     return out
 
 
-AXIS_MIN_P = 0.1
-"""A usage axis is fitted only where the fleet's ``p_axis`` gives it at least this much (an
-axis no wearing unit of the fleet chose stays below it: 1 / (units + axes))."""
-
-
 def axis_fits(
-    h: History, prior: FleetPrior | None, min_p: float = AXIS_MIN_P, wearing_only: bool = False
+    h: History, prior: FleetPrior | None, min_p: float = 0.0, wearing_only: bool = False
 ) -> dict[str, tuple]:
-    """The history fitted on each life axis the fleet prior admits (``p_axis`` >= ``min_p``)
-    and the history supports: {axis: (Fit, None)} for its own axis, {axis: (Fit, (positions
+    """The history fitted on each life axis the fleet prior admits (``p_axis`` > ``min_p``;
+    ``learn_axes`` keeps only the axes a wearing unit of the fleet chose) and the history
+    supports: {axis: (Fit, None)} for its own axis, {axis: (Fit, (positions
     of every period, usage ref))} for a usage axis. ``wearing_only``: no usage axis for a
     history whose best model on its own axis is ``none``."""
     t, y = h.observed()
@@ -331,7 +327,7 @@ def axis_fits(
         return out
     ok = np.isfinite(h.y)
     for a in h.axes()[1:]:
-        if prior.p_axis.get(a, 0.0) < min_p:
+        if prior.p_axis.get(a, 0.0) <= min_p:
             continue
         ref = prior.usage_ref.get(a)
         x = h.usage_life(a, ref)
@@ -426,13 +422,16 @@ def learn_axes(hs: Sequence[History], prior: FleetPrior, min_points: int = 8) ->
     for h in hs:
         if np.isfinite(h.y).sum() < min_points or h.axis != "flights":
             continue
-        fits = axis_fits(h, probe, 0.0, wearing_only=True)
+        fits = axis_fits(h, probe, wearing_only=True)
         if len(fits) < 2:
             continue
         lz = {a: f.log_marginal(prior.p_model) for a, (f, _) in fits.items()}
         counts[max(lz, key=lz.__getitem__)] += 1.0
-    tot = sum(counts.values())
-    return replace(prior, p_axis={a: c / tot for a, c in counts.items()}, usage_ref=ref)
+    # the axes no wearing unit chose are dropped (not fitted for any unit); the others keep
+    # their Dirichlet(1)-smoothed share
+    kept = {a: c for a, c in counts.items() if c > 1.0 or a == "flights"}
+    tot = sum(kept.values())
+    return replace(prior, p_axis={a: c / tot for a, c in kept.items()}, usage_ref=ref)
 
 
 def compute_rul(
