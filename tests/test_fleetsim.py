@@ -89,8 +89,9 @@ def test_fleet_sim_end_to_end(tmp_path, capsys):
             # 1.5 s log at 1.45x the sensor noise reads a healthy unit within 10 %
             est = np.array([p.c_lk_ratio for p in ps])
             err = np.abs(est - np.array(u["ratio"]))
-            assert np.max(err) < 0.05 * max(u["ratio"]) + 0.11
-            assert np.median(err) < 0.03 * max(u["ratio"]) + 0.03
+            assert np.mean(np.isfinite(err)) >= 0.8  # a short log may leave C_Lk unobservable
+            assert np.nanmax(err) < 0.05 * max(u["ratio"]) + 0.11
+            assert np.nanmedian(err) < 0.03 * max(u["ratio"]) + 0.03
             # and the monitor's usage follows each flight's load x amplitude
             lt = np.array([p.usage_load_travel_j / p.op_time_s for p in ps])[1:]
             true = np.array([u["flight_load"][k] * u["flight_amp"][k] for k in range(1, len(ps))])
