@@ -18,6 +18,7 @@ from service.prognostics.indicators import PeriodAccumulator, PeriodConfig
 from service.store import Period, open_store
 from service.store.records import USAGE_FIELDS
 from service.store.schema import MIGRATIONS
+from service.store.usage import USAGE_TOTALS
 
 AREA, P_RATED = 1e-3, 20e6
 # columns of the filter state the kernel reads (C-type order: x_s, v_s, x_j, v_j, f_r, p_sr)
@@ -209,8 +210,7 @@ def test_migration_5_keeps_an_old_store_and_reads_null_usage(store_url, monkeypa
                                                 if c not in USAGE_FIELDS))  # fmt: skip
         for name in ("_SUMMARY_COLS", "_FLEET_COLS"):
             m.setattr(health, name, tuple(c for c in getattr(health, name)
-                                          if c not in health._USAGE_TOTALS))  # fmt: skip
-        m.setattr(health.HealthStore, "_summarise", _summarise_v3(health.HealthStore._summarise))
+                                          if c not in USAGE_TOTALS))  # fmt: skip
         with open_store(store_url) as s:
             assert s.schema_version() == 3
             assert s.add_periods([_old_period(k) for k in range(3)]) == 3
@@ -234,18 +234,6 @@ def test_migration_5_keeps_an_old_store_and_reads_null_usage(store_url, monkeypa
         assert u["reversals_per_h"] == pytest.approx(12.0 / 0.025)
         assert row["last"]["usage_travel_m"] == 1.5
         assert s.check() == []
-
-
-def _summarise_v3(summarise):
-    """The summary update of a version-3 store: no usage totals to keep."""
-
-    def f(s, fresh):
-        s.update({c: 0 for c in ("usage_periods", "usage_op_time_s", "usage_travel_m",
-                                 "usage_reversals", "usage_load_op_time_s",
-                                 "usage_load_travel_j")})  # fmt: skip
-        summarise(s, fresh)
-
-    return staticmethod(f)
 
 
 def test_fleet_usage_of_a_store_without_usage(store_url):
@@ -292,3 +280,87 @@ def test_replay_store_writes_usage_end_to_end(tmp_path):
     assert main(["replay", str(log), "--store", str(store), "--json"]) == 0
     with open_store(store) as s:
         assert s.count_periods() == 1
+
+
+def _used_period(k: int, flight: int, travel: float, load: float | None) -> Period:
+    return Period(**{**_old_period(k).to_dict(), "flight": flight, "usage_travel_m": travel,
+                     "usage_load_travel_j": math.nan if load is None else load,
+                     "usage_load2_travel_n2m": math.nan if load is None else 1e3 * load,
+                     "usage_reversals": 10.0, "usage_loaded_s": 45.0 if load else math.nan,
+                     "usage_pressurised_s": 90.0})  # fmt: skip
+
+
+def test_fleet_text_json_and_the_unit_view_show_usage(store_url, capsys):
+    import json
+
+    from service.cli import main
+    from service.web.view import fleet_view, unit_view
+
+    with open_store(store_url) as s:
+        # two flights of two 90 s periods, one flight with usage but no pressures, one old
+        s.add_periods([_used_period(0, 1, 2.0, 4000.0), _used_period(1, 1, 1.0, 2000.0),
+                       _used_period(2, 2, 3.0, 6000.0), _used_period(3, 2, 3.0, 6000.0),
+                       _used_period(4, 3, 0.5, None), _old_period(5)])  # fmt: skip
+    assert main(["fleet", "--store", store_url, "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)["fleet"]
+    u = row["usage"]
+    hours = 5 * 90 / 3600  # the 5 periods with usage
+    assert u["periods"] == 5 and u["travel_m"] == pytest.approx(9.5)
+    assert u["travel_m_per_h"] == pytest.approx(9.5 / hours)
+    assert u["load_travel_j_per_h"] == pytest.approx(18000.0 / (4 * 90 / 3600))
+    assert main(["fleet", "--store", store_url]) == 0
+    text = capsys.readouterr().out.splitlines()
+    assert "travel m/h" in text[1] and "|F|trav kJ/h" in text[1]
+    assert text[3].split()[-2:] == [f"{9.5 / hours:.2f}", f"{18.0 / (4 * 90 / 3600):.1f}"]
+    with open_store(store_url) as s:
+        fv = fleet_view(s)
+        assert fv["fleet"][0]["usage"]["travel_m"] == pytest.approx(9.5)
+        uv = unit_view(s, "AC1/ail_L")
+    # per flight: flights 1-3 carry usage (flight 5's one period does not), flights 1-2 load
+    assert uv["usage"] == {"flights": 3, "travel_m": pytest.approx(9.5 / 3),
+                           "reversals": pytest.approx(50 / 3), "load_flights": 2,
+                           "load_travel_j": pytest.approx(9000.0)}  # fmt: skip
+    assert [p["usage_travel_m"] for p in uv["periods"]] == [2.0, 1.0, 3.0, 3.0, 0.5, None]
+
+
+@pytest.mark.slow
+def test_the_daemon_writes_usage_with_its_periods(tmp_path):
+    """Live periods: the daemon's store writer gets usage, the same as a replay of the same
+    samples in one block would give over the same periods (both cut 1 s windows)."""
+    from service.config import PrognosticsSettings, ServiceConfig
+    from service.daemon import Daemon
+    from service.messages import encode_meas
+
+    sim, meas = _scenario_run(duration_s=2.5, seed=9)
+    store = tmp_path / "d.sqlite"
+    cfg = ServiceConfig(store=str(store), publish_every=1000,
+                        prognostics=PrognosticsSettings(period_window_s=1.0))  # fmt: skip
+    d = Daemon(cfg, log_path=tmp_path / "d.mcap", log_process=False, gather_s=0)
+    ch = [c for c in ("x_cmd", "i", "x_s", "x_j", "p1", "p2") if c in meas]
+    n = len(meas["t"])
+    for a in range(0, n, 50):
+        rows = [{"seq": j, "t": float(meas["t"][j]), **{c: float(meas[c][j]) for c in ch}}
+                for j in range(a, min(a + 50, n))]  # fmt: skip
+        d.submit("fleet/AC1/ail_L/meas", encode_meas(rows))
+    while d.queued:
+        d.process_pending()
+    d.stop()
+    with open_store(store) as s:
+        ps = s.periods("AC1/ail_L")
+        assert len(ps) == 3 and {p.source for p in ps} == {"live:ground1/0"}
+    dt = np.diff(sim.t, prepend=0.0)
+    assert sum(p.usage_travel_m for p in ps) == pytest.approx(
+        np.sum(np.abs(sim.v_j) * dt), rel=0.03
+    )
+    assert all(p.usage_load_travel_j > 0 for p in ps)
+    assert [p.usage_pressurised_s for p in ps] == pytest.approx([p.op_time_s for p in ps])
+
+
+@pytest.mark.parametrize("value", [-1.0, math.inf])
+def test_a_period_refuses_negative_or_infinite_usage(value):
+    with pytest.raises(
+        ValueError, match="usage_load_travel_j: expected a finite number >= 0 or NaN"
+    ):
+        Period(**{**_old_period(0).to_dict(), "usage_load_travel_j": value})
+    with pytest.raises(ValueError, match="UsageConfig.reversal_m"):
+        UsageConfig(reversal_m=value)

@@ -146,3 +146,30 @@ def test_snapshot_writes_the_page(tmp_path):
     head = out.read_bytes()[:24]
     assert head[:8] == b"\x89PNG\r\n\x1a\n"
     assert struct.unpack(">II", head[16:24]) == (1500, 1100)
+
+
+def test_unit_view_shows_its_usage(tmp_path):
+    """The unit's usage (issue 42): per operating hour and per flight in its facts; a unit
+    whose periods predate usage says so."""
+    from dataclasses import replace
+
+    db = str(tmp_path / "h.sqlite")
+    fill_store(db)
+    with open_store(db) as s:
+        s.add_periods([replace(p, start_t=p.start_t + 1e4, end_t=p.end_t + 1e4, flight=100 + k,
+                               usage_travel_m=1.8,
+                               usage_load_travel_j=7200.0, usage_load2_travel_n2m=1e7,
+                               usage_reversals=36.0, usage_loaded_s=80.0,
+                               usage_pressurised_s=90.0)
+                       for k, p in enumerate(s.periods(OK)[:2])])  # fmt: skip
+    with web_process(db) as url:
+        dom = render(url + "/#unit=" + quote(OK, safe=""))
+        old = render(url + "/#unit=" + quote(WATCH, safe=""))
+    assert dom.find("body").attrs.get("data-unit-ready") == OK
+    facts = dom.find("dl", id="unit-facts").text()
+    # two 90 s periods with 1.8 m each: 72 m and 288 kJ per operating hour; 1.8 m per flight
+    assert (
+        "72.00 m travel, 288.0 kJ load-weighted travel, 1440 reversals per operating hour" in facts
+    )
+    assert "1.80 m, 7.2 kJ, 36 reversals per flight (2 flights)" in facts
+    assert "not recorded" in old.find("dl", id="unit-facts").text()

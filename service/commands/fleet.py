@@ -130,16 +130,18 @@ def _f(v: Any, spec: str, scale: float = 1.0) -> str:
 
 def format_fleet(ranked: list[dict[str, Any]]) -> str:
     """A fixed-width table of the ranked fleet: life and trend on each unit's life axis
-    (flights, or operating hours: ``fl``, ``h``)."""
+    (flights, or operating hours: ``fl``, ``h``), and its usage per operating hour over the
+    periods that carry it (jack travel, load-weighted travel; docs/prognostics.md, "Usage")."""
     head = (
         f"{'#':>4} {'actuator':<22} {'comm':<4} {'periods':>7} {'life':>8} {'C_Lk/base':>9} "
         f"{'trend':>20} {'P_SR min MPa':>12} {'RUL median [90%] unit':>30} "
-        f"{'P(hor)':>6} {'alarms':>6}"
+        f"{'P(hor)':>6} {'alarms':>6} {'travel m/h':>10} {'|F|trav kJ/h':>12}"
     )
     lines = [head, "-" * len(head)]
     short = {"flights": "fl", "h": "h", "per 10 flights": "/10 fl", "per 100 h": "/100 h"}
     for r in ranked:
         last = r.get("last") or {}
+        use = r.get("usage") or {}
         life, rate = r["life"], r["trend_rate"]
         life_s = (
             "-"
@@ -160,7 +162,9 @@ def format_fleet(ranked: list[dict[str, Any]]) -> str:
             f"{r['rank']:>4} {r['actuator']:<22} {'yes' if r['commissioned'] else 'NO':<4} "
             f"{r['periods']:>7} {life_s:>8} {_f(last.get('c_lk_ratio'), '.3f'):>9} "
             f"{trend:>20} {_f(last.get('p_sr_min'), '.2f', 1e-6):>12} {rul:>30} "
-            f"{_f(iv and iv['p_horizon'], '.2f'):>6} {_alarm_count(r):>6}"
+            f"{_f(iv and iv['p_horizon'], '.2f'):>6} {_alarm_count(r):>6} "
+            f"{_f(use.get('travel_m_per_h'), '.2f'):>10} "
+            f"{_f(use.get('load_travel_j_per_h'), '.1f', 1e-3):>12}"
         )
     return "\n".join(lines)
 

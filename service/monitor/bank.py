@@ -52,8 +52,6 @@ from service.monitor.kernels import (
     S_F_R,
     S_I_B,
     S_P_SR,
-    S_V_J,
-    S_X_J,
     STEP_BROKEN,
     STEP_COUNTERS,
     STEP_DIVERGED,
@@ -93,8 +91,7 @@ from service.monitor.outputs import (
     StepBlock,
     empty_rows,
 )
-from service.monitor.usage import usage_rows
-from service.monitor.usage_config import N_USAGE, UsageConfig, new_state
+from service.monitor.usage import BankUsage
 from service.ukf import BatchUKF, workspace
 
 __all__ = ["MonitorBank", "Monitor"]
@@ -183,7 +180,7 @@ class MonitorBank:
         self.ids: dict[str, int] = {}
         self._rows: list | None = None
         self._vec_cache: dict[str, tuple] = {}
-        self.usage_config = UsageConfig()  # thresholds of the usage figures (service.monitor.usage)
+        self.usage = BankUsage(self.baseline)  # the usage rates (service.monitor.usage)
         self._alloc(capacity)
 
     _ROW_VECTORS = ("scale", "_zscale", "_q", "R", "_prm", "_cst")
@@ -223,10 +220,7 @@ class MonitorBank:
         self.r_prm = np.tile(self._prm, (cap, 1))
         self.r_cst = np.tile(self._cst, (cap, 1))
         self.r_base: list[tuple[Baseline, er.ReducedParams]] = [(self.baseline, self.rp)] * cap
-        # usage: each actuator's thresholds (its baseline's area and rated supply) and its
-        # reversal detector (service.monitor.usage)
-        self.r_use = np.tile(self._usage_row(self.baseline), (cap, 1))
-        self.ustate = new_state(cap)
+        self.usage.resize(cap)
         self._views()
 
     def _views(self) -> None:
@@ -237,7 +231,7 @@ class MonitorBank:
                             self.r_cst)  # fmt: skip
 
     _ARRAYS = ("x", "P", "ol", "t_last", "carry", "nis_avg", "t_init", "alarm", "pending",
-               "r_scale", "r_zscale", "r_q", "r_R", "r_prm", "r_cst", "r_use", "ustate")  # fmt: skip
+               "r_scale", "r_zscale", "r_q", "r_R", "r_prm", "r_cst")  # fmt: skip
 
     def _grow(self) -> None:
         n_old = len(self.x)
@@ -252,22 +246,6 @@ class MonitorBank:
         self.events_log[:n_old] = events
         self.r_base[:n_old] = bases
         self._views()
-
-    def _usage_row(self, b: Baseline) -> NDArray:
-        return self.usage_config.row(b.area, b.p_sr_rated)
-
-    def set_usage_config(self, usage: UsageConfig) -> None:
-        """Thresholds of the usage figures for every actuator (docs/prognostics.md, "Usage")."""
-        self.usage_config = usage
-        for k in range(len(self.x)):
-            self.r_use[k] = self._usage_row(self.r_base[k][0])
-
-    def _usage(self, ks, acc, snap: bool, X, z, mask) -> NDArray:
-        """Usage rates (``service.monitor.usage.USAGE_KEYS``) of the rows with ``acc``."""
-        u = np.zeros((len(ks), N_USAGE))
-        usage_rows(ks, acc, snap, X, self.r_scale, self.r_zscale, S_V_J, S_X_J, S_P_SR, z,
-                   mask, Z_P1, Z_P2, self.r_use, self.ustate, u)  # fmt: skip
-        return u
 
     def _key_of(self, k: int) -> str:
         for key, v in self.ids.items():
@@ -348,7 +326,7 @@ class MonitorBank:
         for a, v in zip(self._ROW_VECTORS, rows, strict=True):
             getattr(self, "r_" + a.lstrip("_"))[k] = v
         self.r_base[k] = (base, rp)
-        self.r_use[k] = self._usage_row(base)
+        self.usage.set_baseline(k, base)
         self.t_last[k] = -np.inf
         self.alarm[k] = False
         self.pending[k] = np.nan
@@ -415,15 +393,10 @@ class MonitorBank:
         idx = np.concatenate([np.asarray(p[0], int) for p in parts])
         order = np.argsort(idx, kind="stable")
         evs = [e for p in parts for e in p[5]]
-        return BankRows(
-            index=idx[order],
-            t=np.concatenate([p[1] for p in parts])[order],
-            est=np.concatenate([p[2] for p in parts])[order],
-            res=np.concatenate([p[3] for p in parts])[order],
-            health=np.concatenate([p[4] for p in parts])[order],
-            events=RowEvents.of([evs[j] for j in order]),
-            usage=np.concatenate([p[6] for p in parts])[order],
-        )
+        # t, est, res, health and usage (None where the bank makes no usage rates)
+        cat = [None if parts[0][c] is None else np.concatenate([p[c] for p in parts])[order]
+               for c in (1, 2, 3, 4, 6)]  # fmt: skip
+        return BankRows(idx[order], *cat[:4], RowEvents.of([evs[j] for j in order]), cat[4])
 
     # -- block path ----------------------------------------------------------------------
     def _parse_block(self, samples: Sequence[tuple[str, Mapping]]):
@@ -578,7 +551,6 @@ class MonitorBank:
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
         block_rows(sb.sm, sb.so, self.mr, self.alarm, self.pending, Rows(est, res, health, fire))
-        usage = self._usage(ks, sb.so.acc, True, sb.so.SX, sb.sm.z, sb.sm.mask)
         extra = sb.extra
         sel = np.flatnonzero(sb.acc)
         at: dict[int, list[AlarmEvent]] = {}
@@ -595,15 +567,9 @@ class MonitorBank:
                         ev.append(AlarmEvent(float(t[j]), ALARM_KINDS[a], state,
                                              float(health[j, HEALTH_INDICATOR[a]])))  # fmt: skip
                 self.events_log[int(ks[j])].extend(ev)
-        return BankRows(
-            index=sel,
-            t=t[sel],
-            est=est[sel],
-            res=res[sel],
-            health=health[sel],
-            events=RowEvents(len(sel), at),
-            usage=usage[sel],
-        )
+        usage = self.usage.rates(ks, sb.acc, True, sb.so.SX, self.mr, sb.sm.z, sb.sm.mask, sel)
+        return BankRows(sel, t[sel], est[sel], res[sel], health[sel], RowEvents(len(sel), at),
+                        usage)  # fmt: skip
 
     def _run_rounds(self, samples, out) -> None:
         seen: dict[str, int] = {}
@@ -775,7 +741,7 @@ class MonitorBank:
         sm = Samples(np.asarray(ks, np.int64), t, z, mask, np.ones(n, np.bool_), t, t)
         pd = np.diagonal(self.P, axis1=1, axis2=2).copy()
         output_rows(self.bs, pd, self.mr, sm, y, nis, Rows(est, res, health, fire))
-        usage = self._usage(sm.ks, sm.cand, False, self.x, z, mask)
+        usage = self.usage.rates(sm.ks, sm.cand, False, self.x, self.mr, z, mask)
         for j, a in zip(*np.nonzero(fire), strict=True):
             state = "raised" if fire[j, a] == FIRE_RAISED else "cleared"
             evs[j].append(

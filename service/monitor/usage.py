@@ -27,13 +27,28 @@ thresholds (``UsageConfig``) are in ``service.monitor.usage_config``, which impo
 from __future__ import annotations
 
 import math
+from typing import Any
 
+import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from service.compat.numba import borrowed_all
-from service.monitor.usage_config import UR_AREA, UR_HYST, UR_LOAD, UR_PRESS, US_DIR, US_EXT
+from service.monitor.kernels import S_P_SR, S_V_J, S_X_J, Z_P1, Z_P2
+from service.monitor.usage_config import (
+    N_UROW,
+    N_USAGE,
+    UR_AREA,
+    UR_HYST,
+    UR_LOAD,
+    UR_PRESS,
+    US_DIR,
+    US_EXT,
+    UsageConfig,
+    new_state,
+)
 
-__all__ = ["usage_rows"]
+__all__ = ["usage_rows", "BankUsage"]
 
 
 @njit(cache=True, nogil=True)
@@ -82,3 +97,52 @@ def usage_rows(ks, acc, snap, X, sc, zs, i_vj, i_xj, i_psr, z, mask, i_p1, i_p2,
         ust[k, US_DIR] = d
         ust[k, US_EXT] = e
         out[j, 5] = rev
+
+
+class BankUsage:
+    """The usage side of a ``MonitorBank``: per actuator its ``UR_*`` row (the thresholds of
+    ``config`` on its baseline's jack area and rated supply) and its reversal detector, and
+    the rates of a block's rows (``rates``). ``enabled`` False: no rates (``BankRows.usage``
+    None; ``bench/usage.py`` times the bank both ways)."""
+
+    def __init__(self, baseline: Any, config: UsageConfig | None = None) -> None:
+        self.config = config or UsageConfig()
+        self.enabled = True
+        self._default = baseline
+        self._bases: list[Any] = []
+        self.rows = np.zeros((0, N_UROW))
+        self.state = new_state(0)
+
+    def _row(self, b: Any) -> NDArray:
+        return self.config.row(b.area, b.p_sr_rated)
+
+    def resize(self, cap: int) -> None:
+        """Room for ``cap`` actuators (the new ones on the default baseline)."""
+        n = len(self._bases)
+        if cap <= n:
+            return
+        rows, state = np.tile(self._row(self._default), (cap, 1)), new_state(cap)
+        rows[:n], state[:n] = self.rows, self.state
+        self.rows, self.state = rows, state
+        self._bases += [self._default] * (cap - n)
+
+    def set_baseline(self, k: int, baseline: Any) -> None:
+        """Actuator ``k`` runs on ``baseline`` (its reversal detector carries on)."""
+        self._bases[k] = baseline
+        self.rows[k] = self._row(baseline)
+
+    def set_config(self, config: UsageConfig) -> None:
+        """New thresholds for every actuator."""
+        self.config = config
+        for k, b in enumerate(self._bases):
+            self.rows[k] = self._row(b)
+
+    def rates(self, ks, acc, snap: bool, X, mr, z, mask, sel=None) -> NDArray | None:
+        """``usage_rows`` of a block (the bank's ``ModelRows`` mr for the scales); the rows
+        ``sel`` of the result (None: all), or None when not ``enabled``."""
+        if not self.enabled:
+            return None
+        u = np.zeros((len(ks), N_USAGE))
+        usage_rows(ks, acc, snap, X, mr.scale, mr.zscale, S_V_J, S_X_J, S_P_SR, z, mask,
+                   Z_P1, Z_P2, self.rows, self.state, u)  # fmt: skip
+        return u if sel is None else u[sel]

@@ -173,11 +173,11 @@ class PeriodAccumulator:
         usage: NDArray | None = None,
     ) -> list[Period]:
         """Fold rows (t (n,), est (n, len(est_keys)), health, res) into periods; returns the
-        periods closed by them. ``usage``: the rows' usage rates (``BankRows.usage``; None:
-        the periods these rows fall in get NaN usage). ``counters``: the monitor's cumulative counters of this
+        periods closed by them. ``counters``: the monitor's cumulative counters of this
         actuator after these rows (the increase of ``BAD_COUNTERS`` is charged to the open
         period); ``dropped``: messages lost in transport since the last call; ``flight``:
-        flight number recorded on a period opened by these rows."""
+        flight number recorded on a period opened by these rows; ``usage``: the rows' usage
+        rates (``BankRows.usage``; None: the periods these rows fall in get NaN usage)."""
         t = np.asarray(t, float)
         closed: list[Period] = []
         bad = self._bad_delta(counters)

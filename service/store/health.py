@@ -30,21 +30,13 @@ from service.store.records import (
     check_actuator,
 )
 from service.store.schema import LATEST_VERSION, MIGRATIONS, RECENT_WINDOW, RECOMPUTE_TRENDS
+from service.store.usage import USAGE_TOTALS, add_usage, usage_totals
 
 __all__ = ["HealthStore", "StoreError", "open_store", "trend_of", "describe_url"]
 
 # column order of the periods table as written (the key first)
 _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
     f for f in PERIOD_FIELDS if f not in ("actuator", "start_t", "source")
-)
-# usage totals of the summary row (migration 5)
-_USAGE_TOTALS: tuple[str, ...] = (
-    "usage_periods",
-    "usage_op_time_s",
-    "usage_travel_m",
-    "usage_reversals",
-    "usage_load_op_time_s",
-    "usage_load_travel_j",
 )
 _SUMMARY_COLS: tuple[str, ...] = (
     "n_periods",
@@ -65,7 +57,7 @@ _SUMMARY_COLS: tuple[str, ...] = (
     "trend_slope_per_h",
     "trend_change",
     "trend_label",
-    *_USAGE_TOTALS,
+    *USAGE_TOTALS,
 )
 _FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c != "recent")
 _CHUNK = 500  # parameters per IN (...) list
@@ -216,27 +208,6 @@ class _Postgres(_Backend):
 
 def _float(v: Any) -> float:
     return math.nan if v is None else float(v)
-
-
-def _usage_totals(s: dict[str, Any]) -> dict[str, Any]:
-    """The fleet view's usage of an actuator from its summary row: totals over the periods
-    that carry usage, and per operating hour (None without such periods)."""
-    op_h = float(s["usage_op_time_s"] or 0.0) / 3600.0
-    load_h = float(s["usage_load_op_time_s"] or 0.0) / 3600.0
-    travel = float(s["usage_travel_m"] or 0.0)
-    load = float(s["usage_load_travel_j"] or 0.0)
-    rev = float(s["usage_reversals"] or 0.0)
-    return {
-        "periods": int(s["usage_periods"] or 0),
-        "op_time_s": float(s["usage_op_time_s"] or 0.0),
-        "travel_m": travel,
-        "reversals": rev,
-        "load_op_time_s": float(s["usage_load_op_time_s"] or 0.0),
-        "load_travel_j": load,
-        "travel_m_per_h": travel / op_h if op_h > 0 else None,
-        "reversals_per_h": rev / op_h if op_h > 0 else None,
-        "load_travel_j_per_h": load / load_h if load_h > 0 else None,
-    }
 
 
 def trend_of(recent: Sequence[Sequence[float]]) -> dict[str, Any]:
@@ -561,17 +532,7 @@ class HealthStore:
         recent.sort(key=lambda r: r[0])
         recent = recent[-RECENT_WINDOW:]
         s["recent"] = _dumps(recent)
-        # usage totals over the periods that carry usage (NaN: stored before migration 5 or
-        # from rows without it) and, for the load-weighted travel, a load figure
-        for p in fresh:
-            if math.isfinite(p.usage_travel_m):
-                s["usage_periods"] = int(s["usage_periods"]) + 1
-                s["usage_op_time_s"] = float(s["usage_op_time_s"]) + p.op_time_s
-                s["usage_travel_m"] = float(s["usage_travel_m"]) + p.usage_travel_m
-                s["usage_reversals"] = float(s["usage_reversals"]) + p.usage_reversals
-            if math.isfinite(p.usage_load_travel_j):
-                s["usage_load_op_time_s"] = float(s["usage_load_op_time_s"]) + p.op_time_s
-                s["usage_load_travel_j"] = float(s["usage_load_travel_j"]) + p.usage_load_travel_j
+        add_usage(s, fresh)
         tr = trend_of(recent)
         s["trend_n"], s["trend_slope_per_h"] = tr["periods"], tr["slope_per_h"]
         s["trend_change"], s["trend_label"] = tr["change"], tr["label"]
@@ -721,7 +682,7 @@ class HealthStore:
                     "dropped": int(s["dropped"] or 0),
                     "rul": None if r[-2] is None else json.loads(r[-2]),
                     "rul_updated_s": None if r[-1] is None else float(r[-1]),
-                    "usage": _usage_totals(s),
+                    "usage": usage_totals(s),
                 }
             )
         return out

@@ -12,9 +12,16 @@ from service.commands.fleet import rank_fleet
 from service.jsonutil import jsonable
 from service.prognostics.rul import history_of
 from service.store import HealthStore
-from service.store.records import check_actuator
+from service.store.records import Period, check_actuator
 
-__all__ = ["STATUSES", "unit_status", "fleet_view", "unit_view", "UnknownActuatorError"]
+__all__ = [
+    "STATUSES",
+    "unit_status",
+    "fleet_view",
+    "unit_view",
+    "usage_per_flight",
+    "UnknownActuatorError",
+]
 
 #: page status of a unit, most urgent first
 STATUSES: tuple[str, ...] = ("critical", "watch", "ok", "uncommissioned")
@@ -90,7 +97,8 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
     """One unit's history for the page: per period (by start time) the cumulative operating
     hours at its end ``t_h`` (the RUL's time axis, ``history_of``), the C_Lk ratio and its
     1-sigma (NaN -> null where unobservable), the lowest supply pressure [Pa] and the alarm
-    count; its alarm events, baseline versions and stored RUL."""
+    count, the usage (travel, load-weighted travel, reversals; null where unknown); its alarm
+    events, baseline versions, stored RUL and mean usage per flight (``usage_per_flight``)."""
     check_actuator(actuator)
     if not store.has_actuator(actuator):
         raise UnknownActuatorError(actuator)
@@ -111,6 +119,9 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
                 "p_sr_min": _finite(p.p_sr_min),
                 "alarms": p.alarms,
                 "source": p.source,
+                "usage_travel_m": _finite(p.usage_travel_m),
+                "usage_load_travel_j": _finite(p.usage_load_travel_j),
+                "usage_reversals": _finite(p.usage_reversals),
             }
         )
     return jsonable(
@@ -126,5 +137,32 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
                 for b in store.baselines(actuator)
             ],
             "rul": store.rul(actuator),
+            "usage": usage_per_flight(periods),
         }
     )
+
+
+def usage_per_flight(periods: list[Period]) -> dict[str, Any]:
+    """Mean usage per flight over the flights whose every period carries usage (periods
+    without a flight number are left out): ``flights`` counted, ``travel_m``,
+    ``load_travel_j`` (over the flights with a load figure) and ``reversals`` per flight,
+    None where no flight counts."""
+    by: dict[int, list[Period]] = {}
+    for p in periods:
+        if p.flight is not None:
+            by.setdefault(p.flight, []).append(p)
+    ok = [ps for ps in by.values() if all(math.isfinite(p.usage_travel_m) for p in ps)]
+    load = [ps for ps in ok if all(math.isfinite(p.usage_load_travel_j) for p in ps)]
+
+    def mean(groups: list[list[Period]], field: str) -> float | None:
+        if not groups:
+            return None
+        return sum(getattr(p, field) for ps in groups for p in ps) / len(groups)
+
+    return {
+        "flights": len(ok),
+        "travel_m": mean(ok, "usage_travel_m"),
+        "reversals": mean(ok, "usage_reversals"),
+        "load_flights": len(load),
+        "load_travel_j": mean(load, "usage_load_travel_j"),
+    }

@@ -310,6 +310,19 @@ function chart(unit) {
   return s;
 }
 
+// the unit's usage: per operating hour (the fleet row's totals over the periods that carry
+// it) and per flight (the unit view's mean over its flights)
+function usageText(tot, fl) {
+  const parts = [];
+  if (tot && num(tot.travel_m_per_h) !== null) {
+    parts.push(`${fmt(tot.travel_m_per_h, 2)} m travel, ${fmt(tot.load_travel_j_per_h, 1, 1e-3)} kJ load-weighted travel, ${fmt(tot.reversals_per_h, 0)} reversals per operating hour`);
+  }
+  if (fl && fl.flights && num(fl.travel_m) !== null) {
+    parts.push(`${fmt(fl.travel_m, 2)} m, ${fmt(fl.load_travel_j, 1, 1e-3)} kJ, ${fmt(fl.reversals, 0)} reversals per flight (${fl.flights} flights)`);
+  }
+  return parts.length ? parts.join("; ") : "not recorded (periods stored before usage was)";
+}
+
 async function loadUnit(name) {
   selected = name;
   if (fleet) renderTable();
@@ -330,6 +343,7 @@ async function loadUnit(name) {
     fact("periods", `${unit.periods.length} (${obs} with an observable C_Lk)`);
     fact("alarm events", unit.alarms.length ? `${unit.alarms.length}, last ${unit.alarms[unit.alarms.length - 1].kind}` : "none");
     fact("baseline versions", unit.baselines.length ? unit.baselines.map((b) => b.version).join(", ") : "none");
+    fact("usage", usageText(row ? row.usage : null, unit.usage));
     const rul = unit.rul || {};
     fact("RUL model", rul.model ? `${rul.model}, horizon ${rul.axis === "flights" ? `${fmt(rul.horizon, 0)} flights` : `${fmt(rul.horizon_h, 0)} h`}` : (rul.status || "not computed"));
     box.hidden = false;
