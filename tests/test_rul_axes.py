@@ -4,6 +4,8 @@ from its histories, and a crossing on a usage axis becomes flights by the unit's
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -106,6 +108,12 @@ def test_the_fleet_learns_which_axis_explains_its_wear(driver, axis):
     prior = fleet_prior(hs)
     assert max(prior.p_axis, key=prior.p_axis.__getitem__) == axis, prior.p_axis
     assert prior.p_axis[axis] >= 0.5
+    # a unit without wear fits every axis alike: on a tie it keeps its own
+    y0 = 1.0 + 0.03 * rng.standard_normal(len(hs[0].y))
+    flat = History("AC9/ail", hs[0].t_h, y0, hs[0].hours_per_flight, hs[0].flight, None,
+                   hs[0].usage)  # fmt: skip
+    tie = replace(prior, p_axis={"flights": 0.5, "load_travel": 0.5})
+    assert rul_of_history(flat, tie, RulConfig(threshold_ratio=THR))["life_axis"] == "flights"
     cfg = RulConfig(threshold_ratio=THR, n_samples=2000)
     hits = []
     for h, e in zip(hs, eol, strict=True):

@@ -275,7 +275,8 @@ def rul_of_history(
             parts.append(usage_to_flights(cross, float(pos[0][-1]), rate, rng))
     # periods after the last observable one count
     rul = parts[0] if len(parts) == 1 else rng.permutation(np.concatenate(parts))
-    best_axis = max(w, key=w.__getitem__)
+    # the most probable axis; on a tie (a unit without wear fits every axis alike) its own
+    best_axis = max(w, key=lambda a: (round(w[a], 6), a == h.axis))
     fit = fits[best_axis][0]
     fin = np.isfinite(rul) & (rul > 0)
     med_all = float(np.quantile(rul, 0.5, method="inverted_cdf"))
