@@ -19,9 +19,12 @@ the indicator, cannot; ``--knee-unforeseen`` gives it only the first rate until 
     .venv/bin/python -m evaluation.rul_oracle --drawn 1-30      # fleet-sim truths, no logs
 
 The future factors: ``fleet-sim`` hours per flight = the unit's mean x U(0.8, 1.2) (the mean
-of ``draw_units``, drawn again from the truth's seed), load U(0.6, 1.4) (``load`` law: wear per flight
-hours x load^2); the acceptance fleet's hours = the unit's base x U(0.7, 1.3), cycles
-U(0.3, 2.0) (``tests.acceptance_fleet.draw``).
+of ``draw_units``, drawn again from the truth's seed), load = the operator's mean load x
+U(0.65, 1.35) (``load`` law: wear per flight hours x load^2), amplitude = the operator's mean
+x U(0.75, 1.25) (``usage`` law: wear per flight hours x load x amplitude, the load-weighted
+travel); the ``knee`` law is known with its knee. The acceptance fleet's hours = the unit's
+base x U(0.7, 1.3), cycles U(0.3, 2.0), load and amplitude about the unit's profile
+(``tests.acceptance_fleet.draw``).
 """
 
 from __future__ import annotations
@@ -134,9 +137,10 @@ def score_oracle(
         s = score_unit(t, med, eol)
         t_s = t[0]
         tol = 1e-9 * eol  # a crossing between two known readings is exact: no rounding miss
-        cov = [lo[i] - tol <= eol - t[i] <= hi[i] + tol for i in range(len(t))
-               if t[i] >= t_s + 0.5 * (eol - t_s)]  # fmt: skip
-        b = by_law.setdefault(u.law, {"acc": [], "ra": [], "cov": []})
+        mid = [i for i in range(len(t)) if t[i] >= t_s + 0.5 * (eol - t_s)]
+        cov = [lo[i] - tol <= eol - t[i] <= hi[i] + tol for i in mid]
+        b = by_law.setdefault(u.law, {"acc": [], "ra": [], "cov": [], "width": []})
+        b["width"].extend(hi[i] - lo[i] for i in mid)
         b["acc"].extend(s.accurate)
         b["ra"].append(max(s.relative_accuracy[0], 0.0))
         b["cov"].extend(cov)
@@ -146,17 +150,24 @@ def score_oracle(
     def pct(v: list) -> float | None:
         return 100.0 * float(np.mean(v)) if v else None
 
-    every = {k: [x for b in by_law.values() for x in b[k]] for k in ("acc", "ra", "cov")}
+    every = {k: [x for b in by_law.values() for x in b[k]]
+             for k in ("acc", "ra", "cov", "width")}  # fmt: skip
+
+    def med(v: list) -> float | None:
+        return float(np.median(v)) if v else None
+
     return {
         "alpha_lambda_pct": pct(every["acc"]),
         "relative_accuracy_pct": pct(every["ra"]),
         "interval_coverage_pct": pct(every["cov"]),
+        "interval_width_median_flights": med(every["width"]),
         "scored_units": len(rows),
         "by_law": {
             law: {
                 "units": len(b["ra"]),
                 "alpha_lambda_pct": pct(b["acc"]),
                 "interval_coverage_pct": pct(b["cov"]),
+                "interval_width_median_flights": med(b["width"]),
             }  # fmt: skip
             for law, b in by_law.items()
         },
@@ -167,8 +178,11 @@ def score_oracle(
 
 def _fleetsim_ratio(law: str, w: dict) -> Callable[[np.ndarray], np.ndarray]:
     def ratio(d: np.ndarray) -> np.ndarray:
-        if law in ("linear", "load"):
+        if law in ("linear", "load", "usage"):
             return 1.0 + w["k"] * d
+        if law == "knee":
+            dk = w["d_k"]
+            return 1.0 + w["k"] * np.minimum(d, dk) + w["m"] * w["k"] * np.maximum(d - dk, 0.0)
         if law == "exponential":
             return 1.0 + w["a"] * np.expm1(w["b"] * d)
         if law == "power":
@@ -195,13 +209,18 @@ def fleetsim_units(truth: dict) -> list[OracleUnit]:
         h = np.asarray(u["flight_hours"], float)
         if a.actuator != u["actuator"] or not np.array_equal(a.flight_hours, h):
             raise ValueError(f"truth of {u['actuator']} is not fleet-sim's draw of its seed")
-        load = np.asarray(u["flight_load"], float)
-        inc = h * load**2 if law == "load" else h
+        inc = a.increments()
         hpf = a.usage_h
+        prof = a.profile
 
-        def future(rng, shape, hpf=hpf, law=law):
+        def future(rng, shape, hpf=hpf, law=law, prof=prof):
             x = hpf * rng.uniform(0.8, 1.2, shape)
-            return x * rng.uniform(0.6, 1.4, shape) ** 2 if law == "load" else x
+            if law == "load":
+                return x * (prof["load"] * rng.uniform(0.65, 1.35, shape)) ** 2
+            if law == "usage":
+                return (x * prof["load"] * rng.uniform(0.65, 1.35, shape)
+                        * prof["amp"] * rng.uniform(0.75, 1.25, shape))  # fmt: skip
+            return x
 
         eol = u["eol_flight"]
         out.append(OracleUnit(u["actuator"], law, inc, _fleetsim_ratio(law, u["wear"]), future,
@@ -233,18 +252,24 @@ def acceptance_units(
     """The oracle's view of the acceptance fleet (``tests.acceptance_fleet.draw``; the
     flights flown: up to the one reaching the threshold). ``knee_foreseen`` False: before a
     two-rate unit's knee the oracle knows only the first rate (the knee has no precursor)."""
-    from tests.acceptance_fleet import draw, ratio_of
+    from tests.acceptance_fleet import draw, increments, ratio_of
 
     out = []
     for u in draw(seed, units, flights, thr):
         cyc = u["law"] == "cycles"
-        inc = np.asarray(u["cycles"] if cyc else u["hours"], float)
+        inc = increments(u)
         r = np.asarray(u["ratio_schedule"][:flights])
         above = np.flatnonzero(r >= thr)
         flown = int(above[0]) + 1 if len(above) else flights
 
-        def future(rng, shape, cyc=cyc, base=u["base_h"]):
-            return rng.uniform(0.3, 2.0, shape) if cyc else base * rng.uniform(0.7, 1.3, shape)
+        def future(rng, shape, cyc=cyc, base=u["base_h"], u=u):
+            if cyc:
+                return rng.uniform(0.3, 2.0, shape)
+            x = base * rng.uniform(0.7, 1.3, shape)
+            if u["law"] == "usage":
+                x = (x * u["load"] * rng.uniform(0.7, 1.3, shape)
+                     * u["amp"] * rng.uniform(0.7, 1.3, shape))  # fmt: skip
+            return x
 
         def ratio(d, u=u):
             return ratio_of(u, d, thr)
@@ -319,7 +344,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if a.json:
         print(json.dumps({k: v for k, v in ev.items() if k != "units"}))
         return 0
-    for k in ("alpha_lambda_pct", "relative_accuracy_pct", "interval_coverage_pct"):
+    for k in (
+        "alpha_lambda_pct",
+        "relative_accuracy_pct",
+        "interval_coverage_pct",
+        "interval_width_median_flights",
+    ):
         print(f"{k:<24} {ev[k]:.1f}" if ev[k] is not None else f"{k:<24} -")
     for law, v in ev["by_law"].items():
         al, cv = v["alpha_lambda_pct"], v["interval_coverage_pct"]

@@ -11,7 +11,12 @@ Wear laws (true C_Lk ratio against the unit's cumulative operating hours h, or c
 - ``quadratic``: 1 + a h + b h^2;
 - ``two_rate``: 1 + a h, then four to eight times faster after a knee;
 - ``sqrt_then_exp``: 1 + a sqrt(h) + c (exp(g h) - 1) (early running-in, late runaway);
-- ``cycles``: linear in the number of actuator cycles, which differ per flight (x 0.3-2).
+- ``cycles``: linear in the number of actuator cycles, which differ per flight (x 0.3-2);
+- ``usage``: linear in the load-weighted jack travel, hours x load x amplitude of each flight.
+
+Each unit flies its operator's profile (a mean load x 0.7-1.3 of 4 kN and a mean command
+amplitude x 0.8-1.2), and each flight's load (x 0.7-1.3) and amplitude (x 0.7-1.3) vary
+about it; every log is made at its flight's load and amplitude.
 
     .venv/bin/python -m tests.acceptance_fleet --seed 101 --units 8 --flights 30 --json
 
@@ -30,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-LAWS = ("none", "quadratic", "two_rate", "sqrt_then_exp", "cycles")
+LAWS = ("none", "two_rate", "usage", "quadratic", "sqrt_then_exp", "cycles")
 C_LK0 = 2e-13
 
 
@@ -45,6 +50,10 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
         base_h = rng.uniform(0.6, 4.0)
         hours = base_h * rng.uniform(0.7, 1.3, n)
         cyc = rng.uniform(0.3, 2.0, n)
+        p_load, p_amp = rng.uniform(0.7, 1.3), rng.uniform(0.8, 1.2)
+        load = p_load * rng.uniform(0.7, 1.3, n)
+        amp = p_amp * rng.uniform(0.7, 1.3, n)
+        load[0] = amp[0] = 1.0  # flight 0: the calibration run
         h = np.concatenate(([0.0], np.cumsum(hours)[:-1]))
         c = np.concatenate(([0.0], np.cumsum(cyc)[:-1]))
         life = rng.uniform(0.5, 1.3) * float(np.sum(hours[:flights]))  # hours to the threshold
@@ -69,6 +78,10 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
             cc = (thr - 1 - a) / math.expm1(g)
             par.update(g=g, a=a, cc=cc)
             r = 1 + a * np.sqrt(x) + cc * np.expm1(g * x)
+        elif law == "usage":
+            inc = hours * load * amp
+            par["life"] = rng.uniform(0.5, 1.3) * float(np.sum(inc[:flights]))
+            r = 1 + (thr - 1) * np.concatenate(([0.0], np.cumsum(inc)[:-1])) / par["life"]
         else:  # cycles
             par["life"] = rng.uniform(0.5, 1.3) * float(np.sum(cyc[:flights]))  # in cycles
             xc = c / par["life"]
@@ -87,7 +100,8 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
         out.append({
             "actuator": f"ACC{seed % 1000:03d}{i:02d}/spoiler", "index": i, "law": law,
             "ratio_schedule": r.tolist(), "start_unix": starts[:n], "eol_flight": eol,
-            "noise": float(rng.uniform(0.7, 1.6)), "load": float(rng.uniform(0.7, 1.3)),
+            "noise": float(rng.uniform(0.7, 1.6)), "load": float(p_load), "amp": float(p_amp),
+            "flight_load": load.tolist(), "flight_amp": amp.tolist(),
             "log_s": float(rng.uniform(1.5, 3.0)),
             "base_h": float(base_h), "hours": hours.tolist(), "cycles": cyc.tolist(),
             "params": {k: float(v) for k, v in par.items()},
@@ -95,9 +109,20 @@ def draw(seed: int, units: int, flights: int, thr: float) -> list[dict]:
     return out
 
 
+def increments(u: dict) -> np.ndarray:
+    """Damage of each flight of unit ``u`` (a ``draw`` entry): operating hours, actuator
+    cycles (``cycles``), load-weighted travel hours x load x amplitude (``usage``)."""
+    if u["law"] == "cycles":
+        return np.asarray(u["cycles"], float)
+    h = np.asarray(u["hours"], float)
+    if u["law"] == "usage":
+        return h * np.asarray(u["flight_load"], float) * np.asarray(u["flight_amp"], float)
+    return h
+
+
 def ratio_of(u: dict, d: float | np.ndarray, thr: float) -> np.ndarray:
-    """True ratio of unit ``u`` (a ``draw`` entry) at damage ``d``: cumulative operating
-    hours, or actuator cycles for the ``cycles`` law (the law of ``draw``, for oracles)."""
+    """True ratio of unit ``u`` (a ``draw`` entry) at damage ``d`` (``increments`` summed;
+    the law of ``draw``, for oracles)."""
     x = np.asarray(d, float) / u["params"]["life"]
     p, law = u["params"], u["law"]
     if law == "none":
@@ -136,7 +161,10 @@ def write_logs(units: list[dict], flights: int, thr: float, folder: Path, seed: 
             sc = base.model_copy(update={
                 "duration_s": 4.0 if k == 0 else u["log_s"], "sensors": sens,
                 "leak": Profile(initial=ratio * C_LK0),
-                "load": Profile(initial=4000.0 * u["load"]),
+                "load": Profile(initial=4000.0 * u["flight_load"][k]),
+                "command": base.command.model_copy(update={"periodic": [
+                    q.model_copy(update={"amplitude": q.amplitude * u["flight_amp"][k]})
+                    for q in base.command.periodic]}),
             })  # fmt: skip
             meas = measured_run(sc)[1]
             rec = FlightRecord(ac, act, k, u["start_unix"][k])
@@ -218,6 +246,7 @@ def main_cli() -> int:
         work.mkdir(parents=True, exist_ok=True)
         ev = score(work) if a.score_only else run(a.seed, a.units, a.flights, work)
     keys = ("alpha_lambda_pct", "interval_coverage_pct", "interval_coverage_all_pct",
+            "interval_width_median_flights",
             "kendall_tau", "kendall_tau_min", "healthy_max_p_horizon", "relative_accuracy_pct",
             "scored_units", "healthy_units")  # fmt: skip
     if a.json:

@@ -17,6 +17,11 @@ parameter eta on a grid, y = Phi(u; eta) w + e, e ~ N(0, sigma^2) (docs/prognost
   (a step of the indicator followed by linear growth)
 - ``power``       Phi = [1, u^p], eta = p on ``POWER_GRID`` (wear that accelerates slower
   than an exponential)
+- ``knee``        Phi = [1, u, (u - tau)+], eta = tau between observations with at least two
+  on either side (a broken stick: the wear rate changes once at an unknown knee, without a
+  jump; the posterior over tau is its profile of the marginal likelihood). After a knee the
+  path goes on at the new rate w1 + w2; an accelerating model (exponential, power) takes
+  over the extrapolation only where its evidence beats the knee's.
 
 Residual correlation: when the residuals about the posterior-mean path are positively
 correlated (lag-one autocorrelation rho > 0, a sign that no model describes the path
@@ -63,7 +68,7 @@ __all__ = [
     "BETA_SPAN",
 ]
 
-MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power")
+MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power", "knee")
 POWER_GRID = np.geomspace(1.25, 4.0, 16)
 """Exponents p of the ``power`` model's grid."""
 BETA_SPAN = np.geomspace(1e-2, 6.0, 120)
@@ -88,6 +93,7 @@ def _default_priors() -> dict[str, ModelPrior]:
         "exponential": ModelPrior((1.0, 0.0), (0.3, 8.0)),
         "step": ModelPrior((1.0, 0.0, 0.0), (0.3, 2.0, 8.0)),
         "power": ModelPrior((1.0, 0.0), (0.3, 8.0)),
+        "knee": ModelPrior((1.0, 0.0, 0.0), (0.3, 8.0, 8.0)),
     }
 
 
@@ -98,10 +104,11 @@ class FleetPrior:
     p_model: dict[str, float] = field(
         default_factory=lambda: {
             "none": 0.4,
-            "linear": 0.15,
-            "exponential": 0.15,
-            "step": 0.15,
-            "power": 0.15,
+            "linear": 0.12,
+            "exponential": 0.12,
+            "step": 0.12,
+            "power": 0.12,
+            "knee": 0.12,
         }  # fmt: skip
     )
     weights: dict[str, ModelPrior] = field(default_factory=_default_priors)
@@ -112,7 +119,11 @@ class FleetPrior:
     q2_rel: float = 0.0  # fleet's path diffusion, q^2 t_scale (ratio^2 per history span)
     cv2: float = 0.0  # fleet's usage spread per observation step (``usage_spread``)
     sigma_m2: float | None = None  # fleet's measurement noise variance (``measurement_noise``)
-    kappa: float = 1.0  # interval widening learned by hindcasts on the fleet (``hindcast``)  # T of u = t / T (None: each history's own span)
+    kappa: float = 1.0  # interval widening learned by hindcasts on the fleet (``hindcast``)
+    p_axis: dict[str, float] = field(default_factory=lambda: {"flights": 1.0})
+    """Prior probability of each life axis (``rul.USAGE_AXES``), learned from the fleet."""
+    usage_ref: dict[str, float] = field(default_factory=dict)
+    """The fleet's median usage per operating second of each usage axis (its unit)."""
 
     def as_dict(self) -> dict:
         """Plain dict (JSON)."""
@@ -128,6 +139,8 @@ class FleetPrior:
             "cv2": self.cv2,
             "sigma_m2": self.sigma_m2,
             "kappa": self.kappa,
+            "p_axis": dict(self.p_axis),
+            "usage_ref": dict(self.usage_ref),
         }
 
 
@@ -149,6 +162,16 @@ class Fit:
     cv2: float = 0.0  # squared coefficient of variation of the wear per step (usage spread)
     dt: float = 1.0  # mean spacing of the observations [units of t]
 
+    def log_marginal(self, p_model: dict[str, float]) -> float:
+        """log p(y | axis): the models' evidences weighted by their prior ``p_model`` (how
+        well this life axis explains the history, all models together)."""
+        v = [z + math.log(p_model[m]) for m, z in self.log_evidence.items()
+             if z > -math.inf and p_model.get(m, 0.0) > 0]  # fmt: skip
+        if not v:
+            return -math.inf
+        mx = max(v)
+        return mx + math.log(sum(math.exp(x - mx) for x in v))
+
     def best(self) -> str:
         """The model with the largest posterior probability."""
         return max(self.p_model, key=self.p_model.__getitem__)
@@ -158,9 +181,11 @@ class Fit:
         t = np.asarray(t, float) / self.t_scale
         y = np.zeros_like(t)
         for m in MODELS:
-            for g, pw in enumerate(self.post[m]):
-                if pw > 1e-9:
-                    y += pw * (_basis(m, t, self.grids[m][g]) @ self.means[m][g])
+            g = np.flatnonzero(self.post[m] > 1e-9)
+            if len(g) == 0:
+                continue
+            phi = _basis_grid(m, t, self.grids[m][g])  # (G, n, p)
+            y += np.einsum("g,gnp,gp->n", self.post[m][g], phi, self.means[m][g])
         return y
 
 
@@ -178,6 +203,8 @@ def _basis(model: str, t: NDArray, eta: float) -> NDArray:
         return np.stack([one, (d > 0).astype(float), np.maximum(d, 0.0)], axis=1)
     if model == "power":
         return np.stack([one, np.maximum(t, 0.0) ** eta], axis=1)
+    if model == "knee":
+        return np.stack([one, t, np.maximum(t - eta, 0.0)], axis=1)
     raise ValueError(f"unknown model {model!r}")
 
 
@@ -192,6 +219,8 @@ def _basis_grid(model: str, t: NDArray, grid: NDArray) -> NDArray:
         cols = [one, (d > 0).astype(float), np.maximum(d, 0.0)]
     elif model == "power":
         cols = [one, np.maximum(t, 0.0)[None, :] ** g]
+    elif model == "knee":
+        cols = [one, np.broadcast_to(t[None, :], one.shape), np.maximum(t[None, :] - g, 0.0)]
     else:
         return np.stack([_basis(model, t, float(e)) for e in grid])
     return np.stack(cols, axis=2)
@@ -217,6 +246,11 @@ def _grid(model: str, t: NDArray) -> NDArray:
         return 0.5 * (t[:-3] + t[1:-2])
     if model == "power":
         return POWER_GRID
+    if model == "knee":
+        # knees between observations, at least two points on either side
+        if len(t) < 5:
+            return np.zeros(0)
+        return 0.5 * (t[1:-2] + t[2:-1])
     return np.zeros(1)
 
 
@@ -260,7 +294,7 @@ def _fit_model(
 
 
 def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | None = None) -> Fit:
-    """Posterior of the four models (module docstring) for one unit's history: ``t_h`` its
+    """Posterior of the models (module docstring) for one unit's history: ``t_h`` its
     life axis (flights or operating hours, increasing), ``y`` the C_Lk ratio (NaN entries are
     ignored)."""
     prior = prior or FleetPrior()
@@ -443,6 +477,10 @@ def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> N
             c = w[:, 1]
             level = a + c * max(t_now, 0.0) ** eta
             tc = np.where((c > 0) & (thr > a), ((thr - a) / c) ** (1.0 / eta), np.inf)
+        elif model == "knee":  # eta = tau < t_now: linear at w1 + w2 from the knee on
+            c = w[:, 1] + w[:, 2]
+            level = a + w[:, 1] * t_now + w[:, 2] * max(t_now - eta, 0.0)
+            tc = np.where(c > 0, t_now + (thr - level) / c, np.inf)
         else:  # step, eta = tau < t_now
             s, c = w[:, 1], w[:, 2]
             level = a + s + c * max(t_now - eta, 0.0)
@@ -503,6 +541,8 @@ def _slope(model: str, w: NDArray, eta: float, u: NDArray) -> NDArray:
             return w[:, 1] * np.exp(eta * np.where(np.isfinite(u), u, 0.0))
         if model == "step":
             return w[:, 2]
+        if model == "knee":
+            return w[:, 1] + w[:, 2] * (np.where(np.isfinite(u), u, np.inf) > eta)
         if model == "power":
             uu = np.where(np.isfinite(u), np.maximum(u, 0.0), 0.0)
             return w[:, 1] * eta * uu ** (eta - 1.0)

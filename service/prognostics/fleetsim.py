@@ -8,18 +8,23 @@ log ingested by ``service.replay.replay_many`` (the code of ``servowatch replay`
 periods, flights, calendar time, alarms). No period is written any other way.
 
 Each unit gets a hidden wear law of its true C_Lk ratio r against its damage d (operating
-hours; for ``load`` hours times the flight's load factor squared), C_Lk = r C_Lk,nominal:
+hours; for ``load`` hours times the flight's load factor squared; for ``usage`` the flight's
+load-weighted jack travel, hours x load x amplitude), C_Lk = r C_Lk,nominal:
 
 - ``none``: r = 1;  ``linear``: r = 1 + k d;  ``exponential``: r = 1 + a (exp(b d) - 1);
 - ``step``: r = 1 before d_s, r = 1 + s + k (d - d_s) after;
 - ``power``: r = 1 + k d^p, p in [1.5, 3] (outside the RUL's model set);
 - ``load``: r = 1 + k sum(hours x load^2) (wear that speeds up with load; outside it too);
+- ``knee``: r = 1 + k d up to a knee d_k, then m = 4-8 times faster, linear, without a jump;
+- ``usage``: r = 1 + k sum(hours x load x amplitude) (wear that follows the flight's
+  load-weighted travel, which the monitor measures per period);
 
 with the rates drawn so that the end of life (r reaching the fleet threshold) falls between
 0.4 and 1.2 times the simulated hours. What varies between units and flights: plant
 (mass, viscous and dry friction, land underlap, oil bulk modulus), sensor noise (x 0.8-1.5),
-operating hours per flight, load (x 0.6-1.4 of the scenario's 4 kN) and command amplitude
-per flight, 1-3 flights a day with a fifth of the days missed, and the log length (the
+operating hours per flight, the operator's profile (mean load x 0.8-1.2 of the scenario's
+4 kN, mean command amplitude x 0.85-1.15) and about it the load (x 0.65-1.35) and command
+amplitude (x 0.75-1.25) of each flight, 1-3 flights a day with a fifth of the days missed, and the log length (the
 typical ``segment_s``, a short ground test, or three times longer). Every log is the duty
 cycle of ``scenarios/healthy_noise.toml`` on the HF bench at the flight's leakage.
 Units are independent, so their logs are simulated in parallel worker processes.
@@ -58,8 +63,10 @@ __all__ = [
     "MODEL_LAWS",
 ]
 
-WEAR_LAWS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power", "load")
-MODEL_LAWS: tuple[str, ...] = ("none", "linear", "exponential", "step")
+WEAR_LAWS: tuple[str, ...] = (
+    "none", "linear", "exponential", "step", "power", "load", "knee", "usage",
+)  # fmt: skip
+MODEL_LAWS: tuple[str, ...] = ("none", "linear", "exponential", "step", "knee")
 """The wear laws that are also models of the RUL (``degradation.MODELS``)."""
 C_LK_NOMINAL = 2e-13
 EPOCH0 = 1.7e9  # calendar time of the fleet's first day [Unix s]
@@ -123,20 +130,39 @@ class UnitTruth:
     eol_flight: float = math.inf
     flown: int = 0
     usage_h: float = math.nan  # mean operating hours per flight (the draws' scale)
+    flight_amp: list[float] = field(default_factory=list)  # command amplitude factor
+    profile: dict[str, float] = field(default_factory=dict)  # operator's mean load, amplitude
 
-    def damage(self) -> np.ndarray:
-        """Damage before each flight of the schedule: operating hours (``load``: hours times
-        the load factor squared)."""
+    def amp(self, flight: int) -> float:
+        """Command amplitude factor of a flight (flight 0, the calibration: 1)."""
+        if flight == 0:
+            return 1.0
+        if self.flight_amp:
+            return float(self.flight_amp[flight])
+        return 0.75 + 0.5 * ((flight * 0.618034) % 1.0)  # truth files before the profiles
+
+    def increments(self) -> np.ndarray:
+        """Damage of each flight of the schedule: operating hours (``load``: times the load
+        factor squared; ``usage``: times the load and the amplitude factor)."""
         h = np.asarray(self.flight_hours, float)
         if self.law == "load":
             h = h * np.asarray(self.flight_load, float) ** 2
-        return np.concatenate(([0.0], np.cumsum(h)[:-1]))
+        elif self.law == "usage":
+            amp = np.array([self.amp(k) for k in range(len(h))])
+            h = h * np.asarray(self.flight_load, float) * amp
+        return h
+
+    def damage(self) -> np.ndarray:
+        """Damage before each flight of the schedule (``increments`` summed)."""
+        return np.concatenate(([0.0], np.cumsum(self.increments())[:-1]))
 
     def ratio_at(self, d: float) -> float:
         """True C_Lk ratio at damage ``d`` (operating hours for every law but ``load``)."""
         w = self.wear
-        if self.law in ("linear", "load"):
+        if self.law in ("linear", "load", "usage"):
             return 1.0 + w["k"] * d
+        if self.law == "knee":
+            return 1.0 + w["k"] * min(d, w["d_k"]) + w["m"] * w["k"] * max(d - w["d_k"], 0.0)
         if self.law == "exponential":
             return 1.0 + w["a"] * math.expm1(w["b"] * d)
         if self.law == "power":
@@ -163,8 +189,12 @@ def _draw_wear(law: str, rng: np.random.Generator, thr: float, total: float, lsq
     elif law == "power":
         w["p"] = rng.uniform(1.5, 3.0)
         w["k"] = (thr - 1.0) / t_eol ** w["p"]
-    elif law == "load":
+    elif law in ("load", "usage"):  # lsq: the mean damage per hour
         w["k"] = (thr - 1.0) / (t_eol * lsq)
+    elif law == "knee":
+        f, m = rng.uniform(0.3, 0.6), rng.uniform(4.0, 8.0)
+        w["d_k"], w["m"] = f * t_eol, m
+        w["k"] = (thr - 1.0) / (f * t_eol + m * (1.0 - f) * t_eol)
     elif law == "step":
         w["t_s"] = rng.uniform(0.15, 0.45) * total
         t_eol = max(t_eol, w["t_s"] + 0.25 * total)
@@ -186,9 +216,13 @@ def draw_units(cfg: FleetSimConfig) -> list[UnitTruth]:
         law = WEAR_LAWS[i % len(WEAR_LAWS)] if i < len(WEAR_LAWS) else str(rng.choice(WEAR_LAWS))
         hpf = rng.uniform(1.0, 3.0)
         hours = hpf * rng.uniform(0.8, 1.2, n_sched)
-        load = rng.uniform(0.6, 1.4, n_sched)
+        # the operator's profile, and each flight's load and amplitude about it
+        prof = {"load": float(rng.uniform(0.8, 1.2)), "amp": float(rng.uniform(0.85, 1.15))}
+        load = prof["load"] * rng.uniform(0.65, 1.35, n_sched)
+        amp = prof["amp"] * rng.uniform(0.75, 1.25, n_sched)
         total = float(np.sum(hours[: cfg.flights]))
-        w = _draw_wear(law, rng, thr, total, float(np.mean(load**2)))
+        scale = {"load": float(np.mean(load**2)), "usage": float(np.mean(load * amp))}
+        w = _draw_wear(law, rng, thr, total, scale.get(law, 1.0))
         # calendar: 1-3 flights a day, a fifth of the days without a flight
         per_day = int(rng.integers(1, 4))
         starts, day = [], 0
@@ -222,6 +256,8 @@ def draw_units(cfg: FleetSimConfig) -> list[UnitTruth]:
             starts[:n_sched], log_s.tolist(), float(rng.uniform(0.8, 1.5)),
         )  # fmt: skip
         unit.usage_h = float(hpf)
+        unit.flight_amp = amp.tolist()
+        unit.profile = prof
         _set_eol(unit, thr)
         units.append(unit)
     return units
@@ -257,7 +293,7 @@ def _segment(unit: UnitTruth, flight: int, ratio: float, cfg: FleetSimConfig):
     sens = base.sensors
     noisy = {k: getattr(sens, k) * unit.noise for k in ("x_s_m", "x_j_m", "p_pa", "p_sr_pa",
                                                           "current_a")}  # fmt: skip
-    amp = 0.75 + 0.5 * ((flight * 0.618034) % 1.0) if flight > 0 else 1.0
+    amp = unit.amp(flight)
     cmd = base.command.model_copy(
         update={"periodic": [p.model_copy(update={"amplitude": p.amplitude * amp})
                              for p in base.command.periodic]}
@@ -422,15 +458,14 @@ def evaluate(
     ``prior_every`` flights), on the life axis of flights, scored against the truth:
     alpha-lambda (+-20 %) and relative accuracy at lambda 0.5-0.9 (``metrics.score_unit``),
     the share of 90 % intervals that hold the true RUL from mid-life on (and over all
-    predictions before the end of life), Kendall's tau of the fleet's order (median RUL,
+    predictions before the end of life) and their median width [flights], Kendall's tau of the fleet's order (median RUL,
     ``servowatch fleet``'s key) against the true RUL at each checkpoint with at least three
     units, and the healthy units' largest probability of crossing within the horizon.
-    ``learn(histories) -> prior`` (default ``learn_fleet_prior``) gets every unit's
-    observable (flights, y); ``predict(history, prior, rul_config)`` returns
+    ``learn(histories) -> prior`` (default ``rul.fleet_prior`` on the histories: the fleet
+    prior and its life axes) gets every unit's observable (flights, y); ``predict(history, prior, rul_config)`` returns
     ``rul_of_history``'s dict (default) or (median RUL in flights or inf, warning) | None
     (another method, bench/prognostics.py; no interval then)."""
-    from service.prognostics.degradation import learn_fleet_prior
-    from service.prognostics.rul import RulConfig, history_of, rul_of_history
+    from service.prognostics.rul import RulConfig, fleet_prior, history_of, rul_of_history
     from service.store.records import Period
 
     rcfg = RulConfig(
@@ -438,7 +473,6 @@ def evaluate(
         horizon_flights=cfg.horizon_flights, warn_p=cfg.warn_p, n_samples=cfg.n_samples,
         min_periods=cfg.min_history,
     )  # fmt: skip
-    learn = learn or learn_fleet_prior
     predict = predict or rul_of_history
     hist = {}
     for r in results:
@@ -460,7 +494,8 @@ def evaluate(
         if not heads:
             continue
         if prior is None or step % max(1, cfg.prior_every // max(1, cfg.eval_every)) == 0:
-            prior = learn([h.observed() for h in hist_heads(hist, k)])
+            heads_k = hist_heads(hist, k)
+            prior = learn([h.observed() for h in heads_k]) if learn else fleet_prior(heads_k)
         row_p, row_t = [], []
         for a, h in heads.items():
             res = predict(h, prior, rcfg)
@@ -510,8 +545,11 @@ def evaluate(
             cov = [x[2] <= eol - x[0] <= x[3] for x in before if x[2] is not None]
             cov_mid = [x[2] <= eol - x[0] <= x[3] for x in before
                        if x[2] is not None and x[0] >= t_s + 0.5 * (eol - t_s)]  # fmt: skip
+            width = [x[3] - x[2] for x in before
+                     if x[2] is not None and x[0] >= t_s + 0.5 * (eol - t_s)]  # fmt: skip
             cov_all.extend(cov)
-            by_law.setdefault(tr["law"], {"acc": [], "ra": [], "ph": [], "cov": []})
+            by_law.setdefault(tr["law"], {"acc": [], "ra": [], "ph": [], "cov": [], "width": []})
+            by_law[tr["law"]]["width"].extend(width)
             by_law[tr["law"]]["acc"].extend(s.accurate)
             by_law[tr["law"]]["ra"].append(s.relative_accuracy[0])
             by_law[tr["law"]]["ph"].append(s.horizon_frac)
@@ -535,6 +573,11 @@ def evaluate(
     ra = [x for law in laws for x in by_law[law]["ra"]]
     ph = [x for law in laws for x in by_law[law]["ph"]]
     cov = [x for law in laws for x in by_law[law]["cov"]]
+    width = [x for law in laws for x in by_law[law]["width"]]
+
+    def med(v: list) -> float | None:
+        return float(np.median(v)) if v else None
+
     return {
         "axis": "flights",
         "alpha_lambda_pct": pct(acc),
@@ -542,6 +585,7 @@ def evaluate(
         "prognostic_horizon_pct": pct(ph),
         "interval_coverage_pct": pct(cov),
         "interval_coverage_all_pct": pct(cov_all),
+        "interval_width_median_flights": med(width),
         "kendall_tau": float(np.mean(taus)) if taus else None,
         "kendall_tau_min": float(np.min(taus)) if taus else None,
         "kendall_checkpoints": len(taus),
@@ -554,6 +598,7 @@ def evaluate(
                 "relative_accuracy_pct": ra_pct(v["ra"]),
                 "prognostic_horizon_pct": pct(v["ph"]),
                 "interval_coverage_pct": pct(v["cov"]),
+                "interval_width_median_flights": med(v["width"]),
             }
             for law, v in by_law.items()
             if law != "none"

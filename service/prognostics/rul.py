@@ -5,13 +5,23 @@ a flight number, else cumulative operating hours: ``History``), fitted by
 failure threshold (``threshold.leak_threshold``) as a median and a 90 % interval in flights,
 calendar days and operating hours as far as the history supports them, with the probability
 of crossing within a planning horizon.
+
+Usage axes (``USAGE_AXES``): where every flight of a history has the monitor's usage figures,
+the wear may be read against the unit's cumulative usage instead of its flights: each
+flight counts its usage per operating second (its intensity: a log may hold a few seconds
+of a flight) over the fleet's median (``FleetPrior.usage_ref``). Which axis explains the wear
+is learned from the fleet (``fleet_prior``: each unit's best axis by the marginal likelihood
+of its history, counted with Dirichlet(1) smoothing into ``FleetPrior.p_axis``), and each
+unit's RUL averages over the axes, weighted by that prior times its own evidence on each. A
+crossing on a usage axis becomes flights by the unit's own usage ahead: its per-flight usage
+resampled (bootstrap), so its spread is part of the interval.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -26,6 +36,7 @@ from service.prognostics.degradation import (
 from service.store.records import Period
 
 __all__ = [
+    "USAGE_AXES",
     "RulConfig",
     "History",
     "history_of",
@@ -34,6 +45,14 @@ __all__ = [
     "compute_rul",
     "default_threshold_ratio",
 ]
+
+
+USAGE_AXES: dict[str, str] = {
+    "travel": "usage_travel_m",
+    "load_travel": "usage_load_travel_j",
+    "load2_travel": "usage_load2_travel_n2m",
+}
+"""Usage life axes and the stored period field each cumulates (per operating second)."""
 
 
 @lru_cache(maxsize=1)
@@ -87,6 +106,8 @@ class History:
     hours_per_flight: float | None
     flight: NDArray | None = None
     start_unix: NDArray | None = None
+    usage: dict[str, NDArray] | None = None
+    """Per period, each ``USAGE_AXES`` figure's total in the period (NaN: not recorded)."""
 
     @property
     def axis(self) -> str:
@@ -126,8 +147,48 @@ class History:
     def head(self, k: int) -> History:
         """The history of the first ``k`` periods."""
         cut = lambda a: None if a is None else a[:k]  # noqa: E731
+        us = None if self.usage is None else {a: v[:k] for a, v in self.usage.items()}
         return History(self.actuator, self.t_h[:k], self.y[:k], self.hours_per_flight,
-                       cut(self.flight), cut(self.start_unix))  # fmt: skip
+                       cut(self.flight), cut(self.start_unix), us)  # fmt: skip
+
+    def flight_rates(self, axis: str) -> NDArray | None:
+        """Usage per operating second of each flight from the first to the last (a flight
+        without periods: the mean of the others), None unless the history counts flights and
+        every flight's periods recorded ``axis`` with operating time."""
+        if self.axis != "flights" or self.usage is None or axis not in self.usage:
+            return None
+        u = self.usage[axis]
+        op = np.diff(np.concatenate(([0.0], self.t_h))) * 3600.0
+        f = (self.flight - self.flight[0]).astype(int)
+        if not (np.isfinite(u).all() and len(u)):
+            return None
+        tot = np.bincount(f, weights=u)
+        sec = np.bincount(f, weights=op)
+        seen = np.bincount(f) > 0
+        if np.any(seen & (sec <= 0)):
+            return None
+        rate = np.full(len(tot), math.nan)
+        rate[seen] = tot[seen] / sec[seen]
+        rate[~seen] = float(np.mean(rate[seen]))
+        return rate
+
+    def usage_life(self, axis: str, ref: float | None = None) -> NDArray | None:
+        """Each period's position on a usage axis: 1 + the usage of the flights before its
+        own, each flight its usage per operating second over ``ref`` (None: the history's own
+        mean), so that a flight of typical usage counts one; None where ``flight_rates`` is."""
+        rate = self.flight_rates(axis)
+        if rate is None:
+            return None
+        ref = ref if ref and ref > 0 else float(np.mean(rate))
+        if not ref > 0:
+            return None
+        before = np.concatenate(([0.0], np.cumsum(rate / ref)))
+        return 1.0 + before[(self.flight - self.flight[0]).astype(int)]
+
+    def axes(self) -> list[str]:
+        """The life axes this history supports: its own (flights or hours), then each usage
+        axis every flight has."""
+        return [self.axis] + [a for a in USAGE_AXES if self.flight_rates(a) is not None]
 
 
 def _life_key(p: Period) -> tuple:
@@ -149,7 +210,13 @@ def history_of(actuator: str, periods: Sequence[Period]) -> History:
         hpf = hours / len(flights)
     fl = np.array([math.nan if p.flight is None else p.flight for p in ps], float)
     su = np.array([math.nan if p.start_unix is None else p.start_unix for p in ps], float)
-    return History(actuator, t_h, y, hpf, fl, su)
+    usage = {a: np.array([_num(getattr(p, f, None)) for p in ps], float)
+             for a, f in USAGE_AXES.items()}  # fmt: skip
+    return History(actuator, t_h, y, hpf, fl, su, usage)
+
+
+def _num(v) -> float:
+    return math.nan if v is None else float(v)
 
 
 def _finite(v: float) -> float | None:
@@ -190,11 +257,27 @@ def rul_of_history(
     if len(t) < cfg.min_periods:
         out.update(status="insufficient history", p_horizon=None, warning=False, **_NONE)
         return out
-    fit = fit_history(t, y, prior)
     rng = np.random.default_rng(cfg.seed)
     kappa = prior.kappa if prior is not None else 1.0
-    cross = sample_crossing(fit, thr, cfg.n_samples, rng)
-    rul = np.maximum(cross - h.t_now(), 0.0)  # periods after the last observable one count
+    fits = axis_fits(h, prior)
+    w = axis_weights(fits, prior)
+    counts = ([cfg.n_samples] if len(fits) == 1
+              else rng.multinomial(cfg.n_samples, [w[a] for a in fits]))  # fmt: skip
+    parts = []
+    for (a, (fit, pos)), c in zip(fits.items(), counts, strict=True):
+        if c == 0:
+            continue
+        cross = sample_crossing(fit, thr, int(c), rng)
+        if pos is None:  # the history's own axis
+            parts.append(np.maximum(cross - h.t_now(), 0.0))
+        else:
+            rate = h.flight_rates(a) / pos[1]
+            parts.append(usage_to_flights(cross, float(pos[0][-1]), rate, rng))
+    # periods after the last observable one count
+    rul = parts[0] if len(parts) == 1 else rng.permutation(np.concatenate(parts))
+    # the most probable axis; on a tie (a unit without wear fits every axis alike) its own
+    best_axis = max(w, key=lambda a: (round(w[a], 6), a == h.axis))
+    fit = fits[best_axis][0]
     fin = np.isfinite(rul) & (rul > 0)
     med_all = float(np.quantile(rul, 0.5, method="inverted_cdf"))
     # the hindcast measured the fleet's errors on predictions within a history span ahead
@@ -224,13 +307,132 @@ def rul_of_history(
         model=fit.best(),
         p_model={k: round(v, 4) for k, v in fit.p_model.items()},
         sigma=fit.sigma,
+        life_axis=best_axis,
+        p_axis={k: round(v, 4) for k, v in w.items()},
     )
     return out
 
 
-def fleet_prior(histories: Iterable[History]) -> FleetPrior:
-    """Fleet prior learned from every unit's observable history (``learn_fleet_prior``)."""
-    return learn_fleet_prior([h.observed() for h in histories])
+def axis_fits(
+    h: History, prior: FleetPrior | None, min_p: float = 0.0, wearing_only: bool = False
+) -> dict[str, tuple]:
+    """The history fitted on each life axis the fleet prior admits (``p_axis`` > ``min_p``;
+    ``learn_axes`` keeps only the axes a wearing unit of the fleet chose) and the history
+    supports: {axis: (Fit, None)} for its own axis, {axis: (Fit, (positions
+    of every period, usage ref))} for a usage axis. ``wearing_only``: no usage axis for a
+    history whose best model on its own axis is ``none``."""
+    t, y = h.observed()
+    own = fit_history(t, y, prior)
+    out: dict[str, tuple] = {h.axis: (own, None)}
+    if prior is None or h.axis != "flights" or (wearing_only and own.best() == "none"):
+        return out
+    ok = np.isfinite(h.y)
+    for a in h.axes()[1:]:
+        if prior.p_axis.get(a, 0.0) <= min_p:
+            continue
+        ref = prior.usage_ref.get(a)
+        x = h.usage_life(a, ref)
+        if x is None:
+            continue
+        ref = ref if ref and ref > 0 else float(np.mean(h.flight_rates(a)))
+        out[a] = (fit_history(x[ok], y, prior), (x, ref))
+    return out
+
+
+def axis_weights(fits: dict[str, tuple], prior: FleetPrior | None) -> dict[str, float]:
+    """Posterior probability of each fitted axis: the fleet's ``p_axis`` times the history's
+    marginal likelihood on it (``Fit.log_marginal``); the history's own axis alone without a
+    prior."""
+    if len(fits) == 1:
+        return {a: 1.0 for a in fits}
+    assert prior is not None
+    own = next(iter(fits))
+    lz = {}
+    for a, (fit, _) in fits.items():
+        pa = prior.p_axis.get(a, 0.0) if a != own else prior.p_axis.get(a, 1.0)
+        lz[a] = fit.log_marginal(prior.p_model) + math.log(max(pa, 1e-12))
+    mx = max(lz.values())
+    z = {a: math.exp(v - mx) for a, v in lz.items()}
+    tot = sum(z.values())
+    return {a: v / tot for a, v in z.items()}
+
+
+def usage_to_flights(
+    cross: NDArray, u_now: float, rate: NDArray, rng: np.random.Generator, ahead: int = 200
+) -> NDArray:
+    """Flights from now to crossings ``cross`` on a usage axis (inf: never), the unit at
+    ``u_now`` after its last reading: the flight of that reading adds its own known usage
+    ``rate[-1]``, each flight after it a draw of the unit's per-flight usage (``rate`` of its
+    flights after the first, the commissioning one, when there are three or more; resampled),
+    the crossing interpolated within a flight; beyond ``ahead`` flights at the mean rate."""
+    cross = np.asarray(cross, float)
+    out = np.full(len(cross), np.inf)
+    need = cross - u_now
+    fin = np.isfinite(need)
+    out[fin & (need <= 0)] = 0.0
+    idx = np.flatnonzero(fin & (need > 0))
+    if len(idx) == 0:
+        return out
+    pool = rate[1:] if len(rate) >= 4 else rate
+    pool = pool[np.isfinite(pool) & (pool > 0)]
+    if len(pool) == 0:
+        return out
+    steps = rng.choice(pool, size=(len(idx), ahead - 1))
+    cum = np.concatenate(
+        [np.zeros((len(idx), 1)), rate[-1] + np.concatenate(
+            [np.zeros((len(idx), 1)), np.cumsum(steps, axis=1)], axis=1)], axis=1,
+    )  # fmt: skip  # cum[:, j]: usage after j flights
+    nd = need[idx]
+    above = cum >= nd[:, None]
+    hit = above.any(axis=1)
+    j = np.argmax(above, axis=1)
+    r = np.empty(len(idx))
+    jj = np.maximum(j[hit], 1)
+    lo, hi = cum[hit, jj - 1], cum[hit, jj]
+    r[hit] = jj - 1 + (nd[hit] - lo) / np.where(hi > lo, hi - lo, 1.0)
+    r[~hit] = ahead + (nd[~hit] - cum[~hit, -1]) / float(np.mean(pool))
+    out[idx] = r
+    return out
+
+
+def fleet_prior(histories: Iterable[History], min_points: int = 8) -> FleetPrior:
+    """Fleet prior learned from every unit's observable history (``learn_fleet_prior``) and
+    which life axis explains the fleet's wear (``learn_axes``)."""
+    hs = list(histories)
+    return learn_axes(hs, learn_fleet_prior([h.observed() for h in hs]), min_points)
+
+
+def learn_axes(hs: Sequence[History], prior: FleetPrior, min_points: int = 8) -> FleetPrior:
+    """``prior`` with the fleet's usage reference of each usage axis (the median of every
+    flight's usage per operating second) and its axis probabilities ``p_axis``: every
+    history with ``min_points`` observable periods and the usage figures is fitted on each
+    axis, its best axis by marginal likelihood counted (Dirichlet(1) smoothing over the axes
+    the fleet records). A fleet without usage figures keeps its own axis alone."""
+    ref = {}
+    for a in USAGE_AXES:
+        rates = [r for h in hs if (r := h.flight_rates(a)) is not None]
+        if rates:
+            v = np.concatenate(rates)
+            v = v[np.isfinite(v) & (v > 0)]
+            if len(v):
+                ref[a] = float(np.median(v))
+    if not ref:
+        return prior
+    probe = replace(prior, p_axis=dict.fromkeys(("flights", *ref), 1.0), usage_ref=ref)
+    counts = dict.fromkeys(probe.p_axis, 1.0)
+    for h in hs:
+        if np.isfinite(h.y).sum() < min_points or h.axis != "flights":
+            continue
+        fits = axis_fits(h, probe, wearing_only=True)
+        if len(fits) < 2:
+            continue
+        lz = {a: f.log_marginal(prior.p_model) for a, (f, _) in fits.items()}
+        counts[max(lz, key=lz.__getitem__)] += 1.0
+    # the axes no wearing unit chose are dropped (not fitted for any unit); the others keep
+    # their Dirichlet(1)-smoothed share
+    kept = {a: c for a, c in counts.items() if c > 1.0 or a == "flights"}
+    tot = sum(kept.values())
+    return replace(prior, p_axis={a: c / tot for a, c in kept.items()}, usage_ref=ref)
 
 
 def compute_rul(
