@@ -23,6 +23,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 from service.flightrec import FlightRecord
+from service.store.lifeorder import next_flight
 from service.store.records import Period
 
 __all__ = ["FlightStamper", "FLIGHT_GAP_S", "UNIX_MIN"]
@@ -31,10 +32,6 @@ FLIGHT_GAP_S = 1800.0
 """Default gap [s] between two periods that starts a new flight (gap rule)."""
 UNIX_MIN = 1e9
 """Sample times at or above this [s] are Unix times (2001-09-09 on)."""
-
-
-def _end_unix(p: Period) -> float | None:
-    return None if p.start_unix is None else p.start_unix + (p.end_t - p.start_t)
 
 
 class FlightStamper:
@@ -89,13 +86,7 @@ class FlightStamper:
         return out
 
     def _gap_rule(self, p: Period, su: float | None) -> int:
-        prev = self._prev(p.actuator)
-        if prev is None:
-            return 0
-        base = prev.flight if prev.flight is not None else 0
-        pe = _end_unix(prev)
-        gap = su - pe if su is not None and pe is not None else p.start_t - prev.end_t
-        return base + 1 if (gap > self.gap_s or gap < 0) else base
+        return next_flight(self._prev(p.actuator), p, su, self.gap_s)
 
 
 def _record_at(recs: Sequence[FlightRecord], t: float) -> FlightRecord | None:

@@ -98,12 +98,28 @@ _V2: tuple[str, ...] = (
 # calendar time of a period's first sample (Unix s; None where the log does not give it)
 _V3: tuple[str, ...] = ("ALTER TABLE periods ADD COLUMN start_unix DOUBLE PRECISION",)
 
+# what each replayed log stored per unit (docs/store.md, "What identifies a log"): its
+# accepted samples (a longer ingest of the same source supersedes a shorter one), the file
+# name it was first read under (life order of logs without calendar time) and whether its
+# flights follow the gap rule ('gap', renumbered after each ingest) or the log ('log')
+_V4: tuple[str, ...] = (
+    """CREATE TABLE log_sources (
+        actuator TEXT NOT NULL REFERENCES actuators(name),
+        source TEXT NOT NULL,
+        samples BIGINT NOT NULL,
+        name TEXT NOT NULL,
+        flights TEXT NOT NULL,
+        PRIMARY KEY (actuator, source)
+    )""",
+)
+
 # (version, description, statements): append only; never edit a released migration. A
 # statement is SQL, or RECOMPUTE_TRENDS (a data step run by the store in the same transaction)
 MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
     (1, "actuators, baselines, periods, alarms, rul, per-actuator summary", _V1),
     (2, "C_Lk-ratio trend columns in the summary", _V2),
     (3, "calendar time of each period", _V3),
+    (4, "replayed logs per unit: samples, name, flight rule", _V4),
 )
 
 LATEST_VERSION = MIGRATIONS[-1][0]
