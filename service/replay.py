@@ -178,6 +178,21 @@ def check_mcap(path: Path) -> None:
         raise LogError(f"{path}: empty file, not an MCAP log")
     if head != MCAP0_MAGIC:
         raise LogError(f"{path}: not an MCAP log (no MCAP magic at its start)")
+    from mcap.records import Chunk, Footer, Message
+
+    from service.compat.mcap import SkipIndexStreamReader
+
+    why = "it ends after its header"
+    try:
+        with open(path, "rb") as fh:
+            for rec in SkipIndexStreamReader(
+                fh, emit_chunks=True, record_size_limit=1 << 30
+            ).records:
+                if isinstance(rec, Chunk | Message | Footer):
+                    return
+    except Exception:  # a record cut short (or garbled) before the first chunk
+        why = "it ends inside a record"
+    raise LogError(f"{path}: not a usable MCAP log: no chunk, message or footer ({why})")
 
 
 def legacy_log_source(files: list[Path]) -> str:
@@ -682,6 +697,7 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
             fanout.close()
             if writer is not None:
                 writer.close()
+    _check_read(log_path, stats)
     if hs is not None:
         _store_log(hs, files, log_path, summary, closed, alarms, life)
     summary.wall_s = time.perf_counter() - wall0
@@ -712,6 +728,15 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
     if summary.samples == 0:
         summary.warnings.append(f"{log_path}: no /fleet/*/*/meas samples")
     return summary
+
+
+def _check_read(log_path: Path, stats: LogReadStats) -> None:
+    """LogError for a log that held no meas message at all (nothing to replay)."""
+    if stats.messages == 0:
+        why = "; ".join(x for x in (stats.reason, f"{stats.corrupt} corrupt chunk(s)"
+                                    if stats.corrupt else "") if x)  # fmt: skip
+        raise LogError(f"{log_path}: no /fleet/*/*/meas messages in it"
+                       + (f" ({why})" if why else ""))  # fmt: skip
 
 
 def _store_log(hs, files, log_path, summary, closed, alarms, life) -> None:
