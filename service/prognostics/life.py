@@ -14,7 +14,10 @@ Its flight number, in this order: the caller's (``replay --flight N``); the unit
 record; else the **gap rule**: a period belongs to the flight of the unit's previous period
 unless the gap from that period's end to its start exceeds ``gap_s`` (calendar time when both
 have it, else sample time) or is negative (the log's clock restarted: another log); then it
-opens the next flight (the unit's first period: flight 0).
+opens the next flight (the unit's first period: flight 0). The rule itself is
+``service.store.lifeorder.next_flight``; for replayed logs the store applies it again over the
+unit's whole history after each ingest (``HealthStore.ingest_log``), so the flights stored
+never depend on the order or split of the ingests (docs/store.md, "What a re-run does").
 """
 
 from __future__ import annotations
