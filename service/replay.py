@@ -952,15 +952,20 @@ def _die_with_parent(parent: int, ticks: Any) -> None:
         threading.Thread(target=watch, daemon=True, name="parent-watch").start()
 
 
-def _group_job(args) -> list[tuple[str, dict | None, str | None]]:
+def _group_job(args) -> tuple[list[tuple[str, dict | None, str | None]], str | None]:
+    """A worker's group: each log's (path, summary dict, error) and the store's failure."""
     logs, store, gap, kw = args
     out = []
 
     def on_log(p, s, e) -> None:
         out.append((str(p), None if s is None else s.to_dict(), None if e is None else str(e)))
 
-    replay_many(logs, store, on_log=on_log, flight_gap_s=gap, tick=lambda: _TICKS.put(1), **kw)
-    return out
+    try:
+        replay_many(logs, store, on_log=on_log, flight_gap_s=gap, tick=lambda: _TICKS.put(1),
+                    **kw)  # fmt: skip
+    except StoreWriteError as e:
+        return out, str(e)
+    return out, None
 
 
 def _replay_parallel(logs, store, on_log, tick, gap, jobs, kw) -> list[ReplaySummary]:
@@ -990,7 +995,16 @@ def _replay_parallel(logs, store, on_log, tick, gap, jobs, kw) -> list[ReplaySum
                             tick()
                 except queue.Empty:
                     pass
-            results = [r for f in futs for r in f.result()]
+            results: list = []
+            store_err: str | None = None
+            for g, f in zip(groups, futs, strict=True):
+                try:
+                    res, failed = f.result()
+                except Exception as exc:  # a worker died (killed, out of memory)
+                    why = f"worker process failed: {type(exc).__name__} {exc}".strip()
+                    res, failed = [(str(p), None, f"{p}: {why}") for p in g], None
+                results.extend(res)
+                store_err = store_err or failed
     finally:
         ticks.close()
         ticks.join_thread()
@@ -1001,4 +1015,6 @@ def _replay_parallel(logs, store, on_log, tick, gap, jobs, kw) -> list[ReplaySum
             out.append(s)
         if on_log is not None:
             on_log(Path(p), s, None if err is None else LogError(err))
+    if store_err is not None:
+        raise StoreWriteError(store_err)
     return out

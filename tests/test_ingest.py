@@ -429,3 +429,23 @@ def test_jobs_workers_die_with_a_killed_parent(tmp_path, meas):
     n = _stored_logs(store)
     time.sleep(1.0)
     assert _stored_logs(store) == n < 15  # killed mid-batch, and nothing writes any more
+
+
+@pytest.mark.slow
+def test_jobs_name_a_bad_file_and_store_the_rest(tmp_path, meas, capsys):
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    for k in range(2):
+        for act in ("ail_L", "ail_R"):
+            _log(folder / f"{act}-{k}.mcap", meas, T0 + k * DAY, act=act)
+    (folder / "notes.mcap").write_text("not a log\n")
+    store = tmp_path / "h.sqlite"
+    capsys.readouterr()
+    rc = main(["replay", str(folder), "--store", str(store), "--jobs", "2", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 1 and [Path(f["log"]).name for f in out["failed"]] == ["notes.mcap"]
+    assert out["failed"][0]["error"].startswith(str(folder / "notes.mcap"))
+    assert out["actuators"] == {
+        "AC1/ail_L": {"flights": 2, "first": 0, "last": 1},
+        "AC1/ail_R": {"flights": 2, "first": 0, "last": 1},
+    }
