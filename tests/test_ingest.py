@@ -449,3 +449,24 @@ def test_jobs_name_a_bad_file_and_store_the_rest(tmp_path, meas, capsys):
         "AC1/ail_L": {"flights": 2, "first": 0, "last": 1},
         "AC1/ail_R": {"flights": 2, "first": 0, "last": 1},
     }
+
+
+def test_a_log_stored_before_schema_v4_is_adopted_not_stored_twice(tmp_path, meas):
+    """A store written by the previous servowatch holds the log under ``log:{name}:{hash}``
+    and has no ``log_sources`` row: replaying the log again replaces those periods."""
+    from service.replay import legacy_log_source
+
+    log = _log(tmp_path / "old.mcap", meas, T0)
+    store = tmp_path / "h.sqlite"
+    replay(log, store=store)
+    ref = _snapshot(store)
+    old = legacy_log_source([log])
+    with open_store(store) as s, s._b.transaction():  # as the previous version stored it
+        s._b.execute("DELETE FROM log_sources")
+        s._b.execute("UPDATE periods SET source = ?", (old,))
+        s._b.execute("UPDATE alarms SET source = ?", (old,))
+    with open_store(store) as s:
+        assert {p.source for p in s.periods("AC1/ail_L")} == {old}
+    s2 = replay(log, store=store)
+    assert s2.stored == {"AC1/ail_L": "superseded"}
+    assert _snapshot(store) == ref
