@@ -3,7 +3,7 @@
 The logged ``/fleet/{aircraft}/{actuator}/meas`` messages are read as column blocks
 (``service.log.read_blocks``: per chunk and topic, no per-message dicts; it survives a
 truncated file and skips a corrupt chunk), checked by the daemon's intake time rules
-(``_UnitClock``: samples at or before the unit's last accepted time refused and counted, a
+(``UnitClock``: samples at or before the unit's last accepted time refused and counted, a
 clock that steps back followed after ``resync_n`` consistent samples with the filter
 restarted, non-finite samples refused) and fed to one ``service.monitor.MonitorBank`` keyed by actuator, in batches
 of consecutive samples (``MonitorBank.update_arrays``; as fast as possible, its two halves
@@ -31,7 +31,6 @@ whole history so that the flights never depend on the order or split of the inge
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
 import time
@@ -73,6 +72,16 @@ from service.monitor import (
 )
 from service.prognostics import PeriodConfig
 from service.prognostics.life import FLIGHT_GAP_S, FlightStamper
+from service.replay_input import (
+    LogError,
+    StoreWriteError,
+    UnitClock,
+    block_columns,
+    check_mcap,
+    legacy_log_source,
+    named,
+    unit_source,
+)
 
 __all__ = [
     "ReplaySummary",
@@ -161,52 +170,6 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return {}
 
 
-class LogError(ValueError):
-    """A file that cannot be replayed: the message names the file and the cause."""
-
-
-def check_mcap(path: Path) -> None:
-    """LogError unless ``path`` is a readable file that starts as an MCAP log."""
-    from mcap.writer import MCAP0_MAGIC
-
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(len(MCAP0_MAGIC))
-    except OSError as e:
-        raise LogError(f"{path}: cannot read: {e.strerror or e}") from None
-    if not head:
-        raise LogError(f"{path}: empty file, not an MCAP log")
-    if head != MCAP0_MAGIC:
-        raise LogError(f"{path}: not an MCAP log (no MCAP magic at its start)")
-    from mcap.records import Chunk, Footer, Message
-
-    from service.compat.mcap import SkipIndexStreamReader
-
-    why = "it ends after its header"
-    try:
-        with open(path, "rb") as fh:
-            for rec in SkipIndexStreamReader(
-                fh, emit_chunks=True, record_size_limit=1 << 30
-            ).records:
-                if isinstance(rec, Chunk | Message | Footer):
-                    return
-    except Exception:  # a record cut short (or garbled) before the first chunk
-        why = "it ends inside a record"
-    raise LogError(f"{path}: not a usable MCAP log: no chunk, message or footer ({why})")
-
-
-def legacy_log_source(files: list[Path]) -> str:
-    """The identity a store before schema v4 gave a log: ``log:{first file name}:{hash}``,
-    the hash over the files' names, sizes and first MiB (its periods are adopted when the log
-    is replayed again)."""
-    h = hashlib.sha256()
-    for f in files:
-        h.update(f"{f.name}:{f.stat().st_size};".encode())
-        with open(f, "rb") as fh:
-            h.update(fh.read(1 << 20))
-    return f"log:{files[0].name}:{h.hexdigest()[:16]}"
-
-
 def _read_files(files: list[Path], stats: LogReadStats) -> Iterator[LogBlock]:
     for f in files:
         st = LogReadStats()
@@ -218,97 +181,6 @@ def _read_files(files: list[Path], stats: LogReadStats) -> Iterator[LogBlock]:
         stats.messages += st.messages
         stats.corrupt += st.corrupt
         stats.truncated = stats.truncated or st.truncated
-
-
-def _block_columns(blk: LogBlock) -> tuple[NDArray, NDArray, NDArray | None]:
-    """Sample times (the ``t`` field, else the log time), channels (n, 7) in
-    ``messages.CHANNELS`` order (NaN: absent) and the ``seq`` field when every value of it
-    is an integer >= 0 (else None)."""
-    col = {k: c for c, k in enumerate(blk.names)}
-    n = len(blk.t)
-    t = blk.values[:, col["t"]] if "t" in col else blk.t
-    ch = np.full((n, len(m.CHANNELS)), np.nan)
-    for c, k in enumerate(m.CHANNELS):
-        if k in col:
-            ch[:, c] = blk.values[:, col[k]]
-    seq = None
-    if "seq" in col:
-        sv = blk.values[:, col["seq"]]
-        if np.all(np.isfinite(sv)) and np.all(sv >= 0) and np.all(sv == np.round(sv)) \
-                and (not n or sv.max() < 2.0**62):  # fmt: skip
-            seq = sv.astype(np.int64)
-    return t, ch, seq
-
-
-class _UnitClock:
-    """The daemon's intake time checks (``service.daemon.intake.accept``) on one unit's
-    logged samples: refused samples are counted by reason, a clock that steps back is
-    followed after ``ClockCheck.resync_n`` consistent samples (the filter restarts there)."""
-
-    def __init__(self, aircraft: str, actuator: str, bad_log: Any) -> None:
-        from service.daemon.intake import ActuatorState, ClockCheck
-
-        self.st = ActuatorState(aircraft, actuator)
-        # a log without ``seq`` has no sequence to judge a forward jump by: the daemon's rule
-        # with an unbounded step (only samples at or before the last accepted time refused)
-        self.clocks = (ClockCheck(factor=1e300, tol_s=1e300), ClockCheck())
-        self.bad_log = bad_log
-        self.non_finite = 0
-        self.seq_last = -1  # the synthetic seq of a log without one
-        self.t_raw: float | None = None  # the last logged time (for the synthetic seq)
-
-    def _seq(self, t: NDArray) -> NDArray:
-        """A seq for samples without one: +1 wherever the time changes, so a repeated time is
-        a duplicate and a time that goes back a clock step (as the daemon would count)."""
-        prev = np.concatenate(([np.nan if self.t_raw is None else self.t_raw], t[:-1]))
-        seq = self.seq_last + np.cumsum(t != prev)
-        if len(t):
-            self.seq_last, self.t_raw = int(seq[-1]), float(t[-1])
-        return seq
-
-    def check(self, t: NDArray, ch: NDArray, seq: NDArray | None) -> list[tuple[NDArray, bool]]:
-        """The accepted samples of a block as index arrays, each with whether the filter
-        restarts before it (the clock went back and was followed)."""
-        ok = np.isfinite(t) & ~np.isinf(ch).any(axis=1)
-        idx = np.flatnonzero(ok)
-        self.non_finite += len(t) - len(idx)
-        if not len(idx):
-            return []
-        tt = t[idx]
-        from service.daemon.intake import accept
-
-        ck = self.clocks[seq is not None]
-        ss = self._seq(tt) if seq is None else seq[idx]
-        # runs strictly increasing in seq and t (what accept takes at once)
-        cut = np.flatnonzero((np.diff(tt) <= 0) | (np.diff(ss) <= 0)) + 1
-        out: list[tuple[NDArray, bool]] = []
-        back: list[bool] = []
-
-        def on_restart(_st, _t, _seq, went_back: bool) -> None:
-            back.append(went_back)
-
-        for a, b in zip(np.r_[0, cut], np.r_[cut, len(tt)], strict=True):
-            back.clear()
-            j0, j1 = accept(self.st, m.MeasArrays(ss[a:b], tt[a:b], ch[idx[a:b]]),
-                            self.bad_log, on_restart, ck, None)  # fmt: skip
-            if j1 > j0:
-                restart = any(back)
-                if out and not restart and out[-1][0][-1] == idx[a + j0] - 1:
-                    out[-1] = (np.r_[out[-1][0], idx[a + j0 : a + j1]], out[-1][1])
-                else:
-                    out.append((idx[a + j0 : a + j1], restart))
-        return out
-
-    def counts(self) -> dict[str, int]:
-        """Refused samples by reason, and the clock steps followed."""
-        bad = self.st.bad
-        return {
-            "non_finite": self.non_finite,
-            "duplicate": bad.get("duplicate", 0),
-            "out_of_order": bad.get("out_of_order", 0),
-            "clock": bad.get("clock", 0),
-            "restarts": self.st.restarts,
-        }
 
 
 def _is_meas(topic: str) -> bool:
@@ -347,28 +219,15 @@ class _Input:
     restart: bool = False  # the unit's clock went back before it: the filter restarts
 
 
-def unit_source(name: str, t0: float, ch0: NDArray, records: list | tuple = ()) -> str:
-    """A log's identity for one unit (docs/store.md): ``log:`` and a hash of the unit's name,
-    its first accepted sample (time and channels) and its ``servowatch.flight`` records,
-    whatever the file's name or length."""
-    h = hashlib.sha256(name.encode())
-    h.update(np.float64(t0).tobytes())
-    h.update(np.ascontiguousarray(ch0, np.float64).tobytes())
-    for r in records:
-        if r.name == name:
-            h.update(repr((r.flight, r.start_unix, r.t0)).encode())
-    return f"log:{h.hexdigest()[:24]}"
-
-
 def _read_stage(
     files: list[Path], stats: LogReadStats, summary: ReplaySummary, records: list | tuple = ()
 ) -> Iterator[_Input]:
     """Stage 1: the logged meas blocks as accepted samples per actuator (time order), by the
-    daemon's intake time checks (``_UnitClock``); each unit's source (``unit_source``, with
+    daemon's intake time checks (``UnitClock``); each unit's source (``unit_source``, with
     the log's flight ``records``) at its first accepted sample."""
     from service.daemon.ratelimit import RateLimitedLog
 
-    clocks: dict[str, _UnitClock] = {}
+    clocks: dict[str, UnitClock] = {}
     names: dict[str, tuple[str, str] | None] = {}
     bad_log = RateLimitedLog(log)
     for blk in _read_files(files, stats):
@@ -379,10 +238,10 @@ def _read_stage(
             continue
         name = f"{at[0]}/{at[1]}"
         if name not in clocks:
-            clocks[name] = _UnitClock(at[0], at[1], bad_log)
+            clocks[name] = UnitClock(at[0], at[1], bad_log)
             summary.actuators.append(name)
             summary.unit_samples[name] = 0
-        t_all, ch_all, seq = _block_columns(blk)
+        t_all, ch_all, seq = block_columns(blk)
         parts = clocks[name].check(t_all, ch_all, seq)
         n_keep = sum(len(k) for k, _ in parts)
         summary.skipped += len(t_all) - n_keep
@@ -815,22 +674,6 @@ def log_order(paths: list[Path]) -> list[Path]:
     return sorted(paths, key=key)
 
 
-class StoreWriteError(RuntimeError):
-    """The store failed while a log was written to it (disk full, server gone): the batch
-    stops; the log's transaction was rolled back, the logs before it are stored."""
-
-
-def _named(p: Path, e: BaseException) -> str:
-    """One line naming the file and the cause of ``e``."""
-    text = (str(e).strip().splitlines() or [""])[0] or type(e).__name__
-    if isinstance(e, OSError) and e.strerror:
-        text = f"{e.strerror}" + (f": {e.filename}" if e.filename and str(e.filename) != str(p)
-                                  else "")  # fmt: skip
-    if not isinstance(e, LogError | OSError | ValueError):
-        text = f"{type(e).__name__}: {text}"
-    return text if text.startswith(str(p)) else f"{p}: {text}"
-
-
 def replay_many(
     logs: list[Path],
     store: str | Path | Any,
@@ -851,11 +694,14 @@ def replay_many(
     ``jobs`` > 1 (a store path or URL only): the logs are split into groups that share no
     actuator (``_groups``), each group in its given order in one of ``jobs`` worker
     processes, so every actuator's logs still go in order through one monitor; the workers
-    die with the batch (``_die_with_parent``)."""
+    die with the batch (``service.replay_jobs``)."""
     if "flight" in kw:
         raise ValueError("replay_many: flight numbers come from each log (or the gap rule)")
     if jobs > 1 and isinstance(store, str | Path) and len(logs) > 1:
-        return _replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw)
+        from service.replay_jobs import replay_parallel
+
+        return replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw, replay_many,
+                               ReplaySummary)  # fmt: skip
     hs, own = store, False
     if isinstance(store, str | Path):
         from service.store import open_store
@@ -871,7 +717,7 @@ def replay_many(
             except Exception as e:  # the file's fault: named, and the batch goes on
                 log.debug("%s failed", p, exc_info=True)
                 if on_log is not None:
-                    on_log(p, None, LogError(_named(p, e)))
+                    on_log(p, None, LogError(named(p, e)))
                 s = None
             if tick is not None:
                 tick()
@@ -884,137 +730,3 @@ def replay_many(
     finally:
         if own:
             hs.close()
-
-
-def _groups(logs: list[Path]) -> list[list[Path]]:
-    """``logs`` split into groups that share no actuator (by the logs' meas topics), each in
-    the given order (a file that is not a readable log: a group of its own)."""
-    from service.flightrec import log_units
-
-    parent: dict[str, str] = {}
-
-    def find(a: str) -> str:
-        while parent.setdefault(a, a) != a:
-            a = parent[a]
-        return a
-
-    names = []
-    for p in logs:
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                check_mcap(rotated_files(p)[0])
-                units = log_units(rotated_files(p)[0])
-        except Exception:  # not a log: it fails in its worker, alone
-            units = [f"?{p}"]
-        units = units or ["?"]  # a log without a unit: one group for all of them
-        for u in units[1:]:
-            parent[find(u)] = find(units[0])
-        names.append(units[0])
-    groups: dict[str, list[Path]] = {}
-    for p, n in zip(logs, names, strict=True):
-        groups.setdefault(find(n), []).append(p)
-    return sorted(groups.values(), key=len, reverse=True)
-
-
-_TICKS: Any = None  # a worker's progress queue (set by _die_with_parent)
-
-
-def _die_with_parent(parent: int, ticks: Any) -> None:
-    """A ``--jobs`` worker's initializer: it dies with the batch (Linux: the kernel sends it
-    SIGKILL when its parent dies, ``PR_SET_PDEATHSIG``; elsewhere a thread polls the parent
-    and ends the worker when it is gone)."""
-    import os
-    import signal
-    import sys
-    import threading
-
-    global _TICKS
-    _TICKS = ticks
-    armed = False
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
-
-            libc = ctypes.CDLL(None, use_errno=True)
-            armed = libc.prctl(1, signal.SIGKILL, 0, 0, 0) == 0  # PR_SET_PDEATHSIG = 1
-        except (OSError, AttributeError):
-            armed = False
-    if os.getppid() != parent:  # the parent died before the prctl took effect
-        os._exit(1)
-    if not armed:
-
-        def watch() -> None:
-            while os.getppid() == parent:
-                time.sleep(0.5)
-            os._exit(1)
-
-        threading.Thread(target=watch, daemon=True, name="parent-watch").start()
-
-
-def _group_job(args) -> tuple[list[tuple[str, dict | None, str | None]], str | None]:
-    """A worker's group: each log's (path, summary dict, error) and the store's failure."""
-    logs, store, gap, kw = args
-    out = []
-
-    def on_log(p, s, e) -> None:
-        out.append((str(p), None if s is None else s.to_dict(), None if e is None else str(e)))
-
-    try:
-        replay_many(logs, store, on_log=on_log, flight_gap_s=gap, tick=lambda: _TICKS.put(1),
-                    **kw)  # fmt: skip
-    except StoreWriteError as e:
-        return out, str(e)
-    return out, None
-
-
-def _replay_parallel(logs, store, on_log, tick, gap, jobs, kw) -> list[ReplaySummary]:
-    import multiprocessing as mp
-    import os
-    import queue
-    from concurrent.futures import ProcessPoolExecutor, wait
-
-    from service.store import open_store
-
-    open_store(store).close()  # migrate once, before the workers open it
-    groups = _groups(logs)
-    ctx = mp.get_context("spawn")
-    ticks = ctx.Queue()
-    n = min(jobs, len(groups))
-    try:
-        with ProcessPoolExecutor(n, mp_context=ctx, initializer=_die_with_parent,
-                                 initargs=(os.getpid(), ticks)) as ex:  # fmt: skip
-            futs = [ex.submit(_group_job, (g, str(store), gap, kw)) for g in groups]
-            pending = set(futs)
-            while pending:
-                _, pending = wait(pending, timeout=0.2)
-                try:
-                    while True:
-                        ticks.get_nowait()
-                        if tick is not None:
-                            tick()
-                except queue.Empty:
-                    pass
-            results: list = []
-            store_err: str | None = None
-            for g, f in zip(groups, futs, strict=True):
-                try:
-                    res, failed = f.result()
-                except Exception as exc:  # a worker died (killed, out of memory)
-                    why = f"worker process failed: {type(exc).__name__} {exc}".strip()
-                    res, failed = [(str(p), None, f"{p}: {why}") for p in g], None
-                results.extend(res)
-                store_err = store_err or failed
-    finally:
-        ticks.close()
-        ticks.join_thread()
-    out = []
-    for p, d, err in results:
-        s = ReplaySummary(**d) if d is not None else None
-        if s is not None:
-            out.append(s)
-        if on_log is not None:
-            on_log(Path(p), s, None if err is None else LogError(err))
-    if store_err is not None:
-        raise StoreWriteError(store_err)
-    return out
