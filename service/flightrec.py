@@ -25,9 +25,18 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["FLIGHT_RECORD", "FlightRecord", "flight_records", "write_flight_log", "log_units"]
+__all__ = [
+    "FLIGHT_RECORD",
+    "MAX_FLIGHT",
+    "FlightRecord",
+    "flight_records",
+    "write_flight_log",
+    "log_units",
+]
 
 FLIGHT_RECORD = "servowatch.flight"
+MAX_FLIGHT = 2**31 - 1
+"""Highest flight number taken (a record or ``replay --flight`` above it is refused)."""
 
 
 @dataclass(frozen=True)
@@ -60,14 +69,13 @@ class FlightRecord:
         for k in ("aircraft", "actuator", "flight"):
             if not md.get(k):
                 raise ValueError(f"{FLIGHT_RECORD}: field {k!r} is missing")
-        try:
-            flight = int(md["flight"])
-        except ValueError:
-            raise ValueError(
-                f"{FLIGHT_RECORD}: flight {md['flight']!r} is not an integer"
-            ) from None
-        if flight < 0:
-            raise ValueError(f"{FLIGHT_RECORD}: flight must be >= 0, got {flight}")
+        text = str(md["flight"]).strip()
+        if not text.isdigit() or len(text) > 12:  # int() alone takes "1_0", " 7" and 10**4300
+            raise ValueError(f"{FLIGHT_RECORD}: flight {md['flight'][:40]!r} is not an integer "
+                             f"in 0..{MAX_FLIGHT}")  # fmt: skip
+        flight = int(text)
+        if flight > MAX_FLIGHT:
+            raise ValueError(f"{FLIGHT_RECORD}: flight {flight} is above {MAX_FLIGHT}")
         out: dict[str, float | None] = {}
         for k in ("start_unix", "t0"):
             v = md.get(k)
@@ -76,8 +84,8 @@ class FlightRecord:
                 continue
             try:
                 x = float(v)
-            except ValueError:
-                raise ValueError(f"{FLIGHT_RECORD}: {k} {v!r} is not a number") from None
+            except (ValueError, TypeError):
+                raise ValueError(f"{FLIGHT_RECORD}: {k} {str(v)[:40]!r} is not a number") from None
             if not math.isfinite(x):
                 raise ValueError(f"{FLIGHT_RECORD}: {k} must be finite, got {v!r}")
             out[k] = x
@@ -113,7 +121,10 @@ def flight_records(path: str | Path) -> list[FlightRecord]:
                         mds.append(rec)
             except Exception:  # a truncated file: the records read so far
                 pass
-    return [FlightRecord.from_metadata(md.metadata) for md in mds]
+    try:
+        return [FlightRecord.from_metadata(md.metadata) for md in mds]
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
 
 
 def log_units(path: str | Path) -> list[str]:

@@ -2,7 +2,10 @@
 
 The logged ``/fleet/{aircraft}/{actuator}/meas`` messages are read as column blocks
 (``service.log.read_blocks``: per chunk and topic, no per-message dicts; it survives a
-truncated file) and fed to one ``service.monitor.MonitorBank`` keyed by actuator, in batches
+truncated file and skips a corrupt chunk), checked by the daemon's intake time rules
+(``UnitClock``: samples at or before the unit's last accepted time refused and counted, a
+clock that steps back followed after ``resync_n`` consistent samples with the filter
+restarted, non-finite samples refused) and fed to one ``service.monitor.MonitorBank`` keyed by actuator, in batches
 of consecutive samples (``MonitorBank.update_arrays``; as fast as possible, its two halves
 ``step_arrays`` and ``rows_of`` run pipelined in two threads). The bank
 gives results that do not depend on the batch composition (``tests/test_monitor.py``), so a
@@ -14,17 +17,20 @@ daemon's, best paced).
 
 With a health store (``store``), each actuator runs on its latest baseline from the store
 (``service.monitor.MonitorFleet``; none: the default, ``commissioned: false``), and the
-fan-out's operating periods and alarm raises are written to the store at the end, named by
-the log's identity (``log_source``), so replaying the same log again adds nothing. Each
-period is stamped with its flight and calendar time (``service.prognostics.life``: the log's
-``servowatch.flight`` record, the caller's ``flight``/``start_unix``, or the gap rule).
+fan-out's operating periods and alarm raises are written to the store at the end in one
+transaction (``HealthStore.ingest_log``), named by each unit's identity in the log
+(``unit_source``: its content, not the file's path), so replaying the same log again, or a
+copy of it, adds nothing, and a longer version of it (a log ingested while still written, a
+repaired log) replaces what the shorter one stored. Each period is stamped with its flight
+and calendar time (``service.prognostics.life``: the log's ``servowatch.flight`` record, the
+caller's ``flight``/``start_unix``, or the gap rule, renumbered by the store over the unit's
+whole history so that the flights never depend on the order or split of the ingests).
 
 ``replay_many`` ingests many logs into one store in one process, in life order (``log_order``).
 """
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
 import time
@@ -41,8 +47,10 @@ from numpy.typing import NDArray
 
 from service import messages as m
 from service.fanout import FanOut
+from service.flightrec import MAX_FLIGHT
 from service.jsonutil import jsonable
 from service.log import (
+    CorruptChunkWarning,
     LogBlock,
     LogReadStats,
     McapLogger,
@@ -64,7 +72,16 @@ from service.monitor import (
 )
 from service.prognostics import PeriodConfig
 from service.prognostics.life import FLIGHT_GAP_S, FlightStamper
-from service.store.records import Period
+from service.replay_input import (
+    LogError,
+    StoreWriteError,
+    UnitClock,
+    block_columns,
+    check_mcap,
+    legacy_log_source,
+    named,
+    unit_source,
+)
 
 __all__ = [
     "ReplaySummary",
@@ -74,7 +91,10 @@ __all__ = [
     "expand_logs",
     "INPUT_KEYS",
     "read_metadata",
-    "log_source",
+    "unit_source",
+    "legacy_log_source",
+    "check_mcap",
+    "LogError",
 ]
 
 log = logging.getLogger("servowatch.replay")
@@ -113,6 +133,11 @@ class ReplaySummary:
     commissioned: dict[str, int | None] = field(default_factory=dict)  # baseline versions
     first_t: dict[str, float] = field(default_factory=dict)  # each actuator's first sample
     flights: dict[str, list[int]] = field(default_factory=dict)  # flights of its periods
+    sources: dict[str, str] = field(default_factory=dict)  # each unit's source (identity)
+    unit_samples: dict[str, int] = field(default_factory=dict)  # accepted samples per unit
+    stored: dict[str, str] = field(default_factory=dict)  # new, superseded or stored, per unit
+    time: dict[str, dict[str, int]] = field(default_factory=dict)  # time checks per unit
+    corrupt_chunks: int = 0  # chunks skipped (bad CRC, undecodable)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON types (non-finite floats as None)."""
@@ -145,42 +170,17 @@ def read_metadata(path: str | Path) -> dict[str, str]:
     return {}
 
 
-def log_source(files: list[Path]) -> str:
-    """A log's identity for the store: ``log:{first file name}:{hash}``, the hash over the
-    files' sizes and first MiB (stable for the same log, whatever its path)."""
-    h = hashlib.sha256()
-    for f in files:
-        h.update(f"{f.name}:{f.stat().st_size};".encode())
-        with open(f, "rb") as fh:
-            h.update(fh.read(1 << 20))
-    return f"log:{files[0].name}:{h.hexdigest()[:16]}"
-
-
 def _read_files(files: list[Path], stats: LogReadStats) -> Iterator[LogBlock]:
     for f in files:
         st = LogReadStats()
         yield from read_blocks(f, stats=st, match=_is_meas)
+        if not st.chunks and not st.messages and not st.footer and not st.corrupt:
+            raise LogError(f"{f}: not a usable MCAP log: no complete chunk "
+                           f"({st.reason or 'header only'})")  # fmt: skip
         stats.chunks += st.chunks
         stats.messages += st.messages
+        stats.corrupt += st.corrupt
         stats.truncated = stats.truncated or st.truncated
-
-
-def _block_inputs(blk: LogBlock, t_last: float) -> tuple[NDArray, NDArray, NDArray]:
-    """Sample times (the ``t`` field, else the log time), channels (n, 7) in
-    ``messages.CHANNELS`` order (NaN: absent) and the samples to keep: finite t later than
-    ``t_last`` and than every earlier sample of the block (the daemon logs accepted samples
-    only; a replay checks again)."""
-    col = {k: c for c, k in enumerate(blk.names)}
-    n = len(blk.t)
-    t = blk.values[:, col["t"]] if "t" in col else blk.t
-    ch = np.full((n, len(m.CHANNELS)), np.nan)
-    for c, k in enumerate(m.CHANNELS):
-        if k in col:
-            ch[:, c] = blk.values[:, col[k]]
-    fin = np.isfinite(t)
-    prev = np.maximum.accumulate(np.where(fin, t, -np.inf))
-    prev = np.concatenate([[t_last], np.maximum(prev[:-1], t_last)]) if n else prev
-    return t, ch, fin & (t > prev)
 
 
 def _is_meas(topic: str) -> bool:
@@ -216,12 +216,20 @@ class _Input:
     names: tuple[str, ...]
     meas: NDArray
     row: int = -1
+    restart: bool = False  # the unit's clock went back before it: the filter restarts
 
 
-def _read_stage(files: list[Path], stats: LogReadStats, summary: ReplaySummary) -> Iterator[_Input]:
-    """Stage 1: the logged meas blocks as accepted samples per actuator (time order)."""
-    last_t: dict[str, float] = {}
+def _read_stage(
+    files: list[Path], stats: LogReadStats, summary: ReplaySummary, records: list | tuple = ()
+) -> Iterator[_Input]:
+    """Stage 1: the logged meas blocks as accepted samples per actuator (time order), by the
+    daemon's intake time checks (``UnitClock``); each unit's source (``unit_source``, with
+    the log's flight ``records``) at its first accepted sample."""
+    from service.daemon.ratelimit import RateLimitedLog
+
+    clocks: dict[str, UnitClock] = {}
     names: dict[str, tuple[str, str] | None] = {}
+    bad_log = RateLimitedLog(log)
     for blk in _read_files(files, stats):
         if blk.topic not in names:
             names[blk.topic] = _parse_topic(blk.topic)
@@ -229,24 +237,33 @@ def _read_stage(files: list[Path], stats: LogReadStats, summary: ReplaySummary) 
         if at is None:
             continue
         name = f"{at[0]}/{at[1]}"
-        if name not in last_t:
-            last_t[name] = -math.inf
+        if name not in clocks:
+            clocks[name] = UnitClock(at[0], at[1], bad_log)
             summary.actuators.append(name)
-        t, ch, keep = _block_inputs(blk, last_t[name])
-        n_keep = int(keep.sum())
-        summary.skipped += len(keep) - n_keep
-        if n_keep == 0:
-            continue
-        vals = blk.values
-        if n_keep < len(keep):
-            t, ch, vals = t[keep], ch[keep], vals[keep]
-        last_t[name] = float(t[-1])
-        summary.first_t.setdefault(name, float(t[0]))
-        summary.samples += n_keep
-        if summary.t_start is None:
-            summary.t_start = float(t[0])
-        summary.t_end = float(t[-1])
-        yield _Input(name, at, blk.topic, t, ch, blk.names, vals)
+            summary.unit_samples[name] = 0
+        t_all, ch_all, seq = block_columns(blk)
+        parts = clocks[name].check(t_all, ch_all, seq)
+        n_keep = sum(len(k) for k, _ in parts)
+        summary.skipped += len(t_all) - n_keep
+        summary.time[name] = clocks[name].counts()
+        for keep, restart in parts:
+            t, ch, vals = t_all[keep], ch_all[keep], blk.values[keep]
+            if name not in summary.first_t:
+                summary.first_t[name] = float(t[0])
+                summary.sources[name] = unit_source(name, float(t[0]), ch[0], records)
+            summary.unit_samples[name] += len(t)
+            summary.samples += len(t)
+            if summary.t_start is None:
+                summary.t_start = float(t[0])
+            summary.t_end = max(float(t[-1]), summary.t_end or -math.inf)
+            yield _Input(name, at, blk.topic, t, ch, blk.names, vals, restart=restart)
+
+
+def _restart(bank: MonitorBank | MonitorFleet, row: int) -> None:
+    """The filter of bank row ``row`` starts afresh at its next sample (as the daemon's
+    monitoring stage does on a clock that went back)."""
+    b = bank.bank if isinstance(bank, MonitorFleet) else bank
+    b.t_last[row] = -np.inf
 
 
 def _monitor_stage(
@@ -271,6 +288,8 @@ def _monitor_stage(
             if inp.name not in ids:
                 ids[inp.name] = bank.index_of(inp.name)
             inp.row = ids[inp.name]
+            if inp.restart:
+                _restart(bank, inp.row)
             ks = np.full(len(inp.t), inp.row, np.int64)
             for a in range(0, len(inp.t), _PACED_SLICE):
                 sl = slice(a, a + _PACED_SLICE)
@@ -306,6 +325,11 @@ def _monitor_stage(
                 yield from done(True)  # index_of may grow the bank's arrays: not while it runs
                 ids[inp.name] = bank.index_of(inp.name)
             inp.row = ids[inp.name]
+            if inp.restart:  # the filter restarts: after every earlier sample was stepped
+                if pending:
+                    submit()
+                yield from done(True)
+                _restart(bank, inp.row)
             pending.append(inp)
             n_pending += len(inp.t)
             if n_pending >= _BATCH:
@@ -329,12 +353,14 @@ def _write_stage(
     (log blocks, events, publishing), the summary."""
     for inps, ks, rows in batches:
         for inp in inps:
-            kw = {}
+            kw: dict[str, Any] = {}
             if fleet is not None:
                 v = fleet.versions.get(inp.name)
                 summary.commissioned[inp.name] = v
                 info = {"commissioned": v is not None, "baseline_version": v}
                 kw = {"c_lk0": fleet.bank.baseline_of(inp.name).c_lk, "info": info}
+            if inp.restart:  # the open period closes; the next starts after the clock step
+                fanout.retrack(inp.row, **({"c_lk0": None} | kw))
             fanout.track(inp.row, *inp.at, **kw)
             ints = ("seq",) if "seq" in inp.names else ()
             if writer is not None:
@@ -367,7 +393,6 @@ def replay(
     flight: int | None = None,
     start_unix: float | None = None,
     flight_gap_s: float = FLIGHT_GAP_S,
-    stamper: FlightStamper | None = None,
     live: Any | None = None,
 ) -> ReplaySummary:
     """Feed the logged ``/fleet/*/*/meas`` samples of ``log_path`` through the monitor.
@@ -393,12 +418,17 @@ def replay(
         cuts the periods).
     flight, start_unix, flight_gap_s : the periods' flight number and the calendar time of the
         log's first sample, else from the log's flight records, else the gap rule with this
-        gap (``service.prognostics.life``); ``stamper`` carries a batch's state.
+        gap (``service.prognostics.life``); in the store, gap-rule flights are renumbered
+        over each unit's whole history (``HealthStore.ingest_log``).
     live : a ``FoxgloveFeed``: meas, est, residual, health and events served live (the
         actuators named in the log's summary are advertised before the first sample).
 
     A truncated log is replayed up to its last complete chunk; the summary says so in
-    ``truncated`` and ``warnings``.
+    ``truncated`` and ``warnings``. A corrupt chunk is skipped (``corrupt_chunks``); the
+    time checks' counts are in ``time`` per unit. ``LogError`` names a file that is not an
+    MCAP log, holds no complete chunk, or has malformed servowatch metadata;
+    ``StoreWriteError`` a store that failed while the log was written (nothing of the log
+    stored).
     """
     if speed is not None and not speed > 0:
         raise ValueError("speed must be > 0 or None")
@@ -408,13 +438,19 @@ def replay(
     files = rotated_files(log_path)
     if not files:
         raise FileNotFoundError(f"{log_path}: no such log (nor a rotation set {log_path.stem}-*)")
+    for f in files:
+        check_mcap(f)
     meta = read_metadata(files[0])
-    if monitor_config is None and "monitor_config" in meta:
-        monitor_config = MonitorConfig.model_validate_json(meta["monitor_config"])
+    try:
+        if monitor_config is None and "monitor_config" in meta:
+            monitor_config = MonitorConfig.model_validate_json(meta["monitor_config"])
+        logged = Baseline.model_validate_json(meta["baseline"]) if "baseline" in meta else None
+    except ValueError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise LogError(f"{files[0]}: its servowatch metadata is malformed: {first}") from None
     cfg = monitor_config or MonitorConfig()
     summary = ReplaySummary(log=str(log_path), out=str(out) if out is not None else None)
-    if baseline is None and "baseline" in meta:
-        logged = Baseline.model_validate_json(meta["baseline"])
+    if baseline is None and logged is not None:
         if logged.law == cfg.model:
             baseline = logged
         else:  # the log's baseline is another model's: never carried over
@@ -425,8 +461,8 @@ def replay(
     base = baseline or Baseline.default(cfg.model)
     check_baseline_model(base, cfg.model)
     summary.files = [str(f) for f in files]
-    if flight is not None and (isinstance(flight, bool) or int(flight) < 0):
-        raise ValueError(f"flight must be an integer >= 0, got {flight!r}")
+    if flight is not None and (isinstance(flight, bool) or not 0 <= int(flight) <= MAX_FLIGHT):
+        raise ValueError(f"flight must be an integer in 0..{MAX_FLIGHT}, got {flight!r}")
     hs, own = None, False
     if isinstance(store, str | Path):
         from service.store import open_store
@@ -439,8 +475,7 @@ def replay(
         from service.flightrec import flight_records
 
         records = [r for f in files for r in flight_records(f)]
-        st = stamper or FlightStamper(_last_period(hs), flight_gap_s)
-        life = (st, records, flight, start_unix)
+        life = (FlightStamper(None, flight_gap_s), records, flight, start_unix, flight_gap_s)
     try:
         if live is not None:
             for ac, act in log_actuators(files):
@@ -451,19 +486,6 @@ def replay(
     finally:
         if own and hs is not None:
             hs.close()
-
-
-def _last_period(hs) -> Callable[[str], Period | None]:
-    """The latest stored period of a unit in life order (flight, then start time)."""
-
-    def last(name: str) -> Period | None:
-        if name not in hs.actuators():
-            return None
-        ps = hs.periods(name)
-        return max(ps, key=lambda p: (p.flight if p.flight is not None else -1, p.start_t),
-                   default=None)  # fmt: skip
-
-    return last
 
 
 def log_actuators(files: list[Path]) -> list[tuple[str, str]]:
@@ -502,7 +524,7 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
             return Baseline.model_validate(rec.baseline), rec.version
 
         bank = MonitorFleet(cfg, base, resolve)
-        summary.source = log_source(files)
+        summary.source = "log:pending"  # each unit's source is known at its first sample
     writer = McapLogger(
         out,
         flush_s=1.0,
@@ -522,7 +544,8 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
     wall0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TruncatedLogWarning)
-        inputs = _read_stage(files, stats, summary)
+        warnings.simplefilter("always", CorruptChunkWarning)
+        inputs = _read_stage(files, stats, summary, life[1] if life is not None else ())
         batches = _monitor_stage(inputs, bank, speed, lambda: summary.t_start or 0.0)
         try:
             fleet = bank if isinstance(bank, MonitorFleet) else None
@@ -533,20 +556,15 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
             fanout.close()
             if writer is not None:
                 writer.close()
+    _check_read(log_path, stats)
     if hs is not None:
-        st, records, flight, start_unix = life
-        closed = st.stamp(closed, records=records, first_t=summary.first_t, flight=flight,
-                          start_unix=start_unix)  # fmt: skip
-        for p in closed:
-            fl = summary.flights.setdefault(p.actuator, [])
-            if p.flight not in fl:
-                fl.append(p.flight)
-        summary.periods = len(closed)
-        summary.periods_new = hs.add_periods(closed)
-        hs.add_alarms(alarms)
+        _store_log(hs, files, log_path, summary, closed, alarms, life)
     summary.wall_s = time.perf_counter() - wall0
+    summary.corrupt_chunks = stats.corrupt
     for w in caught:
-        if issubclass(w.category, TruncatedLogWarning):
+        if issubclass(w.category, CorruptChunkWarning):
+            summary.warnings.append(str(w.message))
+        elif issubclass(w.category, TruncatedLogWarning):
             summary.truncated = True
             summary.warnings.append(str(w.message))
         else:
@@ -556,9 +574,57 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
         if summary.wall_s > 0 and summary.samples > 1:
             summary.speed = summary.duration_s / summary.wall_s
     summary.counters = {n: bank.counters_of(n) for n in summary.actuators}
+    for name, tc in summary.time.items():
+        refused = sum(v for k, v in tc.items() if k != "restarts")
+        if refused or tc["restarts"]:
+            text = ", ".join(f"{k} {v}" for k, v in tc.items() if v and k != "restarts")
+            w = (f"{log_path}: {name}: {refused} samples refused by the time checks ({text})"
+                 if refused else f"{log_path}: {name}:")  # fmt: skip
+            if tc["restarts"]:
+                w += f"; clock followed after {tc['restarts']} step(s), the filter restarted"
+            summary.warnings.append(w)
+            log.warning(w)
     if summary.samples == 0:
         summary.warnings.append(f"{log_path}: no /fleet/*/*/meas samples")
     return summary
+
+
+def _check_read(log_path: Path, stats: LogReadStats) -> None:
+    """LogError for a log that held no meas message at all (nothing to replay)."""
+    if stats.messages == 0:
+        why = "; ".join(x for x in (stats.reason, f"{stats.corrupt} corrupt chunk(s)"
+                                    if stats.corrupt else "") if x)  # fmt: skip
+        raise LogError(f"{log_path}: no /fleet/*/*/meas messages in it"
+                       + (f" ({why})" if why else ""))  # fmt: skip
+
+
+def _store_log(hs, files, log_path, summary, closed, alarms, life) -> None:
+    """The log's periods and alarms into the store in one transaction
+    (``HealthStore.ingest_log``: a source already stored with as many samples is kept, one
+    with fewer is superseded; gap-rule flights renumbered over each unit's history)."""
+    from service.store.lifeorder import LogUnit
+
+    st, records, flight, start_unix, gap_s = life
+    closed = st.stamp(closed, records=records, first_t=summary.first_t, flight=flight,
+                      start_unix=start_unix)  # fmt: skip
+    legacy = legacy_log_source(files)
+    units = [
+        LogUnit(a, summary.sources[a], summary.unit_samples[a], log_path.name,
+                flight is None and not any(r.name == a for r in records), legacy)
+        for a in summary.actuators if a in summary.sources
+    ]  # fmt: skip
+    try:
+        res = hs.ingest_log(units, closed, alarms, gap_s)
+    except Exception as e:
+        first = (str(e).strip().splitlines() or [""])[0] or type(e).__name__
+        raise StoreWriteError(
+            f"store {getattr(hs, 'where', hs)}: writing {log_path} failed: {first}"
+        ) from e
+    summary.source = summary.sources[units[0].actuator] if units else None
+    summary.periods = len(closed)
+    summary.periods_new = sum(r["periods_new"] for r in res.values())
+    summary.flights = {a: r["flights"] for a, r in res.items() if r["flights"]}
+    summary.stored = {a: r["status"] for a, r in res.items()}
 
 
 def expand_logs(items: list[str | Path]) -> list[Path]:
@@ -588,15 +654,17 @@ def expand_logs(items: list[str | Path]) -> list[Path]:
 
 def log_order(paths: list[Path]) -> list[Path]:
     """``paths`` in life order: logs with a flight record by its calendar start, then by its
-    flight number, then the rest by name (digits compared as numbers)."""
-    import re
-
+    flight number, then the rest by name (digits compared as numbers). The order a batch
+    reads its logs in; the flights stored do not depend on it (``HealthStore.ingest_log``)."""
     from service.flightrec import flight_records
+    from service.store.lifeorder import natural_key
 
     def key(p: Path) -> tuple:
-        recs = flight_records(rotated_files(p)[0]) if rotated_files(p) else []
-        natural = [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", str(p))]
-        natural = [(0, s, "") if isinstance(s, int) else (1, 0, s) for s in natural]
+        try:
+            recs = flight_records(rotated_files(p)[0]) if rotated_files(p) else []
+        except ValueError:  # a malformed record: the file fails when it is replayed
+            recs = []
+        natural = natural_key(str(p))
         if recs and recs[0].start_unix is not None:
             return (0, recs[0].start_unix, recs[0].flight, natural)
         if recs:
@@ -617,32 +685,39 @@ def replay_many(
     **kw: Any,
 ) -> list[ReplaySummary]:
     """Ingest ``logs`` (in the given order: ``log_order``) into ``store`` (one store
-    connection and one flight stamper per process); ``kw`` as ``replay`` takes them (a
-    ``flight`` is not: each log has its own). A log that cannot be read is reported to
-    ``on_log(path, None, error)`` and skipped; the others to ``on_log(path, summary, None)``;
-    ``tick()`` is called as each log is done (a progress bar).
+    connection per process); ``kw`` as ``replay`` takes them (a ``flight`` is not: each log
+    has its own). A log that cannot be replayed is reported to ``on_log(path, None,
+    LogError naming it)`` and the batch goes on; the others to ``on_log(path, summary,
+    None)``; ``tick()`` is called as each log is done (a progress bar). A store that fails
+    while a log is written raises ``StoreWriteError`` (the logs before it are stored).
 
     ``jobs`` > 1 (a store path or URL only): the logs are split into groups that share no
     actuator (``_groups``), each group in its given order in one of ``jobs`` worker
-    processes, so every actuator's logs still go in order through one monitor."""
+    processes, so every actuator's logs still go in order through one monitor; the workers
+    die with the batch (``service.replay_jobs``)."""
     if "flight" in kw:
         raise ValueError("replay_many: flight numbers come from each log (or the gap rule)")
     if jobs > 1 and isinstance(store, str | Path) and len(logs) > 1:
-        return _replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw)
+        from service.replay_jobs import replay_parallel
+
+        return replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw, replay_many,
+                               ReplaySummary)  # fmt: skip
     hs, own = store, False
     if isinstance(store, str | Path):
         from service.store import open_store
 
         hs, own = open_store(store), True
     try:
-        st = FlightStamper(_last_period(hs), flight_gap_s)
         out = []
         for p in logs:
             try:
-                s = replay(p, store=hs, stamper=st, **kw)
-            except (OSError, ValueError) as e:
+                s = replay(p, store=hs, flight_gap_s=flight_gap_s, **kw)
+            except StoreWriteError:
+                raise
+            except Exception as e:  # the file's fault: named, and the batch goes on
+                log.debug("%s failed", p, exc_info=True)
                 if on_log is not None:
-                    on_log(p, None, e)
+                    on_log(p, None, LogError(named(p, e)))
                 s = None
             if tick is not None:
                 tick()
@@ -655,74 +730,3 @@ def replay_many(
     finally:
         if own:
             hs.close()
-
-
-def _groups(logs: list[Path]) -> list[list[Path]]:
-    """``logs`` split into groups that share no actuator (by the logs' meas topics), each in
-    the given order."""
-    from service.flightrec import log_units
-
-    parent: dict[str, str] = {}
-
-    def find(a: str) -> str:
-        while parent.setdefault(a, a) != a:
-            a = parent[a]
-        return a
-
-    names = []
-    for p in logs:
-        units = log_units(rotated_files(p)[0]) if rotated_files(p) else []
-        units = units or ["?"]  # a log without a unit: one group for all of them
-        for u in units[1:]:
-            parent[find(u)] = find(units[0])
-        names.append(units[0])
-    groups: dict[str, list[Path]] = {}
-    for p, n in zip(logs, names, strict=True):
-        groups.setdefault(find(n), []).append(p)
-    return sorted(groups.values(), key=len, reverse=True)
-
-
-def _group_job(args) -> list[tuple[str, dict | None, str | None]]:
-    logs, store, gap, kw, q = args
-    out = []
-
-    def on_log(p, s, e) -> None:
-        out.append((str(p), None if s is None else s.to_dict(), None if e is None else str(e)))
-
-    replay_many(logs, store, on_log=on_log, flight_gap_s=gap, tick=lambda: q.put(1), **kw)
-    return out
-
-
-def _replay_parallel(logs, store, on_log, tick, gap, jobs, kw) -> list[ReplaySummary]:
-    import multiprocessing as mp
-    import queue
-    from concurrent.futures import ProcessPoolExecutor, wait
-
-    from service.store import open_store
-
-    open_store(store).close()  # migrate once, before the workers open it
-    groups = _groups(logs)
-    ctx = mp.get_context("spawn")
-    with ctx.Manager() as man:
-        q = man.Queue()
-        with ProcessPoolExecutor(min(jobs, len(groups)), mp_context=ctx) as ex:
-            futs = [ex.submit(_group_job, (g, str(store), gap, kw, q)) for g in groups]
-            pending = set(futs)
-            while pending:
-                _, pending = wait(pending, timeout=0.2)
-                try:
-                    while True:
-                        q.get_nowait()
-                        if tick is not None:
-                            tick()
-                except queue.Empty:
-                    pass
-            results = [r for f in futs for r in f.result()]
-    out = []
-    for p, d, err in results:
-        s = ReplaySummary(**d) if d is not None else None
-        if s is not None:
-            out.append(s)
-        if on_log is not None:
-            on_log(Path(p), s, None if err is None else OSError(err))
-    return out

@@ -20,6 +20,7 @@ from mcap.writer import CompressionType, Writer
 
 from service.compat.mcap import BlockWriter, pack_records
 from service.log import (
+    CorruptChunkWarning,
     LogBlock,
     LogReadStats,
     McapLogger,
@@ -573,7 +574,7 @@ def test_read_blocks_truncated_file(tmp_path):
             1 for *_, m in msgs if not isinstance(m, dict)
         )
         assert_blocks_equal_read_log(blocks, msgs)
-    # a corrupt byte inside a chunk: everything before it, then the warning
+    # a corrupt byte inside a chunk: that chunk skipped, with a warning, the others read
     with open(full, "rb") as f:
         chunks = sorted(
             make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset
@@ -581,11 +582,12 @@ def test_read_blocks_truncated_file(tmp_path):
     bad = bytearray(data)
     bad[chunks[len(chunks) // 2].chunk_start_offset + 200] ^= 0xFF  # inside the compressed data
     cut.write_bytes(bytes(bad))
-    with pytest.warns(TruncatedLogWarning):
+    with pytest.warns(CorruptChunkWarning):
         msgs = list(read_log(cut))
-    with pytest.warns(TruncatedLogWarning):
+    with pytest.warns(CorruptChunkWarning):
         blocks = list(read_blocks(cut))
     assert_blocks_equal_read_log(blocks, msgs)
+    assert msgs[-1] == list(read_log(full))[-1]
 
 
 def test_read_blocks_of_complete_file_does_not_warn(tmp_path):

@@ -111,7 +111,8 @@ def test_own_baseline_reads_the_leak_the_default_misreads_and_periods_are_idempo
     s1 = replay(odd["log"], store=odd["store"])
     assert s1.commissioned == {ODD: 1, "AC1/twin": None}
     assert s1.periods == 2 and s1.periods_new == 2
-    assert s1.source is not None and s1.source.startswith("log:leak.mcap:")
+    assert s1.source is not None and s1.source.startswith("log:")  # its content, not its name
+    assert s1.sources[ODD] != s1.sources["AC1/twin"]  # the same samples of two units
     with open_store(odd["store"]) as s:
         own = s.periods(ODD)[0].c_lk_ratio
         dflt = s.periods("AC1/twin")[0].c_lk_ratio

@@ -17,6 +17,10 @@ from service.cliutil import emit_json, fail
 NAME = "replay"
 HELP = "replay an MCAP log through the monitor (as fast as possible or paced)"
 
+EXIT_FAILED_LOGS = 1  # a batch: some logs failed (named in `failed`), the others are stored
+EXIT_BAD_LOG = 2  # one log: not an MCAP log, unreadable, malformed metadata or flight record
+EXIT_STORE = 5  # the store (or --out) failed while being written: disk full, server gone
+
 
 _UNSET = object()  # --speed not given: max, or 1.0 with --foxglove
 
@@ -104,8 +108,18 @@ def _print_summary(s) -> None:
     for a in s.alarms[:20]:
         print(f"    t={a.get('t')}: {a.get('actuator')} {a.get('kind')} {a.get('state')} "
               f"({a.get('value')})")  # fmt: skip
+    for name, tc in s.time.items():
+        if any(tc.values()):
+            print(f"  time checks {name}: " + ", ".join(f"{k} {v}" for k, v in tc.items()))
+    if s.corrupt_chunks:
+        print(f"  corrupt chunks skipped: {s.corrupt_chunks}")
     if s.source is not None:
         print(f"  periods: {s.periods} closed, {s.periods_new} new in the store ({s.source})")
+        for name, st in s.stored.items():
+            if st != "new":
+                print(f"  {name}: " + ("already stored (a copy, or a longer version of this "
+                                       "log)" if st == "stored" else "superseded a shorter "
+                                       "ingest of this log"))  # fmt: skip
         for name, v in s.commissioned.items():
             print(f"  {name}: " + (f"baseline version {v}" if v else "commissioned: false"))
     if s.out:
@@ -135,8 +149,10 @@ def run(args: argparse.Namespace) -> int:
             logs = expand_logs(args.log)
         except FileNotFoundError as e:
             return fail(str(e))
-    if args.flight is not None and (args.flight < 0 or len(logs) > 1):
-        return fail("--flight: an integer >= 0, for one log only")
+    from service.flightrec import MAX_FLIGHT
+
+    if args.flight is not None and (not 0 <= args.flight <= MAX_FLIGHT or len(logs) > 1):
+        return fail(f"--flight: an integer in 0..{MAX_FLIGHT}, for one log only")
     if args.start_unix is not None and (len(logs) > 1 or args.start_unix != args.start_unix):
         return fail("--start-unix: a finite number, for one log only")
     try:
@@ -223,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args, logs, cfg, monitor_config, baseline, store, pc, gap, live) -> int:
     """``run`` once the inputs are checked; ``live``: a FoxgloveFeed or None."""
-    from service.replay import replay
+    from service.replay import LogError, StoreWriteError, replay
 
     if live is not None and args.foxglove_wait > 0:
         import time
@@ -257,7 +273,14 @@ def _run(args, logs, cfg, monitor_config, baseline, store, pc, gap, live) -> int
             period_config=pc, flight=args.flight, start_unix=args.start_unix, flight_gap_s=gap,
             live=live,
         )  # fmt: skip
-    except (OSError, ValueError) as e:
+    except StoreWriteError as e:
+        return fail(f"{e}; nothing of this log was stored", EXIT_STORE)
+    except LogError as e:
+        return fail(str(e), EXIT_BAD_LOG)
+    except OSError as e:  # the output log (--out): disk full, folder gone
+        where = e.filename or args.out or logs[0]
+        return fail(f"{where}: {e.strerror or e}", EXIT_STORE)
+    except ValueError as e:
         return fail(str(e))
     finally:
         if session is not None:
@@ -276,7 +299,7 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
     """Several logs into ``store`` in one process (module docstring)."""
     import time
 
-    from service.replay import log_order, replay_many
+    from service.replay import StoreWriteError, log_order, replay_many
 
     w0 = time.perf_counter()
     logs = log_order(logs)
@@ -285,18 +308,29 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
     bar = tqdm(total=len(logs), desc="replay", unit="log", file=sys.stderr,
                disable=None if not args.json else True)  # fmt: skip
     failed: list[dict] = []
-    totals = {"samples": 0, "periods": 0, "periods_new": 0, "alarms": 0, "truncated": 0}
+    totals = {"samples": 0, "periods": 0, "periods_new": 0, "alarms": 0, "truncated": 0,
+              "corrupt_chunks": 0, "superseded": 0, "already_stored": 0}  # fmt: skip
     units: dict[str, set] = {}
+    checks: list[dict] = []  # logs whose samples the time checks refused
+    done: list[str] = []
 
     def on_log(p, s, err) -> None:
         if err is not None:
             failed.append({"log": str(p), "error": str(err)})
+            bar.write(f"servowatch: failed: {err}", file=sys.stderr)
             return
+        done.append(str(p))
         totals["samples"] += s.samples
         totals["periods"] += s.periods
         totals["periods_new"] += s.periods_new
         totals["alarms"] += len(s.alarms)
         totals["truncated"] += int(s.truncated)
+        totals["corrupt_chunks"] += s.corrupt_chunks
+        totals["superseded"] += int("superseded" in s.stored.values())
+        totals["already_stored"] += int(bool(s.stored) and set(s.stored.values()) == {"stored"})
+        for a, tc in s.time.items():
+            if any(tc.values()):
+                checks.append({"log": str(p), "actuator": a, **tc})
         for a, fl in s.flights.items():
             units.setdefault(a, set()).update(fl)
 
@@ -304,10 +338,14 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
         replay_many(logs, store, on_log=on_log, flight_gap_s=gap, monitor_config=monitor_config,
                     baseline=baseline, period_config=pc, jobs=args.jobs,
                     tick=lambda: bar.update(1))  # fmt: skip
+    except StoreWriteError as e:
+        bar.close()
+        return fail(f"{e}; stored so far: {len(done)} of {len(logs)} logs (each whole); run "
+                    "the same command again to add the rest", EXIT_STORE)  # fmt: skip
     finally:
         bar.close()
     wall = time.perf_counter() - w0
-    out = {"logs": len(logs), "failed": failed, **totals, "wall_s": wall,
+    out = {"logs": len(logs), "failed": failed, **totals, "time_checks": checks, "wall_s": wall,
            "actuators": {a: {"flights": len(f), "first": min(f), "last": max(f)}
                          for a, f in sorted(units.items())}}  # fmt: skip
     if args.json:
@@ -315,8 +353,16 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
     else:
         print(f"replayed {len(logs)} logs into {store} in {wall:.1f} s: {totals['samples']} "
               f"samples, {totals['periods_new']} new periods of {len(units)} actuator(s)")  # fmt: skip
+        if totals["superseded"] or totals["already_stored"]:
+            print(f"  {totals['already_stored']} log(s) already stored, {totals['superseded']} "
+                  "superseded a shorter ingest of the same log")  # fmt: skip
         for a, d in out["actuators"].items():
             print(f"  {a}: flights {d['first']}-{d['last']} ({d['flights']})")
+        for c in checks:
+            counts = ", ".join(f"{k} {v}" for k, v in c.items() if k not in ("log", "actuator"))
+            print(f"  time checks {c['log']} {c['actuator']}: {counts}")
+        if totals["corrupt_chunks"]:
+            print(f"  corrupt chunks skipped: {totals['corrupt_chunks']}")
         for f in failed:
-            print(f"  failed: {f['log']}: {f['error']}")
-    return 1 if failed else 0
+            print(f"  failed: {f['error']}")
+    return EXIT_FAILED_LOGS if failed else 0

@@ -162,6 +162,17 @@ def _limit(st: ActuatorState, s: int, ck: ClockCheck, period: float | None) -> f
     return st.last_t + ck.factor * ds * period + ck.tol_s
 
 
+def _limits(st: ActuatorState, s: np.ndarray, ck: ClockCheck, period: float | None) -> np.ndarray:
+    """``_limit`` of each seq of ``s`` (the same arithmetic, vectorised)."""
+    assert st.last_t is not None and st.last_seq is not None
+    ds = np.asarray(s, np.int64) - st.last_seq
+    if period is None:
+        return np.full(len(ds), math.inf)
+    with np.errstate(over="ignore", invalid="ignore"):
+        lim = st.last_t + ck.factor * ds * period + ck.tol_s
+    return np.where(ds > 0, lim, math.inf)
+
+
 def _candidate(st: ActuatorState, s: int, t: float, ck: ClockCheck, period: float | None) -> bool:
     """Count a refused sample towards re-synchronisation; True once K consistent ones came."""
     c = st.resync
@@ -219,7 +230,7 @@ def accept(
             if resync_at >= 0:
                 break
         if j0 < jw:  # ahead of what the sequence gap implies: refused from there on
-            lim = np.array([_limit(st, int(s), ck, period) for s in seq[j0:jw]])
+            lim = _limits(st, seq[j0:jw], ck, period)
             bad = np.flatnonzero(t[j0:jw] > lim)
             if len(bad):
                 j1 = j0 + int(bad[0])

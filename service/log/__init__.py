@@ -8,6 +8,7 @@
 
 from service.log.blocks import LogBlock, read_blocks
 from service.log.reader import (
+    CorruptChunkWarning,
     LogReadStats,
     TruncatedLogWarning,
     read_log,
@@ -26,5 +27,6 @@ __all__ = [
     "json_schema_for",
     "block_schema",
     "TruncatedLogWarning",
+    "CorruptChunkWarning",
     "LogReadStats",
 ]

@@ -23,6 +23,7 @@ from mcap.records import Channel
 from service.log.reader import (
     LogReadStats,
     TruncatedLogWarning,
+    _warn_corrupt,
     iter_stream,
     log,
     truncation_text,
@@ -208,10 +209,10 @@ def read_blocks(
             pending = []
         try:
             buf, groups = _chunk_groups(item, channels)
-        except Exception as e:
-            st.truncated = True
-            st.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
-            break
+        except Exception as e:  # a corrupt chunk that passed its CRC (or has none): skipped
+            st.corrupt += 1
+            st.corrupt_reason = st.corrupt_reason or f"{type(e).__name__} {e}".strip()
+            continue
         st.chunks += 1
         for topic, lts, offs, lens in groups:
             if keep(topic):
@@ -221,6 +222,7 @@ def read_blocks(
     for b in _pending_blocks(pending):
         st.messages += b.t.size
         yield b
+    _warn_corrupt(p, st)
     text = truncation_text(p, st)
     if text is not None:
         log.warning(text)

@@ -38,6 +38,8 @@ except ImportError:  # pragma: no cover
 __all__ = [
     "LogReadStats",
     "TruncatedLogWarning",
+    "CorruptChunkWarning",
+    "corrupt_text",
     "read_log",
     "read_log_files",
     "rotated_files",
@@ -53,6 +55,11 @@ class TruncatedLogWarning(UserWarning):
     """An MCAP file that ends early or holds a corrupt record (its writer was killed)."""
 
 
+class CorruptChunkWarning(UserWarning):
+    """An MCAP chunk whose data is corrupt (bad CRC, undecodable): skipped, the chunks after
+    it are read."""
+
+
 class LogReadStats:
     """What :func:`read_log` found: chunks read, messages, truncation (filled while iterating)."""
 
@@ -62,6 +69,8 @@ class LogReadStats:
         self.truncated = False
         self.reason = ""
         self.footer = False
+        self.corrupt = 0  # chunks skipped: their record was whole, their data corrupt
+        self.corrupt_reason = ""
 
 
 def _decompress(chunk: Chunk) -> bytes:
@@ -124,9 +133,9 @@ def iter_stream(
             return item
         try:
             return item.result()
-        except Exception as e:
-            stats.truncated = True
-            stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
+        except Exception as e:  # the chunk record was whole: skip it, read on
+            stats.corrupt += 1
+            stats.corrupt_reason = stats.corrupt_reason or f"{type(e).__name__} {e}".strip()
             return None
 
     try:
@@ -148,9 +157,8 @@ def iter_stream(
                     ahead.append(pool.submit(_decompress, rec))
                     while len(ahead) > 1:  # one chunk decompressing ahead
                         item = resolved(ahead.popleft())
-                        if item is None:
-                            return
-                        yield item
+                        if item is not None:
+                            yield item
                 elif isinstance(rec, Channel):
                     channels[rec.id] = rec.topic
                 elif isinstance(rec, Footer):
@@ -163,9 +171,8 @@ def iter_stream(
                     ahead.append((rec.channel_id, rec.log_time, rec.data))  # un-chunked
         while ahead:
             item = resolved(ahead.popleft())
-            if item is None:
-                return
-            yield item
+            if item is not None:
+                yield item
     finally:
         if pool is not None:
             pool.shutdown(wait=False, cancel_futures=True)
@@ -183,10 +190,10 @@ def _iter_raw(
             continue
         try:
             parsed = list(_iter_chunk(item))
-        except Exception as e:
-            stats.truncated = True
-            stats.reason = f"incomplete chunk: {type(e).__name__} {e}".strip()
-            return
+        except Exception as e:  # a corrupt chunk that passed its CRC (or has none): skipped
+            stats.corrupt += 1
+            stats.corrupt_reason = stats.corrupt_reason or f"{type(e).__name__} {e}".strip()
+            continue
         stats.chunks += 1
         for op, r in parsed:
             if op == Opcode.CHANNEL:
@@ -207,6 +214,23 @@ def truncation_text(p: Path, st: LogReadStats) -> str | None:
         f"{p}: truncated MCAP log ({st.reason}); read {st.chunks} complete chunks, "
         f"{st.messages} messages"
     )
+
+
+def corrupt_text(p: Path, st: LogReadStats) -> str | None:
+    """The warning about the corrupt chunks skipped in ``p`` (None if none)."""
+    if not st.corrupt:
+        return None
+    return (
+        f"{p}: skipped {st.corrupt} corrupt chunk(s) ({st.corrupt_reason}); read the "
+        f"{st.chunks} intact chunks before and after"
+    )
+
+
+def _warn_corrupt(p: Path, st: LogReadStats) -> None:
+    text = corrupt_text(p, st)
+    if text is not None:
+        log.warning(text)
+        warnings.warn(text, CorruptChunkWarning, stacklevel=3)
 
 
 def read_log(
@@ -243,6 +267,7 @@ def read_log(
             continue
         st.messages += 1
         yield topic, lt * 1e-9, msg
+    _warn_corrupt(p, st)
     text = truncation_text(p, st)
     if text is not None:
         log.warning(text)

@@ -14,7 +14,10 @@ Its flight number, in this order: the caller's (``replay --flight N``); the unit
 record; else the **gap rule**: a period belongs to the flight of the unit's previous period
 unless the gap from that period's end to its start exceeds ``gap_s`` (calendar time when both
 have it, else sample time) or is negative (the log's clock restarted: another log); then it
-opens the next flight (the unit's first period: flight 0).
+opens the next flight (the unit's first period: flight 0). The rule itself is
+``service.store.lifeorder.next_flight``; for replayed logs the store applies it again over the
+unit's whole history after each ingest (``HealthStore.ingest_log``), so the flights stored
+never depend on the order or split of the ingests (docs/store.md, "What a re-run does").
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 from service.flightrec import FlightRecord
+from service.store.lifeorder import next_flight
 from service.store.records import Period
 
 __all__ = ["FlightStamper", "FLIGHT_GAP_S", "UNIX_MIN"]
@@ -31,10 +35,6 @@ FLIGHT_GAP_S = 1800.0
 """Default gap [s] between two periods that starts a new flight (gap rule)."""
 UNIX_MIN = 1e9
 """Sample times at or above this [s] are Unix times (2001-09-09 on)."""
-
-
-def _end_unix(p: Period) -> float | None:
-    return None if p.start_unix is None else p.start_unix + (p.end_t - p.start_t)
 
 
 class FlightStamper:
@@ -89,13 +89,7 @@ class FlightStamper:
         return out
 
     def _gap_rule(self, p: Period, su: float | None) -> int:
-        prev = self._prev(p.actuator)
-        if prev is None:
-            return 0
-        base = prev.flight if prev.flight is not None else 0
-        pe = _end_unix(prev)
-        gap = su - pe if su is not None and pe is not None else p.start_t - prev.end_t
-        return base + 1 if (gap > self.gap_s or gap < 0) else base
+        return next_flight(self._prev(p.actuator), p, su, self.gap_s)
 
 
 def _record_at(recs: Sequence[FlightRecord], t: float) -> FlightRecord | None:

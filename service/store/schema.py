@@ -98,11 +98,25 @@ _V2: tuple[str, ...] = (
 # calendar time of a period's first sample (Unix s; None where the log does not give it)
 _V3: tuple[str, ...] = ("ALTER TABLE periods ADD COLUMN start_unix DOUBLE PRECISION",)
 
+# what each replayed log stored per unit (docs/store.md, "What identifies a log"): its
+# accepted samples (a longer ingest of the same source supersedes a shorter one), the file
+# name it was first read under (life order of logs without calendar time) and whether its
+# flights follow the gap rule ('gap', renumbered after each ingest) or the log ('log')
+_V4: tuple[str, ...] = (
+    """CREATE TABLE log_sources (
+        actuator TEXT NOT NULL REFERENCES actuators(name),
+        source TEXT NOT NULL,
+        samples BIGINT NOT NULL,
+        name TEXT NOT NULL,
+        flights TEXT NOT NULL,
+        PRIMARY KEY (actuator, source)
+    )""",
+)
+
 # what wears the seals and the spool, per period (service.store.records.USAGE_FIELDS; NULL in
 # the periods stored before), and the running totals of the summary row that the fleet view
 # divides by the operating time they cover: over the periods with usage (travel, reversals)
-# and over those with a load figure (load-weighted travel). Version 4 is another change's;
-# the migrations need not be contiguous (each above the store's version is applied, in order)
+# and over those with a load figure (load-weighted travel)
 _V5: tuple[str, ...] = (
     "ALTER TABLE periods ADD COLUMN usage_travel_m DOUBLE PRECISION",
     "ALTER TABLE periods ADD COLUMN usage_load_travel_j DOUBLE PRECISION",
@@ -124,6 +138,7 @@ MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
     (1, "actuators, baselines, periods, alarms, rul, per-actuator summary", _V1),
     (2, "C_Lk-ratio trend columns in the summary", _V2),
     (3, "calendar time of each period", _V3),
+    (4, "replayed logs per unit: samples, name, flight rule", _V4),
     (
         5,
         "usage per period (travel, load-weighted travel, reversals, time under load and at pressure)",
