@@ -597,9 +597,19 @@ class HealthStore:
             r[0]: int(r[1])
             for r in b.execute("SELECT actuator, COUNT(*) FROM alarms GROUP BY actuator").fetchall()
         }
-        for a, n, smp, ae in b.execute(
-            "SELECT actuator, n_periods, samples, alarm_events FROM summary"
+        nus = {  # periods that carry usage (the summary's usage totals, migration 5)
+            r[0]: int(r[1])
+            for r in b.execute(
+                "SELECT actuator, COUNT(*) FROM periods WHERE usage_travel_m IS NOT NULL "
+                "AND usage_travel_m <> 'NaN' GROUP BY actuator"
+            ).fetchall()
+        }
+        for a, n, smp, ae, nu in b.execute(
+            "SELECT actuator, n_periods, samples, alarm_events, usage_periods FROM summary"
         ).fetchall():
+            if nus.get(a, 0) != int(nu):
+                problems.append(f"{a}: summary says {nu} periods with usage, "
+                                f"periods table has {nus.get(a, 0)}")  # fmt: skip
             if counts.get(a, (0, 0)) != (int(n), int(smp)):
                 problems.append(f"{a}: summary says {n} periods/{smp} samples, "
                                 f"periods table has {counts.get(a, (0, 0))}")  # fmt: skip

@@ -10,6 +10,7 @@ from typing import Any
 
 from service.store.lifeorder import LogUnit, natural_key, number_flights
 from service.store.records import PERIOD_FIELDS, AlarmEvent, Period
+from service.store.usage import USAGE_TOTALS
 
 __all__ = ["ingest_log"]
 
@@ -149,6 +150,8 @@ def _renumber(
     for k in ("n_periods", "samples", "alarms", "bad_samples", "dropped"):
         s[k] = 0
     s["op_time_s"] = 0.0
+    for k in USAGE_TOTALS:  # rebuilt with the rest from every period (migration 5)
+        s[k] = 0
     s["first_start_t"] = s["last_start_t"] = s["last_period"] = None
     s["recent"] = "[]"
     if by_t:
