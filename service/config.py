@@ -306,6 +306,26 @@ class FoxgloveSettings(BaseModel):
     every: int = Field(
         10, ge=1, le=100_000, description="send one row in N per topic (events: all; 1 = all)"
     )
+    max_connections: int = Field(
+        16, ge=1, le=4096, description="WebSocket clients at once (beyond: refused, 503)"
+    )
+    allowed_origins: list[str] = Field(
+        [],
+        description="browser origins allowed besides the server's own, e.g. "
+        "'https://app.foxglove.dev' (docs/security.md)",
+    )
+    max_message_bytes: int = Field(
+        65536, ge=1024, le=1 << 26, description="a client's message at most (beyond: cut) [bytes]"
+    )
+    message_s: float = Field(
+        10.0, gt=0, le=3600, description="an unfinished client frame or message is cut after [s]"
+    )
+    max_backlog_bytes: int = Field(
+        1 << 20,
+        ge=4096,
+        le=1 << 30,
+        description="bytes waiting for a client at most (beyond: the client is dropped)",
+    )
 
     @model_validator(mode="after")
     def _loopback(self) -> FoxgloveSettings:
@@ -322,6 +342,16 @@ class FoxgloveSettings(BaseModel):
         from service.listen import check_listen
 
         return check_listen(self.listen, allow_remote=self.allow_remote)
+
+    def guard_limits(self):
+        """The ``service.foxglove_guard.GuardLimits`` of these settings."""
+        from service.foxglove_guard import GuardLimits
+
+        return GuardLimits(
+            max_connections=self.max_connections, allowed_origins=tuple(self.allowed_origins),
+            max_message_bytes=self.max_message_bytes, message_s=self.message_s,
+            max_backlog_bytes=self.max_backlog_bytes, allow_remote=self.allow_remote,
+        )  # fmt: skip
 
 
 class ServiceConfig(BaseModel):

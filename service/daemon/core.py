@@ -190,6 +190,7 @@ class Daemon:
                         changed = self.release_units() + self.check_unmonitored(now)
                     if self.check_silence(now) or changed:
                         self.outputs.logger.commit()
+                    self.outputs.check_feed()
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now
                     with self._notify_lock:  # never a WATCHDOG after STOPPING
