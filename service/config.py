@@ -373,6 +373,15 @@ class ServiceConfig(BaseModel):
         1, ge=1, description="log est/residual every N outputs (events always; 1 = all)"
     )
     silence_s: float = Field(2.0, gt=0, description="an actuator is silent after this long [s]")
+    max_units_per_aircraft: int = Field(
+        64,
+        ge=1,
+        le=1000,
+        description="units of one aircraft tracked at most (further ones refused and counted)",
+    )
+    unit_expire_s: float = Field(
+        3600.0, gt=0, description="a unit silent this long leaves the unit table [s]"
+    )
     queue_size: int = Field(200_000, ge=1, description="receive queue length (messages)")
     max_bytes: int = Field(65536, ge=64, description="largest accepted message [bytes]")
     baseline: Path | None = Field(None, description="calibration baseline file (None=default)")

@@ -98,6 +98,7 @@ def snapshot(
             "bad": sum(a["bad_total"] for a in acts.values()),
             "missed": sum(a["missed"] for a in acts.values()) + ins["unknown"].get("missed", 0),
             "unknown": ins["unknown"],
+            "unit_table": ins["unit_table"],
             "errors": errors,
             "latency_ms": mon["latency_ms"],
             "age_ms": mon["age_ms"],
