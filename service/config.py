@@ -285,6 +285,11 @@ class GroupSettings(BaseModel):
         description="a unit whose measurements arrive with no health output from any member "
         "for this long raises 'unmonitored' [s]",
     )
+    stations: list[str] = Field(
+        [],
+        description="stations whose daemons may be members (besides this one's own); a "
+        "token of any other station is ignored and counted (docs/security.md)",
+    )
 
 
 class FoxgloveSettings(BaseModel):

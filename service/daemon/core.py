@@ -201,6 +201,7 @@ class Daemon:
                     changed = []
                     if self.member is not None:
                         changed = self.release_units() + self.check_unmonitored(now)
+                        self.member.publish_outputs(now, self.intake)
                     self.expire_units(now)
                     if self.check_silence(now) or changed:
                         self.outputs.logger.commit()
