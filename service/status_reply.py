@@ -83,11 +83,14 @@ _TOP: dict[str, Callable[[Any], bool]] = {
 
 _UNIT: dict[str, Callable[[Any], bool]] = {
     "aircraft": _name, "actuator": _name, "samples": _num, "dropped": _num, "gaps": _num,
-    "bad": _num, "missed": _num, "silent": _bool, "commissioned": _bool,
+    "bad": lambda v: _num(v) or _dict_of(_num)(v), "missed": _num, "silent": _bool, "commissioned": _bool,
     "baseline_version": _num, "est": _dict_of(_num), "health": _dict_of(lambda x: True),
     "alarms": _list_of(lambda x: isinstance(x, dict) and _str(x.get("kind"))),
     "periods": _num, "rul": lambda v: v is None or (isinstance(v, dict) and _num(v.get("median_h"))),
 }  # fmt: skip
+
+#: what every unit entry of a daemon's status has (the readers index these)
+_UNIT_REQUIRED = ("aircraft", "actuator", "samples", "dropped", "gaps", "bad")
 
 _GROUP: dict[str, Callable[[Any], bool]] = {
     "name": _str, "me": _str, "joined": _bool, "members": _list_of(_str),
@@ -96,9 +99,14 @@ _GROUP: dict[str, Callable[[Any], bool]] = {
     "released_units": _list_of(_str),
 }  # fmt: skip
 
+_GUARD: dict[str, Callable[[Any], bool]] = {
+    "listener": _str, "connections": _num, "max_connections": _num, "buffered_bytes": _num,
+    "memory_bound_bytes": _num,
+}  # fmt: skip
+
 _FOXGLOVE: dict[str, Callable[[Any], bool]] = {
     "listen": _str, "subscribed_topics": _num, "sent": _num, "dropped": _num,
-    "guard": lambda v: v is None or isinstance(v, dict),
+    "guard": lambda v: v is None or (isinstance(v, dict) and _check(v, _GUARD, "") is None),
 }  # fmt: skip
 
 
@@ -120,7 +128,7 @@ def _why(st: Any) -> str | None:
     if bad:
         return f"{bad}: wrong type"
     for name, a in (st.get("actuators") or {}).items():
-        if not isinstance(a, dict) or "aircraft" not in a or "actuator" not in a:
+        if not isinstance(a, dict) or not all(k in a for k in _UNIT_REQUIRED):
             return f"actuators.{name[:60]!r}: not a unit entry"
         bad = _check(a, _UNIT, f"actuators.{name[:60]!r}.")
         if bad:

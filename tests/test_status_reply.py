@@ -16,7 +16,8 @@ GOOD = {
     "silent": [], "log_failure": None,
     "actuators": {"fleet/AC001/elevator_L/meas": {
         "aircraft": "AC001", "actuator": "elevator_L", "samples": 10, "dropped": 0, "gaps": 0,
-        "bad": 0, "missed": 0, "silent": False, "est": {"c_lk": 1e-12}, "alarms": []}},
+        "bad": {"clock": 1}, "missed": 0, "silent": False, "est": {"c_lk": 1e-12},
+        "alarms": []}},
     "group": {"name": "fleet", "members": ["ground1/0"], "joined": True, "unmonitored": {}},
 }  # fmt: skip
 
@@ -28,11 +29,12 @@ MALFORMED = [
     b"\xff\xfe",
     b"[" * 100_000 + b"]" * 100_000,  # deeper than the parser goes
     json.dumps({**GOOD, "actuators": {"x": "y"}}).encode(),
-    json.dumps({**GOOD, "actuators": {"x": {"aircraft": "AC001"}}}).encode(),
+    json.dumps({**GOOD, "actuators": {"x": {"aircraft": "AC001", "actuator": "a"}}}).encode(),
     json.dumps({**GOOD, "latency_ms": "fast"}).encode(),
     json.dumps({**GOOD, "group": {"members": "all", "unmonitored": {}}}).encode(),
     json.dumps({**GOOD, "group": {"members": [], "unmonitored": {"AC001/x": 5}}}).encode(),
     json.dumps({**GOOD, "foxglove": {"listen": 5, "sent": "many"}}).encode(),
+    json.dumps({**GOOD, "foxglove": {"listen": "x", "guard": {"buffered_bytes": "lots"}}}).encode(),
     json.dumps({**GOOD, "uptime_s": "long"}).encode(),
     json.dumps({k: v for k, v in GOOD.items() if k != "station"}).encode(),
     json.dumps(
@@ -109,3 +111,16 @@ def test_a_reply_claiming_another_daemons_name_is_told_apart():
     (d,) = [d for d in live["daemons"] if d["key"] == "monitor/ground1/1/status"]
     assert d == {"key": "monitor/ground1/1/status", "name": "ground1/1",
                  "state": "name_mismatch", "claims": "ground1/0"}  # fmt: skip
+
+
+def test_a_real_daemons_status_is_well_formed():
+    from test_daemon import KEY, make, sample
+
+    from service import messages as m
+    from service.status_reply import check_reply
+
+    d, _, _ = make()
+    d.submit(KEY, m.encode_meas([sample(k) for k in range(5)]))
+    d.process_pending()
+    st = json.loads(json.dumps(d.status()))
+    assert check_reply("monitor/ground1/0/status", json.dumps(st).encode()) == st

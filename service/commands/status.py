@@ -76,10 +76,20 @@ def format_status(daemons: dict) -> str:
                 )
         fx = st.get("foxglove")
         if fx:
+            gd = fx.get("guard") or {}
+            mem = (
+                f", {gd.get('connections')}/{gd.get('max_connections')} viewers, "
+                f"{_fmt((gd.get('buffered_bytes') or 0) / 2**20, '.1f')} of "
+                f"{_fmt((gd.get('memory_bound_bytes') or 0) / 2**20, '.0f')} MiB buffered"
+                if gd
+                else ""
+            )
             lines.append(
                 f"  foxglove ws://{fx.get('listen')}: {fx.get('subscribed_topics')} topics subscribed, "
-                f"{fx.get('sent')} sent, {fx.get('dropped')} dropped"
+                f"{fx.get('sent')} sent, {fx.get('dropped')} dropped{mem}"
             )
+        if st.get("feed_failure"):
+            lines.append(f"  DEGRADED: {st['feed_failure']}")
         for _name, a in sorted(st.get("actuators", {}).items()):
             est = ", ".join(
                 f"{k}={_fmt(v)}"
