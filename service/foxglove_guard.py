@@ -46,7 +46,13 @@ log = logging.getLogger("servowatch.foxglove")
 
 _READ_CHUNK = 256 * 1024  # asyncio reads at most this much per callback (selector transport)
 _TICK_S = 0.25  # timeouts are checked this often
-_PROBE_S = 5.0  # the SDK's listener is probed this often
+_PROBE_S = 60.0  # the SDK's listener is probed when no connection reached it for this long [s]
+_PROBE_REQUEST = (
+    b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+    b"Sec-WebSocket-Key: c2Vydm93YXRjaCBwcm9iZQ==\r\nSec-WebSocket-Version: 13\r\n"
+    b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+)
+_CLOSE_FRAME = bytes([0x88, 0x82, 0, 0, 0, 0, 0x03, 0xE8])  # close 1000, a zero mask
 
 
 @dataclass(frozen=True)
@@ -447,6 +453,7 @@ class Guard:
         self.accept_errors = 0
         self._accept_failed_at: float | None = None
         self._upstream_error: str | None = None
+        self._upstream_ok_at = time.monotonic()  # the last connection that reached the SDK
         self._dead: str | None = None
         self._warn = _Warn()
         self.loop = asyncio.new_event_loop()
@@ -486,6 +493,7 @@ class Guard:
 
     def upstream_ok(self) -> None:
         self._upstream_error = None
+        self._upstream_ok_at = time.monotonic()
 
     # -- the loop -----------------------------------------------------------------------
     def _exception(self, loop: asyncio.AbstractEventLoop, context: dict) -> None:
@@ -533,7 +541,6 @@ class Guard:
 
     async def _tick(self) -> None:
         lim = self.limits
-        last_probe = time.monotonic()
         while True:
             await asyncio.sleep(_TICK_S)
             now = time.monotonic()
@@ -547,19 +554,35 @@ class Guard:
                     c.close()
                 elif c.upgraded and c.frames.overdue(now, lim.message_s):
                     c.cut("message_timeout")
-            if now - last_probe > _PROBE_S:
-                last_probe = now
+            if now - self._upstream_ok_at > _PROBE_S:  # a client's connection is a probe too
+                self._upstream_ok_at = now
                 await self._probe()
 
     async def _probe(self) -> None:
-        """Does the SDK's server still accept? (a TCP connection, closed at once)"""
+        """Does the SDK's server still accept? A whole WebSocket handshake, then a close
+        frame (a bare connection would be logged as an error by the SDK)."""
+        w = None
         try:
-            _, w = await asyncio.wait_for(asyncio.open_connection(*self.upstream), 2.0)
-        except (OSError, TimeoutError) as e:
+            r, w = await asyncio.wait_for(
+                asyncio.open_connection(
+                    *self.upstream, ssl=self.upstream_ssl,
+                    server_hostname="localhost" if self.upstream_ssl else None,
+                ),
+                5.0,
+            )  # fmt: skip
+            w.write(_PROBE_REQUEST)
+            line = await asyncio.wait_for(r.readline(), 5.0)
+            if b" 101 " not in line:
+                raise OSError(f"the SDK answered {line[:60]!r}")
+            w.write(_CLOSE_FRAME)
+            await asyncio.wait_for(w.drain(), 5.0)
+        except (OSError, TimeoutError, ssl.SSLError) as e:
             self.upstream_failed(e if isinstance(e, OSError) else OSError(str(e)))
             return
-        w.close()
-        self._upstream_error = None
+        finally:
+            if w is not None:
+                w.close()
+        self.upstream_ok()
 
     # -- the API ------------------------------------------------------------------------
     def start(self) -> Guard:
@@ -579,7 +602,7 @@ class Guard:
         if not self._thread.is_alive() or self._server is None or not self._server.is_serving():
             return "dead: the guard's listener is closed"
         t = self._accept_failed_at
-        if t is not None and time.monotonic() - t < 2 * _PROBE_S:
+        if t is not None and time.monotonic() - t < 10.0:
             return "out of descriptors: accept() fails (EMFILE); raise LimitNOFILE"
         if self._upstream_error is not None:
             return f"upstream down: {self._upstream_error}"

@@ -152,7 +152,7 @@ def test_an_oversized_message_is_cut_at_its_header(feed):
     line, s = _handshake(feed.port, {"Host": f"127.0.0.1:{feed.port}"})
     assert " 101 " in line
     s.sendall(_frame(0x1, b"x" * 100, fin=False, length=100))
-    s.sendall(_frame(0x0, b"", fin=False, length=60_000_000)[:14])  # 60 MB announced
+    s.sendall(_frame(0x0, b"", fin=False, length=4_000_000)[:14])  # 4 MB announced
     t = _closed(s, 5.0)
     s.close()
     assert t is not None and t < 1.0, t
@@ -194,6 +194,18 @@ def test_a_dead_listener_is_reported_and_degrades_the_daemon(feed):
     assert service_state(None, fx) == "degraded"
     with pytest.raises(OSError):
         FoxgloveClient("127.0.0.1", feed.port).connect(timeout=2)
+
+
+def test_an_sdk_server_that_stops_accepting_is_reported(feed):
+    from service.daemon.status import service_state
+
+    feed.server.stop()  # the SDK's listener gone, the guard's still up
+    line, s = _handshake(feed.port, {"Host": f"127.0.0.1:{feed.port}"})
+    s.close()
+    assert " 502 " in line, line
+    fx = feed.status()
+    assert fx["guard"]["listener"].startswith("upstream down"), fx["guard"]
+    assert service_state(None, fx) == "degraded"
 
 
 def test_frame_check_counts_fragments_and_control_frames():
