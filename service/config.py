@@ -286,6 +286,11 @@ class GroupSettings(BaseModel):
         description="a unit whose measurements arrive with no health output from any member "
         "for this long raises 'unmonitored' [s]",
     )
+    stations: list[str] = Field(
+        [],
+        description="stations whose daemons may be members (besides this one's own); a "
+        "token of any other station is ignored and counted (docs/security.md)",
+    )
 
 
 class FoxgloveSettings(BaseModel):
@@ -307,6 +312,26 @@ class FoxgloveSettings(BaseModel):
     every: int = Field(
         10, ge=1, le=100_000, description="send one row in N per topic (events: all; 1 = all)"
     )
+    max_connections: int = Field(
+        16, ge=1, le=4096, description="WebSocket clients at once (beyond: refused, 503)"
+    )
+    allowed_origins: list[str] = Field(
+        [],
+        description="browser origins allowed besides the server's own, e.g. "
+        "'https://app.foxglove.dev' (docs/security.md)",
+    )
+    max_message_bytes: int = Field(
+        65536, ge=1024, le=1 << 26, description="a client's message at most (beyond: cut) [bytes]"
+    )
+    message_s: float = Field(
+        10.0, gt=0, le=3600, description="an unfinished client frame or message is cut after [s]"
+    )
+    max_backlog_bytes: int = Field(
+        1 << 20,
+        ge=4096,
+        le=1 << 30,
+        description="bytes waiting for a client at most (beyond: the client is dropped)",
+    )
 
     @model_validator(mode="after")
     def _loopback(self) -> FoxgloveSettings:
@@ -323,6 +348,16 @@ class FoxgloveSettings(BaseModel):
         from service.listen import check_listen
 
         return check_listen(self.listen, allow_remote=self.allow_remote)
+
+    def guard_limits(self):
+        """The ``service.foxglove_guard.GuardLimits`` of these settings."""
+        from service.foxglove_guard import GuardLimits
+
+        return GuardLimits(
+            max_connections=self.max_connections, allowed_origins=tuple(self.allowed_origins),
+            max_message_bytes=self.max_message_bytes, message_s=self.message_s,
+            max_backlog_bytes=self.max_backlog_bytes, allow_remote=self.allow_remote,
+        )  # fmt: skip
 
 
 class MetricsSettings(BaseModel):
@@ -372,6 +407,15 @@ class ServiceConfig(BaseModel):
         1, ge=1, description="log est/residual every N outputs (events always; 1 = all)"
     )
     silence_s: float = Field(2.0, gt=0, description="an actuator is silent after this long [s]")
+    max_units_per_aircraft: int = Field(
+        64,
+        ge=1,
+        le=1000,
+        description="units of one aircraft tracked at most (further ones refused and counted)",
+    )
+    unit_expire_s: float = Field(
+        3600.0, gt=0, description="a unit silent this long leaves the unit table [s]"
+    )
     queue_size: int = Field(200_000, ge=1, description="receive queue length (messages)")
     max_bytes: int = Field(65536, ge=64, description="largest accepted message [bytes]")
     baseline: Path | None = Field(None, description="calibration baseline file (None=default)")

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from service import messages as m
+from service.foxglove_guard import GuardLimits, start_guarded
 from service.jsonutil import event_dict, flat
 from service.log.writer import block_schema, encode_message, json_schema_for
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS
@@ -107,6 +108,7 @@ class FoxgloveFeed:
         backlog: int = 1024,
         every: int = 1,
         name: str = "servowatch",
+        limits: GuardLimits | None = None,
     ) -> None:
         import foxglove
 
@@ -127,11 +129,12 @@ class FoxgloveFeed:
         self.errors = 0
         self._wake = threading.Event()
         self._stop = threading.Event()
-        self.server = foxglove.start_server(
-            name=name, host=host, port=port, context=self._ctx,
+        # the SDK's server behind a guard on host:port (Host, Origin, limits: foxglove_guard)
+        self.server, self.guard = start_guarded(
+            foxglove, host, port, limits, name=name, context=self._ctx,
             message_backlog_size=int(backlog),
         )  # fmt: skip
-        self.port = int(self.server.port)
+        self.port = self.guard.port
         self._thread = threading.Thread(target=self._run, name="foxglove-feed", daemon=True)
         self._thread.start()
         log.info("Foxglove WebSocket server on ws://%s:%d", host, self.port)
@@ -241,6 +244,7 @@ class FoxgloveFeed:
             "queue_size": self.queue_size,
             "dropped": self.dropped,
             "errors": self.errors,
+            "guard": self.guard.status(),
         }
 
     def close(self, timeout: float = 2.0) -> None:
@@ -259,6 +263,7 @@ class FoxgloveFeed:
             except Exception as e:
                 log.debug("foxglove server stop: %s", e)
 
+        self.guard.close()
         th = threading.Thread(target=stop, name="foxglove-stop", daemon=True)
         th.start()
         th.join(timeout)

@@ -9,6 +9,7 @@ command does. Prints one JSON object on stdout.
     python tests/_zenoh_role.py listen KEYEXPR MARK    # until SIGTERM: samples per key
     python tests/_zenoh_role.py token KEY [KEY ...]    # until SIGTERM: hold liveliness tokens
     python tests/_zenoh_role.py serve KEY [KEY ...]    # until SIGTERM: queryables; queries got
+    python tests/_zenoh_role.py answer KEY TEXT        # until SIGTERM: a queryable answering TEXT
 
 ``{zid}`` in a token key is replaced by the session id.
 """
@@ -64,6 +65,14 @@ def main(argv: list[str]) -> int:
             for d in decl:
                 d.undeclare()
             out["queries"] = dict(got)
+        elif argv[0] == "answer":
+            text = argv[2].encode()
+            stop = threading.Event()
+            signal.signal(signal.SIGTERM, lambda *_: stop.set())
+            q = session.declare_queryable(argv[1], lambda qq: qq.reply(argv[1], text))
+            print(json.dumps({"ready": True}), flush=True)
+            stop.wait()
+            q.undeclare()
         elif argv[0] == "listen":
             mark = argv[2].encode()
             counts: collections.Counter = collections.Counter()

@@ -127,12 +127,57 @@ def test_a_key_that_names_no_unit_passes_to_the_daemon():
 
 
 def test_token_names():
-    g = MonitorGroup("fleetA", "gA/0", lambda *a: None)
+    g = MonitorGroup("fleetA", "gA/0", lambda *a: None, stations=("gB",))
     tok = group_token("gB", "1", "fleetA", "abc123")
     assert tok == "monitor/gB/1/group/fleetA/abc123"
     assert g.member_of_token(tok) == ("gB/1", "abc123")
+    assert g.member_of_token("monitor/gA/7/group/fleetA/abc") == ("gA/7", "abc")  # own station
     assert g.member_of_token("monitor/gB/1/group/other/abc") is None
     assert g.member_of_token("monitor/gB/1/alive") is None
+    assert g.status()["foreign_tokens"] == 0
+
+
+def test_a_daemon_of_another_station_cannot_join():
+    """A valid certificate of station gC holds its own group token: not a member of a group
+    confined to its own station and the listed ones (issue 43)."""
+    for stations in ((), ("gB",)):
+        g = MonitorGroup("fleetA", "gA/0", lambda *a: None, stations=stations)
+        assert g.member_of_token(group_token("gC", "0", "fleetA", "z")) is None
+        assert g.status()["foreign_tokens"] == 1 and g.status()["members"] == ["gA/0"]
+
+
+def test_only_the_owners_outputs_keep_a_unit_monitored():
+    """Outputs of a unit reported by a member that does not own it, or by a non-member,
+    never mask its owner's silence; a member that flaps its token gets no fresh grace."""
+    g = MonitorGroup("g", "gA/0", lambda k, p, t: None, unmonitored_s=1.0)
+    now = time.monotonic()
+    g.join()
+    g._joined_at = now - 10.0
+    g.member_event("gA/1", True, now=now - 10.0)  # the idle member, long ago
+    g.member_event("gA/2", True, now=now - 10.0)  # a working member that does not own it
+    theirs = next(u for u in UNITS if owner_of(u, g.members) == "gA/1")
+    _stream(g, theirs, now - 3.0, now, outputs=False)
+    for i in range(30):
+        t = now - 3.0 + 0.1 * i
+        g.output_seen(_key(theirs), t, "gA/2")  # a member's word for a unit it does not own
+        g.output_seen(_key(theirs), t, "gZ/0")  # a non-member's
+    new, _ = g.check_unmonitored(now, live_s=2.0)
+    assert [(k, o) for k, o, _ in new] == [(_key(theirs), "gA/1")]
+    assert g.status()["foreign_outputs"] == 30
+    # the idle member flaps its token: each time the unit comes back to it, no new grace
+    g.output_seen(_key(theirs), now, "gA/1")  # it did output once
+    assert g.check_unmonitored(now + 0.1, live_s=2.0)[1] == [_key(theirs)]
+    t = now + 0.2
+    for _ in range(6):
+        g.member_event("gA/1", False, now=t)
+        _stream(g, theirs, t, t + 0.3, outputs=True)  # the others monitor it meanwhile
+        g.check_unmonitored(t + 0.3, live_s=2.0)
+        g.member_event("gA/1", True, now=t + 0.3)
+        _stream(g, theirs, t + 0.3, t + 0.6, outputs=False)
+        t += 0.6
+    g.check_unmonitored(t, live_s=2.0)
+    st = g.status()
+    assert list(st["unmonitored"]) == [theirs] and st["unmonitored"][theirs]["owner"] == "gA/1"
 
 
 def test_daemon_releases_and_takes_back_a_unit_afresh():
@@ -178,8 +223,8 @@ def _stream(g: MonitorGroup, unit: str, t0: float, t1: float, outputs: bool) -> 
     t = t0
     while t < t1:
         g.admit(_key(unit), b"x", t)
-        if outputs:
-            g.output_seen(_key(unit), t)
+        if outputs:  # from its owner (its summary's key)
+            g.output_seen(_key(unit), t, owner_of(unit, g.members))
         t += 0.1
 
 
@@ -203,7 +248,7 @@ def test_unit_owned_by_a_member_that_does_nothing_is_unmonitored():
     st = g.status()
     assert list(st["unmonitored"]) == [theirs] and st["unmonitored"][theirs]["owner"] == "gX/9"
     assert g.check_unmonitored(now, live_s=2.0) == ([], [])  # raised once
-    g.output_seen(_key(theirs), now + 0.1)  # someone monitors it again
+    g.output_seen(_key(theirs), now + 0.1, "gX/9")  # its owner monitors it again
     assert g.check_unmonitored(now + 0.2, live_s=2.0) == ([], [_key(theirs)])
     assert g.status()["unmonitored"] == {} and g.status()["unmonitored_events"] == 1
 
@@ -234,7 +279,7 @@ def test_unit_released_to_nobody_is_unmonitored():
     unit = next(u for u in UNITS if owner_of(u, ["gA/0", "gB/0"]) == "gB/0")
     _stream(g, unit, t0, t0 + 1.0, outputs=True)  # ours, monitored
     assert g.owns_key(_key(unit))
-    g.member_event("gB/0", True)  # released to gB ...
+    g.member_event("gB/0", True, now=t0 + 1.0)  # released to gB ...
     assert g.pop_released() == [_key(unit)]
     _stream(g, unit, t0 + 1.0, t0 + 3.0, outputs=False)  # ... which never outputs
     assert g.check_unmonitored(t0 + 1.5, live_s=2.0) == ([], [])  # within unmonitored_s

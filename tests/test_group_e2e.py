@@ -67,6 +67,7 @@ def test_group_shares_units_and_takes_over_without_loss(net: Net, tmp_path):
         cfg = tmp_path / f"{station}.toml"
         cfg.write_text(
             f'station = "{station}"\nshard = "0"\nstore = "off"\n[group]\nname = "fleet"\ntakeover_s = 5.0\n'
+            'stations = ["gA", "gB"]\n'
         )
         daemons[name] = net.start("run", "--config", str(cfg), "--log", str(tmp_path / f"{station}.mcap"),
                                   "--no-rotate", "--json", start_new_session=True)  # fmt: skip

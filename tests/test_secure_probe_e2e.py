@@ -74,8 +74,12 @@ def probe(tmp_path_factory):
             time.sleep(0.5)
         act = st.actuator()
         web = st.web()
-        time.sleep(3.0)
-        r["before"] = _daemon_status(st, "s_before")
+        deadline = time.monotonic() + 60  # the unit monitored (a loaded machine starts slowly)
+        while True:
+            r["before"] = _daemon_status(st, "s_before")
+            if r["before"]["actuators"].get(KEY, {}).get("outputs") or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
 
         # 1. other shards' group tokens, with the daemon's own certificate and another's
         rogues = [

@@ -86,7 +86,7 @@ def test_slim_maps_units_to_their_daemon():
     assert out["queried_s"] == 7.0 and out["enabled"] is True
     assert [(x.get("name"), x["state"]) for x in out["daemons"]] == [
         ("gA/1", "ok"),
-        (None, "unreadable"),
+        (None, "malformed"),
     ]
     assert out["daemons"][0]["units"] == 2 and out["daemons"][0]["latency_p99_ms"] == 1.5
     assert out["units"]["AC1/ail"] == {"daemon": "gA/1", "samples": 20, "silent": False, "bad": 2,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 
 from service.cliutil import emit_json, fail
@@ -23,15 +22,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def query_status(session, timeout: float = 2.0, selector: str = STATUS_SELECTOR) -> dict:
-    """``{key: status dict}`` of every daemon that answered within ``timeout``."""
+    """``{key: status dict}`` of every daemon that answered within ``timeout``; each reply
+    checked (``service.status_reply.check_reply``): a malformed one is a ``malformed``
+    marker, one whose name is not its key's is marked ``name_mismatch``."""
+    from service.status_reply import check_reply
+
     out: dict[str, dict] = {}
     for reply in session.get(selector, timeout=timeout):
         if reply.ok is None:
             continue
-        try:
-            out[str(reply.ok.key_expr)] = json.loads(reply.ok.payload.to_bytes())
-        except ValueError:
-            out[str(reply.ok.key_expr)] = {"error": "unreadable status"}
+        key = str(reply.ok.key_expr)
+        out[key] = check_reply(key, reply.ok.payload.to_bytes())
     return out
 
 
@@ -115,7 +116,17 @@ def format_status(daemons: dict) -> str:
     """Human-readable table of the daemons' status."""
     lines = []
     for key, st in sorted(daemons.items()):
-        lat = st.get("latency_ms", {})
+        if not isinstance(st, dict) or "malformed" in st or "error" in st:
+            why = st.get("malformed") or st.get("error") if isinstance(st, dict) else st
+            lines.append(f"{key!r}: MALFORMED reply ({why}), ignored")
+            continue
+        if "name_mismatch" in st:  # the key's name is the replier's (its certificate's)
+            lines.append(
+                f"{key}: NAME MISMATCH: the reply claims {st['name_mismatch']!r}; "
+                "its units are not believed"
+            )
+            continue
+        lat = st.get("latency_ms") or {}
         lines.append(
             f"{key}: pid {st.get('pid')} up {_fmt(st.get('uptime_s'), '.0f')} s, "
             f"model {st.get('model') or '-'}, "
@@ -138,10 +149,20 @@ def format_status(daemons: dict) -> str:
                 )
         fx = st.get("foxglove")
         if fx:
+            gd = fx.get("guard") or {}
+            mem = (
+                f", {gd.get('connections')}/{gd.get('max_connections')} viewers, "
+                f"{_fmt((gd.get('buffered_bytes') or 0) / 2**20, '.1f')} of "
+                f"{_fmt((gd.get('memory_bound_bytes') or 0) / 2**20, '.0f')} MiB buffered"
+                if gd
+                else ""
+            )
             lines.append(
                 f"  foxglove ws://{fx.get('listen')}: {fx.get('subscribed_topics')} topics subscribed, "
-                f"{fx.get('sent')} sent, {fx.get('dropped')} dropped"
+                f"{fx.get('sent')} sent, {fx.get('dropped')} dropped{mem}"
             )
+        if st.get("feed_failure"):
+            lines.append(f"  DEGRADED: {st['feed_failure']}")
         for _name, a in sorted(st.get("actuators", {}).items()):
             lines.extend(format_unit(a))
     return "\n".join(lines) if lines else "no daemon answered"
@@ -163,7 +184,8 @@ def run(args: argparse.Namespace) -> int:
     with session:
         daemons = query_status(session, args.timeout)
     if args.json:
-        emit_json({"daemons": daemons})
+        bad = sum(1 for v in daemons.values() if "malformed" in v or "name_mismatch" in v)
+        emit_json({"daemons": daemons, "malformed": bad})
     else:
         print(format_status(daemons))
     return 0 if daemons else 3

@@ -95,6 +95,7 @@ class Daemon:
         self.intake = Intake(
             queue_size=config.queue_size, max_bytes=config.max_bytes,
             clock=ClockCheck(**config.clock.model_dump()), max_batch=max_batch, bad_log=bad_log,
+            max_per_aircraft=config.max_units_per_aircraft, expire_s=config.unit_expire_s,
         )  # fmt: skip
         self.member = None
         if config.group is not None:
@@ -175,6 +176,18 @@ class Daemon:
             self.outputs.service_event(st, "silent", st.last_t, value=gap)
         return out
 
+    def expire_units(self, now: float | None = None) -> list[str]:
+        """Units silent for ``unit_expire_s`` leave the table (``Intake.expire``)."""
+        now = time.monotonic() if now is None else now
+        out = []
+        for key, st in self.intake.expire(now):
+            if st is not None:
+                self.outputs.end_period(self.monitor.row_of(key))
+                out.append(st.name)
+        if out:
+            log.info("%d silent units left the table: %s", len(out), ", ".join(out[:10]))
+        return out
+
     def release_units(self) -> list[str]:
         """Group units another member took over (``GroupMember.release_units``)."""
         return self.member.release_units(self.intake, self.monitor, self.outputs)
@@ -196,8 +209,11 @@ class Daemon:
                     changed = []
                     if self.member is not None:
                         changed = self.release_units() + self.check_unmonitored(now)
+                        self.member.publish_outputs(now, self.intake)
+                    self.expire_units(now)
                     if self.check_silence(now) or changed:
                         self.outputs.logger.commit()
+                    self.outputs.check_feed()
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now
                     with self._notify_lock:  # never a WATCHDOG after STOPPING
@@ -225,6 +241,8 @@ class Daemon:
     def _on_zenoh_sample(self, sample) -> None:
         try:
             key = str(sample.key_expr)
+            if not self.intake.admit_key(key):  # the key grammar, the per-aircraft cap
+                return
             if self.member is not None:  # a unit of another member is held, not queued
                 self.member.group.admit(key, sample.payload.to_bytes(), time.monotonic())
             else:

@@ -17,12 +17,19 @@ units pass straight on. Ownership and the hand-over are decided under one lock, 
 hand-over never reorders a unit's messages.
 
 A member also watches the group's work: every unit whose measurements keep arriving must
-show a health output (``fleet/{ac}/{act}/health``, from whichever member) at least every
-``unmonitored_s`` seconds. A unit that does not (its owner is a member that holds a token
-but processes nothing, or it was released and nobody took it) is **unmonitored**: every
-member raises the ``unmonitored`` event and lists it in its status until outputs resume. A
-member judges the units the others own (its own show to them), and a new owner has
-``unmonitored_s`` from the membership change.
+show outputs **from its owner** at least every ``unmonitored_s`` seconds. Each member puts,
+on its own key ``monitor/{station}/{shard}/outputs`` (which the router lets only that
+daemon's certificate put), the units it published outputs for; what another member, or any
+other identity, publishes on a unit's ``health`` key does not count. A unit whose owner shows
+none (a member that holds a token but processes nothing, or a unit released to nobody) is
+**unmonitored**: every member raises the ``unmonitored`` event and lists it in its status
+until its owner's outputs resume. A member judges the units the others own (its own show to
+them); a new owner has ``unmonitored_s`` from the membership change that gave it the unit,
+once until it shows outputs: a member that flaps its token takes no fresh grace each time.
+
+Membership is confined to this member's station and the ``stations`` the configuration
+lists: a token of another station (a valid certificate of station B, holding its own token)
+is ignored and counted (``foreign_tokens``).
 
 Memory is bounded: at most ``max_units`` held units, ``max_held`` messages each, no payload
 larger than ``max_bytes`` (the owner counts those), and ``sweep`` drops what has aged out.
@@ -42,10 +49,12 @@ from typing import Any
 
 from service import messages as m
 
-__all__ = ["owner_of", "group_token", "GROUP_TOKENS", "MonitorGroup"]
+__all__ = ["owner_of", "group_token", "GROUP_TOKENS", "OUTPUTS_KEY", "MonitorGroup"]
 
 GROUP_TOKEN = "monitor/{station}/{shard}/group/{group}/{zid}"
 GROUP_TOKENS = "monitor/*/*/group/{group}/*"
+#: where a member says which units it published outputs for (its own key)
+OUTPUTS_KEY = "monitor/{station}/{shard}/outputs"
 
 
 def group_token(station: str, shard: str, group: str, zid: str) -> str:
@@ -96,6 +105,7 @@ class MonitorGroup:
         max_held: int = 20_000,
         max_bytes: int = 65536,
         unmonitored_s: float = 5.0,
+        stations: tuple[str, ...] = (),
     ) -> None:
         self.name = name
         self.me = me
@@ -121,7 +131,14 @@ class MonitorGroup:
         self._changed_at = 0.0  # time.monotonic() of the last membership change
         self._last_meas: dict[str, float] = {}  # meas key -> last arrival (every unit)
         self._first_meas: dict[str, float] = {}  # meas key -> first arrival
-        self._last_output: dict[str, float] = {}  # meas key -> last health seen (any member)
+        self._last_output: dict[str, float] = {}  # meas key -> last output of any member
+        self._out_by: dict[tuple[str, str], float] = {}  # (meas key, member) -> its last output
+        # (meas key, owner) -> start of that owner's grace (renewed by a change only once it
+        # showed outputs since: a member that flaps its token gets no fresh grace each time)
+        self._grace: dict[tuple[str, str], float] = {}
+        self.stations = frozenset({me.split("/")[0], *stations})
+        self.foreign_tokens = 0  # group tokens of stations not in ``stations``
+        self.foreign_outputs = 0  # outputs summaries of non-members
         self._unmonitored: dict[str, dict[str, Any]] = {}  # meas key -> owner, since [wall s]
         self.unmonitored_events = 0
 
@@ -181,12 +198,17 @@ class MonitorGroup:
                 if not q:
                     del self._held[key]
 
-    def output_seen(self, key: str, t: float) -> None:
-        """A health output of the unit of meas key ``key`` was seen at ``t`` (monotonic), from
-        any member (this one included)."""
+    def output_seen(self, key: str, t: float, member: str) -> None:
+        """``member`` (``station/shard``, from the key of its outputs summary, which only its
+        certificate may put) published outputs of the unit of meas key ``key`` at ``t``
+        (monotonic). Only a member's word counts, and only for the units it owns."""
         with self._lock:
+            if member not in self.members:
+                self.foreign_outputs += 1
+                return
             if key in self._last_meas:
                 self._last_output[key] = t
+                self._out_by[(key, member)] = t
 
     def check_unmonitored(
         self, now: float, live_s: float
@@ -203,21 +225,31 @@ class MonitorGroup:
                 if now - last > live_s:
                     for d in (self._last_meas, self._first_meas, self._last_output):
                         d.pop(key, None)
+                    for d2 in (self._out_by, self._grace):
+                        for k2 in [k2 for k2 in d2 if k2[0] == key]:
+                            del d2[k2]
                     if self._unmonitored.pop(key, None) is not None:
                         back.append(key)
                     continue
-                # a new owner gets unmonitored_s from the change; this member's own units are
-                # judged by the others (it knows it processes them; its stall shows to them)
-                ref = max(
-                    self._last_output.get(key, self._first_meas[key]),
-                    self._joined_at,
-                    self._changed_at,
-                )
-                if self._owner_of_key(key) == self.me:
+                # this member's own units are judged by the others (it knows it processes
+                # them; its stall shows to them); another owner's by its own outputs only
+                owner = self._owner_of_key(key)
+                if owner is None or owner == self.me:
                     ref = now
+                else:
+                    out = self._out_by.get((key, owner))
+                    # its grace: from the unit's start, the change that gave it the unit or
+                    # this member's join; a later change renews it only if it showed outputs
+                    # since the grace began
+                    g0 = self._grace.get((key, owner))
+                    if g0 is None:
+                        g0 = self._grace[(key, owner)] = max(
+                            self._first_meas[key], self._changed_at
+                        )
+                    g0 = max(g0, self._joined_at)
+                    ref = g0 if out is None else max(out, g0)
                 if now - ref > self.unmonitored_s:
                     if key not in self._unmonitored:
-                        owner = self._owner_of_key(key)
                         self._unmonitored[key] = {
                             "owner": owner,
                             "since": time.time() - (now - ref),
@@ -244,9 +276,12 @@ class MonitorGroup:
             self._joined_at = time.monotonic()
             self._reassign(count=False)
 
-    def member_event(self, member: str, present: bool, zid: str = "") -> None:
-        """Token ``zid`` of ``member`` appeared (``present``) or vanished. A member is present
-        while any of its tokens is; this member itself always is."""
+    def member_event(
+        self, member: str, present: bool, zid: str = "", now: float | None = None
+    ) -> None:
+        """Token ``zid`` of ``member`` appeared (``present``) or vanished (``now``:
+        time.monotonic() of the change, by default the present). A member is present while
+        any of its tokens is; this member itself always is."""
         with self._lock:
             if member == self.me:
                 return
@@ -259,12 +294,24 @@ class MonitorGroup:
                 return
             (self.members.add if now_present else self.members.discard)(member)
             self.changes += 1
-            self._changed_at = time.monotonic()
+            self._changed_at = time.monotonic() if now is None else now
             before = dict(self._owner)
             self._owner.clear()
+            self._renew_grace()
             if not self.joined:
                 return
             self._reassign(count=True, before=before)
+
+    def _renew_grace(self) -> None:
+        """Under the lock, at a membership change: a unit's new owner gets a grace from now,
+        unless it already had one and showed no outputs since (a flapping member)."""
+        for key in self._last_meas:
+            o = self._owner_of_key(key)
+            if o is None or o == self.me:
+                continue
+            g0, out = self._grace.get((key, o)), self._out_by.get((key, o))
+            if g0 is None or (out is not None and out > g0):
+                self._grace[(key, o)] = self._changed_at
 
     def _reassign(self, count: bool, before: dict[str, str | None] | None = None) -> None:
         """Under the lock: feed the held messages of every unit that is ours now, count the
@@ -295,6 +342,10 @@ class MonitorGroup:
             return None
         if parts[4] != self.name:
             return None
+        if parts[1] not in self.stations:  # another station's daemon: not of this group
+            with self._lock:
+                self.foreign_tokens += 1
+            return None
         return f"{parts[1]}/{parts[2]}", parts[5]
 
     def status(self) -> dict[str, Any]:
@@ -319,4 +370,7 @@ class MonitorGroup:
                     for k, v in sorted(self._unmonitored.items())
                 },
                 "unmonitored_events": self.unmonitored_events,
+                "stations": sorted(self.stations),
+                "foreign_tokens": self.foreign_tokens,
+                "foreign_outputs": self.foreign_outputs,
             }

@@ -32,12 +32,20 @@ from service import messages as m
 from service.daemon.block import Block, Event, Part
 from service.daemon.ratelimit import RateLimitedLog
 
-__all__ = ["ActuatorState", "ClockCheck", "Intake", "MAX_ACTUATORS", "accept", "reason_of"]
+__all__ = [
+    "ActuatorState", "ClockCheck", "Intake", "MAX_ACTUATORS", "MAX_PER_AIRCRAFT", "EXPIRE_S",
+    "accept", "reason_of",
+]  # fmt: skip
 
 log = logging.getLogger("servowatch.daemon")
 
 #: actuators a daemon tracks at most; samples of further ones count as ``unknown_actuator``
 MAX_ACTUATORS = 1000
+#: actuators of one aircraft a daemon tracks at most (an acquisition identity is one
+#: aircraft's, so this is a cap per identity); further ones count as ``aircraft_full``
+MAX_PER_AIRCRAFT = 64
+#: a unit silent this long leaves the table (and frees its aircraft's slot) [s]
+EXPIRE_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -281,7 +289,14 @@ def accept(
 class Intake:
     """The pipeline's first stage: the receive queue, per-actuator stream state, decoding and
     the acceptance checks. ``submit`` (any thread) queues a message; ``take`` (the worker)
-    drains the queue into a :class:`~service.daemon.block.Block`."""
+    drains the queue into a :class:`~service.daemon.block.Block`.
+
+    The unit table is bounded per source: :meth:`admit_key` lets a key in only if it follows
+    the key grammar (``fleet/<aircraft>/<actuator>/meas``, names of letters, digits, ``_ . -``)
+    and its aircraft has fewer than ``max_per_aircraft`` units in the table (and the table
+    fewer than ``MAX_ACTUATORS``); a unit silent for ``expire_s`` leaves it (:meth:`expire`).
+    Refusals are counted (``unknown``: ``invalid_key``, ``aircraft_full``,
+    ``unknown_actuator``; per aircraft in ``refused_units``)."""
 
     def __init__(
         self,
@@ -291,6 +306,8 @@ class Intake:
         clock: ClockCheck,
         max_batch: int,
         bad_log: RateLimitedLog,
+        max_per_aircraft: int = MAX_PER_AIRCRAFT,
+        expire_s: float = EXPIRE_S,
     ) -> None:
         self.queue_size = queue_size
         self.max_bytes = max_bytes
@@ -307,17 +324,78 @@ class Intake:
         self._lock = threading.Lock()  # guards the structure of self.actuators
         self.wake = threading.Event()  # set when the worker has something to do
         self.queue_high = 0
+        self.max_per_aircraft = int(max_per_aircraft)
+        self.expire_s = float(expire_s)
+        self._per_aircraft: dict[str, int] = {}  # aircraft -> units in the table
+        self.refused_units: dict[str, int] = {}  # aircraft -> messages of units refused
+        self.expired = 0  # units that left the table for their silence
+
+    # -- the unit table -----------------------------------------------------------------
+    def _refuse(self, reason: str, key: str, aircraft: str | None = None) -> bool:
+        with self._lock:
+            self.unknown[reason] = self.unknown.get(reason, 0) + 1
+            if aircraft is not None:
+                self.refused_units[aircraft] = self.refused_units.get(aircraft, 0) + 1
+        self.bad_log.warning("key:" + reason, "%s: %r", reason, key[:200])
+        return False
+
+    def admit_key(self, key: str, t_recv: float | None = None) -> bool:
+        """Whether messages on ``key`` may enter (any thread): a unit in the table, or a new
+        one that follows the key grammar and fits its aircraft's cap (it then takes a slot).
+        A refusal is counted."""
+        if key in self._arrival:
+            return True
+        try:
+            aircraft, _ = m.parse_meas_key(key)
+        except m.MessageError:
+            return self._refuse("invalid_key", key)
+        with self._lock:
+            if key in self._arrival:
+                return True
+            n = self._per_aircraft.get(aircraft, 0)
+            full = n >= self.max_per_aircraft
+            if not full and len(self._arrival) < MAX_ACTUATORS:
+                self._per_aircraft[aircraft] = n + 1
+                t = time.monotonic() if t_recv is None else t_recv
+                self._arrival[key] = t
+                self.first_arrival.setdefault(key, t)
+                return True
+        return self._refuse("aircraft_full" if full else "unknown_actuator", key, aircraft)
+
+    def expire(self, now: float) -> list[tuple[str, ActuatorState | None]]:
+        """Units without a message for ``expire_s`` leave the table (their aircraft's slot
+        freed, their stream state forgotten); returns (key, state) of each."""
+        out: list[tuple[str, ActuatorState | None]] = []
+        with self._lock:
+            for key, last in list(self._arrival.items()):
+                if now - last <= self.expire_s:
+                    continue
+                del self._arrival[key]
+                self.first_arrival.pop(key, None)
+                aircraft = key.split("/")[1]
+                left = self._per_aircraft.get(aircraft, 1) - 1
+                if left > 0:
+                    self._per_aircraft[aircraft] = left
+                else:
+                    self._per_aircraft.pop(aircraft, None)
+                out.append((key, self.actuators.pop(key, None)))
+            if out:
+                gone = {k for k, _ in out}
+                self._sources = {s: k for s, k in self._sources.items() if k not in gone}
+                self.expired += len(out)
+        return out
 
     # -- any thread ---------------------------------------------------------------------
     def submit(self, key: str, payload: bytes, t_recv: float | None = None) -> bool:
-        """Queue one message (never blocks); False if the queue was full (drop counted)."""
+        """Queue one message (never blocks); False if its key is refused (``admit_key``) or
+        the queue was full (drop counted)."""
+        t_recv = time.monotonic() if t_recv is None else t_recv
+        if not self.admit_key(key, t_recv):
+            return False
         if len(self._queue) >= self.queue_size:
             self._count("dropped", key, 1)
             return False
-        t_recv = time.monotonic() if t_recv is None else t_recv
         self._arrival[key] = t_recv  # for silence detection, even while the worker lags
-        if key not in self.first_arrival:
-            self.first_arrival[key] = t_recv
         self._queue.append((key, payload, t_recv))
         n = len(self._queue)
         if n > self.queue_high:
@@ -327,8 +405,12 @@ class Intake:
         return True
 
     def source(self, source_id: str, key: str) -> None:
-        """Publisher ``source_id`` sends on ``key`` (to count its misses)."""
-        self._sources[source_id] = key
+        """Publisher ``source_id`` sends on ``key`` (to count its misses; units in the table
+        only, so the map is as bounded as the table)."""
+        if key in self._arrival and (
+            source_id in self._sources or len(self._sources) < 4 * MAX_ACTUATORS
+        ):
+            self._sources[source_id] = key
 
     def key_of_source(self, source_id: str) -> str:
         return self._sources.get(source_id, "")
@@ -338,8 +420,14 @@ class Intake:
         return self._count("missed", key, n)
 
     def alive(self, key: str, present: bool) -> None:
-        """An actuator's liveliness token appeared or vanished."""
-        self.alive_tokens[key] = present
+        """An actuator's liveliness token appeared or vanished (at most ``2 MAX_ACTUATORS``
+        tokens tracked; a vanished one of a unit not in the table is forgotten)."""
+        if not present and key[: -len("alive")] + "meas" not in self._arrival:
+            self.alive_tokens.pop(key, None)
+        elif key in self.alive_tokens or len(self.alive_tokens) < 2 * MAX_ACTUATORS:
+            self.alive_tokens[key] = present
+        else:
+            self.unknown["alive_full"] = self.unknown.get("alive_full", 0) + 1
 
     def _count(self, what: str, key: str, n: int) -> ActuatorState | None:
         st = self.state_for_key(key)
@@ -367,7 +455,7 @@ class Intake:
         with self._lock:
             st = self.actuators.get(key)
             if st is None:
-                if len(self.actuators) >= MAX_ACTUATORS:
+                if key not in self._arrival:  # not admitted, or expired meanwhile
                     return None
                 st = ActuatorState(aircraft, actuator)
                 self.actuators[key] = st
@@ -400,7 +488,7 @@ class Intake:
                 except m.MessageError:
                     reason = "invalid_key"
                 self.unknown[reason] = self.unknown.get(reason, 0) + 1
-                self.bad_log.warning("key:" + reason, "%s: %s", reason, key[:200])
+                self.bad_log.warning("key:" + reason, "%s: %r", reason, key[:200])
                 continue
             st.messages += 1
             st.last_recv = t_recv
@@ -449,10 +537,20 @@ class Intake:
         ``time.monotonic()``). May raise RuntimeError on a torn read (retry)."""
         with self._lock:
             acts = {k: st.snapshot(now) for k, st in list(self.actuators.items())}
+            table = {
+                "units": len(self._arrival),
+                "max_units": MAX_ACTUATORS,
+                "max_per_aircraft": self.max_per_aircraft,
+                "expire_s": self.expire_s,
+                "expired": self.expired,
+                "per_aircraft": dict(sorted(self._per_aircraft.items())),
+                "refused": dict(sorted(self.refused_units.items())),
+            }
         return {
             "queue": self.queued,
             "queue_high": self.queue_high,
             "queue_size": self.queue_size,
+            "unit_table": table,
             "unknown": dict(self.unknown),
             "alive_tokens": sorted(k for k, v in self.alive_tokens.items() if v),
             "lost_tokens": sorted(k for k, v in self.alive_tokens.items() if not v),

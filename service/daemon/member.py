@@ -1,22 +1,23 @@
 """The daemon as a member of a monitor group (``[group]``, docs/design.md, "Monitor
-groups"): its group token, the other members' tokens, everyone's health outputs, and what
+groups"): its group token, the other members' tokens, the summaries of the units each
+member published outputs for (its own on ``monitor/{station}/{shard}/outputs``), and what
 ownership changes mean for the pipeline (a released unit's period ends and its stream state
-is forgotten; a unit with measurements but no member's output is ``unmonitored``). The
-ownership rules themselves are ``service.daemon.group.MonitorGroup``.
+is forgotten; a unit with measurements but no outputs from its owner is ``unmonitored``).
+The ownership rules themselves are ``service.daemon.group.MonitorGroup``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
-from service import messages as m
 from service.config import GroupSettings
-from service.daemon.group import GROUP_TOKENS, MonitorGroup, group_token
+from service.daemon.group import GROUP_TOKENS, OUTPUTS_KEY, MonitorGroup, group_token
 from service.daemon.intake import MAX_ACTUATORS, Intake
 from service.daemon.monitoring import MonitorStage
 from service.daemon.outputs import Outputs
@@ -43,8 +44,14 @@ class GroupMember:
         self.group = MonitorGroup(
             config.name, f"{station}/{shard}", submit, takeover_s=config.takeover_s,
             unmonitored_s=config.unmonitored_s, max_units=MAX_ACTUATORS, max_bytes=max_bytes,
+            stations=tuple(config.stations),
         )  # fmt: skip
         self._token = None
+        self._session: Any = None
+        self._published: dict[str, int] = {}  # meas key -> its ``published`` at the last summary
+        self._summary_at = 0.0
+        #: how often the outputs summary goes out [s]
+        self.summary_s = min(1.0, config.unmonitored_s / 4)
         self._join_timer: threading.Timer | None = None
         self.errors = 0
 
@@ -72,11 +79,13 @@ class GroupMember:
             session.liveliness().declare_subscriber(
                 GROUP_TOKENS.format(group=g.name), on_member, history=True
             ),
-            # every member's health outputs: a unit with meas but none is unmonitored
+            # each member's summary of its outputs: a unit with meas but none from its
+            # owner is unmonitored
             session.declare_subscriber(
-                m.KEY_HEALTH.format(aircraft="*", actuator="*"), self._on_output
+                OUTPUTS_KEY.format(station="*", shard="*"), self._on_outputs
             ),
         ]
+        self._session = session
         self._join_timer = threading.Timer(self.config.join_s, g.join)
         self._join_timer.daemon = True
         self._join_timer.start()
@@ -84,13 +93,47 @@ class GroupMember:
                  self.config.join_s)  # fmt: skip
         return decl
 
-    def _on_output(self, sample) -> None:
-        """A member's health output (this member's own too): the unit is monitored."""
+    def _on_outputs(self, sample) -> None:
+        """A member's summary: the units it published outputs for since its last one. The
+        member is the key's (``monitor/{station}/{shard}/outputs``, which only that daemon's
+        certificate may put), whatever the payload says."""
         try:
-            k = str(sample.key_expr)
-            self.group.output_seen(k[: -len("health")] + "meas", time.monotonic())
+            parts = str(sample.key_expr).split("/")
+            if len(parts) != 4 or parts[0] != "monitor" or parts[3] != "outputs":
+                return
+            member = f"{parts[1]}/{parts[2]}"
+            raw = sample.payload.to_bytes()
+            units = json.loads(raw)["units"] if len(raw) <= 1 << 20 else None
+            if not isinstance(units, list):
+                raise ValueError("units: not a list")
+            now = time.monotonic()
+            for u in units[: 4 * MAX_ACTUATORS]:
+                if isinstance(u, str) and u.count("/") == 1:
+                    self.group.output_seen(f"fleet/{u}/meas", now, member)
         except Exception:
             self.errors += 1
+
+    def publish_outputs(self, now: float, intake: Intake) -> None:
+        """Every ``summary_s``: put the units this member published outputs for since its
+        last summary (the worker's thread: it owns ``intake.actuators``)."""
+        if self._session is None or now - self._summary_at < self.summary_s:
+            return
+        self._summary_at = now
+        units = []
+        for key, st in list(intake.actuators.items()):
+            if st.published > self._published.get(key, 0):
+                units.append(st.name)
+            self._published[key] = st.published
+        if len(self._published) > 2 * MAX_ACTUATORS:  # units gone from the table
+            self._published = {k: v for k, v in self._published.items() if k in intake.actuators}
+        try:
+            self._session.put(
+                OUTPUTS_KEY.format(station=self.station, shard=self.shard),
+                json.dumps({"units": units}).encode(),
+            )
+        except Exception as e:
+            self.errors += 1
+            log.debug("outputs summary: %s", e)
 
     def leave(self) -> None:
         """Leave the group first at a stop: the others take the units over while this

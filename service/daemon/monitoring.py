@@ -95,7 +95,7 @@ class MonitorStage:
             rows_of = []
             for p in parts:
                 row = b.index_of(p.key)  # in the worker: it may grow the bank's arrays
-                if row not in self._rows:
+                if self._rows.get(row) is not p.st:  # new, or back after it expired
                     self._rows[row] = p.st
                     self._row_key[row] = p.key
                     blk.new_rows.append((row, p.st, self._track_info(p.key)))

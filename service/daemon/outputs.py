@@ -107,6 +107,7 @@ class Outputs:
 
             self.store = StoreWriter(store_url)
         self.foxglove = None  # FoxgloveFeed
+        self._feed_state = "ok"  # its guard's listener, as last reported
         if config.foxglove is not None:
             from service.foxglove_feed import FoxgloveFeed
 
@@ -114,7 +115,7 @@ class Outputs:
             host, port = fc.host_port()
             self.foxglove = FoxgloveFeed(
                 host, port, queue_size=fc.queue_size, backlog=fc.backlog, every=fc.every,
-                name=f"servowatch {config.station}/{config.shard}",
+                name=f"servowatch {config.station}/{config.shard}", limits=fc.guard_limits(),
             )  # fmt: skip
         pc = config.prognostics
         self.fanout = FanOut(
@@ -235,6 +236,24 @@ class Outputs:
             self.log_failure = str(self.logger.failure)
             log.error("MCAP log failed, service degraded: %s", self.log_failure)
             sd_notify(f"STATUS=degraded: MCAP log failed: {self.log_failure[:200]}")
+
+    def check_feed(self) -> None:
+        """The live feed's listener went down or came back: logged, and a systemd STATUS
+        line (the status shows it as ``feed_failure``, the service ``degraded``)."""
+        if self.foxglove is None:
+            return
+        state = self.foxglove.guard.listener()
+        if state == self._feed_state:
+            return
+        self._feed_state = state
+        if state == "ok":
+            log.info("the Foxglove feed's listener is back")
+            sd_notify(
+                "STATUS=ok" if self.log_failure is None else "STATUS=degraded: MCAP log failed"
+            )
+        else:
+            log.error("the Foxglove feed's listener: %s; service degraded", state)
+            sd_notify(f"STATUS=degraded: the Foxglove feed's listener: {state[:200]}")
 
     def _publish_failed(self, e: Exception) -> None:
         self.errors += 1

@@ -12,7 +12,7 @@ import numpy as np
 
 from service.jsonutil import jsonable
 
-__all__ = ["percentiles", "service_state", "snapshot"]
+__all__ = ["feed_failure", "percentiles", "service_state", "snapshot"]
 
 
 def percentiles(values: Iterable[float], qs: Sequence[float] = (50, 99)) -> list[float | None]:
@@ -24,10 +24,19 @@ def percentiles(values: Iterable[float], qs: Sequence[float] = (50, 99)) -> list
     return [float(x) for x in np.percentile(v, list(qs), method="inverted_cdf")]
 
 
-def service_state(log_failure: str | None) -> str:
-    """``"degraded"`` when the log failed (samples are no longer recorded), else ``"ok"``;
-    counted errors (bad input, a failed publish) do not degrade the service."""
-    return "degraded" if log_failure else "ok"
+def feed_failure(foxglove: dict[str, Any] | None) -> str | None:
+    """Why the live Foxglove feed does not accept connections (its guard's listener), or
+    None when it does or there is none."""
+    g = (foxglove or {}).get("guard") or {}
+    state = g.get("listener", "ok")
+    return None if state == "ok" else f"the Foxglove feed's listener: {state}"
+
+
+def service_state(log_failure: str | None, foxglove: dict[str, Any] | None = None) -> str:
+    """``"degraded"`` when the log failed (samples are no longer recorded) or the live feed's
+    listener is down (``feed_failure``), else ``"ok"``; counted errors (bad input, a failed
+    publish) do not degrade the service."""
+    return "degraded" if log_failure or feed_failure(foxglove) else "ok"
 
 
 def snapshot(
@@ -72,8 +81,9 @@ def snapshot(
     errors += mon["errors"] + out["errors"] + (0 if member is None else member.errors)
     return jsonable(
         {
-            "state": service_state(out["log_failure"]),
+            "state": service_state(out["log_failure"], out["foxglove"]),
             "log_failure": out["log_failure"],
+            "feed_failure": feed_failure(out["foxglove"]),
             "station": service["station"],
             "shard": service["shard"],
             "key_expr": service["key_expr"],
@@ -89,6 +99,7 @@ def snapshot(
             "bad": sum(a["bad_total"] for a in acts.values()),
             "missed": sum(a["missed"] for a in acts.values()) + ins["unknown"].get("missed", 0),
             "unknown": ins["unknown"],
+            "unit_table": ins["unit_table"],
             "errors": errors,
             "latency_ms": mon["latency_ms"],
             "latency_hist": mon.get("latency_hist"),

@@ -20,11 +20,18 @@ def slim(daemons: dict[str, dict[str, Any]], queried_s: float) -> dict[str, Any]
     (station, shard, state, counters, latency p99 [ms], silent units, raised alarms) and per
     unit ``AIRCRAFT/ACTUATOR`` the daemon that monitors it with that unit's samples, silence,
     bad/dropped/missed counts and raised alarm kinds."""
+    from service.status_reply import believed, name_of_key
+
     out_d: list[dict[str, Any]] = []
     units: dict[str, dict[str, Any]] = {}
     for key, st in sorted(daemons.items()):
-        if not isinstance(st, dict) or "error" in st and len(st) == 1:
-            out_d.append({"key": key, "state": "unreadable"})
+        if not isinstance(st, dict) or "malformed" in st or "error" in st:
+            why = st.get("malformed") or st.get("error") if isinstance(st, dict) else None
+            out_d.append({"key": key, "state": "malformed", "error": why})
+            continue
+        if not believed(key, st):  # claims another daemon's name: told apart, not believed
+            out_d.append({"key": key, "name": name_of_key(key), "state": "name_mismatch",
+                          "claims": st.get("name_mismatch")})  # fmt: skip
             continue
         name = f"{st.get('station')}/{st.get('shard')}"
         acts = st.get("actuators") or {}
@@ -61,8 +68,8 @@ def slim(daemons: dict[str, dict[str, Any]], queried_s: float) -> dict[str, Any]
             }
     # a unit that any member reports unmonitored (measurements, no member's output) is shown
     # so, whoever last listed it
-    for st in daemons.values():
-        g = st.get("group") if isinstance(st, dict) else None
+    for key, st in daemons.items():
+        g = st.get("group") if believed(key, st) else None
         for unit, u in ((g or {}).get("unmonitored") or {}).items():
             entry = units.setdefault(unit, {"daemon": None})
             entry["unmonitored"] = True
