@@ -77,6 +77,9 @@ METRICS: dict[str, tuple[str, str]] = {
         "gauge",
         "Foxglove channels at least one client subscribed to (the SDK counts no clients)",
     ),
+    "foxglove_clients": ("gauge", "viewers connected to the live feed (through its guard)"),
+    "foxglove_buffered_bytes": ("gauge", "bytes the live feed's guard holds for its viewers"),
+    "foxglove_listener_ok": ("gauge", "1 while the live feed's listener accepts, else 0"),
     "foxglove_sent": ("counter", "messages sent to the Foxglove server"),
     "foxglove_dropped": ("counter", "Foxglove messages dropped by the full feeder queue"),
     # per unit (labels station, shard, aircraft, actuator)
@@ -191,6 +194,11 @@ def collect_status(st: dict[str, Any]) -> list[Metric]:
     fx = st.get("foxglove")
     if fx:
         f.add("foxglove_subscribed_channels", fx.get("subscribed_topics"), d)
+        fg = fx.get("guard") if isinstance(fx.get("guard"), dict) else {}
+        f.add("foxglove_clients", fg.get("connections"), d)
+        f.add("foxglove_buffered_bytes", fg.get("buffered_bytes"), d)
+        if "listener" in fg:
+            f.add("foxglove_listener_ok", 1.0 if fg.get("listener") == "ok" else 0.0, d)
         f.add("foxglove_sent", fx.get("sent"), d)
         f.add("foxglove_dropped", fx.get("dropped"), d)
     unit = ["aircraft", "actuator"]

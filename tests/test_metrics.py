@@ -220,7 +220,8 @@ def full_status() -> dict:
         "store": {"written": 1, "errors": 0, "pending": 0, "failure": None},
         "group": {"members": ["a", "b"], "takeovers": 1, "released": 0, "held_units": 0,
                   "unmonitored": {}},
-        "foxglove": {"subscribed_topics": 2, "sent": 5, "dropped": 0},
+        "foxglove": {"subscribed_topics": 2, "sent": 5, "dropped": 0,
+                     "guard": {"listener": "ok", "connections": 3, "buffered_bytes": 10}},
         "silent": [],
         "actuators": {"k": {
             "aircraft": "A", "actuator": "b", "samples": 1, "dropped": 0, "gaps": 0,
@@ -237,3 +238,16 @@ def test_every_family_is_declared():
     every METRICS family is served."""
     served = {f.name.removeprefix("servowatch_") for f in collect_status(full_status())}
     assert served == set(METRICS)
+
+
+def test_the_feeds_viewers_come_from_its_guard():
+    """The live feed's viewers, buffered bytes and listener state are its guard's (issue 43's
+    guard counts the connections the SDK does not)."""
+    st = full_status()
+    fams = {f.name.removeprefix("servowatch_"): f for f in collect_status(st)}
+    assert fams["foxglove_clients"].samples[0].value == 3
+    assert fams["foxglove_buffered_bytes"].samples[0].value == 10
+    assert fams["foxglove_listener_ok"].samples[0].value == 1
+    st["foxglove"]["guard"]["listener"] = "dead"
+    fams = {f.name.removeprefix("servowatch_"): f for f in collect_status(st)}
+    assert fams["foxglove_listener_ok"].samples[0].value == 0
