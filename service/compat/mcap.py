@@ -264,6 +264,62 @@ class BlockWriter(Writer):
                 self._finalize()
             k = j
 
+    def add_rows(self, channel_ids: np.ndarray, log_times: np.ndarray, recs: np.ndarray) -> None:
+        """Append Message records of one size, ``recs`` (n, size) uint8, record k on channel
+        ``channel_ids[k]`` at ``log_times[k]``: statistics, chunk times and message indexes
+        as :meth:`add_message` keeps them, and the chunk ends after the same record as with
+        one :meth:`add_message` per record."""
+        n, size = recs.shape
+        if n == 0:
+            return
+        channel_ids = np.asarray(channel_ids, np.int64)
+        st = self._st
+        lo, hi = int(log_times.min()), int(log_times.max())
+        if st.message_count == 0 or lo < st.message_start_time:
+            st.message_start_time = lo
+        if hi > st.message_end_time:
+            st.message_end_time = hi
+        uc, cnt = np.unique(channel_ids, return_counts=True)
+        for c, k in zip(uc.tolist(), cnt.tolist(), strict=True):
+            st.channel_message_counts[c] += k
+        st.message_count += n
+        flat = recs.reshape(-1)
+        k = 0
+        while k < n:
+            cb = self._cb
+            buf = cb.record_writer._buffer
+            base = buf.tell()
+            # add_message ends the chunk after the first record that takes it past chunk_size
+            j = min(n, k + max(0, self._csize - base) // size + 1)
+            part = log_times[k:j]
+            lo, hi = int(part.min()), int(part.max())
+            if cb.num_messages == 0 or lo < cb.message_start_time:
+                cb.message_start_time = lo
+            if hi > cb.message_end_time:
+                cb.message_end_time = hi
+            offs = base + np.arange(j - k, dtype=np.int64) * size
+            cj = channel_ids[k:j]
+            if uc.size == 1:
+                groups = [(int(uc[0]), slice(None))]
+            else:
+                order = np.argsort(cj, kind="stable")
+                sc = cj[order]
+                cut = np.flatnonzero(np.diff(sc)) + 1
+                a = [0, *cut.tolist()]
+                b = [*cut.tolist(), len(sc)]
+                groups = [(int(sc[x]), order[x:y]) for x, y in zip(a, b, strict=True)]
+            idxs = cb.message_indices
+            for c, sel in groups:
+                idx = idxs.get(c)
+                if idx is None:
+                    idx = idxs[c] = _PackedMessageIndex(c, [])
+                idx.add_packed(part[sel], offs[sel])
+            cb.num_messages += j - k
+            buf.write(flat[k * size : j * size])
+            if buf.tell() > self._csize:
+                self._finalize()
+            k = j
+
 
 def pack_records(
     channel_id: int, log_times: np.ndarray, datas: list[bytes], sequences: np.ndarray

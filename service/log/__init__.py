@@ -14,7 +14,7 @@ from service.log.reader import (
     read_log_files,
     rotated_files,
 )
-from service.log.writer import McapLogger, block_schema, json_schema_for
+from service.log.writer import McapLogger, json_schema_for, row_schema
 
 __all__ = [
     "McapLogger",
@@ -24,7 +24,7 @@ __all__ = [
     "read_log_files",
     "rotated_files",
     "json_schema_for",
-    "block_schema",
+    "row_schema",
     "TruncatedLogWarning",
     "LogReadStats",
 ]
