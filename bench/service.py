@@ -41,6 +41,7 @@ is apart and does not change): throughput on a saturated CPU is its inverse, so
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -51,6 +52,43 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+
+# --------------------------------------------------------------------------- CPU split
+
+_TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def _stat_cpu(path: str) -> tuple[str, float]:
+    """(comm, user + system CPU seconds) of a /proc/.../stat file."""
+    with open(path) as f:
+        txt = f.read()
+    comm = txt[txt.index("(") + 1 : txt.rindex(")")]
+    fields = txt[txt.rindex(")") + 2 :].split()
+    return comm, (int(fields[11]) + int(fields[12])) / _TICK
+
+
+def _threads_cpu(pid: int) -> dict[int, tuple[str, float]]:
+    """Thread id -> (name, CPU seconds) of every thread of ``pid`` (Linux /proc)."""
+    out = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        with contextlib.suppress(OSError, ValueError):  # a thread that ended meanwhile
+            out[int(tid)] = _stat_cpu(f"/proc/{pid}/task/{tid}/stat")
+    return out
+
+
+def _cpu_split(before: dict, after: dict, worker: int | None) -> dict[str, float]:
+    """CPU seconds per thread group between two ``_threads_cpu`` snapshots: the worker
+    thread, Zenoh's threads (tokio runtimes: ``rx-``, ``tx-``, ``net-``, ``acc-``, ``app-``
+    and the like; every thread not started by Python), the other Python threads."""
+    split: dict[str, float] = {}
+    for tid, (name, cpu) in after.items():
+        d = cpu - before.get(tid, (name, 0.0))[1]
+        group = "worker" if tid == worker else "main+python" if name.startswith(
+            ("python", "servowatch", "mcap", "foxglove")) else "zenoh"  # fmt: skip
+        split[group] = split.get(group, 0.0) + d
+        split[f"thread {name}"] = split.get(f"thread {name}", 0.0) + d
+    return split
 
 
 # --------------------------------------------------------------------------- children
@@ -114,6 +152,7 @@ def _generator(args: argparse.Namespace) -> int:
                 "sent_msgs": len(msgs),
                 "wall_s": wall,
                 "max_late_s": late,
+                "cpu_s": time.process_time(),
             }
         ),
         flush=True,
@@ -204,6 +243,10 @@ def _daemon(args: argparse.Namespace) -> int:
             d.process_pending = lambda: prof.runcall(inner)
         d.start(session)
         cpu0 = time.process_time()
+        worker = d._worker.native_id if d._worker is not None else None
+        lproc = getattr(getattr(d.outputs.logger, "_proc", None), "pid", None)
+        th0 = _threads_cpu(os.getpid())
+        lg0 = _stat_cpu(f"/proc/{lproc}/stat")[1] if lproc else 0.0
         print("ready", flush=True)
         ppid = os.getppid()
         while not stop.wait(0.5):
@@ -216,7 +259,15 @@ def _daemon(args: argparse.Namespace) -> int:
         drain = time.monotonic() - t0
         left = d.queued
         cpu_s = time.process_time() - cpu0
-        st = d.stop()
+        split = _cpu_split(th0, _threads_cpu(os.getpid()), worker)
+        t_stop = time.monotonic()
+        st = d.stop()  # the log process writes what it has queued and the summary
+        if lproc:  # reaped by stop(): its whole life less what it had spent at "ready"
+            import resource
+
+            r = resource.getrusage(resource.RUSAGE_CHILDREN)
+            split["log process"] = r.ru_utime + r.ru_stime - lg0
+        split["stop_s"] = time.monotonic() - t_stop
     if prof is not None:
         import pstats
 
@@ -224,6 +275,7 @@ def _daemon(args: argparse.Namespace) -> int:
     st["drain_s"] = drain
     st["left_in_queue"] = left
     st["cpu_s"] = cpu_s
+    st["cpu_split_s"] = split
     print(json.dumps(st), flush=True)
     return 0
 
@@ -295,6 +347,7 @@ def run_one(
         if viewer:
             view = _Viewer(fx_port, viewer)
         time.sleep(0.5)
+        cpu_router0 = time.process_time()
         g = subprocess.run(
             [
                 py,
@@ -318,6 +371,7 @@ def run_one(
             dproc.kill()
             raise RuntimeError(f"load generator failed ({g.returncode}):\n{g.stderr[-3000:]}")
         gen = json.loads(g.stdout.strip().splitlines()[-1])
+        cpu_router = time.process_time() - cpu_router0
         dproc.terminate()
         out, _ = dproc.communicate(timeout=drain_cap + 60)
         st = json.loads(out.strip().splitlines()[-1])
@@ -361,6 +415,17 @@ def run_one(
         "every": every if viewer else None,
         "cpu_s": st["cpu_s"],
         "cpu_us_per_sample": 1e6 * st["cpu_s"] / max(1, st["samples"]),
+        # CPU per accepted sample [us] of each process (the daemon's by thread group)
+        "cpu_split_us": {
+            **{
+                f"daemon {k}": 1e6 * v / max(1, st["samples"])
+                for k, v in st.get("cpu_split_s", {}).items()
+                if k != "stop_s"
+            },
+            "generator": 1e6 * gen.get("cpu_s", float("nan")) / max(1, st["samples"]),
+            "router (bench process)": 1e6 * cpu_router / max(1, st["samples"]),
+        },  # fmt: skip
+        "loadavg": os.getloadavg(),
         "viewer_msgs": 0 if view is None else view.received,
         "viewer_subscriptions": 0 if view is None else len(view.subs),
         "feed": st.get("foxglove"),
@@ -454,6 +519,29 @@ def print_cost(rows: list[dict]) -> None:
 
 def _f(v, spec=".1f"):
     return "-" if v is None else format(v, spec)
+
+
+def print_split(rows: list[dict]) -> None:
+    """CPU per accepted sample of each process and the daemon's threads."""
+    keys = ["daemon worker", "daemon zenoh", "daemon main+python", "daemon log process"]
+    print(
+        f"{'code':>6} {'model':>7} {'act':>4} {'worker':>7} {'zenoh':>6} {'other':>6} "
+        f"{'log proc':>8} {'DAEMON':>7} {'gen':>6} {'router':>6}  load avg (1/5/15 min)"
+    )
+    for r in rows:
+        c = r.get("cpu_split_us") or {}
+        daemon = sum(c.get(k, 0.0) for k in keys)
+        print(f"{r['code'][:6]:>6} {r['model'] if r['monitor'] == 'real' else '-':>7} "
+              f"{r['actuators']:>4} " + " ".join(f"{c.get(k, float('nan')):>{w}.1f}" for k, w in
+              zip(keys, (7, 6, 6, 8), strict=True)) + f" {daemon:>7.1f} "
+              f"{c.get('generator', float('nan')):>6.1f} "
+              f"{c.get('router (bench process)', float('nan')):>6.1f}  "
+              + "/".join(f"{x:.1f}" for x in r.get("loadavg", ())))  # fmt: skip
+    print(
+        "CPU time per accepted sample [us] over the run: the daemon's worker thread, its "
+        "Zenoh threads, its other threads, its MCAP log process (DAEMON = their sum, the "
+        "daemon as a whole), the load generator, the router (this process)"
+    )
 
 
 def print_table(rows: list[dict]) -> None:
@@ -558,6 +646,8 @@ def main(argv=None) -> int:
         f"publish_every {args.publish_every}"
     )
     print_table(rows)
+    print()
+    print_split(rows)
     if args.json:
         print(json.dumps(rows))
     return 0

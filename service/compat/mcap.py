@@ -5,8 +5,8 @@ allows (one ``Message`` object and five stream writes per message; a parsed ``Me
 per message when reading), so three pieces reach into its internals:
 
 * :class:`BlockWriter` (``mcap.writer.Writer`` subclass): packs Message records straight into
-  the chunk builder's buffer, one record (``add_message``) or many of one channel at once
-  (``add_records``), and keeps the writer's statistics, chunk times and message indexes as
+  the chunk builder's buffer, one record (``add_message``) or many of one size at once
+  (``add_rows``), and keeps the writer's statistics, chunk times and message indexes as
   the base class does. It uses the name-mangled ``_Writer__chunk_builder``,
   ``_Writer__statistics``, ``_Writer__chunk_size``, ``_Writer__maybe_finalize_chunk`` and
   the chunk builder's ``record_writer._buffer`` (an ``io.BytesIO``).
@@ -51,9 +51,6 @@ __all__ = [
 _MSG_RECORD = struct.Struct("<BQHIQQ")  # opcode, length, channel_id, sequence, log/publish time
 #: bytes of a Message record before its data: opcode, length, channel, sequence, two times
 MESSAGE_HEADER_BYTES = _MSG_RECORD.size  # 31
-_MSG_HEAD_DTYPE = np.dtype(
-    [("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"), ("lt", "<u8"), ("pt", "<u8")]
-)  # packed: 31 bytes
 
 
 class McapCompatError(RuntimeError):
@@ -168,7 +165,7 @@ def _writer_problems(w: Writer) -> list[str]:
 
 class BlockWriter(Writer):
     """``mcap.writer.Writer`` that packs Message records itself: one (``add_message``) or
-    many of one channel (``add_records``), the same bytes as the base class's
+    many of one size (``add_rows``), the same bytes as the base class's
     ``add_message`` (chunked writers only). ``zstd_level`` sets this writer's zstd level
     (None: zstd's default, as the base class)."""
 
@@ -219,51 +216,6 @@ class BlockWriter(Writer):
         if buf.tell() > self._csize:
             self._finalize()
 
-    def add_records(
-        self, channel_id: int, log_times: np.ndarray, recs: Any, ends: np.ndarray
-    ) -> None:
-        """Append packed Message records ``recs`` (record k ends at ``ends[k]``) of one
-        channel: statistics, chunk times and message index as :meth:`add_message` keeps them,
-        and the chunk ends after the same record as with one :meth:`add_message` per record."""
-        n = len(ends)
-        if n == 0:
-            return
-        st = self._st
-        lo, hi = int(log_times.min()), int(log_times.max())
-        if st.message_count == 0 or lo < st.message_start_time:
-            st.message_start_time = lo
-        if hi > st.message_end_time:
-            st.message_end_time = hi
-        st.channel_message_counts[channel_id] += n
-        st.message_count += n
-        starts = np.empty(n, np.int64)
-        starts[0] = 0
-        starts[1:] = ends[:-1]
-        mv = memoryview(recs)
-        k = 0
-        while k < n:
-            cb = self._cb
-            buf = cb.record_writer._buffer
-            base = buf.tell()
-            # add_message ends the chunk after the first record that takes it past chunk_size
-            j = k + int(np.searchsorted(ends[k:], self._csize - base + starts[k], "right")) + 1
-            j = min(j, n)
-            part = log_times[k:j]
-            lo, hi = int(part.min()), int(part.max())
-            if cb.num_messages == 0 or lo < cb.message_start_time:
-                cb.message_start_time = lo
-            if hi > cb.message_end_time:
-                cb.message_end_time = hi
-            idx = cb.message_indices.get(channel_id)
-            if idx is None:
-                idx = cb.message_indices[channel_id] = _PackedMessageIndex(channel_id, [])
-            idx.add_packed(part, starts[k:j] + (base - starts[k]))
-            cb.num_messages += j - k
-            buf.write(mv[starts[k] : ends[j - 1]])
-            if buf.tell() > self._csize:
-                self._finalize()
-            k = j
-
     def add_rows(self, channel_ids: np.ndarray, log_times: np.ndarray, recs: np.ndarray) -> None:
         """Append Message records of one size, ``recs`` (n, size) uint8, record k on channel
         ``channel_ids[k]`` at ``log_times[k]``: statistics, chunk times and message indexes
@@ -279,8 +231,9 @@ class BlockWriter(Writer):
             st.message_start_time = lo
         if hi > st.message_end_time:
             st.message_end_time = hi
-        uc, cnt = np.unique(channel_ids, return_counts=True)
-        for c, k in zip(uc.tolist(), cnt.tolist(), strict=True):
+        uc, first, cnt = np.unique(channel_ids, return_index=True, return_counts=True)
+        by_first = np.argsort(first)  # dicts in the order of each channel's first message
+        for c, k in zip(uc[by_first].tolist(), cnt[by_first].tolist(), strict=True):
             st.channel_message_counts[c] += k
         st.message_count += n
         flat = recs.reshape(-1)
@@ -308,6 +261,7 @@ class BlockWriter(Writer):
                 a = [0, *cut.tolist()]
                 b = [*cut.tolist(), len(sc)]
                 groups = [(int(sc[x]), order[x:y]) for x, y in zip(a, b, strict=True)]
+                groups.sort(key=lambda g: int(g[1][0]))  # first message first, as add_message
             idxs = cb.message_indices
             for c, sel in groups:
                 idx = idxs.get(c)
@@ -319,28 +273,6 @@ class BlockWriter(Writer):
             if buf.tell() > self._csize:
                 self._finalize()
             k = j
-
-
-def pack_records(
-    channel_id: int, log_times: np.ndarray, datas: list[bytes], sequences: np.ndarray
-) -> tuple[bytes, np.ndarray]:
-    """Message records (``publish_time`` = ``log_time``) of ``datas`` packed for
-    :meth:`BlockWriter.add_records`: (records, end offset of each)."""
-    n = len(datas)
-    lens = np.fromiter(map(len, datas), np.int64, n)
-    head = np.empty(n, _MSG_HEAD_DTYPE)
-    head["op"] = Opcode.MESSAGE
-    head["len"] = lens + 22
-    head["cid"] = channel_id
-    head["seq"] = sequences
-    head["lt"] = log_times
-    head["pt"] = log_times
-    hb = head.tobytes()
-    h = MESSAGE_HEADER_BYTES
-    parts: list[bytes] = [b""] * (2 * n)
-    parts[0::2] = [hb[i : i + h] for i in range(0, h * n, h)]
-    parts[1::2] = datas
-    return b"".join(parts), np.cumsum(lens + h)
 
 
 # ------------------------------------------------------------------------ reader
