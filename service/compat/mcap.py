@@ -216,28 +216,35 @@ class BlockWriter(Writer):
         if buf.tell() > self._csize:
             self._finalize()
 
-    def add_rows(self, channel_ids: np.ndarray, log_times: np.ndarray, recs: np.ndarray) -> None:
-        """Append Message records of one size, ``recs`` (n, size) uint8, record k on channel
-        ``channel_ids[k]`` at ``log_times[k]``: statistics, chunk times and message indexes
-        as :meth:`add_message` keeps them, and the chunk ends after the same record as with
-        one :meth:`add_message` per record."""
+    def add_rows(
+        self, channel_ids: Any, counts: Any, log_times: np.ndarray, recs: np.ndarray
+    ) -> None:
+        """Append Message records of one size, ``recs`` (n, size) uint8, in runs: the first
+        ``counts[0]`` records on channel ``channel_ids[0]``, the next ``counts[1]`` on
+        ``channel_ids[1]``, ...; record k at ``log_times[k]``. Statistics, chunk times and
+        message indexes as :meth:`add_message` keeps them, and the chunk ends after the same
+        record as with one :meth:`add_message` per record."""
         n, size = recs.shape
         if n == 0:
             return
-        channel_ids = np.asarray(channel_ids, np.int64)
+        cids = [int(c) for c in channel_ids]
+        cnts = [int(c) for c in counts]
         st = self._st
         lo, hi = int(log_times.min()), int(log_times.max())
         if st.message_count == 0 or lo < st.message_start_time:
             st.message_start_time = lo
         if hi > st.message_end_time:
             st.message_end_time = hi
-        uc, first, cnt = np.unique(channel_ids, return_index=True, return_counts=True)
-        by_first = np.argsort(first)  # dicts in the order of each channel's first message
-        for c, k in zip(uc[by_first].tolist(), cnt[by_first].tolist(), strict=True):
+        ends: list[int] = []
+        e = 0
+        for c, k in zip(cids, cnts, strict=True):
             st.channel_message_counts[c] += k
+            e += k
+            ends.append(e)
         st.message_count += n
         flat = recs.reshape(-1)
         k = 0
+        r = 0  # the run of record k
         while k < n:
             cb = self._cb
             buf = cb.record_writer._buffer
@@ -250,24 +257,18 @@ class BlockWriter(Writer):
                 cb.message_start_time = lo
             if hi > cb.message_end_time:
                 cb.message_end_time = hi
-            offs = base + np.arange(j - k, dtype=np.int64) * size
-            cj = channel_ids[k:j]
-            if uc.size == 1:
-                groups = [(int(uc[0]), slice(None))]
-            else:
-                order = np.argsort(cj, kind="stable")
-                sc = cj[order]
-                cut = np.flatnonzero(np.diff(sc)) + 1
-                a = [0, *cut.tolist()]
-                b = [*cut.tolist(), len(sc)]
-                groups = [(int(sc[x]), order[x:y]) for x, y in zip(a, b, strict=True)]
-                groups.sort(key=lambda g: int(g[1][0]))  # first message first, as add_message
             idxs = cb.message_indices
-            for c, sel in groups:
+            a = k
+            while a < j:
+                while ends[r] <= a:
+                    r += 1
+                b = min(j, ends[r])
+                c = cids[r]
                 idx = idxs.get(c)
                 if idx is None:
                     idx = idxs[c] = _PackedMessageIndex(c, [])
-                idx.add_packed(part[sel], offs[sel])
+                idx.add_packed(log_times[a:b], base + (np.arange(a, b) - k) * size)
+                a = b
             cb.num_messages += j - k
             buf.write(flat[k * size : j * size])
             if buf.tell() > self._csize:

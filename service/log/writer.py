@@ -377,11 +377,15 @@ class McapLogger:
                     cids[i] = cid
                     seq0[i] = self._seq[cid]
                     self._seq[cid] = (int(seq0[i]) + c) & 0xFFFFFFFF
-                starts = np.cumsum(counts_a) - counts_a
-                row_cid = np.repeat(cids, counts_a)
-                seqs = (np.repeat(seq0 - starts, counts_a) + np.arange(n)) & 0xFFFFFFFF
+                if len(topics_l) == 1:
+                    row_cid = cids[0]
+                    seqs = (seq0[0] + np.arange(n)) & 0xFFFFFFFF
+                else:
+                    starts = np.cumsum(counts_a) - counts_a
+                    row_cid = np.repeat(cids, counts_a)
+                    seqs = (np.repeat(seq0 - starts, counts_a) + np.arange(n)) & 0xFFFFFFFF
                 lay.set_channels(recs, row_cid, seqs)
-                self._writer.add_rows(row_cid, lts, recs)  # type: ignore[union-attr]
+                self._writer.add_rows(cids, counts_a, lts, recs)  # type: ignore[union-attr]
                 self.message_count += n
                 self._dirty = True
                 if time.monotonic() - self._last_flush >= self.flush_s:
@@ -390,6 +394,8 @@ class McapLogger:
             except Exception as e:
                 self._failed("write", e)
                 raise
+
+    log_blocks = log_rows  # the name ProcessLogger and the fan-out use
 
     def log_many(self, records: Iterable[tuple[str, float, Mapping[str, Any]]]) -> None:
         """:meth:`log` for each ``(topic, t, msg)``, taking the lock once (fewer switches)."""
