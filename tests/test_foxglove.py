@@ -364,3 +364,21 @@ def test_replay_serves_foxglove_paced(tmp_path):
     span_wall = half[-1][0] - half[0][0]
     # paced: as fast as possible, 3000 samples take well under 0.3 s
     assert span_t > 1.2 and span_wall >= 0.7 * span_t / speed, (span_t, span_wall)
+
+
+def test_the_shipped_layout_names_fields_of_the_row_schemas():
+    """Every ``topic.field`` path and every ``event.message.field`` of the layout's user
+    scripts is a field of that topic's protobuf row (the schemas the log and the feed carry)."""
+    import re
+
+    text = (Path(__file__).parents[1] / "deploy/foxglove/servowatch-layout.json").read_text()
+    schemas = topic_schemas(AC, ACT)
+    paths = set(re.findall(r"(/fleet/AC001/elevator_L/[a-z]+)\.([a-z_0-9]+)", text))
+    assert len(paths) >= 8
+    for topic, fld in paths:
+        assert fld in schemas[topic].names, (topic, fld)
+    rows = [schemas[TOPIC[leaf]].names for leaf in ("est", "residual", "health")]
+    used = set(re.findall(r"message\.([a-z_0-9]+)", text))
+    assert used >= {"c_lk", "leak_ratio", "nis", "nis_dof"}
+    for fld in used:
+        assert any(fld in names for names in rows), fld
