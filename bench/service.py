@@ -79,15 +79,28 @@ def _threads_cpu(pid: int) -> dict[int, tuple[str, float]]:
 
 def _cpu_split(before: dict, after: dict, worker: int | None) -> dict[str, float]:
     """CPU seconds per thread group between two ``_threads_cpu`` snapshots: the worker
-    thread, Zenoh's threads (tokio runtimes: ``rx-``, ``tx-``, ``net-``, ``acc-``, ``app-``
-    and the like; every thread not started by Python), the other Python threads."""
+    thread; the monitor's step threads (``monitor-step_*``); the intake, Zenoh's calls into
+    Python (``pyo3-closure`` threads: the subscriber callbacks); Zenoh's own threads (tokio
+    runtimes: ``rx-``, ``tx-``, ``net-``, ...; every thread not started by Python); the
+    rest (main thread, timers)."""
+    import threading
+
+    py = {t.native_id: t.name for t in threading.enumerate()}
     split: dict[str, float] = {}
     for tid, (name, cpu) in after.items():
         d = cpu - before.get(tid, (name, 0.0))[1]
-        group = "worker" if tid == worker else "main+python" if name.startswith(
-            ("python", "servowatch", "mcap", "foxglove")) else "zenoh"  # fmt: skip
+        pname = py.get(tid)
+        if tid == worker:
+            group = "worker"
+        elif pname is None:
+            group = "zenoh"
+        elif pname.startswith("monitor-step"):
+            group = "monitor steps"
+        elif "pyo3" in pname:
+            group = "intake callbacks"
+        else:
+            group = "other"
         split[group] = split.get(group, 0.0) + d
-        split[f"thread {name}"] = split.get(f"thread {name}", 0.0) + d
     return split
 
 
@@ -523,23 +536,25 @@ def _f(v, spec=".1f"):
 
 def print_split(rows: list[dict]) -> None:
     """CPU per accepted sample of each process and the daemon's threads."""
-    keys = ["daemon worker", "daemon zenoh", "daemon main+python", "daemon log process"]
+    keys = ["daemon worker", "daemon monitor steps", "daemon intake callbacks", "daemon zenoh",
+            "daemon other", "daemon log process"]  # fmt: skip
     print(
-        f"{'code':>6} {'model':>7} {'act':>4} {'worker':>7} {'zenoh':>6} {'other':>6} "
+        f"{'code':>6} {'model':>7} {'act':>4} {'worker':>7} {'steps':>6} {'intake':>6} {'zenoh':>6} {'other':>6} "
         f"{'log proc':>8} {'DAEMON':>7} {'gen':>6} {'router':>6}  load avg (1/5/15 min)"
     )
     for r in rows:
         c = r.get("cpu_split_us") or {}
         daemon = sum(c.get(k, 0.0) for k in keys)
         print(f"{r['code'][:6]:>6} {r['model'] if r['monitor'] == 'real' else '-':>7} "
-              f"{r['actuators']:>4} " + " ".join(f"{c.get(k, float('nan')):>{w}.1f}" for k, w in
-              zip(keys, (7, 6, 6, 8), strict=True)) + f" {daemon:>7.1f} "
+              f"{r['actuators']:>4} " + " ".join(f"{c.get(k, 0.0):>{w}.1f}" for k, w in
+              zip(keys, (7, 6, 6, 6, 6, 8), strict=True)) + f" {daemon:>7.1f} "
               f"{c.get('generator', float('nan')):>6.1f} "
               f"{c.get('router (bench process)', float('nan')):>6.1f}  "
               + "/".join(f"{x:.1f}" for x in r.get("loadavg", ())))  # fmt: skip
     print(
         "CPU time per accepted sample [us] over the run: the daemon's worker thread, its "
-        "Zenoh threads, its other threads, its MCAP log process (DAEMON = their sum, the "
+        "monitor's step threads, the intake (Zenoh's callbacks into Python), Zenoh's own threads, "
+        "its other threads, its MCAP log process (DAEMON = their sum, the "
         "daemon as a whole), the load generator, the router (this process)"
     )
 

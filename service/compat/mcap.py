@@ -258,6 +258,10 @@ class BlockWriter(Writer):
             if hi > cb.message_end_time:
                 cb.message_end_time = hi
             idxs = cb.message_indices
+            pairs = np.empty((j - k, 2), "<u8")  # the message index entries of k..j
+            pairs[:, 0] = part
+            pairs[:, 1] = np.arange(base, base + (j - k) * size, size, dtype=np.int64)
+            pb = pairs.tobytes()
             a = k
             while a < j:
                 while ends[r] <= a:
@@ -267,7 +271,7 @@ class BlockWriter(Writer):
                 idx = idxs.get(c)
                 if idx is None:
                     idx = idxs[c] = _PackedMessageIndex(c, [])
-                idx.add_packed(log_times[a:b], base + (np.arange(a, b) - k) * size)
+                idx.packed.append((len(idx.records), pb[(a - k) * 16 : (b - k) * 16]))
                 a = b
             cb.num_messages += j - k
             buf.write(flat[k * size : j * size])
