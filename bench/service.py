@@ -329,6 +329,7 @@ def run_one(
     py = sys.executable
     me = str(Path(__file__).resolve())
     common = ["--connect", ep]
+    dproc = None
     try:
         dproc = subprocess.Popen(
             [
@@ -389,6 +390,9 @@ def run_one(
         out, _ = dproc.communicate(timeout=drain_cap + 60)
         st = json.loads(out.strip().splitlines()[-1])
     finally:
+        if dproc is not None and dproc.poll() is None:  # a failed run leaves no daemon behind
+            dproc.kill()
+            dproc.wait(10)
         router.close()
         if view is not None:
             view.close()
