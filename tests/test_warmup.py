@@ -74,7 +74,6 @@ def test_the_log_paths_run_on_the_signatures_the_warmup_compiles():
     """The reader parses chunk bytes (read-only) or arrays of its own (writable): the
     kernels see one signature either way, the warm-up's, so no command compiles a second
     one on its first run (it did: 3 s into the first demo, 13 s in its plot)."""
-    import numpy as np
     from numba.core import event
 
     from service.log.codec import json_records, parse_objects, scan_records
