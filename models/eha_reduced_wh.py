@@ -21,7 +21,7 @@ Integration (docs/models.md section 7; decisions/0012): one step per 1 ms sample
 (``H_MAX``; a longer interval is split into steps of at most H_MAX). The spool takes the
 exact zero-order-hold step of ``models.eha_reduced``; (x_J, v_J, p~1, p~2) take one step of
 ROS2, the two-stage linearly implicit (Rosenbrock-W) method of Verwer et al. (1999),
-gamma = 1 + 1/sqrt(2)::
+gamma = 1 - 1/sqrt(2)::
 
     (I - gamma h J) k1 = f(t0, y0)                           (spool at its start position)
     (I - gamma h J) k2 = f(t0 + h, y0 + h k1) - 2 k1         (spool at its end position)
@@ -29,12 +29,16 @@ gamma = 1 + 1/sqrt(2)::
 
 J is the analytic Jacobian of (v_J, p~1, p~2) on themselves at y0 (orifice slopes, leak,
 cavitation, friction or the stuck relaxation) with dx_J/dt = v_J; the volumes' dependence
-on x_J is left out. ROS2 is second order for any J (a W-method), and with J exact its
-stability function R(z) = (1 + (1 - 2 gamma) z) / (1 - gamma z)^2 is A-stable with
-R(-inf) = 0 (L-stable): the stiff chamber mode (6.5e3 1/s at mid stroke, 2.6e4 1/s at the
-chamber floor, |lambda h| up to 26) is damped in one step wherever the jack is
-(``stiff_modes``, ``ros2_amplification``). ``step_rk4`` keeps the classic RK4 scheme the
-filter used before (3 substeps per ms at mid stroke), the fine-step reference of the tests.
+on x_J is left out. ROS2 is second order for any J (a W-method). With J exact its stability
+function R(z) = (1 + (1 - 2 gamma) z) / (1 - gamma z)^2 (``ros2_amplification``) is
+A-stable with R(-inf) = 0 (L-stable): on the real axis |R| <= (sqrt 2 - 1) / 2 = 0.21 beyond
+|z| = 2.4, so the stiff chamber mode (up to 6.5e3 1/s at mid stroke and 2.6e4 1/s at the
+chamber floor, |lambda h| up to 26; ``stiff_modes``) is damped at least 4.8-fold per step
+wherever the jack is, its error alternating in sign. On the imaginary axis |R| = 0.9995 at
+the hydraulic mode's |lambda h| = 0.63: the water hammer's ringing keeps its amplitude
+(gamma = 1 + 1/sqrt(2), the other L-stable choice, damps it by 16 % per step; decision
+record 0012). ``step_rk4`` keeps the classic RK4 scheme the filter used before (3 substeps
+per ms at mid stroke, up to 11 at the chamber floor), the fine-step reference of the tests.
 """
 
 from __future__ import annotations
@@ -97,7 +101,7 @@ N_STATES = len(STATE_NAMES)
 IX = {n: k for k, n in enumerate(STATE_NAMES)}
 S_PT1, S_PT2 = IX["pt1"], IX["pt2"]
 H_MAX = 1e-3  # longest integration step [s]: one ROS2 step per 1 ms sample
-GAMMA = 1.0 + 1.0 / math.sqrt(2.0)  # ROS2's gamma: L-stable (Verwer et al. 1999)
+GAMMA = 1.0 - 1.0 / math.sqrt(2.0)  # ROS2's gamma: L-stable, the hydraulic mode kept (0012)
 V_MIN_FRACTION = 0.25  # chamber volume floor / V0 (a guard past the stroke: V_dead / V0 = 0.29)
 
 # parameter vector: models.eha_reduced's layout, then the WH constants (docs/models.md eq. 2, 3, 5)
