@@ -162,3 +162,18 @@ def test_c_type_outputs_unchanged():
 
     for name in ("leak_step", "supply_drop"):
         assert mod.scenario_hash(name, 1.0, config=C5_CONFIG)[0] == C5_HASHES_1S[name]
+
+
+# evaluation/outputs_hash.py --duration-s 1.0 with WH's one ROS2 step per sample (decisions/0012;
+# the full-length hashes are in docs/evaluation.md, "Output hashes")
+WH_HASHES_1S = {
+    "leak_step": "22ca73fb20c83728e9028690d6a6e2f8a38f88303714258017c387004881fb3f",
+    "supply_drop": "b731521ce23dd967ee68119d3bd5475e17c47299ff8e98e3c82b001a2e9578da",
+}
+
+
+def test_wh_outputs_are_those_of_the_one_step_integrator():
+    from evaluation import outputs_hash as mod
+
+    for name in ("leak_step", "supply_drop"):
+        assert mod.scenario_hash(name, 1.0)[0] == WH_HASHES_1S[name]
