@@ -1,7 +1,7 @@
 """Logs written before decision 0011 (JSON rows) stay readable, replayable and ingestible.
 
 ``tests/data/json_rows_log.mcap`` was written by the code before the protobuf rows: the
-meas of two actuators (1.2e9 s epoch, 120 samples each, the second without a current
+meas of two actuators (times from 1.7e9 s, 120 samples each, the second without a current
 sensor) logged as the daemon logs them, then replayed with ``--out`` (meas, est, residual,
 health as the daemon writes them; every message JSON).
 """
@@ -76,10 +76,11 @@ def test_json_log_reads_by_blocks_as_by_messages():
         assert _same(vals, exp), topic
 
 
-def test_json_log_replays_to_its_own_estimates_and_converts_bit_for_bit(tmp_path):
-    """The replay of the old log reproduces the estimates logged in it, and writes them as
-    protobuf rows with the same numbers, bit for bit (meas, est, residual, health)."""
-    out = tmp_path / "replayed.mcap"
+def test_json_log_replays_and_converts_bit_for_bit(tmp_path):
+    """The replay of the old log writes its measurements as protobuf rows with the same
+    numbers, bit for bit, and its outputs equal those of a replay of that conversion (the
+    fixture's own est rows are the monitor of their time: a model change moves them)."""
+    out, again = tmp_path / "replayed.mcap", tmp_path / "again.mcap"
     s = replay(FIXTURE, out=out)
     assert s.samples == 240 and s.outputs == 240 and not s.truncated
     assert {v for t, v in _encodings(out).items() if t.rsplit("/", 1)[-1] in LEAVES} == {"protobuf"}
@@ -89,12 +90,13 @@ def test_json_log_replays_to_its_own_estimates_and_converts_bit_for_bit(tmp_path
         to, no, vo = old[topic]
         tn, nn, vn = new[topic]
         assert no == nn and np.array_equal(to, tn), topic
-        assert _same(vo, vn), topic
-    for act in ACTS:  # the final estimates equal the old log's last est row
-        t, names, v = old[f"/fleet/{act}/est"]
-        fin = s.final[act]["est"]
-        got = np.array([np.nan if fin[k] is None else fin[k] for k in names], np.float64)
-        assert _same(got, v[-1]), act
+        if topic.endswith("/meas"):
+            assert _same(vo, vn), topic
+    s2 = replay(out, out=again)
+    assert s2.final == s.final
+    rep = _rows(again)
+    for topic in new:
+        assert _same(new[topic][2], rep[topic][2]), topic
 
 
 def test_json_log_ingests_into_a_store_as_its_protobuf_conversion(tmp_path):
