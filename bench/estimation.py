@@ -7,12 +7,15 @@ NASA ProgPy 1.9's UnscentedKalmanFilter on the same model as a PrognosticsModel)
     .venv/bin/python bench/estimation.py --skip-accuracy # speed only
     .venv/bin/python bench/estimation.py --json out.json # also write the figures as JSON
     .venv/bin/python bench/estimation.py --model C5,WH   # process models side by side
+    .venv/bin/python bench/estimation.py --model C5,WH --skip-accuracy --clock cpu
 
 The randomized duty-cycle suite is ``python -m evaluation.suite`` (docs/estimation.md).
 
 The truth is the HF bench with the scenarios' seeded sensor noise. ProgPy is optional
 (``pip install 'progpy==1.9.*'``, the ``bench`` extra); without it that column reads
-"progpy not installed". Speed figures are wall-clock medians on this machine, one core.
+"progpy not installed". Speed figures are medians on this machine, one core: wall clock, or
+with ``--clock cpu`` the calling thread's CPU time (``time.thread_time``), which time slices
+taken by other processes on a shared, loaded machine do not inflate.
 """
 
 from __future__ import annotations
@@ -37,6 +40,10 @@ from service.calibration import measured_run  # noqa: E402
 from service.monitor import Baseline, Monitor, MonitorBank, MonitorConfig  # noqa: E402
 from service.scenarios import load_scenario  # noqa: E402
 from service.ukf import ukf_step_batch  # noqa: E402
+
+CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}
+_clock = CLOCKS["wall"]  # the speed runs' clock (``--clock``)
+_CLOCK_NAME = {time.perf_counter: "wall time", time.thread_time: "thread CPU time"}
 
 
 # -- accuracy ------------------------------------------------------------------------------
@@ -108,7 +115,7 @@ def _samples(n: int) -> list[dict]:
 def speed_monitor(samples: list[dict], model: str = "C5") -> float:
     mon = Monitor(MonitorConfig(model=model))
     dts = []
-    pc = time.perf_counter
+    pc = _clock
     for s in samples:
         a = pc()
         mon.update(s)
@@ -121,7 +128,7 @@ def speed_bank(samples: list[dict], n_act: int, rows: bool = False, model: str =
     bank = MonitorBank(MonitorConfig(model=model))
     ids = [f"act{k:03d}" for k in range(n_act)]
     dts = []
-    pc = time.perf_counter
+    pc = _clock
     call = bank.update_rows if rows else bank.update_many
     for s in samples:
         batch = [(a, s) for a in ids]
@@ -142,7 +149,7 @@ def speed_arrays(samples: list[dict], n_act: int, per_call: int = 10, model: str
     t_all = np.array([s["t"] for s in samples])
     ch_all = np.array([[s.get(c, np.nan) for c in CHANNELS] for s in samples], float)
     dts = []
-    pc = time.perf_counter
+    pc = _clock
     for a in range(0, len(samples) - per_call + 1, per_call):
         ks = np.repeat(np.array(rows, np.int64), per_call)
         t = np.tile(t_all[a : a + per_call], n_act)
@@ -157,9 +164,8 @@ def speed_kernel(
     samples: list[dict], n_act: int, model: str = "C5", n_sub: int | None = None
 ) -> float:
     """The compiled UKF step alone (no sample parsing, no output dicts), per actuator;
-    ``n_sub``: the model's integration substeps per 1 ms sample instead of its own (WH: 3
-    RK4 substeps at mid stroke, which its chamber mode needs for stability; 1 times what the
-    step would cost with an integrator stable in one)."""
+    ``n_sub``: integration steps per 1 ms sample instead of the model's own (1 for every
+    model: WH takes one ROS2 step, docs/models.md section 7)."""
     bank = MonitorBank(MonitorConfig(model=model))
     ids = [f"act{k:03d}" for k in range(n_act)]
     for s in samples[:2]:
@@ -176,12 +182,12 @@ def speed_kernel(
     dts = []
     for _ in range(300):
         xx, PP = x.copy(), P.copy()
-        t0 = time.perf_counter()
+        t0 = _clock()
         ukf_step_batch(
             xx, PP, z, mask, i_in, dt, n_sub, bank._q, bank.R, bank.scale, bank._zscale,
             w.Wm, w.Wc, w.c, bank._prm, y, nis, st,
         )  # fmt: skip
-        dts.append(time.perf_counter() - t0)
+        dts.append(_clock() - t0)
     return float(np.median(dts) * 1e6 / n_act)
 
 
@@ -296,9 +302,6 @@ def speed_models(n: int, fleet: int, models: tuple[str, ...], repeats: int = 3) 
             samples, fleet, model=m
         ),
         f"kernel{fleet}_us_per_actuator": lambda m: speed_kernel(samples, fleet, m),
-        f"kernel{fleet}_one_substep_us_per_actuator": lambda m: speed_kernel(
-            samples, fleet, m, n_sub=1
-        ),
     }
     vals: dict = {m: {k: [] for k in paths} for m in models}
     for _ in range(repeats):
@@ -310,7 +313,8 @@ def speed_models(n: int, fleet: int, models: tuple[str, ...], repeats: int = 3) 
 
 def print_speed_models(sp: dict, fleet: int) -> None:
     models = list(sp)
-    print("\nSpeed per process model (median wall time per actuator and sample, best of runs)")
+    print(f"\nSpeed per process model (median {_CLOCK_NAME[_clock]} per actuator and sample, "
+          "best of runs)")  # fmt: skip
     print(f"  {'path':<52}" + "".join(f"{m:>10}" for m in models) + (
         f"{models[-1] + ' / ' + models[0]:>12}" if len(models) > 1 else ""))  # fmt: skip
     for k in sp[models[0]]:
@@ -320,6 +324,11 @@ def print_speed_models(sp: dict, fleet: int) -> None:
     arr = f"monitor_bank{fleet}_arrays_us_per_actuator"
     print("  actuators per core at 1 kHz, update_arrays: " + ", ".join(
         f"{m} {1e3 / sp[m][arr]:.1f}" for m in models))  # fmt: skip
+    if "C5" in models:
+        for m in models:
+            if m != "C5":
+                print(f"  update_arrays {m} / C5: {sp[m][arr] / sp['C5'][arr]:.2f}x "
+                      "(issue 41's target for WH: at most 2x)")  # fmt: skip
 
 
 def speed(n: int, fleet: int, repeats: int = 3) -> dict:
@@ -389,6 +398,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=max(1, min(2, os.cpu_count() or 1)))
     ap.add_argument("--json", default=None, help="write every figure to this JSON file")
     ap.add_argument(
+        "--clock",
+        choices=sorted(CLOCKS),
+        default="wall",
+        help="the speed runs' clock: wall time, or the thread's CPU time (a loaded machine)",
+    )
+    ap.add_argument(
         "--model",
         default="C5",
         help="process model(s) of the monitor, comma-separated (e.g. C5,WH: side by side)",
@@ -402,6 +417,8 @@ def main(argv: list[str] | None = None) -> int:
         "process.p_sr=5e5",
     )
     args = ap.parse_args(argv)
+    global _clock
+    _clock = CLOCKS[args.clock]
     models = tuple(m.strip() for m in args.model.split(",") if m.strip())
     overrides = {}
     for m in models:  # the same overrides, checked against every model's config

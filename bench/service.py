@@ -48,6 +48,7 @@ default rate), alternating run by run. Also reported: the scrape's own time (med
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -58,6 +59,56 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+
+# --------------------------------------------------------------------------- CPU split
+
+_TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def _stat_cpu(path: str) -> tuple[str, float]:
+    """(comm, user + system CPU seconds) of a /proc/.../stat file."""
+    with open(path) as f:
+        txt = f.read()
+    comm = txt[txt.index("(") + 1 : txt.rindex(")")]
+    fields = txt[txt.rindex(")") + 2 :].split()
+    return comm, (int(fields[11]) + int(fields[12])) / _TICK
+
+
+def _threads_cpu(pid: int) -> dict[int, tuple[str, float]]:
+    """Thread id -> (name, CPU seconds) of every thread of ``pid`` (Linux /proc)."""
+    out = {}
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        with contextlib.suppress(OSError, ValueError):  # a thread that ended meanwhile
+            out[int(tid)] = _stat_cpu(f"/proc/{pid}/task/{tid}/stat")
+    return out
+
+
+def _cpu_split(before: dict, after: dict, worker: int | None) -> dict[str, float]:
+    """CPU seconds per thread group between two ``_threads_cpu`` snapshots: the worker
+    thread; the monitor's step threads (``monitor-step_*``); the intake, Zenoh's calls into
+    Python (``pyo3-closure`` threads: the subscriber callbacks); Zenoh's own threads (tokio
+    runtimes: ``rx-``, ``tx-``, ``net-``, ...; every thread not started by Python); the
+    rest (main thread, timers)."""
+    import threading
+
+    py = {t.native_id: t.name for t in threading.enumerate()}
+    split: dict[str, float] = {}
+    for tid, (name, cpu) in after.items():
+        d = cpu - before.get(tid, (name, 0.0))[1]
+        pname = py.get(tid)
+        if tid == worker:
+            group = "worker"
+        elif pname is None:
+            group = "zenoh"
+        elif pname.startswith("monitor-step"):
+            group = "monitor steps"
+        elif "pyo3" in pname:
+            group = "intake callbacks"
+        else:
+            group = "other"
+        split[group] = split.get(group, 0.0) + d
+    return split
 
 
 # --------------------------------------------------------------------------- children
@@ -121,6 +172,7 @@ def _generator(args: argparse.Namespace) -> int:
                 "sent_msgs": len(msgs),
                 "wall_s": wall,
                 "max_late_s": late,
+                "cpu_s": time.process_time(),
             }
         ),
         flush=True,
@@ -217,6 +269,10 @@ def _daemon(args: argparse.Namespace) -> int:
             d.process_pending = lambda: prof.runcall(inner)
         d.start(session)
         cpu0 = time.process_time()
+        worker = d._worker.native_id if d._worker is not None else None
+        lproc = getattr(getattr(d.outputs.logger, "_proc", None), "pid", None)
+        th0 = _threads_cpu(os.getpid())
+        lg0 = _stat_cpu(f"/proc/{lproc}/stat")[1] if lproc else 0.0
         print("ready", flush=True)
         ppid = os.getppid()
         while not stop.wait(0.5):
@@ -229,7 +285,15 @@ def _daemon(args: argparse.Namespace) -> int:
         drain = time.monotonic() - t0
         left = d.queued
         cpu_s = time.process_time() - cpu0
-        st = d.stop()
+        split = _cpu_split(th0, _threads_cpu(os.getpid()), worker)
+        t_stop = time.monotonic()
+        st = d.stop()  # the log process writes what it has queued and the summary
+        if lproc:  # reaped by stop(): its whole life less what it had spent at "ready"
+            import resource
+
+            r = resource.getrusage(resource.RUSAGE_CHILDREN)
+            split["log process"] = r.ru_utime + r.ru_stime - lg0
+        split["stop_s"] = time.monotonic() - t_stop
     if prof is not None:
         import pstats
 
@@ -237,6 +301,7 @@ def _daemon(args: argparse.Namespace) -> int:
     st["drain_s"] = drain
     st["left_in_queue"] = left
     st["cpu_s"] = cpu_s
+    st["cpu_split_s"] = split
     print(json.dumps(st), flush=True)
     return 0
 
@@ -280,6 +345,7 @@ def run_one(
     py = sys.executable
     me = str(Path(__file__).resolve())
     common = ["--connect", ep]
+    dproc = None
     try:
         dproc = subprocess.Popen(
             [
@@ -314,6 +380,7 @@ def run_one(
         if scrape_s:
             scraper = _Scraper(m_port, scrape_s)
         time.sleep(0.5)
+        cpu_router0 = time.process_time()
         g = subprocess.run(
             [
                 py,
@@ -337,10 +404,14 @@ def run_one(
             dproc.kill()
             raise RuntimeError(f"load generator failed ({g.returncode}):\n{g.stderr[-3000:]}")
         gen = json.loads(g.stdout.strip().splitlines()[-1])
+        cpu_router = time.process_time() - cpu_router0
         dproc.terminate()
         out, _ = dproc.communicate(timeout=drain_cap + 60)
         st = json.loads(out.strip().splitlines()[-1])
     finally:
+        if dproc is not None and dproc.poll() is None:  # a failed run leaves no daemon behind
+            dproc.kill()
+            dproc.wait(10)
         router.close()
         if view is not None:
             view.close()
@@ -382,6 +453,17 @@ def run_one(
         "every": every if viewer else None,
         "cpu_s": st["cpu_s"],
         "cpu_us_per_sample": 1e6 * st["cpu_s"] / max(1, st["samples"]),
+        # CPU per accepted sample [us] of each process (the daemon's by thread group)
+        "cpu_split_us": {
+            **{
+                f"daemon {k}": 1e6 * v / max(1, st["samples"])
+                for k, v in st.get("cpu_split_s", {}).items()
+                if k != "stop_s"
+            },
+            "generator": 1e6 * gen.get("cpu_s", float("nan")) / max(1, st["samples"]),
+            "router (bench process)": 1e6 * cpu_router / max(1, st["samples"]),
+        },  # fmt: skip
+        "loadavg": os.getloadavg(),
         "viewer_msgs": 0 if view is None else view.received,
         "viewer_subscriptions": 0 if view is None else len(view.subs),
         "feed": st.get("foxglove"),
@@ -512,6 +594,31 @@ def _f(v, spec=".1f"):
     return "-" if v is None else format(v, spec)
 
 
+def print_split(rows: list[dict]) -> None:
+    """CPU per accepted sample of each process and the daemon's threads."""
+    keys = ["daemon worker", "daemon monitor steps", "daemon intake callbacks", "daemon zenoh",
+            "daemon other", "daemon log process"]  # fmt: skip
+    print(
+        f"{'code':>6} {'model':>7} {'act':>4} {'worker':>7} {'steps':>6} {'intake':>6} {'zenoh':>6} {'other':>6} "
+        f"{'log proc':>8} {'DAEMON':>7} {'gen':>6} {'router':>6}  load avg (1/5/15 min)"
+    )
+    for r in rows:
+        c = r.get("cpu_split_us") or {}
+        daemon = sum(c.get(k, 0.0) for k in keys)
+        print(f"{r['code'][:6]:>6} {r['model'] if r['monitor'] == 'real' else '-':>7} "
+              f"{r['actuators']:>4} " + " ".join(f"{c.get(k, 0.0):>{w}.1f}" for k, w in
+              zip(keys, (7, 6, 6, 6, 6, 8), strict=True)) + f" {daemon:>7.1f} "
+              f"{c.get('generator', float('nan')):>6.1f} "
+              f"{c.get('router (bench process)', float('nan')):>6.1f}  "
+              + "/".join(f"{x:.1f}" for x in r.get("loadavg", ())))  # fmt: skip
+    print(
+        "CPU time per accepted sample [us] over the run: the daemon's worker thread, its "
+        "monitor's step threads, the intake (Zenoh's callbacks into Python), Zenoh's own threads, "
+        "its other threads, its MCAP log process (DAEMON = their sum, the "
+        "daemon as a whole), the load generator, the router (this process)"
+    )
+
+
 def print_table(rows: list[dict]) -> None:
     hdr = (
         f"{'code':>6} {'model':>7} {'act x Hz':>10} {'monitor':>7} {'log est':>7} {'sent':>8} {'accepted':>8} {'logged':>8} "
@@ -622,6 +729,8 @@ def main(argv=None) -> int:
         f"publish_every {args.publish_every}"
     )
     print_table(rows)
+    print()
+    print_split(rows)
     if args.json:
         print(json.dumps(rows))
     return 0

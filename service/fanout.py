@@ -68,8 +68,19 @@ class _Target:
     nis_in_band: float | None = None  # of its last closed period
 
 
+def _LEAVES(rows: BankRows) -> tuple[tuple[str, tuple[str, ...], np.ndarray], ...]:
+    """(topic leaf, field names, output array) of the logged outputs."""
+    return (
+        ("est", EST_KEYS, rows.est),
+        ("residual", RES_KEYS, rows.res),
+        ("health", HEALTH_KEYS, rows.health),
+    )
+
+
 class FanOut:
-    """Turns ``BankRows`` into log blocks (``logger.log_block``), events (``logger.log``) and
+    """Turns ``BankRows`` into log blocks (``logger.log_blocks``: one call per output topic
+    leaf for every actuator of the update, or ``logger.log_block`` per topic), events
+    (``logger.log``) and
     Zenoh puts on ``fleet/{ac}/{act}/{est,res,health}`` (``session``; None: no publishing).
 
     ``live`` receives what is logged (``log_block``/``log``, as a ``McapLogger``; None: no
@@ -186,6 +197,8 @@ class FanOut:
         out = []
         lg = self.logger
         lv = self.live
+        many = getattr(lg, "log_blocks", None)  # one record per leaf and call, not per topic
+        runs: list[tuple[str, np.ndarray]] = []  # (topic prefix, selected rows) for ``many``
         for g in np.split(order, np.flatnonzero(np.diff(owner[order])) + 1):
             row = int(owner[g[0]])
             tg = self._targets[row]
@@ -207,14 +220,12 @@ class FanOut:
                 sel = g[(num % self.log_every == 0) | ev]
                 if len(sel):
                     ts = rows.t[sel]
-                    for leaf, keys, arr in (
-                        ("est", EST_KEYS, rows.est),
-                        ("residual", RES_KEYS, rows.res),
-                        ("health", HEALTH_KEYS, rows.health),
-                    ):
+                    if many is not None:
+                        runs.append((tg.prefix, sel))
+                    for leaf, keys, arr in _LEAVES(rows):
                         topic = tg.prefix + leaf
                         blk = None
-                        if lg is not None:
+                        if lg is not None and many is None:
                             blk = arr[sel]
                             lg.log_block(topic, ts, keys, blk)
                         if lv is not None and lv.wants(topic):  # else nothing is made
@@ -236,6 +247,12 @@ class FanOut:
                     self._publish(tg, o.t, {"est": o.est, "res": o.res, "health": health})
                     em.published += 1
             out.append(em)
+        if runs:
+            sel = np.concatenate([r for _, r in runs])
+            counts = [len(r) for _, r in runs]
+            ts = rows.t[sel]
+            for leaf, keys, arr in _LEAVES(rows):
+                many([p + leaf for p, _ in runs], counts, ts, keys, arr[sel])
         return out
 
     def _publish(self, tg: _Target, t: float, parts: dict[str, dict]) -> None:

@@ -2,9 +2,10 @@
 protocol (``foxglove.websocket.v1``, served by the ``foxglove-sdk`` package).
 
 Per actuator, the channels are the MCAP log's topics ``/fleet/{aircraft}/{actuator}/{meas,
-est,residual,health,events}`` with the log's JSON schemas (``service.log.block_schema``,
-``json_schema_for``) and the log's message bytes, time-stamped with the sample time, so a
-Foxglove layout works on a log and live alike (docs/dashboard.md).
+est,residual,health,events}`` in the log's encodings: protobuf rows with the log's schemas
+(``service.log.row_schema``: the FileDescriptorSet of ``servowatch.Meas``, ``.Est``, ...) and
+JSON events (``json_schema_for``), with the log's message bytes, time-stamped with the sample
+time, so a Foxglove layout works on a log and live alike (docs/dashboard.md).
 
 A viewer never slows the monitor:
 
@@ -14,7 +15,7 @@ A viewer never slows the monitor:
   messages that do not fit are dropped and counted (``dropped``, in ``servowatch status``);
 * ``every`` N > 1 sends one message in N per topic (a Plot panel needs no more than a
   screen's worth; events always go, and N = 1 sends all);
-* one feeder thread, every 25 ms, encodes the queued rows (the log's compiled JSON codec) and hands them
+* one feeder thread, every 25 ms, encodes the queued rows (the log's protobuf layout) and hands them
   to the SDK, whose server keeps a bounded backlog per client and drops a slow client's
   oldest messages (``message_backlog_size``); nothing waits on a socket.
 """
@@ -33,7 +34,8 @@ import numpy as np
 from service import messages as m
 from service.foxglove_guard import GuardLimits, start_guarded
 from service.jsonutil import event_dict, flat
-from service.log.writer import block_schema, encode_message, json_schema_for
+from service.log.rows import RowLayout
+from service.log.writer import encode_message, json_schema_for, row_schema
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS
 from service.monitor.outputs import AlarmEvent
 from service.proclog import MEAS_LOG_FIELDS
@@ -47,45 +49,37 @@ LEAVES = ("meas", "est", "residual", "health", "events")
 #: messages waiting for the feeder thread at most (beyond: dropped and counted)
 DEFAULT_QUEUE = 20_000
 _PERIOD_S = 0.025  # the feeder thread's period: what is queued is sent within this
-_HEADER = 31  # MCAP Message record: opcode 1, length 8, channel 2, seq 4, log/publish time 16
 
 
-def topic_schemas(aircraft: str, actuator: str) -> dict[str, dict[str, Any]]:
-    """Topic -> the jsonschema the MCAP log gives it, for the channels of one actuator."""
+def topic_schemas(aircraft: str, actuator: str) -> dict[str, RowLayout | dict[str, Any]]:
+    """Topic -> what the MCAP log gives it, for the channels of one actuator: the protobuf
+    row layout (``.message``, ``.schema``) of meas, est, residual and health, the jsonschema
+    of events."""
     topic = {leaf: m.mcap_topic(aircraft, actuator, leaf) for leaf in LEAVES}
     event = flat(event_dict(AlarmEvent(0.0, "leak", "raised", 0.0)))  # what FanOut logs
     return {
-        topic["meas"]: block_schema(topic["meas"], MEAS_LOG_FIELDS, ("seq",)),
-        topic["est"]: block_schema(topic["est"], EST_KEYS),
-        topic["residual"]: block_schema(topic["residual"], RES_KEYS),
-        topic["health"]: block_schema(topic["health"], HEALTH_KEYS),
+        topic["meas"]: row_schema(topic["meas"], MEAS_LOG_FIELDS, ("seq",)),
+        topic["est"]: row_schema(topic["est"], EST_KEYS),
+        topic["residual"]: row_schema(topic["residual"], RES_KEYS),
+        topic["health"]: row_schema(topic["health"], HEALTH_KEYS),
         topic["events"]: json_schema_for(topic["events"], event),
     }
 
 
 def encode_rows(
-    t: np.ndarray, names: tuple[str, ...], values: np.ndarray, int_fields: Iterable[str] = ()
+    topic: str,
+    t: np.ndarray,
+    names: tuple[str, ...],
+    values: np.ndarray,
+    int_fields: Iterable[str] = (),
 ) -> tuple[np.ndarray, list[bytes]]:
-    """(log times [ns], JSON bytes of each row): the bytes ``McapLogger.log_block`` writes."""
-    from service.log.codec import encode_records, row_format  # numba: imported on use
-
+    """(log times [ns], protobuf bytes of each row): the messages ``McapLogger.log_block``
+    writes for these rows on ``topic``."""
     tt = np.asarray(t, np.float64).reshape(-1)
     lts = np.maximum(np.rint(tt * 1e9), 0.0).astype(np.int64)
-    vals = np.ascontiguousarray(values, np.float64)
-    fmt = row_format(names, frozenset(int_fields))
-    iv = vals[:, fmt.isint]
-    if fmt.isint.any() and (np.abs(iv[np.isfinite(iv)]) >= 2.0**63).any():
-        ints = fmt.isint.tolist()
-        rows = [
-            {k: (None if not np.isfinite(v) else int(v) if i else v)
-             for k, i, v in zip(names, ints, row, strict=True)}
-            for row in vals.tolist()
-        ]  # fmt: skip
-        return lts, [encode_message(r) for r in rows]
-    recs, ends = encode_records(fmt, vals, 0, 0, lts)
-    b = recs.tobytes()
-    starts = [0, *ends[:-1].tolist()]
-    return lts, [b[s + _HEADER : e] for s, e in zip(starts, ends.tolist(), strict=True)]
+    enc = row_schema(topic, names, int_fields).encode(values)
+    b, size = enc.tobytes(), enc.shape[1]
+    return lts, [b[k : k + size] for k in range(0, len(b), size)]
 
 
 class FoxgloveFeed:
@@ -145,15 +139,18 @@ class FoxgloveFeed:
         for topic, schema in topic_schemas(aircraft, actuator).items():
             if topic in self._channels:
                 continue
-            self._channels[topic] = self._fg.Channel(
-                topic,
-                schema=self._fg.Schema(
+            if isinstance(schema, RowLayout):
+                sc = self._fg.Schema(name=schema.message, encoding="protobuf", data=schema.schema)
+                enc = "protobuf"
+            else:
+                sc = self._fg.Schema(
                     name=topic.rsplit("/", 1)[-1],
                     encoding="jsonschema",
                     data=json.dumps(schema).encode(),
-                ),
-                message_encoding="json",
-                context=self._ctx,
+                )
+                enc = "json"
+            self._channels[topic] = self._fg.Channel(
+                topic, schema=sc, message_encoding=enc, context=self._ctx
             )
 
     def wants(self, topic: str) -> bool:
@@ -225,7 +222,7 @@ class FoxgloveFeed:
             ch.log(encode_message(vals), log_time=max(0, int(round(float(t) * 1e9))))
             self.sent += 1
             return
-        lts, datas = encode_rows(t, names, vals, ints)
+        lts, datas = encode_rows(topic, t, names, vals, ints)
         for lt, data in zip(lts.tolist(), datas, strict=True):
             ch.log(data, log_time=lt)
         self.sent += len(datas)

@@ -1,4 +1,5 @@
-"""An ``McapLogger`` in a child process: JSON encoding and MCAP writing on another core.
+"""An ``McapLogger`` in a child process: row encoding, compression and MCAP writing on another
+core.
 
 The daemon (and a replay with ``--out``) hand it whole blocks once per tick: the accepted
 measurements and the outputs as the numpy arrays the daemon already decoded (pickled through
@@ -94,10 +95,7 @@ def _write_batch(lg: Any, batch: Sequence[tuple]) -> None:
             _, topics, counts, t, names, values, int_fields = rec
             t = np.frombuffer(t, np.float64)
             values = np.frombuffer(values, np.float64).reshape(len(t), len(names))
-            k = 0
-            for topic, n in zip(topics, counts, strict=True):
-                lg.log_block(topic, t[k : k + n], names, values[k : k + n], int_fields=int_fields)
-                k += n
+            lg.log_rows(topics, counts, t, names, values, int_fields=int_fields)
         else:  # (l, topic, t, msg)
             lg.log(rec[1], rec[2], rec[3])
 
@@ -105,7 +103,7 @@ def _write_batch(lg: Any, batch: Sequence[tuple]) -> None:
 class ProcessLogger:
     """An ``McapLogger`` in a child process, fed through a pipe once per worker tick.
 
-    JSON encoding and MCAP writing (about half of the per-sample cost) then run on another
+    Row encoding, compression and MCAP writing then run on another
     core instead of sharing the daemon's GIL with decoding and the monitors. Blocks go as
     the arrays they are (measurements too: the child decodes nothing). Same ``log``/``close``/``paths`` interface; ``commit``
     sends what was logged since the last call. If the daemon dies, the child sees the pipe

@@ -103,7 +103,7 @@ def _ukf_step(model: str) -> None:
 
 
 def _log() -> None:
-    """The MCAP log's encoder and reader: run, replay."""
+    """The MCAP log's reader (chunk scan, JSON messages): replay, and the older logs."""
     from service.log import codec as logcodec
 
     logcodec.warm_up()
@@ -170,9 +170,9 @@ def _entries(group: str) -> list:
         return [compiled._integrate_hf, kernels.bank_step, kernels.output_rows, kernels.block_steps,
                 kernels.block_rows, kernels.prepare_inputs, usage.usage_rows,
                 wire_kernels.unpack_checked]  # fmt: skip
-    from service.log import codec_read, codec_write
+    from service.log import codec_read
 
-    return [codec_write._encode, codec_read._scan, codec_read._fill, codec_read._objects]
+    return [codec_read._scan, codec_read._fill, codec_read._objects]
 
 
 def _part_entries(part: str) -> list:

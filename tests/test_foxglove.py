@@ -6,6 +6,7 @@ client written from the protocol's specification (tests/_foxglove_ws.py) against
 
 from __future__ import annotations
 
+import base64
 import json
 import signal
 import subprocess
@@ -20,6 +21,7 @@ from _foxglove_ws import FoxgloveClient, MessageData
 from service import messages as m
 from service.foxglove_feed import LEAVES, FoxgloveFeed, encode_rows, topic_schemas
 from service.log import McapLogger
+from service.log.rows import RowLayout
 from service.monitor import EST_KEYS
 from service.monitor.outputs import AlarmEvent
 from service.proclog import MEAS_LOG_FIELDS
@@ -28,17 +30,33 @@ AC, ACT = "AC001", "elevator_L"
 TOPIC = {leaf: m.mcap_topic(AC, ACT, leaf) for leaf in LEAVES}
 
 
-def _mcap(path: Path) -> tuple[dict[str, dict], dict[str, dict[int, bytes]]]:
-    """(topic -> schema JSON, topic -> {log_time: message bytes}) of an MCAP file."""
+def _mcap(path: Path) -> tuple[dict[str, tuple], dict[str, dict[int, bytes]]]:
+    """(topic -> (message encoding, schema name, schema encoding, schema), topic ->
+    {log_time: message bytes}) of an MCAP file; a jsonschema parsed."""
     from mcap.reader import make_reader
 
-    schemas: dict[str, dict] = {}
+    schemas: dict[str, tuple] = {}
     msgs: dict[str, dict[int, bytes]] = {}
     with open(path, "rb") as f:
         for schema, channel, message in make_reader(f).iter_messages():
-            schemas[channel.topic] = json.loads(schema.data)
+            data = json.loads(schema.data) if schema.encoding == "jsonschema" else schema.data
+            schemas[channel.topic] = (channel.message_encoding, schema.name, schema.encoding, data)
             msgs.setdefault(channel.topic, {})[message.log_time] = message.data
     return schemas, msgs
+
+
+def _advertised(schema) -> tuple:
+    """What the feed advertises for a topic_schemas entry, as _mcap gives it."""
+    if isinstance(schema, RowLayout):
+        return ("protobuf", schema.message, "protobuf", schema.schema)
+    return ("json", "events", "jsonschema", schema)
+
+
+def _channel_schema(ch: dict) -> tuple:
+    """An advertised channel as _mcap gives it (a binary schema is sent in base64)."""
+    if ch["schemaEncoding"] == "protobuf":
+        return (ch["encoding"], ch["schemaName"], "protobuf", base64.b64decode(ch["schema"]))
+    return (ch["encoding"], ch["schemaName"], ch["schemaEncoding"], json.loads(ch["schema"]))
 
 
 def _wait(pred, timeout: float = 10.0) -> None:
@@ -53,7 +71,7 @@ def test_schemas_and_bytes_are_the_logs(tmp_path):
     rng = np.random.default_rng(3)
     t = 1000.0 + np.arange(5) * 1e-3
     est = rng.normal(size=(5, len(EST_KEYS))) * 1e-9
-    est[2, 3] = np.nan  # -> null
+    est[2, 3] = np.nan  # written as NaN
     meas = rng.normal(size=(5, len(MEAS_LOG_FIELDS)))
     meas[:, MEAS_LOG_FIELDS.index("seq")] = np.arange(5) + 7
     event = {"t": 1000.002, "kind": "leak", "state": "raised", "value": 3.5}
@@ -65,12 +83,13 @@ def test_schemas_and_bytes_are_the_logs(tmp_path):
     schemas, msgs = _mcap(path)
     mine = topic_schemas(AC, ACT)
     for leaf in ("meas", "est", "events"):
-        assert mine[TOPIC[leaf]] == schemas[TOPIC[leaf]], leaf
+        assert _advertised(mine[TOPIC[leaf]]) == schemas[TOPIC[leaf]], leaf
+    assert schemas[TOPIC["est"]][:3] == ("protobuf", "servowatch.Est", "protobuf")
     assert set(mine) == set(TOPIC.values())
     assert AlarmEvent.__dataclass_fields__.keys() == mine[TOPIC["events"]]["properties"].keys()
-    lts, datas = encode_rows(t, EST_KEYS, est)
+    lts, datas = encode_rows(TOPIC["est"], t, EST_KEYS, est)
     assert dict(zip(lts.tolist(), datas, strict=True)) == msgs[TOPIC["est"]]
-    lts, datas = encode_rows(t, MEAS_LOG_FIELDS, meas, ("seq",))
+    lts, datas = encode_rows(TOPIC["meas"], t, MEAS_LOG_FIELDS, meas, ("seq",))
     assert dict(zip(lts.tolist(), datas, strict=True)) == msgs[TOPIC["meas"]]
 
 
@@ -82,9 +101,12 @@ def test_feed_encodes_only_subscribed_topics_and_counts_drops():
         c.wait_topics(set(TOPIC.values()), timeout=10)
         ch = c.channel_of(TOPIC["est"])
         assert c.topics() == set(TOPIC.values())
-        assert {x["schemaEncoding"] for x in c.channels.values()} == {"jsonschema"}
-        assert {x["encoding"] for x in c.channels.values()} == {"json"}
-        assert json.loads(ch["schema"]) == topic_schemas(AC, ACT)[TOPIC["est"]]
+        enc = {x["topic"].rsplit("/", 1)[-1]: (x["encoding"], x["schemaEncoding"])
+               for x in c.channels.values()}  # fmt: skip
+        assert enc == {**{leaf: ("protobuf", "protobuf") for leaf in LEAVES},
+                       "events": ("json", "jsonschema")}  # fmt: skip
+        lay = topic_schemas(AC, ACT)[TOPIC["est"]]
+        assert _channel_schema(ch) == _advertised(lay)
         t = np.array([1.0, 1.001, 1.002])
         est = np.arange(3 * len(EST_KEYS), dtype=float).reshape(3, -1)
         feed.log_block(TOPIC["est"], t, EST_KEYS, est)  # nobody subscribed: nothing queued
@@ -99,9 +121,7 @@ def test_feed_encodes_only_subscribed_topics_and_counts_drops():
                 got.append(r)
         assert [g.subscription for g in got] == [5, 5, 5]
         assert [g.timestamp_ns for g in got] == [1_000_000_000, 1_001_000_000, 1_002_000_000]
-        assert [json.loads(g.payload) for g in got] == [
-            dict(zip(EST_KEYS, row, strict=True)) for row in est.tolist()
-        ]
+        assert [lay.decode_one(g.payload) for g in got] == est.tolist()
         feed.log_block(TOPIC["est"], np.arange(9.0), EST_KEYS, np.zeros((9, len(EST_KEYS))))
         st = feed.status()
         assert st["dropped"] == 9 and st["sent"] == 3  # 9 > queue_size 8: dropped, counted
@@ -159,7 +179,10 @@ def test_non_loopback_refused_without_the_allow_flag(tmp_path):
 
 # --------------------------------------------------------------------------- end to end
 
-RATE = 250  # Hz, as tests/test_service_e2e.py
+# Hz: the stuck client of test_daemon_serves_foxglove_live must be sent more than the
+# socket buffers hold (a 4 MB send buffer; the protobuf rows are about 470 bytes per sample
+# for meas, est, residual and health: 24 s at 500 Hz is 5.6 MB)
+RATE = 500
 
 
 def _connect(port: int, timeout: float = 60.0) -> FoxgloveClient:
@@ -198,9 +221,7 @@ def test_daemon_serves_foxglove_live(net, tmp_path):
         c.wait_topics(set(TOPIC.values()), timeout=60)  # advertised with the first sample
         ch_est = c.channel_of(TOPIC["est"])
         for topic, schema in topic_schemas(AC, ACT).items():
-            ch = c.channel_of(topic)
-            assert (ch["encoding"], ch["schemaEncoding"]) == ("json", "jsonschema")
-            assert json.loads(ch["schema"]) == schema
+            assert _channel_schema(c.channel_of(topic)) == _advertised(schema), topic
         ch_ev = c.channel_of(TOPIC["events"])
         # a client that subscribes to everything but meas and events, then stops reading
         stuck = _stuck_client(port)
@@ -279,7 +300,7 @@ def test_daemon_serves_foxglove_live(net, tmp_path):
     # the live est messages are the log's: same time stamps, same bytes
     schemas, msgs = _mcap(log)
     for topic, schema in topic_schemas(AC, ACT).items():
-        assert schemas[topic] == schema, topic
+        assert schemas[topic] == _advertised(schema), topic
     logged = msgs[TOPIC["est"]]
     for x in est + late:
         assert logged[x.timestamp_ns] == x.payload
@@ -343,3 +364,21 @@ def test_replay_serves_foxglove_paced(tmp_path):
     span_wall = half[-1][0] - half[0][0]
     # paced: as fast as possible, 3000 samples take well under 0.3 s
     assert span_t > 1.2 and span_wall >= 0.7 * span_t / speed, (span_t, span_wall)
+
+
+def test_the_shipped_layout_names_fields_of_the_row_schemas():
+    """Every ``topic.field`` path and every ``event.message.field`` of the layout's user
+    scripts is a field of that topic's protobuf row (the schemas the log and the feed carry)."""
+    import re
+
+    text = (Path(__file__).parents[1] / "deploy/foxglove/servowatch-layout.json").read_text()
+    schemas = topic_schemas(AC, ACT)
+    paths = set(re.findall(r"(/fleet/AC001/elevator_L/[a-z]+)\.([a-z_0-9]+)", text))
+    assert len(paths) >= 8
+    for topic, fld in paths:
+        assert fld in schemas[topic].names, (topic, fld)
+    rows = [schemas[TOPIC[leaf]].names for leaf in ("est", "residual", "health")]
+    used = set(re.findall(r"message\.([a-z_0-9]+)", text))
+    assert used >= {"c_lk", "leak_ratio", "nis", "nis_dof"}
+    for fld in used:
+        assert any(fld in names for names in rows), fld

@@ -104,6 +104,16 @@ def read(path: Path, topics=None):
     return rows, [str(x.message) for x in w]
 
 
+def _messages(path: Path, topics: list[str]) -> dict[str, list[tuple[int, bytes]]]:
+    from mcap.reader import make_reader
+
+    out: dict[str, list[tuple[int, bytes]]] = {tp: [] for tp in topics}
+    with open(path, "rb") as f:
+        for _, ch, msg in make_reader(f).iter_messages(topics=topics, log_time_order=False):
+            out[ch.topic].append((msg.log_time, msg.data))
+    return out
+
+
 # --------------------------------------------------------------------------- leak + replay
 
 
@@ -165,29 +175,41 @@ def test_status_command_reports_the_daemon(leak_run):
 
 
 def test_leak_detected_and_mcap_readable_with_the_mcap_reader(leak_run):
+    """The daemon's log read by stock libraries only: mcap's reader with
+    mcap-protobuf-support's decoder for the rows, json for the events."""
     from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
 
     t_ack = leak_run["inject"][1]["active"][0]["t_ack"]
     counts: dict[str, int] = {}
     est: list[tuple[float, float]] = []
     events = []
     with open(leak_run["log"], "rb") as f:
-        reader = make_reader(f)
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
         for schema, channel, message in reader.iter_messages():
-            assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
-            msg = json.loads(message.data)
+            leaf = channel.topic.rsplit("/", 1)[-1]
+            if leaf in ("meas", "est", "residual", "health"):
+                assert channel.message_encoding == schema.encoding == "protobuf"
+                assert schema.name == "servowatch." + leaf.capitalize()
+            else:
+                assert channel.message_encoding == "json" and schema.encoding == "jsonschema"
+                if leaf == "events":
+                    events.append(json.loads(message.data))
+        f.seek(0)
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, message, row in reader.iter_decoded_messages(topics=[MEAS, EST]):
             if channel.topic == MEAS:
-                assert message.log_time == round(msg["t"] * 1e9) or abs(
-                    message.log_time - msg["t"] * 1e9) < 1e3  # fmt: skip
-            elif channel.topic == EST:
-                est.append((message.log_time * 1e-9, msg["c_lk"]))
-            elif channel.topic.endswith("/events"):
-                events.append(msg)
+                assert isinstance(row.seq, int)
+                assert message.log_time == round(row.t * 1e9) or abs(
+                    message.log_time - row.t * 1e9) < 1e3  # fmt: skip
+            else:
+                est.append((message.log_time * 1e-9, row.c_lk))
     n = leak_run["actuator"]["samples"]
     assert n == 16 * RATE
     assert counts[MEAS] == n
     assert counts[EST] == counts[f"/fleet/{AC}/{ACT}/residual"] == leak_run["final"]["samples"]
+    assert len(est) == counts[EST]
     before = [c for t, c in est if t < t_ack]
     after = [c for t, c in est if t > t_ack + 1.0]
     # the leak (4x nominal) raises the estimated C_Lk and raises the leak alarm
@@ -215,7 +237,10 @@ def test_live_estimates_equal_replay(leak_run):
     rep, _ = read(out, [EST])
     assert len(live) == len(rep) > 0
     for (_, t1, m1), (_, t2, m2) in zip(live, rep, strict=True):
-        assert t1 == t2 and m1 == m2  # bit for bit
+        assert t1 == t2 and m1 == m2
+    # bit for bit: the protobuf messages of every output topic are the same bytes
+    topics = [f"/fleet/{AC}/{ACT}/{leaf}" for leaf in ("est", "residual", "health")]
+    assert _messages(leak_run["log"], topics) == _messages(out, topics)
 
 
 # --------------------------------------------------------------------------- crashes

@@ -1,5 +1,5 @@
 """WH's chambers in the filter (docs/estimation.md, "Stroke-dependent chambers and the supply
-walk"): the volumes V0 +- A x_J and their substeps, the chambers' common-mode process noise,
+walk"): the volumes V0 +- A x_J and their stiffness, the chambers' common-mode process noise,
 and P_SR's random walk freed by the adaptive step on a supply drop."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ PRM = erw.param_vector(RP, BASE.v_c, BASE.beta)
 V0, AREA = BASE.v_c, BASE.area  # 7e-5 m^3, 1e-3 m^2
 
 
-def test_chamber_volumes_and_substeps_by_hand():
+def test_chamber_volumes_and_stiffness_by_hand():
     v1, v2 = erw.chamber_volumes(0.02, AREA, V0)
     assert (v1, v2) == pytest.approx((9e-5, 5e-5), rel=1e-12)
     lam0 = erw.stiff_modes(RP, V0, BASE.beta, 0.0)["chamber"]  # 6.49e3 1/s at V0
@@ -34,19 +34,10 @@ def test_chamber_volumes_and_substeps_by_hand():
     )
     assert lam0 == pytest.approx(by_hand, rel=1e-12)
     assert lam0 == pytest.approx(6489, rel=1e-3)  # the datasheet baseline
-
-    def n(x_j: float) -> int:
-        return erw.n_substeps(x_j, 1e-3, RP, V0, BASE.beta)
-
-    # mid stroke: the 1/3 ms substep, |lambda h| = 2.16
-    assert n(0.0) == 3
-    # 20 mm: the stiffer chamber (5e-5 m^3) has lambda = 6489 * 7 / 5; ceil(9.08 / 2.5) = 4
-    assert n(0.02) == 4
-    # past the stroke the floor 0.25 V0 holds: ceil(6.49 * 4 / 2.5) = 11
+    # past the stroke the floor 0.25 V0 holds: the chamber mode is 4 times V0's, 2.6e4 1/s;
+    # one ROS2 step of 1 ms damps it 7.6-fold (|R(-26)| = 0.13; tests/test_wh_ros2.py)
     assert min(erw.chamber_volumes(-0.09, AREA, V0)) == pytest.approx(0.25 * V0)
-    assert n(-0.09) == 11
-    for x_j in (0.0, 0.0095, 0.02, -0.035, 0.09):
-        assert erw.n_substeps_nb(x_j, 1e-3, PRM) == n(x_j)
+    assert abs(erw.ros2_amplification(-4 * lam0 * 1e-3)) == pytest.approx(0.1316, abs=1e-3)
 
 
 def test_each_chamber_stiffness_follows_its_volume():
@@ -65,31 +56,31 @@ def test_each_chamber_stiffness_follows_its_volume():
 
 def test_compiled_step_equals_numpy_off_mid_stroke():
     x = np.array([1.1e-5, 2e-4, -0.032, 4e-3, 4000.0, 19.5e6, 3e-13, 5e-5, 12.6e6, 8.4e6])
-    n_sub = erw.n_substeps(x[2], 1e-3, RP, V0, BASE.beta)
-    assert n_sub == 5  # V1 = 7e-5 - 3.2e-5 = 3.8e-5 m^3: ceil(6.53 * 7 / 3.8 / 2.5)
     out = np.empty(10)
-    erw.step_nb(x, 2.3e-4, 1e-3, n_sub, PRM, out)
-    ref = erw.step(x, 2.3e-4, 1e-3, RP, n_sub, V0, BASE.beta)
-    np.testing.assert_allclose(out, ref, rtol=1e-11, atol=1e-12)
+    for n_sub in (1, 2):  # one step per 1 ms sample; a longer interval is split
+        erw.step_nb(x, 2.3e-4, n_sub * 1e-3, n_sub, PRM, out)
+        ref = erw.step(x, 2.3e-4, n_sub * 1e-3, RP, n_sub, V0, BASE.beta)
+        np.testing.assert_allclose(out, ref, rtol=1e-11, atol=1e-12)
 
 
-def test_substeps_at_the_stroke_end_keep_the_chamber_on_its_reference():
+def test_one_step_at_the_stroke_end_keeps_the_chamber_on_its_reference():
     """Near the end stop (x_J = -48 mm, V1 = 2.2e-5 m^3), spool wide open into chamber 1:
-    after 50 ms with ``n_substeps`` (9) chamber 1 sits within 1 kPa of a 100-substep
-    reference; with the mid-stroke 3 substeps RK4 is past its stability limit in the laminar
-    band and settles 40 kPa off."""
+    after 50 ms at one ROS2 step per sample chamber 1 sits within 1 kPa of a 100-substep RK4
+    reference; the explicit RK4 scheme at the mid-stroke 3 substeps is past its stability
+    limit in the laminar band and settles 40 kPa off."""
     x = np.array([5e-4, 0.0, -0.048, 0.0, 0.0, 20e6, 0.0, 0.0, 20e6, 1e6])
     rp = RP._replace(mass=1e9)  # jack held: the chamber mode alone
-    n_sub = erw.n_substeps(x[2], 1e-3, RP, V0, BASE.beta)
-    assert n_sub == 9
-    runs = {}
-    for n in (3, n_sub, 100):
-        y = x.copy()
-        with np.errstate(all="ignore"):
+    one = x.copy()
+    with np.errstate(all="ignore"):
+        for _ in range(50):
+            one = erw.step(one, 0.01, 1e-3, rp, 1, V0, BASE.beta)
+        runs = {}
+        for n in (3, 100):
+            y = x.copy()
             for _ in range(50):
-                y = erw.step(y, 0.01, 1e-3, rp, n, V0, BASE.beta)
-        runs[n] = y[8]
-    assert abs(runs[n_sub] - runs[100]) < 1e3
+                y = erw.step_rk4(y, 0.01, 1e-3, rp, n, V0, BASE.beta)
+            runs[n] = y[8]
+    assert abs(one[8] - runs[100]) < 1e3
     assert abs(runs[3] - runs[100]) > 2e4
 
 
@@ -116,7 +107,7 @@ def test_common_mode_process_noise_by_hand():
         P = np.diag((bank._p0 / bank.scale) ** 2)[None]
         y, nis, st = np.zeros((1, 5)), np.zeros(1), np.zeros(1, np.int64)
         ukf_step_batch(x, P, np.zeros((1, 5)), np.zeros((1, 5), bool), np.array([2.3e-4]),
-                       np.array([1e-3]), np.array([3]), qq, bank.R, bank.scale, bank._zscale,
+                       np.array([1e-3]), np.array([1]), qq, bank.R, bank.scale, bank._zscale,
                        w.Wm, w.Wc, w.c, bank._prm, y, nis, st)  # fmt: skip
         assert st[0] == 0
         Ps.append(P[0])

@@ -38,7 +38,7 @@ def _advance(held: tuple[np.ndarray, float], n: int, prm: np.ndarray = PRM) -> n
     x, i = held
     out = np.empty(10)
     for _ in range(n):
-        erw.step_nb(x, i, 1e-3, 3, prm, out)
+        erw.step_nb(x, i, 1e-3, 1, prm, out)
         x = out.copy()
     return x
 
@@ -90,8 +90,8 @@ def test_compiled_equals_numpy_around_the_stick_band():
     for _ in range(60):
         x, i = _held(float(rng.uniform(-900.0, 900.0)), v_j=float(rng.uniform(-3e-3, 3e-3)))
         x[8:10] += rng.normal(0.0, 2e4, 2)
-        erw.step_nb(x, i, 1e-3, 3, PRM, out)
-        ref = erw.step(x, i, 1e-3, RP, 3, BASE.v_c, BASE.beta)
+        erw.step_nb(x, i, 1e-3, 1, PRM, out)
+        ref = erw.step(x, i, 1e-3, RP, 1, BASE.v_c, BASE.beta)
         np.testing.assert_allclose(out, ref, rtol=1e-11, atol=1e-12)
         caught += out[3] == 0.0
     assert caught > 0  # some of them were caught at zero

@@ -5,8 +5,8 @@ allows (one ``Message`` object and five stream writes per message; a parsed ``Me
 per message when reading), so three pieces reach into its internals:
 
 * :class:`BlockWriter` (``mcap.writer.Writer`` subclass): packs Message records straight into
-  the chunk builder's buffer, one record (``add_message``) or many of one channel at once
-  (``add_records``), and keeps the writer's statistics, chunk times and message indexes as
+  the chunk builder's buffer, one record (``add_message``) or many of one size at once
+  (``add_rows``), and keeps the writer's statistics, chunk times and message indexes as
   the base class does. It uses the name-mangled ``_Writer__chunk_builder``,
   ``_Writer__statistics``, ``_Writer__chunk_size``, ``_Writer__maybe_finalize_chunk`` and
   the chunk builder's ``record_writer._buffer`` (an ``io.BytesIO``).
@@ -51,9 +51,6 @@ __all__ = [
 _MSG_RECORD = struct.Struct("<BQHIQQ")  # opcode, length, channel_id, sequence, log/publish time
 #: bytes of a Message record before its data: opcode, length, channel, sequence, two times
 MESSAGE_HEADER_BYTES = _MSG_RECORD.size  # 31
-_MSG_HEAD_DTYPE = np.dtype(
-    [("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"), ("lt", "<u8"), ("pt", "<u8")]
-)  # packed: 31 bytes
 
 
 class McapCompatError(RuntimeError):
@@ -168,7 +165,7 @@ def _writer_problems(w: Writer) -> list[str]:
 
 class BlockWriter(Writer):
     """``mcap.writer.Writer`` that packs Message records itself: one (``add_message``) or
-    many of one channel (``add_records``), the same bytes as the base class's
+    many of one size (``add_rows``), the same bytes as the base class's
     ``add_message`` (chunked writers only). ``zstd_level`` sets this writer's zstd level
     (None: zstd's default, as the base class)."""
 
@@ -219,72 +216,68 @@ class BlockWriter(Writer):
         if buf.tell() > self._csize:
             self._finalize()
 
-    def add_records(
-        self, channel_id: int, log_times: np.ndarray, recs: Any, ends: np.ndarray
+    def add_rows(
+        self, channel_ids: Any, counts: Any, log_times: np.ndarray, recs: np.ndarray
     ) -> None:
-        """Append packed Message records ``recs`` (record k ends at ``ends[k]``) of one
-        channel: statistics, chunk times and message index as :meth:`add_message` keeps them,
-        and the chunk ends after the same record as with one :meth:`add_message` per record."""
-        n = len(ends)
+        """Append Message records of one size, ``recs`` (n, size) uint8, in runs: the first
+        ``counts[0]`` records on channel ``channel_ids[0]``, the next ``counts[1]`` on
+        ``channel_ids[1]``, ...; record k at ``log_times[k]``. Statistics, chunk times and
+        message indexes as :meth:`add_message` keeps them, and the chunk ends after the same
+        record as with one :meth:`add_message` per record."""
+        n, size = recs.shape
         if n == 0:
             return
+        cids = [int(c) for c in channel_ids]
+        cnts = [int(c) for c in counts]
         st = self._st
         lo, hi = int(log_times.min()), int(log_times.max())
         if st.message_count == 0 or lo < st.message_start_time:
             st.message_start_time = lo
         if hi > st.message_end_time:
             st.message_end_time = hi
-        st.channel_message_counts[channel_id] += n
+        ends: list[int] = []
+        e = 0
+        for c, k in zip(cids, cnts, strict=True):
+            st.channel_message_counts[c] += k
+            e += k
+            ends.append(e)
         st.message_count += n
-        starts = np.empty(n, np.int64)
-        starts[0] = 0
-        starts[1:] = ends[:-1]
-        mv = memoryview(recs)
+        flat = recs.reshape(-1)
         k = 0
+        r = 0  # the run of record k
         while k < n:
             cb = self._cb
             buf = cb.record_writer._buffer
             base = buf.tell()
             # add_message ends the chunk after the first record that takes it past chunk_size
-            j = k + int(np.searchsorted(ends[k:], self._csize - base + starts[k], "right")) + 1
-            j = min(j, n)
+            j = min(n, k + max(0, self._csize - base) // size + 1)
             part = log_times[k:j]
             lo, hi = int(part.min()), int(part.max())
             if cb.num_messages == 0 or lo < cb.message_start_time:
                 cb.message_start_time = lo
             if hi > cb.message_end_time:
                 cb.message_end_time = hi
-            idx = cb.message_indices.get(channel_id)
-            if idx is None:
-                idx = cb.message_indices[channel_id] = _PackedMessageIndex(channel_id, [])
-            idx.add_packed(part, starts[k:j] + (base - starts[k]))
+            idxs = cb.message_indices
+            pairs = np.empty((j - k, 2), "<u8")  # the message index entries of k..j
+            pairs[:, 0] = part
+            pairs[:, 1] = np.arange(base, base + (j - k) * size, size, dtype=np.int64)
+            pb = pairs.tobytes()
+            a = k
+            while a < j:
+                while ends[r] <= a:
+                    r += 1
+                b = min(j, ends[r])
+                c = cids[r]
+                idx = idxs.get(c)
+                if idx is None:
+                    idx = idxs[c] = _PackedMessageIndex(c, [])
+                idx.packed.append((len(idx.records), pb[(a - k) * 16 : (b - k) * 16]))
+                a = b
             cb.num_messages += j - k
-            buf.write(mv[starts[k] : ends[j - 1]])
+            buf.write(flat[k * size : j * size])
             if buf.tell() > self._csize:
                 self._finalize()
             k = j
-
-
-def pack_records(
-    channel_id: int, log_times: np.ndarray, datas: list[bytes], sequences: np.ndarray
-) -> tuple[bytes, np.ndarray]:
-    """Message records (``publish_time`` = ``log_time``) of ``datas`` packed for
-    :meth:`BlockWriter.add_records`: (records, end offset of each)."""
-    n = len(datas)
-    lens = np.fromiter(map(len, datas), np.int64, n)
-    head = np.empty(n, _MSG_HEAD_DTYPE)
-    head["op"] = Opcode.MESSAGE
-    head["len"] = lens + 22
-    head["cid"] = channel_id
-    head["seq"] = sequences
-    head["lt"] = log_times
-    head["pt"] = log_times
-    hb = head.tobytes()
-    h = MESSAGE_HEADER_BYTES
-    parts: list[bytes] = [b""] * (2 * n)
-    parts[0::2] = [hb[i : i + h] for i in range(0, h * n, h)]
-    parts[1::2] = datas
-    return b"".join(parts), np.cumsum(lens + h)
 
 
 # ------------------------------------------------------------------------ reader

@@ -1,8 +1,9 @@
-"""MCAP logging: the writer, the streaming and column-block readers, the compiled JSON codec.
+"""MCAP logging: the writer, the protobuf rows, the streaming and column-block readers.
 
-``writer`` (:class:`McapLogger`: schemas, rotation, the flush thread), ``reader``
-(:func:`read_log`, truncation-tolerant), ``blocks`` (:func:`read_blocks`, :class:`LogBlock`),
-``codec`` (numba kernels, imported on first use). mcap's private APIs are used only through
+``writer`` (:class:`McapLogger`: schemas, rotation, the flush thread), ``rows`` (the protobuf
+rows of a fixed layout, decision 0011), ``reader`` (:func:`read_log`, truncation-tolerant),
+``blocks`` (:func:`read_blocks`, :class:`LogBlock`), ``codec`` (numba kernels: the chunk scan
+and the JSON parser of older logs and of events, imported on first use). mcap's private APIs are used only through
 :mod:`service.compat.mcap`.
 """
 
@@ -15,7 +16,7 @@ from service.log.reader import (
     read_log_files,
     rotated_files,
 )
-from service.log.writer import McapLogger, block_schema, json_schema_for
+from service.log.writer import McapLogger, json_schema_for, row_schema
 
 __all__ = [
     "McapLogger",
@@ -25,7 +26,7 @@ __all__ = [
     "read_log_files",
     "rotated_files",
     "json_schema_for",
-    "block_schema",
+    "row_schema",
     "TruncatedLogWarning",
     "CorruptChunkWarning",
     "LogReadStats",

@@ -1,13 +1,16 @@
 """The column-block reader: the messages of :func:`service.log.reader.read_log` as arrays.
 
 :func:`read_blocks` yields one :class:`LogBlock` per chunk and channel: the records of a
-decompressed chunk are found and a run of flat JSON objects with the same keys is parsed into
-an (N, F) float64 array by the compiled kernels of :mod:`service.log.codec`; anything they
-decline is parsed by ``json.loads``.
+decompressed chunk are found by a compiled scan, and the messages of a channel become an
+(N, F) float64 array: protobuf rows (decision 0011) by one numpy gather of their fixed layout
+(:meth:`service.log.rows.RowLayout.decode_block`; a message in another layout is decoded
+field by field), JSON objects (older logs, and :meth:`McapLogger.log`'s messages) by the
+compiled JSON parser of :mod:`service.log.codec` with ``json.loads`` for what it declines.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import math
@@ -18,9 +21,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from mcap.opcode import Opcode
-from mcap.records import Channel
+from mcap.records import Channel, Schema
 
 from service.log.reader import (
+    _SKIP,
+    Channels,
     LogReadStats,
     TruncatedLogWarning,
     _warn_corrupt,
@@ -34,7 +39,8 @@ __all__ = ["LogBlock", "read_blocks"]
 
 class LogBlock(NamedTuple):
     """Messages of one channel with the same fields: ``values[k, f]`` is field ``names[f]``
-    of the message logged at ``t[k]`` [s] (``log_time``). JSON null and strings -> NaN,
+    of the message logged at ``t[k]`` [s] (``log_time``). Protobuf rows: the doubles as
+    written (NaN, inf included), integer fields as float. JSON: null and strings -> NaN,
     integers -> float, booleans -> 0/1."""
 
     topic: str
@@ -101,12 +107,12 @@ def _key_names(data: bytes, ks: np.ndarray, kl: np.ndarray) -> tuple[str, ...] |
 
 
 def _chunk_groups(
-    data: bytes, channels: dict[int, str]
-) -> tuple[np.ndarray, list[tuple[str | None, np.ndarray, np.ndarray, np.ndarray]]]:
+    data: bytes, channels: Channels
+) -> tuple[np.ndarray, list[tuple[str | None, Any, np.ndarray, np.ndarray, np.ndarray]]]:
     """The messages of a decompressed chunk grouped by channel, in the order of each
-    channel's first message: (chunk as uint8, [(topic, log_times, data offsets, data
-    lengths)]). Channel records in the chunk update ``channels``; a message takes the topic
-    its channel had at that point (as :func:`read_log`)."""
+    channel's first message: (chunk as uint8, [(topic, codec, log_times, data offsets, data
+    lengths)]). Schema and Channel records in the chunk update ``channels``; a message takes
+    the topic and codec its channel had at that point (as :func:`read_log`)."""
     from mcap.data_stream import ReadDataStream
 
     from service.log.codec import MSG_OPCODE, scan_records
@@ -115,17 +121,23 @@ def _chunk_groups(
     ops, starts, lens, cids, lts = scan_records(buf)
     ismsg = ops == MSG_OPCODE
     chans = []
-    for r in np.flatnonzero(ops == Opcode.CHANNEL).tolist():
+    for r in np.flatnonzero((ops == Opcode.CHANNEL) | (ops == Opcode.SCHEMA)).tolist():
         s0 = int(starts[r])
-        chans.append((r, Channel.read(ReadDataStream(io.BytesIO(data[s0 : s0 + lens[r]])))))
+        rs = ReadDataStream(io.BytesIO(data[s0 : s0 + lens[r]]))
+        if ops[r] == Opcode.SCHEMA:
+            channels.add_schema(Schema.read(rs))
+            continue
+        ch = Channel.read(rs)
+        prev = (channels.get(ch.id), channels.codec(ch.id))
+        channels.add(ch)
+        chans.append((r, ch.id, prev, (ch.topic, channels.codec(ch.id))))
     midx = np.flatnonzero(ismsg)
     mc = cids[midx]
     ver = np.zeros(midx.size, np.int64)  # how many Channel records of its id precede it
-    versions: dict[int, list[str | None]] = {}
-    for r, ch in chans:
-        versions.setdefault(ch.id, [channels.get(ch.id)]).append(ch.topic)
-        ver[(mc == ch.id) & (midx > r)] += 1
-        channels[ch.id] = ch.topic
+    versions: dict[int, list[tuple[str | None, Any]]] = {}
+    for r, cid, prev, now in chans:
+        versions.setdefault(cid, [prev]).append(now)
+        ver[(mc == cid) & (midx > r)] += 1
     if midx.size == 0:
         return buf, []
     key = mc * (int(ver.max()) + 1) + ver if chans else mc
@@ -137,14 +149,39 @@ def _chunk_groups(
         sel = midx[order[bounds[g] : bounds[g + 1]]]
         k0 = int(np.searchsorted(midx, sel[0]))
         c, v = int(mc[k0]), int(ver[k0])
-        topic = versions[c][v] if c in versions else channels.get(c)
-        groups.append((topic, lts[sel], starts[sel] + 22, lens[sel] - 22))
+        topic, codec = versions[c][v] if c in versions else (channels.get(c), channels.codec(c))
+        groups.append((topic, codec, lts[sel], starts[sel] + 22, lens[sel] - 22))
     return buf, groups
 
 
+def _row_block(
+    topic: str, lay: Any, data: bytes, buf: np.ndarray, lts: np.ndarray, offs: np.ndarray,
+    lens: np.ndarray,
+) -> LogBlock:  # fmt: skip
+    """A channel's protobuf rows as one block (messages that are not valid protobuf: NaN)."""
+    vals = lay.decode_block(buf, offs, lens)
+    if vals is None:
+        vals = np.full((len(offs), len(lay.names)), np.nan)
+        for k, (o, n) in enumerate(zip(offs.tolist(), lens.tolist(), strict=True)):
+            with contextlib.suppress(ValueError):
+                vals[k] = lay.decode_one(data[o : o + n])
+    return LogBlock(topic, lts.astype(np.float64) * 1e-9, lay.names, vals)
+
+
 def _group_blocks(
-    topic: str, data: bytes, buf: np.ndarray, lts: np.ndarray, offs: np.ndarray, lens: np.ndarray
+    topic: str,
+    codec: Any,
+    data: bytes,
+    buf: np.ndarray,
+    lts: np.ndarray,
+    offs: np.ndarray,
+    lens: np.ndarray,
 ) -> Iterator[LogBlock]:
+    if codec is _SKIP:
+        return
+    if codec is not None:
+        yield _row_block(topic, codec, data, buf, lts, offs, lens)
+        return
     from service.log.codec import parse_objects
 
     res = parse_objects(buf, offs, lens)
@@ -194,13 +231,13 @@ def read_blocks(
             )
         return k
 
-    channels: dict[int, str] = {}
-    pending: list[tuple[int, str, int, bytes]] = []  # un-chunked messages
+    channels = Channels()
+    pending: list[tuple[int, str, int, bytes, Any]] = []  # un-chunked messages
     for item in iter_stream(p, st, channels):
         if isinstance(item, tuple):
             topic = channels.get(item[0])
             if keep(topic):
-                pending.append((item[0], topic, item[1], item[2]))  # type: ignore[arg-type]
+                pending.append((item[0], topic, item[1], item[2], channels.codec(item[0])))
             continue
         if pending:
             for b in _pending_blocks(pending):
@@ -214,9 +251,9 @@ def read_blocks(
             st.corrupt_reason = st.corrupt_reason or f"{type(e).__name__} {e}".strip()
             continue
         st.chunks += 1
-        for topic, lts, offs, lens in groups:
+        for topic, codec, lts, offs, lens in groups:
             if keep(topic):
-                for b in _group_blocks(topic, item, buf, lts, offs, lens):  # type: ignore[arg-type]
+                for b in _group_blocks(topic, codec, item, buf, lts, offs, lens):  # type: ignore[arg-type]
                     st.messages += b.t.size
                     yield b
     for b in _pending_blocks(pending):
@@ -229,9 +266,19 @@ def read_blocks(
         warnings.warn(text, TruncatedLogWarning, stacklevel=2)
 
 
-def _pending_blocks(pending: list[tuple[int, str, int, bytes]]) -> Iterator[LogBlock]:
-    by: dict[tuple[int, str], list[tuple[int, bytes]]] = {}
-    for cid, topic, lt, data in pending:
-        by.setdefault((cid, topic), []).append((lt, data))
+def _pending_blocks(pending: list[tuple[int, str, int, bytes, Any]]) -> Iterator[LogBlock]:
+    by: dict[tuple[int, str], list[tuple[int, bytes, Any]]] = {}
+    for cid, topic, lt, data, codec in pending:
+        by.setdefault((cid, topic), []).append((lt, data, codec))
     for (_cid, topic), items in by.items():
-        yield from _json_blocks(topic, items)
+        codec = items[0][2]
+        if codec is _SKIP:
+            continue
+        if codec is None:
+            yield from _json_blocks(topic, ((lt, d) for lt, d, _ in items))
+            continue
+        data = b"".join(d for _, d, _ in items)
+        lens = np.fromiter((len(d) for _, d, _ in items), np.int64, len(items))
+        offs = np.cumsum(lens) - lens
+        lts = np.fromiter((lt for lt, _, _ in items), np.int64, len(items))
+        yield _row_block(topic, codec, data, np.frombuffer(data, np.uint8), lts, offs, lens)

@@ -4,6 +4,11 @@
 with one :class:`TruncatedLogWarning` at the first incomplete or corrupt record: a file whose
 writer was killed has no footer and may end inside a chunk. Each chunk is decompressed and
 CRC-checked one ahead in a helper thread (zstd and zlib release the GIL).
+
+Messages are decoded by their channel's encoding: ``protobuf`` rows with a numeric schema
+(:mod:`service.log.rows`, what the writer writes since decision 0011) and ``json`` (the
+messages of :meth:`McapLogger.log`, and every message of logs written before). Channels of
+other encodings are skipped.
 :func:`service.log.blocks.read_blocks` reads the same chunks as column blocks.
 """
 
@@ -36,6 +41,7 @@ except ImportError:  # pragma: no cover
     lz4_frame = None
 
 __all__ = [
+    "Channels",
     "LogReadStats",
     "TruncatedLogWarning",
     "CorruptChunkWarning",
@@ -71,6 +77,56 @@ class LogReadStats:
         self.footer = False
         self.corrupt = 0  # chunks skipped: their record was whole, their data corrupt
         self.corrupt_reason = ""
+
+
+_SKIP = "skip"  # the codec of a channel whose messages the readers skip
+
+
+class Channels(dict):
+    """Channel id -> topic, as the records of a file declare them, and each channel's codec
+    (:meth:`codec`): a :class:`~service.log.rows.RowLayout` for protobuf rows, None for
+    JSON, ``"skip"`` for anything else."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.schemas: dict[int, Schema] = {}
+        self.codecs: dict[int, Any] = {}
+        self._layouts: dict[tuple[str, bytes], Any] = {}
+
+    def add_schema(self, schema: Schema) -> None:
+        self.schemas[schema.id] = schema
+
+    def add(self, channel: Channel) -> None:
+        """Declare ``channel`` (its topic and codec)."""
+        self[channel.id] = channel.topic
+        self.codecs[channel.id] = self._codec(channel)
+
+    def _codec(self, ch: Channel) -> Any:
+        enc = ch.message_encoding
+        if enc == "json":
+            return None
+        if enc != "protobuf":
+            return _SKIP
+        sc = self.schemas.get(ch.schema_id)
+        if sc is None:
+            return _SKIP
+        key = (sc.name, sc.data)
+        lay = self._layouts.get(key, _SKIP)
+        if lay is _SKIP:
+            from service.log.rows import layout_of_schema
+
+            lay = self._layouts[key] = layout_of_schema(sc.name, sc.encoding, sc.data) or _SKIP
+        return lay
+
+    def codec(self, channel_id: int) -> Any:
+        return self.codecs.get(channel_id, None)
+
+
+def row_dict(lay: Any, data: bytes) -> dict[str, Any]:
+    """A protobuf row as the dict :func:`read_log` yields (NaN as None, integers as int)."""
+    return {
+        k: (None if v != v else v) for k, v in zip(lay.names, lay.decode_one(data), strict=True)
+    }
 
 
 def _decompress(chunk: Chunk) -> bytes:
@@ -160,7 +216,12 @@ def iter_stream(
                         if item is not None:
                             yield item
                 elif isinstance(rec, Channel):
-                    channels[rec.id] = rec.topic
+                    if isinstance(channels, Channels):
+                        channels.add(rec)
+                    else:
+                        channels[rec.id] = rec.topic
+                elif isinstance(rec, Schema) and isinstance(channels, Channels):
+                    channels.add_schema(rec)
                 elif isinstance(rec, Footer):
                     stats.footer = True
                     if fh.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
@@ -180,13 +241,13 @@ def iter_stream(
 
 def _iter_raw(
     path: Path, stats: LogReadStats
-) -> Iterator[tuple[str, int, bytes]]:  # (topic, log_time_ns, data)
-    channels: dict[int, str] = {}
+) -> Iterator[tuple[str, int, bytes, Any]]:  # (topic, log_time_ns, data, codec)
+    channels = Channels()
     for item in iter_stream(path, stats, channels):
         if isinstance(item, tuple):
             topic = channels.get(item[0])
             if topic is not None:
-                yield topic, item[1], item[2]
+                yield topic, item[1], item[2], channels.codec(item[0])
             continue
         try:
             parsed = list(_iter_chunk(item))
@@ -196,12 +257,14 @@ def _iter_raw(
             continue
         stats.chunks += 1
         for op, r in parsed:
-            if op == Opcode.CHANNEL:
-                channels[r.id] = r.topic
+            if op == Opcode.SCHEMA:
+                channels.add_schema(r)
+            elif op == Opcode.CHANNEL:
+                channels.add(r)
             elif op == Opcode.MESSAGE:
                 topic = channels.get(r[0])
                 if topic is not None:
-                    yield topic, r[2], r[3]
+                    yield topic, r[2], r[3], channels.codec(r[0])
 
 
 def truncation_text(p: Path, st: LogReadStats) -> str | None:
@@ -242,7 +305,8 @@ def read_log(
 ) -> Iterator[tuple[str, float, dict]]:
     """Yield ``(topic, t_s, msg)`` for every message of every complete chunk, in file order.
 
-    ``t_s`` is ``log_time`` in seconds; ``msg`` the decoded JSON object. ``topics`` keeps only
+    ``t_s`` is ``log_time`` in seconds; ``msg`` the decoded JSON object, or a protobuf row as
+    a dict (field -> value; NaN as None, like JSON's null; integer fields as int). ``topics`` keeps only
     those topics, ``match`` only the topics it accepts (messages of other topics are not
     decoded). A file that ends early or holds a corrupt chunk yields everything before
     it and then warns once with :class:`TruncatedLogWarning` (also logged). ``stats``, if
@@ -253,7 +317,7 @@ def read_log(
     want = None if topics is None else set(topics)
     decided: dict[str, bool] = {}
     loads = json.loads
-    for topic, lt, data in _iter_raw(p, st):
+    for topic, lt, data, codec in _iter_raw(p, st):
         keep = decided.get(topic)
         if keep is None:
             keep = decided[topic] = (want is None or topic in want) and (
@@ -262,7 +326,12 @@ def read_log(
         if not keep:
             continue
         try:
-            msg = loads(data)
+            if codec is None:
+                msg = loads(data)
+            elif codec is _SKIP:
+                continue
+            else:
+                msg = row_dict(codec, data)
         except ValueError:
             continue
         st.messages += 1

@@ -1,15 +1,19 @@
-"""The MCAP writer: :class:`McapLogger` (JSON messages, schemas, flush thread, rotation).
+"""The MCAP writer: :class:`McapLogger` (protobuf rows, JSON messages, schemas, flush thread,
+rotation).
 
-One JSON message per sample with flat fields and a jsonschema per topic (Foxglove's Plot panel
-shows the fields directly), ``log_time`` = ``publish_time`` = sample time in ns, topics like
+Rows of numbers (:meth:`McapLogger.log_block`, :meth:`McapLogger.log_rows`: the daemon's meas,
+est, residual and health) are protobuf messages of a fixed layout with the message's
+FileDescriptorSet as the channel's schema (:mod:`service.log.rows`); other messages
+(:meth:`McapLogger.log`: events, service events) are JSON with a jsonschema per topic. Foxglove
+decodes both; ``log_time`` = ``publish_time`` = sample time in ns, topics like
 ``/fleet/AC001/elevator_L/residual``. The chunk in progress is ended and written at least every
 ``flush_s`` seconds (by the writing calls and by a background thread), so a writer killed with
 ``kill -9`` loses at most about ``flush_s`` of data; files rotate by size or age; ``close``
 finishes the file (summary, footer). All methods are thread-safe.
 
-:meth:`McapLogger.log_block` writes many samples of one topic from a float array: the same
-bytes as one :meth:`McapLogger.log` per row, formatted and packed by the compiled kernels of
-:mod:`service.log.codec` and appended with one call (``BlockWriter.add_records``).
+:meth:`McapLogger.log_rows` writes the rows of many topics with the same fields from one float
+array: one array copy into the records' template and one append (``BlockWriter.add_rows``), no
+per-row Python.
 
 The first failure to write or flush (disk full, a closed stream) is kept in
 :attr:`McapLogger.failure`, logged at ERROR and raised to the caller; the background thread,
@@ -23,7 +27,6 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
-import math
 import threading
 import time
 from collections.abc import Iterable, Mapping
@@ -34,8 +37,9 @@ from typing import IO, Any
 import numpy as np
 from mcap.writer import CompressionType
 
-from service.compat.mcap import BlockWriter, pack_records
+from service.compat.mcap import BlockWriter
 from service.jsonutil import flat
+from service.log.rows import RowLayout, row_layout
 
 try:
     import zstandard
@@ -46,7 +50,7 @@ try:
 except ImportError:  # pragma: no cover
     lz4_frame = None
 
-__all__ = ["McapLogger", "json_schema_for", "block_schema", "encode_message"]
+__all__ = ["McapLogger", "json_schema_for", "row_schema", "encode_message"]
 
 log = logging.getLogger("servowatch.log")
 
@@ -80,30 +84,16 @@ def encode_message(msg: Mapping[str, Any]) -> bytes:
         return _ENCODE(flat(dict(msg))).encode()
 
 
-def block_schema(
-    topic: str, names: Iterable[str], int_fields: Iterable[str] = ()
-) -> dict[str, Any]:
-    """The jsonschema :meth:`McapLogger.log_block` gives a topic with these field names whose
-    first row is finite: integers for ``int_fields``, numbers or null for the others."""
-    ints = set(int_fields)
-    return json_schema_for(topic, {n: 0 if n in ints else 0.0 for n in names})
-
-
-def _row_dicts(names: tuple[str, ...], isint: np.ndarray, vals: np.ndarray) -> list[dict]:
-    """The message dicts :meth:`McapLogger.log_block` writes for the rows of ``vals``."""
-    kinds = isint.tolist()
-    isfinite = math.isfinite
-    return [
-        {
-            k: (None if not isfinite(v) else int(v) if ii else v)
-            for k, ii, v in zip(names, kinds, row, strict=True)
-        }
-        for row in vals.tolist()
-    ]
+def row_schema(topic: str, names: Iterable[str], int_fields: Iterable[str] = ()) -> RowLayout:
+    """The protobuf layout (message name, FileDescriptorSet in ``.schema``) that
+    :meth:`McapLogger.log_block` gives rows of ``names`` on ``topic``."""
+    return row_layout(
+        topic.rsplit("/", 1)[-1], tuple(str(n) for n in names), frozenset(map(str, int_fields))
+    )
 
 
 class McapLogger:
-    """Thread-safe MCAP writer: JSON messages, one jsonschema per topic, periodic flush,
+    """Thread-safe MCAP writer: protobuf rows and JSON messages, periodic flush,
     rotation by size (``rotate_bytes``) and/or age (``rotate_s``).
 
     Without rotation the file is ``path`` itself; with rotation the files are
@@ -156,7 +146,9 @@ class McapLogger:
         self._counter = 0
         self._fh: IO[bytes] | None = None
         self._writer: BlockWriter | None = None
-        self._channels: dict[str, int] = {}
+        self._channels: dict[str, int] = {}  # JSON channels by topic
+        self._row_channels: dict[tuple[str, RowLayout], int] = {}  # protobuf channels
+        self._row_schemas: dict[RowLayout, int] = {}
         self._seq: dict[int, int] = {}
         self._dirty = False
         self._since_check = 0
@@ -192,6 +184,8 @@ class McapLogger:
         for name, md in self._records.items():
             self._writer.add_metadata(name, md)
         self._channels.clear()
+        self._row_channels.clear()
+        self._row_schemas.clear()
         self._seq.clear()
         self._opened_at = time.monotonic()
         self._last_flush = self._opened_at
@@ -292,6 +286,21 @@ class McapLogger:
                 self._failed("write", e)
                 raise
 
+    def _row_channel(self, topic: str, lay: RowLayout) -> int:
+        cid = self._row_channels.get((topic, lay))
+        if cid is None:
+            w = self._writer
+            assert w is not None
+            sid = self._row_schemas.get(lay)
+            if sid is None:
+                sid = self._row_schemas[lay] = w.register_schema(
+                    name=lay.message, encoding="protobuf", data=lay.schema
+                )
+            cid = w.register_channel(topic=topic, message_encoding="protobuf", schema_id=sid)
+            self._row_channels[(topic, lay)] = cid
+            self._seq[cid] = 0
+        return cid
+
     def log_block(
         self,
         topic: str,
@@ -301,14 +310,30 @@ class McapLogger:
         *,
         int_fields: Iterable[str] = (),
     ) -> None:
-        """Append one message per row of ``values`` (N, F) on ``topic`` at times ``t`` (N,) [s].
+        """Append one protobuf message per row of ``values`` (N, F) on ``topic`` at times
+        ``t`` (N,) [s]: field ``names[f]`` is ``values[k, f]`` (a ``double``; an ``sfixed64``
+        for the fields in ``int_fields``, truncated, which must be finite). Non-finite doubles
+        are written as they are. See :meth:`log_rows`."""
+        tt = np.asarray(t, dtype=np.float64).reshape(-1)
+        self.log_rows([topic], [tt.size], tt, names, values, int_fields=int_fields)
 
-        Row k is written exactly as ``log(topic, t[k], {names[f]: values[k, f]})`` writes it
-        (floats as ``float.__repr__``, fields named in ``int_fields`` as integers, truncated;
-        non-finite values as ``null``); a new topic's schema comes from its first row
-        (:func:`block_schema` when that row is finite). Same flush and rotation as
-        :meth:`log` (checked once per block).
-        """
+    def log_rows(
+        self,
+        topics: Iterable[str],
+        counts: Iterable[int],
+        t: np.ndarray,
+        names: Iterable[str],
+        values: np.ndarray,
+        *,
+        int_fields: Iterable[str] = (),
+    ) -> None:
+        """:meth:`log_block` for consecutive runs of rows: rows ``sum(counts[:i]) :`` +
+        ``counts[i]`` of ``t`` and ``values`` on ``topics[i]``, encoded and appended at once.
+        The schema is the message ``servowatch.<Leaf>`` of the topic's last key chunk
+        (:func:`service.log.rows.row_layout`); one channel per topic and field list. Same
+        flush and rotation as :meth:`log` (checked once per call)."""
+        topics_l = [str(x) for x in topics]
+        counts_a = np.asarray(list(counts), dtype=np.int64).reshape(-1)
         names_t = tuple(str(n) for n in names)
         tt = np.asarray(t, dtype=np.float64).reshape(-1)
         vals = np.ascontiguousarray(values, dtype=np.float64)
@@ -317,6 +342,8 @@ class McapLogger:
                 f"values must be (len(t), len(names)) = ({tt.size}, {len(names_t)}), "
                 f"got {vals.shape}"
             )
+        if len(topics_l) != counts_a.size or int(counts_a.sum()) != tt.size:
+            raise ValueError("topics and counts must match, and counts sum to len(t)")
         if len(set(names_t)) != len(names_t):
             raise ValueError(f"duplicate field names in {names_t}")
         n = tt.size
@@ -326,14 +353,16 @@ class McapLogger:
         if not (np.isfinite(tns).all() and tns.max() < 2.0**63):
             raise ValueError("log_block: t must be finite and < 2**63 ns")
         lts = np.maximum(np.rint(tns), 0.0).astype(np.int64)  # = max(0, int(round(t * 1e9)))
-        from service.log.codec import encode_records, row_format  # numba: imported on use
-
-        ints = frozenset(int_fields)
-        fmt = row_format(names_t, ints)
-        compiled = True  # integer fields beyond int64 are formatted by json instead
-        if fmt.isint.any():
-            iv = vals[:, fmt.isint]
-            compiled = not bool((np.abs(iv[np.isfinite(iv)]) >= 2.0**63).any())
+        ints = frozenset(str(x) for x in int_fields)
+        leaves = {tp.rsplit("/", 1)[-1] for tp in topics_l}
+        if len(leaves) > 1:  # one message name per call: split by leaf
+            k = 0
+            for tp, c in zip(topics_l, counts_a.tolist(), strict=True):
+                self.log_rows([tp], [c], tt[k : k + c], names_t, vals[k : k + c], int_fields=ints)
+                k += c
+            return
+        lay = row_layout(leaves.pop(), names_t, ints)
+        recs = lay.records(vals, 0, 0, lts)  # raises on a bad integer field, before the lock
         with self._lock:
             if self._closed:
                 raise ValueError("log_block() on a closed McapLogger")
@@ -341,18 +370,22 @@ class McapLogger:
                 self.dropped += n
                 return
             try:
-                cid = self._channels.get(topic)
-                if cid is None:
-                    cid = self._channel(topic, _row_dicts(names_t, fmt.isint, vals[:1])[0])
-                seq0 = self._seq[cid]
-                self._seq[cid] = (seq0 + n) & 0xFFFFFFFF
-                if compiled:
-                    recs, ends = encode_records(fmt, vals, cid, seq0, lts)
+                cids = np.empty(len(topics_l), np.int64)
+                seq0 = np.empty(len(topics_l), np.int64)
+                for i, (tp, c) in enumerate(zip(topics_l, counts_a.tolist(), strict=True)):
+                    cid = self._row_channel(tp, lay)
+                    cids[i] = cid
+                    seq0[i] = self._seq[cid]
+                    self._seq[cid] = (int(seq0[i]) + c) & 0xFFFFFFFF
+                if len(topics_l) == 1:
+                    row_cid = cids[0]
+                    seqs = (seq0[0] + np.arange(n)) & 0xFFFFFFFF
                 else:
-                    datas = [_ENCODE(d).encode() for d in _row_dicts(names_t, fmt.isint, vals)]
-                    seqs = (seq0 + np.arange(n, dtype=np.int64)) & 0xFFFFFFFF
-                    recs, ends = pack_records(cid, lts, datas, seqs)
-                self._writer.add_records(cid, lts, recs, ends)  # type: ignore[union-attr]
+                    starts = np.cumsum(counts_a) - counts_a
+                    row_cid = np.repeat(cids, counts_a)
+                    seqs = (np.repeat(seq0 - starts, counts_a) + np.arange(n)) & 0xFFFFFFFF
+                lay.set_channels(recs, row_cid, seqs)
+                self._writer.add_rows(cids, counts_a, lts, recs)  # type: ignore[union-attr]
                 self.message_count += n
                 self._dirty = True
                 if time.monotonic() - self._last_flush >= self.flush_s:
@@ -361,6 +394,8 @@ class McapLogger:
             except Exception as e:
                 self._failed("write", e)
                 raise
+
+    log_blocks = log_rows  # the name ProcessLogger and the fan-out use
 
     def log_many(self, records: Iterable[tuple[str, float, Mapping[str, Any]]]) -> None:
         """:meth:`log` for each ``(topic, t, msg)``, taking the lock once (fewer switches)."""

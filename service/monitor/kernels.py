@@ -24,7 +24,6 @@ from models import eha_reduced as er
 from models import eha_reduced_wh as erw
 from models.eha_reduced import measure_nb, spool_coef_nb, step_core_nb
 from models.eha_reduced_wh import measure_nb as measure_wh_nb
-from models.eha_reduced_wh import n_substeps_nb as n_substeps_wh_nb
 from models.eha_reduced_wh import step_core_nb as step_core_wh_nb
 from service.compat.numba import borrowed_all
 from service.monitor.outputs import (
@@ -277,9 +276,6 @@ def step_one(j, k, sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp):
     k_p, i_max = prm_k[er.K_K_P], prm_k[er.K_I_MAX]
     dt = t[j] - T_LAST[k]
     n_sub = max(1, int(math.ceil(dt / cst_k[C_H_MAX] - 1e-9)))
-    if n == N_STATES_WH:  # off mid stroke the smaller chamber is stiffer: shorter substeps
-        x_jm = max(abs(X[k, S_X_J] * sc_k[S_X_J]), abs(OL[k, S_X_J]))
-        n_sub = max(n_sub, n_substeps_wh_nb(x_jm, dt, prm_k))
     if not math.isnan(i_m[j]):
         i_f = i_m[j]
     elif not math.isnan(x_c[j]):
