@@ -75,10 +75,11 @@ def test_the_calibration_segment_holds_under_both_loads():
 @pytest.mark.parametrize(("seed", "index"), [(3, 17), (1, 29), (2, 0)])
 def test_hold_fit_reads_nominal_at_the_plants_holds(seed, index):
     """On three suite plants, the C_Lk the calibrated WH law reads at the HF plant's static
-    holds (rated supply, nominal leak, P12 from -6 to 6 MPa): 0.025 / 0.080 / 0.038 RMS of
+    holds (rated supply, nominal leak, P12 from -6 to 6 MPa): 0.019 / 0.080 / 0.038 RMS of
     nominal C_Lk from the passes over the whole segment (``holds=False``), 0.006 / 0.018 /
-    0.005 once fitted to the segment's holds (before the WH model's stiction the passes
-    left 0.040 / 0.072 / 0.047; with the C_Lk walk at 1e-13, 0.028 / 0.079 / 0.036)."""
+    0.005 once fitted to the segment's holds (for (3, 17): 0.025 before WH's one ROS2 step
+    per sample; before the WH model's stiction the passes left 0.040 / 0.072 / 0.047; with
+    the C_Lk walk at 1e-13, 0.028 / 0.079 / 0.036)."""
     dc = duty_cycle(seed, index)
     plant = EHAParams().with_overrides(**dc.params)
     _, meas = measured_run(dc.calibration)
@@ -92,7 +93,7 @@ def test_hold_fit_reads_nominal_at_the_plants_holds(seed, index):
             err[id(b)].append(hold_reading(b, x_s, p1, p2, plant.p_sr) / plant.c_lk - 1.0)
     rms_before = float(np.sqrt(np.mean(np.square(err[id(before)]))))
     rms_after = float(np.sqrt(np.mean(np.square(err[id(after)]))))
-    assert rms_before > 0.02
+    assert rms_before > 0.015
     assert rms_after < 0.02 and rms_after < 0.5 * rms_before
 
 
