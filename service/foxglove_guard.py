@@ -40,6 +40,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from service.httpguard import loopback_names
+
 __all__ = ["GuardLimits", "Guard", "FrameCheck", "ephemeral_tls", "start_guarded"]
 
 log = logging.getLogger("servowatch.foxglove")
@@ -110,10 +112,6 @@ def _escape(s: str, n: int = 120) -> str:
     return (
         s[:n].encode("ascii", "backslashreplace").decode().replace("\r", "\\r").replace("\n", "\\n")
     )
-
-
-def _loopback_names(host: str) -> frozenset[str]:
-    return frozenset({"localhost", "127.0.0.1", "::1", host.lower()})
 
 
 def _host_name(value: str) -> str:
@@ -439,7 +437,7 @@ class Guard:
         self.host, self.port = host, int(port)
         self.upstream = upstream
         self.limits = limits or GuardLimits()
-        self.names = _loopback_names(host)
+        self.names = loopback_names(host)
         self.upstream_ssl: ssl.SSLContext | None = None
         if upstream_cert is not None:
             ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)

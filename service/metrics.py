@@ -23,7 +23,7 @@ import os
 import threading
 from collections.abc import Callable, Iterator
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import ThreadingHTTPServer
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -35,6 +35,8 @@ from prometheus_client.core import (
 )
 from prometheus_client.exposition import choose_encoder
 from prometheus_client.registry import Collector, CollectorRegistry
+
+from service.httpguard import GuardedHandler, loopback_names
 
 __all__ = ["METRICS", "MetricsServer", "StatusCollector", "collect_status"]
 
@@ -241,30 +243,14 @@ class StatusCollector(Collector):
         return []
 
 
-def _loopback_names(host: str) -> frozenset[str]:
-    return frozenset({"localhost", "127.0.0.1", "::1", host.lower()})
-
-
-class _Handler(BaseHTTPRequestHandler):
+class _Handler(GuardedHandler):
     server_version = "servowatch-metrics"
     sys_version = ""
     protocol_version = "HTTP/1.1"
-    timeout = 30.0
     registry: CollectorRegistry
-    allowed_hosts: frozenset[str] | None = None
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
         log.debug("%s " + format, self.address_string(), *args)
-
-    def _host_ok(self) -> bool:
-        if self.allowed_hosts is None:
-            return True
-        host = (self.headers.get("Host") or "").strip().lower()
-        if host.startswith("["):
-            name = host[1 : host.find("]")] if "]" in host else host
-        else:
-            name = host.rsplit(":", 1)[0] if host.count(":") == 1 else host
-        return name in self.allowed_hosts
 
     def _send(self, code: int, body: bytes, ctype: str, head: bool = False) -> None:
         self.send_response(code)
@@ -339,7 +325,7 @@ class MetricsServer:
             (_Handler,),
             {
                 "registry": self.registry,
-                "allowed_hosts": None if allow_remote else _loopback_names(host),
+                "allowed_hosts": None if allow_remote else loopback_names(host),
             },
         )
         cls: type[ThreadingHTTPServer] = _Server

@@ -251,3 +251,39 @@ def test_the_feeds_viewers_come_from_its_guard():
     st["foxglove"]["guard"]["listener"] = "dead"
     fams = {f.name.removeprefix("servowatch_"): f for f in collect_status(st)}
     assert fams["foxglove_listener_ok"].samples[0].value == 0
+
+
+def test_a_trickling_request_is_cut_at_the_request_deadline():
+    """The endpoint gives a request ``request_s`` in total however slowly it trickles in (the
+    fleet page's rule, service.httpguard): a client sending a header byte now and then does not
+    hold its connection and thread for ever."""
+    import socket
+    import time
+
+    from service.metrics import MetricsServer
+
+    srv = MetricsServer(lambda: {"station": "s", "shard": "0"}, port=0)
+    srv._srv.RequestHandlerClass.request_s = 1.0
+    srv.start()
+    try:
+        c = socket.create_connection(srv.address, timeout=10)
+        c.sendall(b"GET /metrics HTTP/1.1\r\n")
+        t0 = time.monotonic()
+        cut = None
+        while time.monotonic() - t0 < 8.0:
+            try:
+                c.sendall(b"X")
+            except OSError:
+                cut = time.monotonic() - t0
+                break
+            c.settimeout(0.25)
+            try:
+                if c.recv(1024) == b"":
+                    cut = time.monotonic() - t0
+                    break
+            except TimeoutError:
+                pass
+        c.close()
+        assert cut is not None and cut < 4.0, cut
+    finally:
+        srv.close()

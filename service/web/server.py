@@ -19,15 +19,15 @@ its Content-Security-Policy says so.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import sys
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+from service.httpguard import REQUEST_S, GuardedHandler, loopback_names
 from service.jsonutil import jsonable
 from service.listen import check_listen
 from service.store import StoreError, open_store
@@ -43,8 +43,6 @@ _FILES = {
     "/static/fleet.css": ("fleet.css", "text/css; charset=utf-8"),
 }
 STORE_TIMEOUT_S = 5.0  # a store that does not answer within this is a 503 [s]
-IDLE_S = 30.0  # a kept-alive connection with no new request is closed after this long [s]
-REQUEST_S = 10.0  # a request, from its first byte to its answer, must be done within this [s]
 BACKLOG = 128  # pending connections the kernel queues (a few browsers, scripts, a proxy)
 SECURITY_HEADERS: dict[str, str] = {
     "Content-Security-Policy": (
@@ -72,52 +70,17 @@ def _error_answer(status: int, message: str) -> tuple[int, bytes, str]:
     return _json_answer(status, {"error": message, "status": int(status)})
 
 
-def _loopback_names(host: str) -> frozenset[str]:
-    return frozenset({"localhost", "127.0.0.1", "::1", host.lower()})
-
-
-class _Handler(BaseHTTPRequestHandler):
+class _Handler(GuardedHandler):
     server_version = "servowatch-web"
     sys_version = ""
     protocol_version = "HTTP/1.1"
-    timeout = IDLE_S  # socket timeout: the wait for a request's first byte [s]
-    request_s = REQUEST_S  # the whole request and its answer, however slowly it trickles [s]
     # set by make_server on a subclass
     store_target: str = ""
     refresh_s: float = 10.0
     access_log: bool = False
     live: Any = None  # a LiveStatus, or None
-    allowed_hosts: frozenset[str] | None = None  # Host header names; None = any
 
     # -- plumbing ---------------------------------------------------------------------------
-    def handle_one_request(self) -> None:
-        """One request within ``request_s`` in total: the socket timeout bounds each read, so
-        a client sending a byte now and then would otherwise hold the connection (and its
-        thread) forever. At the deadline the socket is shut down and the connection ends."""
-        import socket
-        import threading
-
-        try:
-            if not self.rfile.peek(1):  # the idle wait (socket timeout); b"": closed
-                self.close_connection = True
-                return
-        except (TimeoutError, OSError):
-            self.close_connection = True
-            return
-
-        def expire() -> None:
-            self.close_connection = True
-            with contextlib.suppress(OSError):
-                self.connection.shutdown(socket.SHUT_RDWR)
-
-        timer = threading.Timer(self.request_s, expire)
-        timer.daemon = True
-        timer.start()
-        try:
-            super().handle_one_request()
-        finally:
-            timer.cancel()
-
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
         if self.access_log:
             sys.stderr.write(f"servowatch web: {self.address_string()} {format % args}\n")
@@ -171,18 +134,6 @@ class _Handler(BaseHTTPRequestHandler):
         except ValueError:
             return None
         return n if n >= 0 else None
-
-    def _host_ok(self) -> bool:
-        """The Host header names this server (DNS rebinding: a page of another origin that
-        resolves its name to 127.0.0.1 must not read the fleet)."""
-        if self.allowed_hosts is None:
-            return True
-        host = (self.headers.get("Host") or "").strip().lower()
-        if host.startswith("["):
-            name = host[1 : host.find("]")] if "]" in host else host
-        else:
-            name = host.rsplit(":", 1)[0] if host.count(":") == 1 else host
-        return name in self.allowed_hosts
 
     # -- routes -----------------------------------------------------------------------------
     def _answer(self) -> tuple[int, bytes, str]:
@@ -282,7 +233,7 @@ def make_server(
             "refresh_s": float(refresh_s),
             "access_log": access_log,
             "live": live,
-            "allowed_hosts": None if allow_remote else _loopback_names(host),
+            "allowed_hosts": None if allow_remote else loopback_names(host),
             "request_s": float(request_s),
         },
     )
