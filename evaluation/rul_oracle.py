@@ -118,6 +118,9 @@ def score_oracle(
     rng = np.random.default_rng(seed)
     by_law: dict[str, dict[str, list]] = {}
     rows = []
+    ckpt: dict[float, list[tuple]] = {}  # per checkpoint: (unit, t_now, median, true RUL)
+    t_first: dict[str, float] = {}
+    eol_of: dict[str, float] = {}
     for u in units:
         if u.law == "none" or not (u.eol_flight <= u.flown + 1):
             continue
@@ -134,6 +137,9 @@ def score_oracle(
         if not t:
             continue
         eol = u.eol_flight
+        for i in range(len(t)):
+            ckpt.setdefault(t[i], []).append((u.actuator, t[i], med[i], eol - t[i]))
+        t_first[u.actuator], eol_of[u.actuator] = t[0], eol
         s = score_unit(t, med, eol)
         t_s = t[0]
         tol = 1e-9 * eol  # a crossing between two known readings is exact: no rounding miss
@@ -156,12 +162,23 @@ def score_oracle(
     def med(v: list) -> float | None:
         return float(np.median(v)) if v else None
 
+    # Kendall's tau of the scored units' order at each checkpoint (``fleet-sim``'s, over the
+    # units that reach their end of life), and from mid-life (the coverage's checkpoints)
+    from service.prognostics.fleetsim import kendall_tau, mid_life_taus
+
+    cks = [ckpt[k] for k in sorted(ckpt)]
+    taus = [x for row in cks
+            if (x := kendall_tau([r[2] for r in row], [r[3] for r in row])) is not None]  # fmt: skip
+    taus_mid = mid_life_taus(cks, t_first, eol_of)
+
     return {
         "alpha_lambda_pct": pct(every["acc"]),
         "relative_accuracy_pct": pct(every["ra"]),
         "interval_coverage_pct": pct(every["cov"]),
         "interval_width_median_flights": med(every["width"]),
         "scored_units": len(rows),
+        "kendall_tau": float(np.mean(taus)) if taus else None,
+        "kendall_tau_mid": float(np.mean(taus_mid)) if taus_mid else None,
         "by_law": {
             law: {
                 "units": len(b["ra"]),

@@ -247,7 +247,8 @@ def main_cli() -> int:
         ev = score(work) if a.score_only else run(a.seed, a.units, a.flights, work)
     keys = ("alpha_lambda_pct", "interval_coverage_pct", "interval_coverage_all_pct",
             "interval_width_median_flights",
-            "kendall_tau", "kendall_tau_min", "healthy_max_p_horizon", "relative_accuracy_pct",
+            "kendall_tau", "kendall_tau_min", "kendall_tau_mid", "healthy_max_p_horizon",
+            "relative_accuracy_pct",
             "scored_units", "healthy_units")  # fmt: skip
     if a.json:
         print(json.dumps({k: ev[k] for k in (*keys, "by_law", "fleet")}, default=str))

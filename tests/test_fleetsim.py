@@ -114,3 +114,20 @@ def test_fleet_sim_end_to_end(tmp_path, capsys):
     r = json.loads(capsys.readouterr().out)
     assert len(r["actuators"]) == 6 and r["threshold_ratio"] == pytest.approx(tr["threshold_ratio"])
     assert png.stat().st_size > 10_000
+
+
+def test_mid_life_tau_counts_each_unit_from_its_mid_life():
+    """Kendall's tau from mid-life: at each checkpoint only the units past their own
+    mid-life (first prediction + half the rest of life) count, three or more of them."""
+    from service.prognostics.fleetsim import mid_life_taus
+
+    t_first = {"a": 8.0, "b": 8.0, "c": 8.0, "d": 8.0}
+    eol = {"a": 12.0, "b": 16.0, "c": 20.0, "d": 40.0}  # mid-lives 10, 12, 14, 24
+    rows = [
+        [("a", 9.0, 1.0, 3.0), ("b", 9.0, 9.0, 7.0), ("c", 9.0, 5.0, 11.0)],  # none past
+        # a, b, c past their mid-lives, ordered right; d (before its own) reversed
+        [("a", 14.0, 0.5, 0.0), ("b", 14.0, 2.0, 2.0), ("c", 14.0, 6.0, 6.0),
+         ("d", 14.0, 0.1, 26.0)],
+        [("b", 16.0, 3.0, 0.0), ("c", 16.0, 1.0, 4.0), ("d", 16.0, 9.0, 24.0)],  # d not past
+    ]  # fmt: skip
+    assert mid_life_taus(rows, t_first, eol) == [1.0]

@@ -170,8 +170,12 @@ def test_fleet_prior_learns_model_mix_and_rates():
         hist.append((t, 1 + 0.02 * np.random.default_rng(10 + i).standard_normal(30)))
     pr = learn_fleet_prior(hist)
     assert pr.units == 9
-    assert pr.p_model["linear"] == pytest.approx(7 / 15)  # 6 linear + 1 (Dirichlet) of 9 + 6
-    assert pr.p_model["none"] == pytest.approx(4 / 15)
+    # expected counts: each unit's posterior over the models, + 1 (Dirichlet) of 9 + 7; the
+    # linear units share some of theirs with the curved models that also fit a straight path
+    assert max(pr.p_model, key=pr.p_model.__getitem__) == "linear"
+    assert 4.5 / 16 < pr.p_model["linear"] <= 7 / 16
+    assert pr.p_model["none"] == pytest.approx(4 / 16, abs=0.01)
+    assert sum(pr.p_model.values()) == pytest.approx(1.0)
     assert pr.t_scale == pytest.approx(60.0)  # the median span; weights per unit of t / t_scale
     assert pr.weights["linear"].mean[1] / pr.t_scale == pytest.approx(0.065, rel=0.1)
     assert pr.sigma == pytest.approx(0.02, rel=0.35)

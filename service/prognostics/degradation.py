@@ -22,6 +22,10 @@ parameter eta on a grid, y = Phi(u; eta) w + e, e ~ N(0, sigma^2) (docs/prognost
   jump; the posterior over tau is its profile of the marginal likelihood). After a knee the
   path goes on at the new rate w1 + w2; an accelerating model (exponential, power) takes
   over the extrapolation only where its evidence beats the knee's.
+- ``quadratic``   Phi = [1, u, u^2] (wear with an initial rate and a constant acceleration:
+  the exponential's initial rate, without its runaway; the power model, whose path starts
+  flat, misses the initial rate of such a path, which the exponential then reads as an
+  acceleration that goes on)
 
 Residual correlation: when the residuals about the posterior-mean path are positively
 correlated (lag-one autocorrelation rho > 0, a sign that no model describes the path
@@ -68,7 +72,7 @@ __all__ = [
     "BETA_SPAN",
 ]
 
-MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power", "knee")
+MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power", "knee", "quadratic")
 POWER_GRID = np.geomspace(1.25, 4.0, 16)
 """Exponents p of the ``power`` model's grid."""
 BETA_SPAN = np.geomspace(1e-2, 6.0, 120)
@@ -94,6 +98,7 @@ def _default_priors() -> dict[str, ModelPrior]:
         "step": ModelPrior((1.0, 0.0, 0.0), (0.3, 2.0, 8.0)),
         "power": ModelPrior((1.0, 0.0), (0.3, 8.0)),
         "knee": ModelPrior((1.0, 0.0, 0.0), (0.3, 8.0, 8.0)),
+        "quadratic": ModelPrior((1.0, 0.0, 0.0), (0.3, 8.0, 8.0)),
     }
 
 
@@ -104,11 +109,12 @@ class FleetPrior:
     p_model: dict[str, float] = field(
         default_factory=lambda: {
             "none": 0.4,
-            "linear": 0.12,
-            "exponential": 0.12,
-            "step": 0.12,
-            "power": 0.12,
-            "knee": 0.12,
+            "linear": 0.1,
+            "exponential": 0.1,
+            "step": 0.1,
+            "power": 0.1,
+            "knee": 0.1,
+            "quadratic": 0.1,
         }  # fmt: skip
     )
     weights: dict[str, ModelPrior] = field(default_factory=_default_priors)
@@ -205,6 +211,8 @@ def _basis(model: str, t: NDArray, eta: float) -> NDArray:
         return np.stack([one, np.maximum(t, 0.0) ** eta], axis=1)
     if model == "knee":
         return np.stack([one, t, np.maximum(t - eta, 0.0)], axis=1)
+    if model == "quadratic":
+        return np.stack([one, t, t * t], axis=1)
     raise ValueError(f"unknown model {model!r}")
 
 
@@ -477,6 +485,10 @@ def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> N
             c = w[:, 1]
             level = a + c * max(t_now, 0.0) ** eta
             tc = np.where((c > 0) & (thr > a), ((thr - a) / c) ** (1.0 / eta), np.inf)
+        elif model == "quadratic":  # first root of w0 - thr + w1 u + w2 u^2 after t_now
+            b, c = w[:, 1], w[:, 2]
+            level = a + b * t_now + c * t_now**2
+            tc = _quadratic_root(a - thr, b, c, t_now)
         elif model == "knee":  # eta = tau < t_now: linear at w1 + w2 from the knee on
             c = w[:, 1] + w[:, 2]
             level = a + w[:, 1] * t_now + w[:, 2] * max(t_now - eta, 0.0)
@@ -487,6 +499,23 @@ def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> N
             tc = np.where(c > 0, eta + (thr - a - s) / c, np.inf)
     tc = np.where(level >= thr, t_now, tc)
     return np.where(np.isfinite(tc), np.maximum(tc, t_now), np.inf)
+
+
+def _quadratic_root(a: NDArray, b: NDArray, c: NDArray, t_now: float) -> NDArray:
+    """The first root u >= t_now of a + b u + c u^2 (inf if none), per draw."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disc = b * b - 4.0 * a * c
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        q = -0.5 * (b + np.where(b >= 0, sq, -sq))
+        r1 = np.where(c != 0, q / c, np.inf)
+        r2 = np.where(q != 0, a / q, np.inf)
+        lin = np.where(b > 0, -a / b, np.inf)  # c = 0: the linear root
+        r1 = np.where(c == 0, lin, r1)
+        r2 = np.where(c == 0, np.inf, r2)
+        ok = disc >= 0
+        r1 = np.where(ok & np.isfinite(r1) & (r1 >= t_now), r1, np.inf)
+        r2 = np.where(ok & np.isfinite(r2) & (r2 >= t_now), r2, np.inf)
+    return np.minimum(r1, r2)
 
 
 def sample_crossing(
@@ -543,6 +572,8 @@ def _slope(model: str, w: NDArray, eta: float, u: NDArray) -> NDArray:
             return w[:, 2]
         if model == "knee":
             return w[:, 1] + w[:, 2] * (np.where(np.isfinite(u), u, np.inf) > eta)
+        if model == "quadratic":
+            return w[:, 1] + 2.0 * w[:, 2] * np.where(np.isfinite(u), u, 0.0)
         if model == "power":
             uu = np.where(np.isfinite(u), np.maximum(u, 0.0), 0.0)
             return w[:, 1] * eta * uu ** (eta - 1.0)
@@ -555,8 +586,9 @@ def learn_fleet_prior(
     min_points: int = 5,
 ) -> FleetPrior:
     """Empirical-Bayes fleet prior from the histories (t_h, y) of many units: each unit is
-    fitted under ``base`` (vague default), its most probable model counted (Dirichlet(1)
-    smoothing) and its posterior-mean weights pooled; a model's prior mean is the pooled mean
+    fitted under ``base`` (vague default), its posterior over the models counted (expected
+    counts, Dirichlet(1) smoothing: the fleet averages its units' models rather than their
+    choices) and its most probable model's posterior-mean weights pooled; a model's prior mean is the pooled mean
     and its sd the pooled spread (floored at the base sd / 4, inflated x 2 for units not yet
     seen). The noise sigma is the median of the units' robust estimates."""
     base = base or FleetPrior()
@@ -595,7 +627,8 @@ def learn_fleet_prior(
         if n_q:
             q2s.append(q2_u * base.t_scale if base.t_scale else q2_u * float(t[-1]))
         best = f.best()
-        counts[best] += 1.0
+        for m, pm in f.p_model.items():  # the unit's posterior over the models, not its choice
+            counts[m] += pm
         g = int(np.argmax(f.post[best]))
         ws[best].append(f.means[best][g])
     if used == 0:

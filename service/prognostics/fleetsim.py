@@ -59,6 +59,7 @@ __all__ = [
     "evaluate",
     "evaluate_store",
     "kendall_tau",
+    "mid_life_taus",
     "WEAR_LAWS",
     "MODEL_LAWS",
 ]
@@ -482,6 +483,7 @@ def evaluate(
     # per unit: (t_now, median, lo, hi, p_horizon, warning)
     preds: dict[str, list[tuple]] = {a: [] for a in hist}
     taus: list[float] = []
+    rows: list[list[tuple]] = []  # per checkpoint: (unit, t_now, median, true RUL)
     max_f = max(int(np.nanmax(h.flight)) for h in hist.values() if len(h.y))
     ks = list(range(cfg.min_history - 1, max_f + 1, max(1, cfg.eval_every)))
     prior = None
@@ -496,7 +498,7 @@ def evaluate(
         if prior is None or step % max(1, cfg.prior_every // max(1, cfg.eval_every)) == 0:
             heads_k = hist_heads(hist, k)
             prior = learn([h.observed() for h in heads_k]) if learn else fleet_prior(heads_k)
-        row_p, row_t = [], []
+        row_p, row_t, row_u = [], [], []
         for a, h in heads.items():
             res = predict(h, prior, rcfg)
             if res is None or (isinstance(res, dict) and res["status"] != "ok"):
@@ -516,6 +518,8 @@ def evaluate(
             if t_now < eol:
                 row_p.append(med)
                 row_t.append(eol - t_now)
+                row_u.append((a, t_now, med, eol - t_now))
+        rows.append(row_u)
         tau = kendall_tau(row_p, row_t)
         if tau is not None:
             taus.append(tau)
@@ -568,6 +572,8 @@ def evaluate(
         v = [max(x, 0.0) for x in v]  # a missed prediction (inf) scores 0, not -inf
         return 100.0 * float(np.mean(v)) if v else None
 
+    taus_mid = mid_life_taus(rows, {a: p[0][0] for a, p in preds.items() if p},
+                             {a: truths[a]["eol_flight"] for a in preds})  # fmt: skip
     laws = [law for law in by_law if law != "none"]
     acc = [x for law in laws for x in by_law[law]["acc"]]
     ra = [x for law in laws for x in by_law[law]["ra"]]
@@ -589,6 +595,9 @@ def evaluate(
         "kendall_tau": float(np.mean(taus)) if taus else None,
         "kendall_tau_min": float(np.min(taus)) if taus else None,
         "kendall_checkpoints": len(taus),
+        "kendall_tau_mid": float(np.mean(taus_mid)) if taus_mid else None,
+        "kendall_tau_mid_min": float(np.min(taus_mid)) if taus_mid else None,
+        "kendall_checkpoints_mid": len(taus_mid),
         "healthy_max_p_horizon": max(healthy_p) if healthy_p else None,
         "scored_units": len(ra),
         "by_law": {
@@ -608,6 +617,22 @@ def evaluate(
         "lambdas": list(LAMBDAS),
         "units": units,
     }
+
+
+def mid_life_taus(
+    rows: list[list[tuple]], t_first: dict[str, float], eol: dict[str, float]
+) -> list[float]:
+    """Kendall's tau at each checkpoint over the units from their mid-life on (the
+    predictions the interval coverage counts: t_now >= t_s + (eol - t_s) / 2, t_s the unit's
+    first prediction); ``rows`` per checkpoint (unit, t_now, median RUL, true RUL), with
+    three or more such units."""
+    out = []
+    for row in rows:
+        sel = [(m, r) for a, t, m, r in row if t >= t_first[a] + 0.5 * (eol[a] - t_first[a])]
+        tau = kendall_tau([m for m, _ in sel], [r for _, r in sel])
+        if tau is not None:
+            out.append(tau)
+    return out
 
 
 def evaluate_store(store, truth: dict, cfg: FleetSimConfig | None = None, **kw) -> dict:

@@ -317,7 +317,7 @@ def axis_fits(
     h: History, prior: FleetPrior | None, min_p: float = 0.0, wearing_only: bool = False
 ) -> dict[str, tuple]:
     """The history fitted on each life axis the fleet prior admits (``p_axis`` > ``min_p``;
-    ``learn_axes`` keeps only the axes a wearing unit of the fleet chose) and the history
+    ``learn_axes`` gives every axis the fleet records a share) and the history
     supports: {axis: (Fit, None)} for its own axis, {axis: (Fit, (positions
     of every period, usage ref))} for a usage axis. ``wearing_only``: no usage axis for a
     history whose best model on its own axis is ``none``."""
@@ -407,7 +407,8 @@ def learn_axes(hs: Sequence[History], prior: FleetPrior, min_points: int = 8) ->
     flight's usage per operating second) and its axis probabilities ``p_axis``: every
     history with ``min_points`` observable periods and the usage figures is fitted on each
     axis, its best axis by marginal likelihood counted (Dirichlet(1) smoothing over the axes
-    the fleet records). A fleet without usage figures keeps its own axis alone."""
+    the fleet records, each of them kept). A fleet without usage figures keeps its own axis
+    alone."""
     ref = {}
     for a in USAGE_AXES:
         rates = [r for h in hs if (r := h.flight_rates(a)) is not None]
@@ -428,11 +429,11 @@ def learn_axes(hs: Sequence[History], prior: FleetPrior, min_points: int = 8) ->
             continue
         lz = {a: f.log_marginal(prior.p_model) for a, (f, _) in fits.items()}
         counts[max(lz, key=lz.__getitem__)] += 1.0
-    # the axes no wearing unit chose are dropped (not fitted for any unit); the others keep
-    # their Dirichlet(1)-smoothed share
-    kept = {a: c for a, c in counts.items() if c > 1.0 or a == "flights"}
-    tot = sum(kept.values())
-    return replace(prior, p_axis={a: c / tot for a, c in kept.items()}, usage_ref=ref)
+    # every axis the fleet records keeps its Dirichlet(1)-smoothed share, also one no wearing
+    # unit chose: a unit whose own evidence favours it still reads its wear on it
+    # (``axis_weights``: this prior times the unit's marginal likelihood on each axis)
+    tot = sum(counts.values())
+    return replace(prior, p_axis={a: c / tot for a, c in counts.items()}, usage_ref=ref)
 
 
 def compute_rul(
