@@ -283,7 +283,13 @@ class Daemon:
 
     # -- lifecycle ----------------------------------------------------------------------
     def start(self, session=None) -> None:
-        """Declare Zenoh entities on ``session`` (if given) and start the worker thread."""
+        """Load the monitor's kernels, then declare Zenoh entities on ``session`` (if given)
+        and start the worker thread. The kernels load first: loading holds the GIL for
+        seconds, during which Zenoh's callbacks could not queue samples (a unit would look
+        silent) nor answer status (a daemon answers once it can monitor)."""
+        warm = self.monitor.warm_up()
+        if warm > 0.05:
+            log.info("monitor warm-up (JIT) took %.2f s", warm)
         if session is not None:
             self._session = session
             self.outputs.fanout.session = session
@@ -319,9 +325,6 @@ class Daemon:
         if self.metrics is not None:
             self.metrics.start()
             log.info("metrics on http://%s:%d/metrics", *self.metrics.address)
-        warm = self.monitor.warm_up()
-        if warm > 0.05:
-            log.info("monitor warm-up (JIT) took %.2f s", warm)
         self._worker = threading.Thread(
             target=self._run_worker, name="servowatch-worker", daemon=True
         )
