@@ -214,15 +214,6 @@ def test_unwritable_outputs_are_refused_before_the_work(tmp_path, capsys):
     assert not (tmp_path / "f.sqlite").exists()  # nothing written
 
 
-def _unprivileged() -> list[str]:
-    """A prefix that runs a command without root's right to write anything (setpriv)."""
-    if os.geteuid() != 0:
-        return []
-    if shutil.which("setpriv") is None:
-        pytest.skip("running as root without setpriv: a read-only file is writable")
-    return ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
-
-
 @pytest.fixture
 def open_dir():
     """A folder any user may write (for the unprivileged child), removed afterwards."""
@@ -242,13 +233,16 @@ def test_read_only_store_file_is_refused_before_the_work(open_dir):
         (open_dir / f"health.sqlite{side}").unlink(missing_ok=True)
     store.chmod(0o444)
     before = store.read_bytes()
-    r = _cli("rul", "--store", str(store), prefix=_unprivileged())
+    # the file mounted read only in a private mount namespace: root cannot write it either
+    # (a child switched to another user could not read this checkout where it is private)
+    ro = [*_read_only_mount(), str(store)]
+    r = _cli("rul", "--store", str(store), prefix=ro)
     assert r.returncode == EXIT_USAGE, r.stderr
     _one_line_error(r.stderr, str(store), "cannot be written")
     assert "threshold" not in r.stdout  # refused before the fits, not after
     assert store.read_bytes() == before
     # read only, the same store reads
-    r = _cli("rul", "--store", str(store), "--no-save", "--json", prefix=_unprivileged())
+    r = _cli("rul", "--store", str(store), "--no-save", "--json", prefix=ro)
     assert r.returncode == 0, r.stderr
     assert [a["actuator"] for a in json.loads(r.stdout)["actuators"]] == [ACT]
 
