@@ -281,7 +281,12 @@ def test_calibrate_refuses_foreign_payloads_with_one_line(tmp_path, healthy_meas
         assert not out.exists()
 
 
-def test_calibrate_drops_repeated_timestamps_as_the_intake_does(tmp_path, healthy_meas, capsys):
+def test_calibrate_drops_repeated_timestamps_as_the_intake_does(
+    tmp_path, healthy_meas, capsys, monkeypatch
+):
+    # calibrate records the log's unit in the default store: this test's own, not the
+    # session's (the e2e daemons of the same unit would monitor on this baseline)
+    monkeypatch.setenv("SERVOWATCH_STORE", str(tmp_path / "health.sqlite"))
     rows = _meas_rows(healthy_meas)
     clean = _foreign_log(tmp_path / "clean.mcap", rows)
     twice = _foreign_log(tmp_path / "twice.mcap", [r for r in rows for _ in (0, 1)])

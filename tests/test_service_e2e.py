@@ -125,7 +125,9 @@ def leak_run(tmp_path_factory):
     log = tmp / "live.mcap"
     n = Net()
     try:
-        d = start_daemon(n, log)
+        # a store of its own: a baseline another test recorded for this unit in the session's
+        # store would be the daemon's, and the replay (no store) would not equal it
+        d = start_daemon(n, log, env={"SERVOWATCH_STORE": str(tmp / "health.sqlite")})
         a = n.start("actuator", "--scenario", "demo", "--rate", str(RATE), "--duration", "16",
                     "--json")  # fmt: skip
         n.wait(lambda st: act_samples(st) > RATE * 3, what="3 s of samples")
