@@ -30,6 +30,14 @@ class BrowserError(RuntimeError):
     """No Chromium, or Chromium failed."""
 
 
+# headless, and none of Chromium's own network traffic (a closed network refuses it)
+_FLAGS = (
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking", "--disable-component-update", "--disable-sync",
+    "--disable-extensions", "--disable-dev-shm-usage",
+)  # fmt: skip
+
+
 def find_chromium() -> str | None:
     """``$SERVOWATCH_CHROMIUM``, else the first of chromium, chromium-browser, google-chrome
     on PATH; None when there is none."""
@@ -53,9 +61,7 @@ def _run(args: list[str], timeout_s: float) -> subprocess.CompletedProcess[bytes
         prefix="servowatch-chromium-", ignore_cleanup_errors=True
     ) as profile:
         cmd = [
-            exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-            "--no-first-run", "--disable-background-networking", "--disable-component-update",
-            "--disable-sync", "--disable-extensions", "--disable-dev-shm-usage",
+            exe, *_FLAGS,
             f"--user-data-dir={profile}", *args,
         ]  # fmt: skip
         # its own process group, so a timeout ends Chromium's helper processes too
@@ -166,9 +172,7 @@ def evaluate(
         prefix="servowatch-chromium-", ignore_cleanup_errors=True
     ) as profile:
         cmd = [
-            exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
-            "--no-first-run", "--disable-background-networking", "--disable-component-update",
-            "--disable-sync", "--disable-extensions", "--disable-dev-shm-usage",
+            exe, *_FLAGS,
             "--hide-scrollbars", f"--window-size={size[0]},{size[1]}",
             "--remote-debugging-pipe", f"--user-data-dir={profile}", "about:blank",
         ]  # fmt: skip
