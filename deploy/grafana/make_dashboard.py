@@ -44,11 +44,15 @@ def _target(expr: str, legend: str = "", ref: str = "A", instant: bool = False) 
 
 
 def _panel(
-    ids: _Ids, kind: str, title: str, targets: list[dict], grid: tuple[int, int, int, int],
-    *, unit: str | None = None, thresholds: list[tuple[str, float | None]] | None = None,
-    description: str = "", options: dict | None = None, decimals: int | None = None,
+    ids: _Ids, kind: str, title: str, queries: list[tuple[str, str]],
+    grid: tuple[int, int, int, int], *, instant: bool = False, unit: str | None = None,
+    thresholds: list[tuple[str, float | None]] | None = None, description: str = "",
+    options: dict | None = None, decimals: int | None = None,
 ) -> dict:  # fmt: skip
+    """One panel of ``kind`` at ``grid`` (x, y, w, h) drawing ``queries`` [(expression,
+    legend)], refIds A, B, ... in order."""
     x, y, w, h = grid
+    targets = [_target(e, lg, chr(ord("A") + j), instant) for j, (e, lg) in enumerate(queries)]
     defaults: dict = {}
     if unit:
         defaults["unit"] = unit
@@ -106,102 +110,70 @@ def dashboard(leak_raise: float = 2.5, leak_clear: float = 2.0) -> dict:
         ("Degraded daemons", f"sum(servowatch_degraded{{{ST}}})", ok_red),
     ]  # fmt: skip
     for i, (title, expr, th) in enumerate(stats):
-        p.append(_panel(ids, "stat", title, [_target(expr)], (4 * i, 1, 4, 4), thresholds=th))
-    p.append(
-        _panel(
-            ids, "bargauge", "Leak ratio (C_Lk / baseline), every unit",
-            [_target(f"sort_desc(servowatch_unit_leak_ratio{{{ST}}})", UNIT_LEGEND,
-                     instant=True)],
-            (0, 5, 8, 9), decimals=2,
-            thresholds=[("green", None), ("orange", leak_clear), ("red", leak_raise)],
-            description="the last scraped leak ratio of each unit; orange from leak_clear, "
+        p.append(_panel(ids, "stat", title, [(expr, "")], (4 * i, 1, 4, 4), thresholds=th))
+    leak_levels = [("green", None), ("orange", leak_clear), ("red", leak_raise)]
+    bars = [
+        ("Leak ratio (C_Lk / baseline), every unit",
+         f"sort_desc(servowatch_unit_leak_ratio{{{ST}}})", {
+            "decimals": 2, "thresholds": leak_levels,
+            "description": "the last scraped leak ratio of each unit; orange from leak_clear, "
             "red from leak_raise ([monitor.alarms] defaults)",
+        }),
+        ("Supply ratio (P_SR / rated), every unit",
+         f"sort(servowatch_unit_supply_ratio{{{ST}}})", {
+            "decimals": 2, "thresholds": [("red", None), ("green", 0.8)],
+        }),
+        ("RUL median [flights], every unit that has one",
+         f"sort(servowatch_unit_rul_median_flights{{{ST}}})", {
+            "decimals": 0, "unit": "none",
+            "thresholds": [("red", None), ("orange", 10), ("green", 50)],
+            "description": "the RUL `servowatch rul` last stored, on units whose history "
+            "counts flights (servowatch_unit_rul_median_hours for the others)",
+        }),
+    ]  # fmt: skip
+    for i, (title, expr, kw) in enumerate(bars):
+        p.append(_panel(
+            ids, "bargauge", title, [(expr, UNIT_LEGEND)], (8 * i, 5, 8, 9),
+            instant=True, **kw,
             options={"orientation": "horizontal", "displayMode": "basic",
                      "reduceOptions": {"calcs": ["lastNotNull"], "values": True}},
-        )
-    )  # fmt: skip
-    p.append(
-        _panel(
-            ids, "bargauge", "Supply ratio (P_SR / rated), every unit",
-            [_target(f"sort(servowatch_unit_supply_ratio{{{ST}}})", UNIT_LEGEND, instant=True)],
-            (8, 5, 8, 9), decimals=2, thresholds=[("red", None), ("green", 0.8)],
-            options={"orientation": "horizontal", "displayMode": "basic",
-                     "reduceOptions": {"calcs": ["lastNotNull"], "values": True}},
-        )
-    )  # fmt: skip
-    p.append(
-        _panel(
-            ids, "bargauge", "RUL median [flights], every unit that has one",
-            [_target(f"sort(servowatch_unit_rul_median_flights{{{ST}}})", UNIT_LEGEND,
-                     instant=True)],
-            (16, 5, 8, 9), decimals=0, unit="none",
-            thresholds=[("red", None), ("orange", 10), ("green", 50)],
-            description="the RUL `servowatch rul` last stored, on units whose history counts "
-            "flights (servowatch_unit_rul_median_hours for the others)",
-            options={"orientation": "horizontal", "displayMode": "basic",
-                     "reduceOptions": {"calcs": ["lastNotNull"], "values": True}},
-        )
-    )  # fmt: skip
-    p.append(
-        _panel(
-            ids, "timeseries", "Leak ratio, the 10 highest",
-            [_target(f"topk(10, servowatch_unit_leak_ratio{{{ST}}})", UNIT_LEGEND)],
-            (0, 14, 24, 8), decimals=2,
-            thresholds=[("green", None), ("orange", leak_clear), ("red", leak_raise)],
-        )
-    )  # fmt: skip
+        ))  # fmt: skip
+    p.append(_panel(
+        ids, "timeseries", "Leak ratio, the 10 highest",
+        [(f"topk(10, servowatch_unit_leak_ratio{{{ST}}})", UNIT_LEGEND)], (0, 14, 24, 8),
+        decimals=2, thresholds=leak_levels,
+    ))  # fmt: skip
     # -- one unit --------------------------------------------------------------------------
     p.append(_row(ids, "Unit $aircraft/$actuator", 22))
-    p.append(
-        _panel(
-            ids, "timeseries", "Leak ratio (C_Lk / baseline)",
-            [_target(f"servowatch_unit_leak_ratio{{{UNIT}}}", "leak ratio")],
-            (0, 23, 12, 8), decimals=2,
-            thresholds=[("green", None), ("orange", leak_clear), ("red", leak_raise)],
-            description=f"alarm raised at {leak_raise}, cleared at {leak_clear} "
+    one_unit = [
+        ("timeseries", "Leak ratio (C_Lk / baseline)",
+         [("servowatch_unit_leak_ratio", "leak ratio")], (0, 23, 12, 8), {
+            "decimals": 2, "thresholds": leak_levels,
+            "description": f"alarm raised at {leak_raise}, cleared at {leak_clear} "
             "([monitor.alarms] defaults)",
-        )
-    )  # fmt: skip
-    p.append(
-        _panel(
-            ids, "timeseries", "Supply ratio (P_SR / rated)",
-            [_target(f"servowatch_unit_supply_ratio{{{UNIT}}}", "supply ratio")],
-            (12, 23, 12, 8), decimals=3,
-        )
-    )  # fmt: skip
-    p.append(
-        _panel(
-            ids, "timeseries", "C_Lk and its 1-sigma [m^3/(s Pa)]",
-            [_target(f"servowatch_unit_c_lk{{{UNIT}}}", "C_Lk"),
-             _target(f"servowatch_unit_c_lk_sigma{{{UNIT}}}", "1-sigma", "B")],
-            (0, 31, 8, 8), unit="sci",
-        )
-    )  # fmt: skip
-    p.append(
-        _panel(
-            ids, "timeseries", "NIS in band (open operating period)",
-            [_target(f"servowatch_unit_nis_in_band_ratio{{{UNIT}}}", "in 95 % band")],
-            (8, 31, 8, 8), unit="percentunit", thresholds=[("red", None), ("green", 0.8)],
-            description="fraction of the outputs whose NIS lies in its two-sided 95 % "
+        }),
+        ("timeseries", "Supply ratio (P_SR / rated)",
+         [("servowatch_unit_supply_ratio", "supply ratio")], (12, 23, 12, 8), {"decimals": 3}),
+        ("timeseries", "C_Lk and its 1-sigma [m^3/(s Pa)]",
+         [("servowatch_unit_c_lk", "C_Lk"), ("servowatch_unit_c_lk_sigma", "1-sigma")],
+         (0, 31, 8, 8), {"unit": "sci"}),
+        ("timeseries", "NIS in band (open operating period)",
+         [("servowatch_unit_nis_in_band_ratio", "in 95 % band")], (8, 31, 8, 8), {
+            "unit": "percentunit", "thresholds": [("red", None), ("green", 0.8)],
+            "description": "fraction of the outputs whose NIS lies in its two-sided 95 % "
             "chi-square band: about 0.95 for a filter that fits the unit",
-        )
-    )  # fmt: skip
-    p.append(
-        _panel(
-            ids, "state-timeline", "Alarms",
-            [_target(f"servowatch_unit_alarm{{{UNIT}}}", "{{kind}}")],
-            (16, 31, 8, 4), thresholds=ok_red,
-        )
-    )  # fmt: skip
-    p.append(
-        _panel(
-            ids, "stat", "RUL median",
-            [_target(f"servowatch_unit_rul_median_flights{{{UNIT}}}", "flights"),
-             _target(f"servowatch_unit_rul_median_days{{{UNIT}}}", "days", "B"),
-             _target(f"servowatch_unit_rul_median_hours{{{UNIT}}}", "operating hours", "C")],
-            (16, 35, 8, 4), decimals=0,
-        )
-    )  # fmt: skip
+        }),
+        ("state-timeline", "Alarms", [("servowatch_unit_alarm", "{{kind}}")], (16, 31, 8, 4),
+         {"thresholds": ok_red}),
+        ("stat", "RUL median",
+         [("servowatch_unit_rul_median_flights", "flights"),
+          ("servowatch_unit_rul_median_days", "days"),
+          ("servowatch_unit_rul_median_hours", "operating hours")],
+         (16, 35, 8, 4), {"decimals": 0}),
+    ]  # fmt: skip
+    for kind, title, qs, grid, kw in one_unit:
+        queries = [(f"{name}{{{UNIT}}}", lg) for name, lg in qs]
+        p.append(_panel(ids, kind, title, queries, grid, **kw))
     # -- daemon health ---------------------------------------------------------------------
     d = "{{station}}/{{shard}}"
     p.append(_row(ids, "Daemon health", 39))
@@ -255,12 +227,9 @@ def dashboard(leak_raise: float = 2.5, leak_clear: float = 2.0) -> dict:
         ("Uptime", [(f"servowatch_uptime_seconds{{{ST}}}", d)], "s"),
         ("Model and state", [(f"servowatch_info{{{ST}}}", d + " {{model}} {{state}}")], "none"),
     ]  # fmt: skip
-    for i, (title, qs, unit) in enumerate(health):
-        targets = [_target(e, lg, chr(ord("A") + j)) for j, (e, lg) in enumerate(qs)]
-        p.append(
-            _panel(ids, "timeseries", title, targets, (8 * (i % 3), 40 + 7 * (i // 3), 8, 7),
-                   unit=unit)
-        )  # fmt: skip
+    for i, (title, qs, u) in enumerate(health):
+        grid = (8 * (i % 3), 40 + 7 * (i // 3), 8, 7)
+        p.append(_panel(ids, "timeseries", title, qs, grid, unit=u))
     return {
         "title": "servowatch",
         "uid": "servowatch-fleet",
