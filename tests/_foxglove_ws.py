@@ -21,6 +21,21 @@ SUBPROTOCOLS = ("foxglove.websocket.v1", "foxglove.sdk.v1")
 OFFER = ", ".join(SUBPROTOCOLS)
 
 
+def client_frame(opcode: int, data: bytes, fin: bool = True, length: int | None = None) -> bytes:
+    """A masked client frame of ``data`` (``fin``: the message's last; ``length``: the length
+    its header announces, by default ``len(data)``)."""
+    n = len(data) if length is None else length
+    head = bytes([(0x80 if fin else 0) | opcode])
+    if n < 126:
+        head += bytes([0x80 | n])
+    elif n < 1 << 16:
+        head += bytes([0x80 | 126]) + struct.pack(">H", n)
+    else:
+        head += bytes([0x80 | 127]) + struct.pack(">Q", n)
+    mask = os.urandom(4)
+    return head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(data))
+
+
 @dataclass
 class MessageData:
     subscription: int
@@ -81,17 +96,7 @@ class FoxgloveClient:
         return out
 
     def _send_frame(self, opcode: int, data: bytes) -> None:
-        n = len(data)
-        head = bytes([0x80 | opcode])
-        if n < 126:
-            head += bytes([0x80 | n])
-        elif n < 1 << 16:
-            head += bytes([0x80 | 126]) + struct.pack(">H", n)
-        else:
-            head += bytes([0x80 | 127]) + struct.pack(">Q", n)
-        mask = os.urandom(4)
-        body = bytes(b ^ mask[i % 4] for i, b in enumerate(data))
-        self.sock.sendall(head + mask + body)
+        self.sock.sendall(client_frame(opcode, data))
 
     def _frame(self) -> tuple[int, bytes]:
         """One whole message (fragments joined; pings answered): (opcode, data)."""

@@ -10,13 +10,12 @@ import base64
 import os
 import re
 import socket
-import struct
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from _foxglove_ws import OFFER, FoxgloveClient
+from _foxglove_ws import OFFER, FoxgloveClient, client_frame
 
 from service import messages as m
 from service.foxglove_feed import LEAVES, FoxgloveFeed
@@ -64,19 +63,6 @@ def _closed(s: socket.socket, timeout: float) -> float | None:
         except ConnectionError:
             return time.monotonic() - t0
     return None
-
-
-def _frame(opcode: int, data: bytes, fin: bool = True, length: int | None = None) -> bytes:
-    n = len(data) if length is None else length
-    head = bytes([(0x80 if fin else 0) | opcode])
-    if n < 126:
-        head += bytes([0x80 | n])
-    elif n < 1 << 16:
-        head += bytes([0x80 | 126]) + struct.pack(">H", n)
-    else:
-        head += bytes([0x80 | 127]) + struct.pack(">Q", n)
-    mask = os.urandom(4)
-    return head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(data))
 
 
 @pytest.fixture
@@ -141,7 +127,7 @@ def test_connections_are_capped(feed):
 def test_an_unfinished_message_is_cut_after_message_s(feed):
     line, s = _handshake(feed.port, {"Host": f"127.0.0.1:{feed.port}"})
     assert " 101 " in line
-    s.sendall(_frame(0x1, b'{"op": "subscr', fin=False))  # a fragment, never finished
+    s.sendall(client_frame(0x1, b'{"op": "subscr', fin=False))  # a fragment, never finished
     t = _closed(s, 10.0)
     s.close()
     assert t is not None and 0.5 < t < 3.0, t
@@ -151,8 +137,8 @@ def test_an_unfinished_message_is_cut_after_message_s(feed):
 def test_an_oversized_message_is_cut_at_its_header(feed):
     line, s = _handshake(feed.port, {"Host": f"127.0.0.1:{feed.port}"})
     assert " 101 " in line
-    s.sendall(_frame(0x1, b"x" * 100, fin=False, length=100))
-    s.sendall(_frame(0x0, b"", fin=False, length=4_000_000)[:14])  # 4 MB announced
+    s.sendall(client_frame(0x1, b"x" * 100, fin=False, length=100))
+    s.sendall(client_frame(0x0, b"", fin=False, length=4_000_000)[:14])  # 4 MB announced
     t = _closed(s, 5.0)
     s.close()
     assert t is not None and t < 1.0, t
@@ -210,15 +196,21 @@ def test_an_sdk_server_that_stops_accepting_is_reported(feed):
 
 def test_frame_check_counts_fragments_and_control_frames():
     fc = FrameCheck(100)
-    data = _frame(0x1, b"a" * 60, fin=False) + _frame(0x9, b"p") + _frame(0x0, b"b" * 30)
+    data = (
+        client_frame(0x1, b"a" * 60, fin=False)
+        + client_frame(0x9, b"p")
+        + client_frame(0x0, b"b" * 30)
+    )
     for i in range(len(data)):  # byte by byte: the same as at once
         assert fc.feed(data[i : i + 1], float(i)) is None
     assert fc.pending_since is None and fc.messages == 1  # the ping inside does not count
     assert (
-        FrameCheck(100).feed(_frame(0x1, b"a" * 60, fin=False) + _frame(0x0, b"b" * 41), 0)
+        FrameCheck(100).feed(
+            client_frame(0x1, b"a" * 60, fin=False) + client_frame(0x0, b"b" * 41), 0
+        )
         == "oversize"
     )
-    assert FrameCheck(100).feed(_frame(0x0, b"x"), 0) == "protocol"  # no message open
+    assert FrameCheck(100).feed(client_frame(0x0, b"x"), 0) == "protocol"  # no message open
     assert FrameCheck(100).feed(b"\x81\x05hello", 0) == "protocol"  # unmasked
 
 
