@@ -36,20 +36,29 @@ def tls_overrides(args: argparse.Namespace, zenoh: dict[str, Any]) -> dict[str, 
     return {**zenoh, "tls": tls}
 
 
+def add_serve_arguments(
+    parser: argparse.ArgumentParser, flag: str, serves: str, note: str = ""
+) -> None:
+    """``--FLAG HOST:PORT`` (help: ``serves``, then ``note`` and the loopback rule in
+    parentheses) and ``--FLAG-allow-remote``, of a server a command runs."""
+    parser.add_argument(
+        f"--{flag}", default=None, metavar="HOST:PORT",
+        help=f"{serves} ({note}loopback unless --{flag}-allow-remote)",
+    )  # fmt: skip
+    parser.add_argument(
+        f"--{flag}-allow-remote", action="store_true",
+        help=f"allow a non-loopback --{flag} host (only behind an authenticating TLS proxy)",
+    )  # fmt: skip
+
+
 def add_foxglove_arguments(
     parser: argparse.ArgumentParser, *, what: str, every: int | None, every_help: str
 ) -> None:
     """``--foxglove HOST:PORT``, ``--foxglove-allow-remote`` and ``--foxglove-every N`` of
     the commands that serve ``what`` live to Foxglove (run, replay)."""
-    parser.add_argument(
-        "--foxglove", default=None, metavar="HOST:PORT",
-        help=f"serve {what} live over the Foxglove WebSocket protocol (loopback unless "
-        "--foxglove-allow-remote)",
-    )  # fmt: skip
-    parser.add_argument(
-        "--foxglove-allow-remote", action="store_true",
-        help="allow a non-loopback --foxglove host (only behind an authenticating TLS proxy)",
-    )  # fmt: skip
+    add_serve_arguments(
+        parser, "foxglove", f"serve {what} live over the Foxglove WebSocket protocol"
+    )
     parser.add_argument(
         "--foxglove-every", type=int, default=every, metavar="N",
         help=f"send one row in N per topic to Foxglove (default: {every_help}; events all; "

@@ -82,66 +82,65 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="health store (SQLite path or postgresql:// URL; 'off': none); default: the "
         "config's store, else $SERVOWATCH_STORE or servowatch-data/health.sqlite",
     )  # fmt: skip
-    from service.cliargs import add_foxglove_arguments
+    from service.cliargs import add_foxglove_arguments, add_serve_arguments
 
     add_foxglove_arguments(p, what="the channels (overrides [foxglove] listen)", every=None,
                            every_help="[foxglove] every, 10")  # fmt: skip
-    p.add_argument(
-        "--metrics", default=None, metavar="HOST:PORT",
-        help="serve OpenMetrics for Prometheus on http://HOST:PORT/metrics (overrides "
-        "[metrics] listen; loopback unless --metrics-allow-remote)",
-    )  # fmt: skip
-    p.add_argument(
-        "--metrics-allow-remote", action="store_true",
-        help="allow a non-loopback --metrics host (only behind an authenticating TLS proxy)",
-    )  # fmt: skip
+    add_serve_arguments(p, "metrics", "serve OpenMetrics for Prometheus on "
+                        "http://HOST:PORT/metrics", "overrides [metrics] listen; ")  # fmt: skip
     p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
+
+
+def _serve_override(
+    cfg, name: str, settings, what: str, listen: str | None, allow_remote: bool,
+    fields: dict, refusal: str,
+):  # fmt: skip
+    """``cfg`` with its ``[name]`` section (a ``settings``) set from ``--name HOST:PORT``,
+    ``--name-allow-remote`` and ``fields`` (more of the section's fields from flags; None:
+    not given); ``refusal``: the ConfigError's message when neither ``--name`` nor the
+    section is there to apply them to."""
+    from service.config import ConfigError
+    from service.listen import check_listen
+
+    fields = {k: v for k, v in fields.items() if v is not None}
+    if listen is None and not allow_remote and not fields:
+        return cfg
+    section = getattr(cfg, name)
+    if listen is None and section is None:
+        raise ConfigError(refusal, None, None)
+    d = section.model_dump() if section is not None else {}
+    if listen is not None:
+        check_listen(
+            listen, allow_remote=allow_remote or bool(d.get("allow_remote")),
+            flag=f"--{name}", what=what, allow=f"--{name}-allow-remote",
+        )  # fmt: skip
+        d["listen"] = listen
+    if allow_remote:
+        d["allow_remote"] = True
+    d.update(fields)
+    return cfg.model_copy(update={name: settings.model_validate(d)})
 
 
 def foxglove_override(cfg, listen: str | None, allow_remote: bool, every: int | None = None):
     """``cfg`` with ``--foxglove HOST:PORT``, ``--foxglove-allow-remote`` and
     ``--foxglove-every`` applied."""
-    from service.config import ConfigError, FoxgloveSettings
-    from service.listen import check_listen
+    from service.config import FoxgloveSettings
 
-    if listen is None and not allow_remote and every is None:
-        return cfg
-    fx = cfg.foxglove.model_dump() if cfg.foxglove is not None else {}
-    if listen is not None:
-        check_listen(
-            listen, allow_remote=allow_remote or bool(fx.get("allow_remote")),
-            flag="--foxglove", what="the Foxglove server", allow="--foxglove-allow-remote",
-        )  # fmt: skip
-        fx["listen"] = listen
-    if allow_remote:
-        fx["allow_remote"] = True
-    if every is not None:
-        fx["every"] = every
-    if listen is None and cfg.foxglove is None:
-        raise ConfigError("--foxglove-* options need --foxglove or [foxglove]", None, None)
-    return cfg.model_copy(update={"foxglove": FoxgloveSettings.model_validate(fx)})
+    return _serve_override(
+        cfg, "foxglove", FoxgloveSettings, "the Foxglove server", listen, allow_remote,
+        {"every": every}, "--foxglove-* options need --foxglove or [foxglove]",
+    )  # fmt: skip
 
 
 def metrics_override(cfg, listen: str | None, allow_remote: bool):
     """``cfg`` with ``--metrics HOST:PORT`` and ``--metrics-allow-remote`` applied."""
-    from service.config import ConfigError, MetricsSettings
-    from service.listen import check_listen
+    from service.config import MetricsSettings
 
-    if listen is None and not allow_remote:
-        return cfg
-    mc = cfg.metrics.model_dump() if cfg.metrics is not None else {}
-    if listen is not None:
-        check_listen(
-            listen, allow_remote=allow_remote or bool(mc.get("allow_remote")),
-            flag="--metrics", what="the metrics endpoint", allow="--metrics-allow-remote",
-        )  # fmt: skip
-        mc["listen"] = listen
-    elif cfg.metrics is None:
-        raise ConfigError("--metrics-allow-remote needs --metrics or [metrics]", None, None)
-    if allow_remote:
-        mc["allow_remote"] = True
-    return cfg.model_copy(update={"metrics": MetricsSettings.model_validate(mc)})
+    return _serve_override(
+        cfg, "metrics", MetricsSettings, "the metrics endpoint", listen, allow_remote, {},
+        "--metrics-allow-remote needs --metrics or [metrics]",
+    )  # fmt: skip
 
 
 def _check_identity(cfg) -> None:
