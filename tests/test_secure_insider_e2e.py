@@ -25,8 +25,8 @@ pytestmark = [
     pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed for the PKI"),
 ]
 
-from test_secure_probe_e2e import _daemon_status, _stop, _wait_ready  # noqa: E402
-from test_security import AC, ACT, SECURE, Station, _web_live  # noqa: E402
+from test_secure_probe_e2e import _daemon_status, _stop, _until, _wait_ready  # noqa: E402
+from test_security import AC, ACT, Station, _web_live  # noqa: E402
 
 UNIT = f"{AC}/{ACT}"
 KEY = f"fleet/{UNIT}/meas"
@@ -38,36 +38,13 @@ def _live(url: str) -> dict:
         return json.loads(resp.read())
 
 
-def _until(fn, pred, timeout: float = 30.0):
-    deadline = time.monotonic() + timeout
-    while True:
-        v = fn()
-        if pred(v) or time.monotonic() > deadline:
-            return v
-        time.sleep(0.5)
-
-
 @pytest.fixture(scope="module")
 def insider(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("insider")
     st = Station(tmp)
     r: dict = {"station": st}
     try:
-        cfg = tmp / "m0.toml"
-        text = (SECURE / "monitor.toml").read_text()
-        text = text.replace('log_dir = "/var/lib/servowatch/logs"', f'log_dir = "{tmp}"')
-        cfg.write_text(text.replace(
-            "[zenoh]",
-            'store = "off"\n\n[group]\nname = "fleet"\njoin_s = 0.5\nunmonitored_s = 1.5\n\n[zenoh]',
-            1,
-        ))  # fmt: skip
-        daemon = st.popen(["run", "--config", str(cfg), "--no-rotate", "--json", "--plain-logs"],
-                          "daemon", env=st.env("monitor.ground1.0"))  # fmt: skip
-        deadline = time.monotonic() + 120
-        while st.status()["rc"] != 0:
-            assert daemon.poll() is None, (tmp / "daemon.err").read_text()[-3000:]
-            assert time.monotonic() < deadline, "no daemon status"
-            time.sleep(0.5)
+        daemon = st.daemon(st.monitor_config())
         act = st.actuator()
         web = st.web()
         _web_live(tmp / "web.out", web)

@@ -24,7 +24,7 @@ pytestmark = [
     pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed for the PKI"),
 ]
 
-from test_security import AC, ACT, SECURE, Station, _web_live  # noqa: E402
+from test_security import AC, ACT, Station, _web_live  # noqa: E402
 
 UNIT = f"{AC}/{ACT}"
 KEY = f"fleet/{UNIT}/meas"
@@ -49,37 +49,30 @@ def _stop(p) -> None:
     p.wait(30)
 
 
+def _until(fn, pred, timeout: float = 30.0):
+    """``fn()`` once ``pred`` holds on it, or its last value after ``timeout`` [s]."""
+    deadline = time.monotonic() + timeout
+    while True:
+        v = fn()
+        if pred(v) or time.monotonic() > deadline:
+            return v
+        time.sleep(0.5)
+
+
 @pytest.fixture(scope="module")
 def probe(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("probe")
     st = Station(tmp)
     r: dict = {"station": st}
     try:
-        cfg = tmp / "m0.toml"
-        text = (SECURE / "monitor.toml").read_text()
-        text = text.replace('log_dir = "/var/lib/servowatch/logs"', f'log_dir = "{tmp}"')
-        cfg.write_text(
-            text.replace(
-                "[zenoh]",
-                'store = "off"\n\n[group]\nname = "fleet"\njoin_s = 0.5\nunmonitored_s = 1.5\n\n[zenoh]',
-                1,
-            )
-        )
-        daemon = st.popen(["run", "--config", str(cfg), "--no-rotate", "--json", "--plain-logs"],
-                          "daemon", env=st.env("monitor.ground1.0"))  # fmt: skip
-        deadline = time.monotonic() + 120
-        while st.status()["rc"] != 0:
-            assert daemon.poll() is None, (tmp / "daemon.err").read_text()[-3000:]
-            assert time.monotonic() < deadline, "no daemon status"
-            time.sleep(0.5)
+        daemon = st.daemon(st.monitor_config())
         act = st.actuator()
         web = st.web()
-        deadline = time.monotonic() + 60  # the unit monitored (a loaded machine starts slowly)
-        while True:
-            r["before"] = _daemon_status(st, "s_before")
-            if r["before"]["actuators"].get(KEY, {}).get("outputs") or time.monotonic() > deadline:
-                break
-            time.sleep(0.5)
+        r["before"] = _until(  # the unit monitored (a loaded machine starts slowly)
+            lambda: _daemon_status(st, "s_before"),
+            lambda s: s["actuators"].get(KEY, {}).get("outputs"),
+            60.0,
+        )
 
         # 1. other shards' group tokens, with the daemon's own certificate and another's
         rogues = [
@@ -98,23 +91,14 @@ def probe(tmp_path_factory):
         idle = st.popen(["token", "monitor/ground1/1/group/fleet/{zid}"], "idle",
                         st.env("monitor.ground1.1"), True)  # fmt: skip
         _wait_ready(st, idle, "idle")
-        deadline = time.monotonic() + 30
-        while True:
-            s = _daemon_status(st, "s_idle")
-            if UNIT in s["group"]["unmonitored"] or time.monotonic() > deadline:
-                break
-            time.sleep(0.5)
-        r["idle"] = s
+        r["idle"] = _until(lambda: _daemon_status(st, "s_idle"),
+                           lambda s: UNIT in s["group"]["unmonitored"])  # fmt: skip
         r["idle_text"] = st.run(["status", "--timeout", "2", *st.flags("operator")], "s_text")
         r["idle_live"] = _web_live_until(tmp / "web.out", web)
         _stop(idle)
-        deadline = time.monotonic() + 30
-        while True:  # the idle member left: the daemon takes the unit back, outputs resume
-            s = _daemon_status(st, "s_back")
-            if not s["group"]["unmonitored"] or time.monotonic() > deadline:
-                break
-            time.sleep(0.5)
-        r["back"] = s
+        # the idle member left: the daemon takes the unit back, outputs resume
+        r["back"] = _until(lambda: _daemon_status(st, "s_back"),
+                           lambda s: not s["group"]["unmonitored"])  # fmt: skip
 
         # 3. a virtual actuator's certificate claiming a real actuator
         fake = f"fleet/{AC}/flap_real"

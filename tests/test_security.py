@@ -120,6 +120,31 @@ class Station:
             "actuator",
         )  # fmt: skip
 
+    def monitor_config(self) -> Path:
+        """``deploy/secure/monitor.toml`` logging to tmp, with no store, in group ``fleet``
+        (join after 0.5 s, a unit unmonitored after 1.5 s): ``tmp/m0.toml``."""
+        cfg = self.tmp / "m0.toml"
+        text = (SECURE / "monitor.toml").read_text()
+        text = text.replace('log_dir = "/var/lib/servowatch/logs"', f'log_dir = "{self.tmp}"')
+        cfg.write_text(text.replace(
+            "[zenoh]",
+            'store = "off"\n\n[group]\nname = "fleet"\njoin_s = 0.5\nunmonitored_s = 1.5\n\n[zenoh]',
+            1,
+        ))  # fmt: skip
+        return cfg
+
+    def daemon(self, cfg: Path, timeout: float = 120.0) -> subprocess.Popen:
+        """``servowatch run --config cfg`` as monitor.ground1.0, once ``servowatch status``
+        answers (a cold numba cache compiles for a while)."""
+        daemon = self.popen(["run", "--config", str(cfg), "--no-rotate", "--json", "--plain-logs"],
+                            "daemon", env=self.env("monitor.ground1.0"))  # fmt: skip
+        deadline = time.monotonic() + timeout
+        while self.status()["rc"] != 0:
+            assert daemon.poll() is None, (self.tmp / "daemon.err").read_text()[-3000:]
+            assert time.monotonic() < deadline, "no daemon status"
+            time.sleep(0.5)
+        return daemon
+
     def run(self, args: list[str], tag: str, env=None, role=False, timeout=60.0) -> dict:
         """Run to the end: ``{"rc", "out", "err", "json"}``."""
         return self.result(self.popen(args, tag, env, role), tag, timeout)
