@@ -14,22 +14,9 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from service.config import ConfigError, MetricsSettings, ServiceConfig, load_config
 from service.daemon import Daemon
-from service.messages import encode_meas
 from service.metrics import METRICS, collect_status
 from service.store import open_store
-from tests.test_status_text import CH, NAME, _flights_rul, _leak_run
-
-KEY = "fleet/AC7/rudder/meas"
-
-
-def _feed(d: Daemon, meas: dict, key: str = KEY, per: int = 50) -> None:
-    n = len(meas["t"])
-    for a in range(0, n, per):
-        rows = [{"seq": j, "t": float(meas["t"][j]), **{c: float(meas[c][j]) for c in CH
-                 if c in meas}} for j in range(a, min(a + per, n))]  # fmt: skip
-        d.submit(key, encode_meas(rows))
-    while d.queued:
-        d.process_pending()
+from tests.test_status_text import KEY, NAME, _feed, _flights_rul, _leak_run
 
 
 def _scrape(port: int, host: str | None = None, method: str = "GET", path: str = "/metrics"):

@@ -35,12 +35,13 @@ def _leak_run(ratio: float, duration_s: float) -> dict:
     return measured_run(sc)[1]
 
 
-def _feed(d: Daemon, meas: dict, per: int = 50) -> None:
+def _feed(d: Daemon, meas: dict, key: str = KEY, per: int = 50) -> None:
+    """``meas`` into ``d`` as meas messages on ``key`` of ``per`` rows each, all processed."""
     n = len(meas["t"])
     for a in range(0, n, per):
         rows = [{"seq": j, "t": float(meas["t"][j]), **{c: float(meas[c][j]) for c in CH
                  if c in meas}} for j in range(a, min(a + per, n))]  # fmt: skip
-        d.submit(KEY, encode_meas(rows))
+        d.submit(key, encode_meas(rows))
     while d.queued:
         d.process_pending()
 
