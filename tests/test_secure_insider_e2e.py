@@ -44,9 +44,7 @@ def insider(tmp_path_factory):
     st = Station(tmp)
     r: dict = {"station": st}
     try:
-        daemon = st.daemon(st.monitor_config())
-        act = st.actuator()
-        web = st.web()
+        daemon, act, web = st.monitored()
         _web_live(tmp / "web.out", web)
         url = (tmp / "web.out").read_text().split()[1].rstrip("/") + "/api/live"
         time.sleep(2.0)

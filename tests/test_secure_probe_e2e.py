@@ -65,9 +65,7 @@ def probe(tmp_path_factory):
     st = Station(tmp)
     r: dict = {"station": st}
     try:
-        daemon = st.daemon(st.monitor_config())
-        act = st.actuator()
-        web = st.web()
+        daemon, act, web = st.monitored()
         r["before"] = _until(  # the unit monitored (a loaded machine starts slowly)
             lambda: _daemon_status(st, "s_before"),
             lambda s: s["actuators"].get(KEY, {}).get("outputs"),

@@ -133,17 +133,19 @@ class Station:
         ))  # fmt: skip
         return cfg
 
-    def daemon(self, cfg: Path, timeout: float = 120.0) -> subprocess.Popen:
-        """``servowatch run --config cfg`` as monitor.ground1.0, once ``servowatch status``
-        answers (a cold numba cache compiles for a while)."""
-        daemon = self.popen(["run", "--config", str(cfg), "--no-rotate", "--json", "--plain-logs"],
-                            "daemon", env=self.env("monitor.ground1.0"))  # fmt: skip
-        deadline = time.monotonic() + timeout
+    def monitored(self) -> tuple[subprocess.Popen, subprocess.Popen, subprocess.Popen]:
+        """(daemon, actuator, web): ``servowatch run`` on ``monitor_config()`` as
+        monitor.ground1.0, started and answering ``servowatch status`` within 120 s; then the
+        virtual actuator and the fleet page (``actuator()``, ``web()``)."""
+        cmd = ["run", "--config", str(self.monitor_config()), "--no-rotate", "--json",
+               "--plain-logs"]  # fmt: skip
+        daemon = self.popen(cmd, "daemon", env=self.env("monitor.ground1.0"))
+        deadline = time.monotonic() + 120
         while self.status()["rc"] != 0:
             assert daemon.poll() is None, (self.tmp / "daemon.err").read_text()[-3000:]
             assert time.monotonic() < deadline, "no daemon status"
             time.sleep(0.5)
-        return daemon
+        return daemon, self.actuator(), self.web()
 
     def run(self, args: list[str], tag: str, env=None, role=False, timeout=60.0) -> dict:
         """Run to the end: ``{"rc", "out", "err", "json"}``."""
