@@ -300,14 +300,18 @@ def _catch(v_new, v_j, pt1, pt2, f_r, rp):
     return np.where(stuck, 0.0, v_new)
 
 
+def _unpack(x: NDArray) -> tuple[NDArray, ...]:
+    """The ten states of ``x`` (..., 10), in order: x_s, v_s, x_j, v_j, f_r, p_sr, c_lk, i_b,
+    pt1, pt2 (views)."""
+    return tuple(x[..., k] for k in range(N_STATES))
+
+
 def step(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta: float) -> NDArray:
     """Advance WH states ``x`` (..., 10) by ``dt`` with current ``i`` held, in ``n_sub``
     steps (1 at the monitor's 1 ms sample): per step the exact spool step, then one ROS2 step
     of (x_J, v_J, p~1, p~2) (module docstring). Parameters (f_r, p_sr, c_lk, i_b) are copied
     through; evaluated with C_Lk >= 0, P_SR >= P_vap."""
-    x_s, v_s, x_j, v_j = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
-    f_r, p_sr, c_lk, i_b = x[..., 4], x[..., 5], x[..., 6], x[..., 7]
-    pt1, pt2 = x[..., 8], x[..., 9]
+    x_s, v_s, x_j, v_j, f_r, p_sr, c_lk, i_b, pt1, pt2 = _unpack(x)
     p_ev, c_ev = np.maximum(p_sr, rp.p_vap), np.maximum(c_lk, 0.0)
     h = np.asarray(dt, float) / n_sub
     for _ in range(n_sub):
@@ -324,9 +328,7 @@ def step_rk4(x: NDArray, i, dt, rp: ReducedParams, n_sub: int, v_c: float, beta:
     reference: per substep the exact spool step, then one classic RK4 step of (x_J, v_J,
     p~1, p~2) with the spool held at its new position. Stable only while the chamber mode's
     |lambda h| < 2.785 (3 substeps per ms at mid stroke, up to 11 at the chamber floor)."""
-    x_s, v_s, x_j, v_j = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
-    f_r, p_sr, c_lk, i_b = x[..., 4], x[..., 5], x[..., 6], x[..., 7]
-    pt1, pt2 = x[..., 8], x[..., 9]
+    x_s, v_s, x_j, v_j, f_r, p_sr, c_lk, i_b, pt1, pt2 = _unpack(x)
     p_ev, c_ev = np.maximum(p_sr, rp.p_vap), np.maximum(c_lk, 0.0)
     h = np.asarray(dt, float) / n_sub
     for _ in range(n_sub):
