@@ -9,7 +9,8 @@ of crossing within a planning horizon.
 Usage axes (``USAGE_AXES``): where every flight of a history has the monitor's usage figures,
 the wear may be read against the unit's cumulative usage instead of its flights: each
 flight counts its usage per operating second (its intensity: a log may hold a few seconds
-of a flight) over the fleet's median (``FleetPrior.usage_ref``). Which axis explains the wear
+of a flight) over the fleet's median (``FleetPrior.usage_ref``); an axis of ``MEAN_AXES``
+counts a ratio of two figures instead (the mean squared load). Which axis explains the wear
 is learned from the fleet (``fleet_prior``: each unit's best axis by the marginal likelihood
 of its history, counted with Dirichlet(1) smoothing into ``FleetPrior.p_axis``), and each
 unit's RUL averages over the axes, weighted by that prior times its own evidence on each. A
