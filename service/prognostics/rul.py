@@ -9,7 +9,8 @@ of crossing within a planning horizon.
 Usage axes (``USAGE_AXES``): where every flight of a history has the monitor's usage figures,
 the wear may be read against the unit's cumulative usage instead of its flights: each
 flight counts its usage per operating second (its intensity: a log may hold a few seconds
-of a flight) over the fleet's median (``FleetPrior.usage_ref``). Which axis explains the wear
+of a flight) over the fleet's median (``FleetPrior.usage_ref``); an axis of ``MEAN_AXES``
+counts a ratio of two figures instead (the mean squared load). Which axis explains the wear
 is learned from the fleet (``fleet_prior``: each unit's best axis by the marginal likelihood
 of its history, counted with Dirichlet(1) smoothing into ``FleetPrior.p_axis``), and each
 unit's RUL averages over the axes, weighted by that prior times its own evidence on each. A
@@ -37,6 +38,7 @@ from service.store.records import Period
 
 __all__ = [
     "USAGE_AXES",
+    "MEAN_AXES",
     "RulConfig",
     "History",
     "history_of",
@@ -53,6 +55,12 @@ USAGE_AXES: dict[str, str] = {
     "load2_travel": "usage_load2_travel_n2m",
 }
 """Usage life axes and the stored period field each cumulates (per operating second)."""
+
+MEAN_AXES: dict[str, tuple[str, str]] = {"load2": ("load2_travel", "travel")}
+"""Usage axes of a load level rather than a motion: each flight counts the ratio of two
+``USAGE_AXES`` figures over its periods, here the F_J^2-weighted travel over the travel, the
+flight's mean squared load along its travel [N^2] (wear per operating second that goes with
+the load squared whatever the jack's motion: the command amplitude cancels)."""
 
 
 @lru_cache(maxsize=1)
@@ -152,15 +160,22 @@ class History:
                        cut(self.flight), cut(self.start_unix), us)  # fmt: skip
 
     def flight_rates(self, axis: str) -> NDArray | None:
-        """Usage per operating second of each flight from the first to the last (a flight
+        """Usage per operating second of each flight from the first to the last (a
+        ``MEAN_AXES`` axis: the ratio of its two figures over the flight's periods; a flight
         without periods: the mean of the others), None unless the history counts flights and
-        every flight's periods recorded ``axis`` with operating time."""
-        if self.axis != "flights" or self.usage is None or axis not in self.usage:
+        every flight's periods recorded the figures with operating time (and, for a ratio,
+        a denominator above zero)."""
+        if self.axis != "flights" or self.usage is None:
             return None
-        u = self.usage[axis]
+        num, den = MEAN_AXES.get(axis, (axis, None))
+        if num not in self.usage or (den is not None and den not in self.usage):
+            return None
+        u = self.usage[num]
         op = np.diff(np.concatenate(([0.0], self.t_h))) * 3600.0
+        if den is not None:
+            op = self.usage[den]
         f = (self.flight - self.flight[0]).astype(int)
-        if not (np.isfinite(u).all() and len(u)):
+        if not (np.isfinite(u).all() and np.isfinite(op).all() and len(u)):
             return None
         tot = np.bincount(f, weights=u)
         sec = np.bincount(f, weights=op)
@@ -188,7 +203,8 @@ class History:
     def axes(self) -> list[str]:
         """The life axes this history supports: its own (flights or hours), then each usage
         axis every flight has."""
-        return [self.axis] + [a for a in USAGE_AXES if self.flight_rates(a) is not None]
+        return [self.axis] + [a for a in (*USAGE_AXES, *MEAN_AXES)
+                              if self.flight_rates(a) is not None]  # fmt: skip
 
 
 def _life_key(p: Period) -> tuple:
@@ -410,7 +426,7 @@ def learn_axes(hs: Sequence[History], prior: FleetPrior, min_points: int = 8) ->
     the fleet records, each of them kept). A fleet without usage figures keeps its own axis
     alone."""
     ref = {}
-    for a in USAGE_AXES:
+    for a in (*USAGE_AXES, *MEAN_AXES):
         rates = [r for h in hs if (r := h.flight_rates(a)) is not None]
         if rates:
             v = np.concatenate(rates)
