@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from service import messages as m
-from service.jsonutil import event_dict, flat, jsonable
+from service.jsonutil import event_dict, flat
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, BankRows
 from service.prognostics import PeriodAccumulator, PeriodConfig
 from service.store import AlarmEvent, Period
@@ -64,6 +64,8 @@ class _Target:
     outputs: int = 0
     publishers: dict[str, Any] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)  # added to each published health
+    # ``info`` as the published health's (commissioned, baseline_version)
+    info_row: tuple[int, int] = (m.COMMISSIONED_UNKNOWN, 0)
     acc: PeriodAccumulator | None = None
     nis_in_band: float | None = None  # of its last closed period
 
@@ -75,6 +77,15 @@ def _LEAVES(rows: BankRows) -> tuple[tuple[str, tuple[str, ...], np.ndarray], ..
         ("residual", RES_KEYS, rows.res),
         ("health", HEALTH_KEYS, rows.health),
     )
+
+
+def _info_row(info: Mapping[str, Any]) -> tuple[int, int]:
+    """(commissioned, baseline_version) of the published health (``service.messages.
+    output_layout``): -1 / 0 without a ``commissioned`` in ``info`` (no store)."""
+    if "commissioned" not in info:
+        return (m.COMMISSIONED_UNKNOWN, 0)
+    c = m.COMMISSIONED_YES if info["commissioned"] else m.COMMISSIONED_NO
+    return (c, int(info.get("baseline_version") or 0))
 
 
 class FanOut:
@@ -148,6 +159,7 @@ class FanOut:
 
     def _set(self, tg: _Target, c_lk0: float | None, info: Mapping[str, Any] | None) -> None:
         tg.info = dict(info or {})
+        tg.info_row = _info_row(tg.info)
         if self.on_periods is not None and c_lk0 is not None and c_lk0 > 0:
             tg.acc = PeriodAccumulator(
                 f"{tg.aircraft}/{tg.actuator}", c_lk0, self.source, EST_KEYS, HEALTH_KEYS,
@@ -189,23 +201,41 @@ class FanOut:
         inputs belonged to bank rows ``ks``); one :class:`Emitted` per actuator, in the order
         of the bank rows."""
         idx = rows.index
-        if len(idx) == 0:
+        n = len(idx)
+        if n == 0:
             return []
         owner = ks[idx]
-        has_ev = rows.events.flags()
         order = np.argsort(owner, kind="stable")
-        out = []
-        lg = self.logger
-        lv = self.live
+        so = owner[order]
+        cut = np.flatnonzero(so[1:] != so[:-1]) + 1
+        starts = np.concatenate(([0], cut))
+        lens = np.diff(np.concatenate((starts, [n])))
+        tgs = [self._targets[r] for r in so[starts].tolist()]
+        base = np.fromiter((tg.outputs for tg in tgs), np.int64, len(tgs))
+        # each row's output number (1, 2, ... per actuator), in ``order``
+        num = np.arange(1, n + 1) - np.repeat(starts - base, lens)
+        ev_rows = rows.events.rows()
+        ev = rows.events.flags()[order] if ev_rows else None
+        lg, lv = self.logger, self.live
         many = getattr(lg, "log_blocks", None)  # one record per leaf and call, not per topic
+        logged = None  # in ``order``: the rows logged
+        if lg is not None or lv is not None:
+            logged = num % self.log_every == 0 if self.log_every > 1 else np.ones(n, bool)
+            if ev is not None:
+                logged |= ev
+        pub = (num % self.publish_every == 0) if self.session is not None else None
+        ends = (starts + lens).tolist()
+        out = []
+        who: list[_Target] = []  # the target of each published row, in ``order``
         runs: list[tuple[str, np.ndarray]] = []  # (topic prefix, selected rows) for ``many``
-        for g in np.split(order, np.flatnonzero(np.diff(owner[order])) + 1):
-            row = int(owner[g[0]])
-            tg = self._targets[row]
-            num = tg.outputs + 1 + np.arange(len(g))
-            tg.outputs += len(g)
-            ev = has_ev[g]
-            em = Emitted(row, f"{tg.aircraft}/{tg.actuator}", len(g), int(g[-1]))
+        ev_at = iter(np.flatnonzero(ev).tolist()) if ev is not None else iter(())
+        ev_next = next(ev_at, n)
+        for gi, tg in enumerate(tgs):
+            a, b = int(starts[gi]), ends[gi]
+            g = order[a:b]
+            tg.outputs += b - a
+            row = int(so[a])
+            em = Emitted(row, f"{tg.aircraft}/{tg.actuator}", b - a, int(order[b - 1]))
             if tg.acc is not None:
                 cnt = self.counters(row) if self.counters is not None else None
                 u = None if rows.usage is None else rows.usage[g]
@@ -216,36 +246,20 @@ class FanOut:
                 if closed:
                     v = closed[-1].nis_in_band
                     tg.nis_in_band = v if math.isfinite(v) else None
-            if lg is not None or lv is not None:
-                sel = g[(num % self.log_every == 0) | ev]
+            if logged is not None:
+                sel = g[logged[a:b]] if self.log_every > 1 or ev is not None else g
                 if len(sel):
-                    ts = rows.t[sel]
                     if many is not None:
                         runs.append((tg.prefix, sel))
-                    for leaf, keys, arr in _LEAVES(rows):
-                        topic = tg.prefix + leaf
-                        blk = None
-                        if lg is not None and many is None:
-                            blk = arr[sel]
-                            lg.log_block(topic, ts, keys, blk)
-                        if lv is not None and lv.wants(topic):  # else nothing is made
-                            lv.log_block(topic, ts, keys, arr[sel] if blk is None else blk)
-            for r in g[ev].tolist():
-                t_r = float(rows.t[r])
-                for e in rows.events[r]:
-                    d = event_dict(e)
-                    te, fd = float(d.get("t") or t_r), flat(d)
-                    if lg is not None:
-                        lg.log(tg.prefix + "events", te, fd)
-                    if lv is not None:
-                        lv.log(tg.prefix + "events", te, fd)
-                    em.events.append(d)
-            if self.session is not None:
-                for r in g[num % self.publish_every == 0].tolist():
-                    o = rows.output(r)
-                    health = {**o.health, **tg.info} if tg.info else o.health
-                    self._publish(tg, o.t, {"est": o.est, "res": o.res, "health": health})
-                    em.published += 1
+                    if (lg is not None and many is None) or lv is not None:
+                        self._log_rows(rows, tg.prefix, sel, lg is not None and many is None)
+            while ev_next < b:  # the events of this actuator's rows
+                r = int(order[ev_next])
+                self._events(tg, em, float(rows.t[r]), rows.events[r])
+                ev_next = next(ev_at, n)
+            if pub is not None:
+                em.published = int(np.count_nonzero(pub[a:b]))
+                who += [tg] * em.published
             out.append(em)
         if runs:
             sel = np.concatenate([r for _, r in runs])
@@ -253,26 +267,73 @@ class FanOut:
             ts = rows.t[sel]
             for leaf, keys, arr in _LEAVES(rows):
                 many([p + leaf for p, _ in runs], counts, ts, keys, arr[sel])
+        if who:
+            self._publish(rows, order[pub], who)
         return out
 
-    def _publish(self, tg: _Target, t: float, parts: dict[str, dict]) -> None:
-        for leaf, d in parts.items():
-            pub = tg.publishers.get(leaf)
-            try:
-                if pub is None:
-                    tmpl = {"est": m.KEY_EST, "res": m.KEY_RES, "health": m.KEY_HEALTH}[leaf]
-                    pub = tg.publishers[leaf] = self.session.declare_publisher(
-                        tmpl.format(aircraft=tg.aircraft, actuator=tg.actuator)
-                    )
-                try:  # the monitor's outputs are finite floats: plain json.dumps
-                    payload = m.encode_json({"t": t, **d})
-                except ValueError:
-                    payload = m.encode_json({"t": t, **jsonable(d)})
-                pub.put(payload)
-            except Exception as e:
-                if self.on_publish_error is None:
-                    raise
-                self.on_publish_error(e)
+    def _log_rows(self, rows: BankRows, prefix: str, sel: np.ndarray, log: bool) -> None:
+        """Rows ``sel`` of an actuator to the logger (``log``: one ``log_block`` per leaf)
+        and to the live view."""
+        lg, lv = self.logger, self.live
+        ts = rows.t[sel]
+        for leaf, keys, arr in _LEAVES(rows):
+            topic = prefix + leaf
+            blk = None
+            if log:
+                blk = arr[sel]
+                lg.log_block(topic, ts, keys, blk)
+            if lv is not None and lv.wants(topic):  # else nothing is made
+                lv.log_block(topic, ts, keys, arr[sel] if blk is None else blk)
+
+    def _events(self, tg: _Target, em: Emitted, t_r: float, events: list) -> None:
+        lg, lv = self.logger, self.live
+        for e in events:
+            d = event_dict(e)
+            te, fd = float(d.get("t") or t_r), flat(d)
+            if lg is not None:
+                lg.log(tg.prefix + "events", te, fd)
+            if lv is not None:
+                lv.log(tg.prefix + "events", te, fd)
+            em.events.append(d)
+
+    def _publish(
+        self,
+        rows: BankRows,
+        sel: np.ndarray,
+        who: list[_Target],
+    ) -> None:
+        """Put est, res and health of rows ``sel`` (of the actuators ``who``) in their
+        protobuf form (``service.messages.encode_outputs``): each leaf's messages made in
+        one array operation, one put per message."""
+        t = rows.t[sel][:, None]
+        info = np.array([tg.info_row for tg in who], np.float64).reshape(len(who), 2)
+        parts = (
+            ("est", np.hstack((rows.est[sel], t))),
+            ("res", np.hstack((rows.res[sel], t))),
+            ("health", np.hstack((rows.health[sel], t, info))),
+        )
+        for leaf, vals in parts:
+            msgs = m.encode_outputs(leaf, vals)
+            size = msgs.shape[1]
+            buf = msgs.tobytes()
+            for k, tg in enumerate(who):
+                p = tg.publishers.get(leaf)
+                try:
+                    if p is None:
+                        p = self._declare(tg, leaf)
+                    p.put(buf[k * size : (k + 1) * size])
+                except Exception as e:
+                    if self.on_publish_error is None:
+                        raise
+                    self.on_publish_error(e)
+
+    def _declare(self, tg: _Target, leaf: str) -> Any:
+        tmpl = {"est": m.KEY_EST, "res": m.KEY_RES, "health": m.KEY_HEALTH}[leaf]
+        p = tg.publishers[leaf] = self.session.declare_publisher(
+            tmpl.format(aircraft=tg.aircraft, actuator=tg.actuator),
+            encoding=m.output_encoding(leaf),
+        )
+        return p
 
     def close(self) -> None:
         """Undeclare the publishers."""

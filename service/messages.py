@@ -19,6 +19,7 @@ because pydantic per sample costs more than a 20 kHz aggregate stream can afford
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -46,6 +47,12 @@ __all__ = [
     "MeasArrays",
     "encode_json",
     "decode_json",
+    "OUTPUT_LEAVES",
+    "output_layout",
+    "output_encoding",
+    "output_schema",
+    "encode_outputs",
+    "decode_output",
     "KEY_MEAS",
     "KEY_EST",
     "KEY_RES",
@@ -427,6 +434,87 @@ def decode_json(payload: bytes, max_bytes: int = MAX_BYTES) -> dict[str, Any]:
     if not isinstance(obj, dict):
         raise MessageError("must be a JSON object", "payload")
     return obj
+
+
+# --------------------------------------------------------------------------- outputs
+
+#: leaves of the published outputs, ``fleet/{aircraft}/{actuator}/{leaf}``
+OUTPUT_LEAVES: tuple[str, ...] = ("est", "res", "health")
+#: fields a published output carries after the log row's (docs/messages.md, "Outputs")
+_OUTPUT_EXTRA = {"est": ("t",), "res": ("t",), "health": ("t", "commissioned", "baseline_version")}
+_OUTPUT_MESSAGE = {"est": "EstOutput", "res": "ResidualOutput", "health": "HealthOutput"}
+#: ``commissioned`` of a published health: unknown (no store), not commissioned, commissioned
+COMMISSIONED_UNKNOWN, COMMISSIONED_NO, COMMISSIONED_YES = -1, 0, 1
+
+
+@functools.cache
+def output_layout(leaf: str) -> Any:
+    """The ``service.log.rows.RowLayout`` of a published ``est``, ``res`` or ``health``: the
+    log row's fields (field k + 1 = k-th name of ``EST_KEYS`` / ``RES_KEYS`` /
+    ``HEALTH_KEYS``, doubles) then ``t`` [s] (double) and, on health, ``commissioned`` (1,
+    0, -1: unknown) and ``baseline_version`` (0: none), both ``sfixed64``."""
+    from service.log.rows import PROTO_PACKAGE, RowLayout
+    from service.monitor.outputs import EST_KEYS, HEALTH_KEYS, RES_KEYS
+
+    if leaf not in _OUTPUT_MESSAGE:
+        raise MessageError(f"not one of {OUTPUT_LEAVES}", "leaf")
+    keys = {"est": EST_KEYS, "res": RES_KEYS, "health": HEALTH_KEYS}[leaf]
+    names = (*keys, *_OUTPUT_EXTRA[leaf])
+    ints = tuple(n in ("commissioned", "baseline_version") for n in names)
+    return RowLayout(f"{PROTO_PACKAGE}.{_OUTPUT_MESSAGE[leaf]}", names, ints)
+
+
+@functools.cache
+def output_encoding(leaf: str) -> str:
+    """The Zenoh encoding of a published output: ``application/protobuf;{message}``."""
+    return f"application/protobuf;{output_layout(leaf).message}"
+
+
+@functools.cache
+def output_schema() -> bytes:
+    """The serialised ``google.protobuf.FileDescriptorSet`` of the three output messages
+    (one file each, ``servowatch/EstOutput.proto`` ...): what a reader outside servowatch
+    needs to decode them with a stock protobuf library."""
+    return b"".join(output_layout(leaf).schema for leaf in OUTPUT_LEAVES)
+
+
+def encode_outputs(leaf: str, vals: np.ndarray) -> np.ndarray:
+    """The messages of ``leaf`` for the rows of ``vals`` (n, F): the log row's columns then
+    the extra fields of :func:`output_layout`, as an (n, size) uint8 array (row k is the
+    payload of one put). Integer fields must be finite."""
+    return output_layout(leaf).encode(vals)
+
+
+def decode_output(leaf: str, payload: bytes, max_bytes: int = MAX_BYTES) -> dict[str, Any]:
+    """A published ``est``, ``res`` or ``health`` as ``{"t": ..., name: value, ...}``: the
+    protobuf form of :func:`output_layout` (any valid protobuf encoding of it), or the JSON
+    object older daemons published (told apart by the first byte: ``{`` is not a field tag
+    of these messages). Health's ``commissioned`` is a bool and ``baseline_version`` an int
+    or None, both left out when unknown. Raises :class:`MessageError`."""
+    _check_size(payload, max_bytes)
+    payload = bytes(payload)
+    if payload.lstrip()[:1] == b"{":
+        return decode_json(payload, max_bytes)
+    lay = output_layout(leaf)
+    try:
+        vals = lay.decode_one(payload)
+    except (ValueError, struct.error) as e:
+        raise MessageError(f"malformed {lay.message}: {e}", "payload") from None
+    d = dict(zip(lay.names, vals, strict=True))
+    out: dict[str, Any] = {"t": d.pop("t")}
+    if leaf == "health":
+        c, v = d.pop("commissioned"), d.pop("baseline_version")
+        if c not in (COMMISSIONED_UNKNOWN, COMMISSIONED_NO, COMMISSIONED_YES):
+            raise MessageError(f"must be -1, 0 or 1, got {c}", "commissioned")
+        if v < 0:
+            raise MessageError(f"must be >= 0, got {v}", "baseline_version")
+        out.update(d)
+        if c != COMMISSIONED_UNKNOWN:
+            out["commissioned"] = c == COMMISSIONED_YES
+            out["baseline_version"] = v or None
+        return out
+    out.update(d)
+    return out
 
 
 # --------------------------------------------------------------------------- keys
