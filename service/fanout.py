@@ -312,11 +312,12 @@ class FanOut:
             ("res", np.hstack((rows.res[sel], t))),
             ("health", np.hstack((rows.health[sel], t, info))),
         )
+        bufs = []
         for leaf, vals in parts:
             msgs = m.encode_outputs(leaf, vals)
-            size = msgs.shape[1]
-            buf = msgs.tobytes()
-            for k, tg in enumerate(who):
+            bufs.append((leaf, msgs.tobytes(), msgs.shape[1]))
+        for k, tg in enumerate(who):  # per row est, res, health: the order of the JSON era
+            for leaf, buf, size in bufs:
                 p = tg.publishers.get(leaf)
                 try:
                     if p is None:

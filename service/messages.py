@@ -485,15 +485,23 @@ def encode_outputs(leaf: str, vals: np.ndarray) -> np.ndarray:
     return output_layout(leaf).encode(vals)
 
 
-def decode_output(leaf: str, payload: bytes, max_bytes: int = MAX_BYTES) -> dict[str, Any]:
+def decode_output(
+    leaf: str, payload: bytes, encoding: str | None = None, max_bytes: int = MAX_BYTES
+) -> dict[str, Any]:
     """A published ``est``, ``res`` or ``health`` as ``{"t": ..., name: value, ...}``: the
     protobuf form of :func:`output_layout` (any valid protobuf encoding of it), or the JSON
-    object older daemons published (told apart by the first byte: ``{`` is not a field tag
-    of these messages). Health's ``commissioned`` is a bool and ``baseline_version`` an int
-    or None, both left out when unknown. Raises :class:`MessageError`."""
+    object older daemons published. The Zenoh ``encoding`` decides (``application/protobuf``
+    or ``application/json``); without one of those (older daemons set none) the first byte
+    does: ``{`` (or a space, CR, LF) is not a field tag of these messages (a tab is: field
+    1's). Health's ``commissioned`` is a bool and
+    ``baseline_version`` an int or None, both left out when unknown. Raises
+    :class:`MessageError`."""
     _check_size(payload, max_bytes)
     payload = bytes(payload)
-    if payload.lstrip()[:1] == b"{":
+    enc = (encoding or "").split(";", 1)[0]
+    if enc in ("application/json", "text/json") or (
+        enc != "application/protobuf" and payload[:1] in (b"{", b" ", b"\n", b"\r")
+    ):
         return decode_json(payload, max_bytes)
     lay = output_layout(leaf)
     try:
