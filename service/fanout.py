@@ -61,6 +61,7 @@ class _Target:
     aircraft: str
     actuator: str
     prefix: str  # "/fleet/{aircraft}/{actuator}/"
+    name: str  # "{aircraft}/{actuator}"
     outputs: int = 0
     publishers: dict[str, Any] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)  # added to each published health
@@ -142,7 +143,9 @@ class FanOut:
         """Name the actuator of bank row ``row`` (before its first output); ``c_lk0`` is the
         C_Lk of its baseline (for its periods), ``info`` goes into its published health."""
         if row not in self._targets:
-            tg = _Target(aircraft, actuator, f"/fleet/{aircraft}/{actuator}/")
+            tg = _Target(
+                aircraft, actuator, f"/fleet/{aircraft}/{actuator}/", f"{aircraft}/{actuator}"
+            )
             self._targets[row] = tg
             self._set(tg, c_lk0, info)
             if self.live is not None:
@@ -224,19 +227,30 @@ class FanOut:
             if ev is not None:
                 logged |= ev
         pub = (num % self.publish_every == 0) if self.session is not None else None
-        ends = (starts + lens).tolist()
+        # per actuator: first row in ``order``, rows, bank row, latest output, rows logged
+        # and published (plain ints: the loop below does no numpy per actuator unless it
+        # must select rows for the periods, a logger without ``log_blocks`` or the live view)
+        a_l, k_l = starts.tolist(), lens.tolist()
+        row_l, last_l = so[starts].tolist(), order[starts + lens - 1].tolist()
+        full = self.log_every == 1 and ev is None  # every row logged
+        n_log = None
+        if logged is not None:
+            n_log = k_l if full else np.add.reduceat(logged, starts, dtype=np.int64).tolist()
+        n_pub = None if pub is None else np.add.reduceat(pub, starts, dtype=np.int64).tolist()
+        each = lv is not None or (lg is not None and many is None)  # rows selected per actuator
         out = []
         who: list[_Target] = []  # the target of each published row, in ``order``
-        runs: list[tuple[str, np.ndarray]] = []  # (topic prefix, selected rows) for ``many``
+        logged_at: list[str] = []  # topic prefixes of the actuators with logged rows
         ev_at = iter(np.flatnonzero(ev).tolist()) if ev is not None else iter(())
         ev_next = next(ev_at, n)
         for gi, tg in enumerate(tgs):
-            a, b = int(starts[gi]), ends[gi]
-            g = order[a:b]
-            tg.outputs += b - a
-            row = int(so[a])
-            em = Emitted(row, f"{tg.aircraft}/{tg.actuator}", b - a, int(order[b - 1]))
+            a, k = a_l[gi], k_l[gi]
+            b = a + k
+            tg.outputs += k
+            row = row_l[gi]
+            em = Emitted(row, tg.name, k, last_l[gi])
             if tg.acc is not None:
+                g = order[a:b]
                 cnt = self.counters(row) if self.counters is not None else None
                 u = None if rows.usage is None else rows.usage[g]
                 closed = tg.acc.add_rows(
@@ -246,27 +260,26 @@ class FanOut:
                 if closed:
                     v = closed[-1].nis_in_band
                     tg.nis_in_band = v if math.isfinite(v) else None
-            if logged is not None:
-                sel = g[logged[a:b]] if self.log_every > 1 or ev is not None else g
-                if len(sel):
-                    if many is not None:
-                        runs.append((tg.prefix, sel))
-                    if (lg is not None and many is None) or lv is not None:
-                        self._log_rows(rows, tg.prefix, sel, lg is not None and many is None)
+            if n_log is not None and n_log[gi]:
+                if many is not None:
+                    logged_at.append(tg.prefix)
+                if each:
+                    sel = order[a:b] if full else order[a:b][logged[a:b]]
+                    self._log_rows(rows, tg.prefix, sel, lg is not None and many is None)
             while ev_next < b:  # the events of this actuator's rows
                 r = int(order[ev_next])
                 self._events(tg, em, float(rows.t[r]), rows.events[r])
                 ev_next = next(ev_at, n)
-            if pub is not None:
-                em.published = int(np.count_nonzero(pub[a:b]))
+            if n_pub is not None and n_pub[gi]:
+                em.published = n_pub[gi]
                 who += [tg] * em.published
             out.append(em)
-        if runs:
-            sel = np.concatenate([r for _, r in runs])
-            counts = [len(r) for _, r in runs]
+        if logged_at:
+            sel = order if full else order[logged]
+            counts = [c for c in n_log if c]
             ts = rows.t[sel]
             for leaf, keys, arr in _LEAVES(rows):
-                many([p + leaf for p, _ in runs], counts, ts, keys, arr[sel])
+                many([p + leaf for p in logged_at], counts, ts, keys, arr[sel])
         if who:
             self._publish(rows, order[pub], who)
         return out
@@ -303,30 +316,26 @@ class FanOut:
         who: list[_Target],
     ) -> None:
         """Put est, res and health of rows ``sel`` (of the actuators ``who``) in their
-        protobuf form (``service.messages.encode_outputs``): each leaf's messages made in
-        one array operation, one put per message."""
-        t = rows.t[sel][:, None]
-        info = np.array([tg.info_row for tg in who], np.float64).reshape(len(who), 2)
-        parts = (
-            ("est", np.hstack((rows.est[sel], t))),
-            ("res", np.hstack((rows.res[sel], t))),
-            ("health", np.hstack((rows.health[sel], t, info))),
+        protobuf form (``service.messages.encode_output_rows``: all the messages in a few
+        array operations), one put per message."""
+        info = np.array([tg.info_row for tg in who], np.int64).reshape(len(who), 2)
+        buf, sizes = m.encode_output_rows(
+            rows.est[sel], rows.res[sel], rows.health[sel], rows.t[sel], info
         )
-        bufs = []
-        for leaf, vals in parts:
-            msgs = m.encode_outputs(leaf, vals)
-            bufs.append((leaf, msgs.tobytes(), msgs.shape[1]))
-        for k, tg in enumerate(who):  # per row est, res, health: the order of the JSON era
-            for leaf, buf, size in bufs:
+        leaves = tuple(zip(m.OUTPUT_LEAVES, sizes, strict=True))
+        off = 0
+        for tg in who:  # per row est, res, health: the order of the JSON era
+            for leaf, size in leaves:
                 p = tg.publishers.get(leaf)
                 try:
                     if p is None:
                         p = self._declare(tg, leaf)
-                    p.put(buf[k * size : (k + 1) * size])
+                    p.put(buf[off : off + size])
                 except Exception as e:
                     if self.on_publish_error is None:
                         raise
                     self.on_publish_error(e)
+                off += size
 
     def _declare(self, tg: _Target, leaf: str) -> Any:
         tmpl = {"est": m.KEY_EST, "res": m.KEY_RES, "health": m.KEY_HEALTH}[leaf]

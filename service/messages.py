@@ -52,6 +52,7 @@ __all__ = [
     "output_encoding",
     "output_schema",
     "encode_outputs",
+    "encode_output_rows",
     "decode_output",
     "KEY_MEAS",
     "KEY_EST",
@@ -483,6 +484,44 @@ def encode_outputs(leaf: str, vals: np.ndarray) -> np.ndarray:
     the extra fields of :func:`output_layout`, as an (n, size) uint8 array (row k is the
     payload of one put). Integer fields must be finite."""
     return output_layout(leaf).encode(vals)
+
+
+@functools.cache
+def _fused() -> tuple[np.ndarray, np.ndarray, tuple[int, ...], list[int], int]:
+    """The three output messages of a row side by side: (template bytes, positions of the
+    value bytes in field order, message sizes, columns of the integer fields, fields)."""
+    lays = [output_layout(leaf) for leaf in OUTPUT_LEAVES]
+    sizes = tuple(lay.size for lay in lays)
+    base = np.cumsum((0, *sizes[:-1]))
+    tmpl = np.concatenate([lay.template for lay in lays])
+    vb = np.concatenate([b + lay.value_bytes for b, lay in zip(base.tolist(), lays, strict=True)])
+    ints = [k for k, i in enumerate(i for lay in lays for i in lay.ints) if i]
+    return tmpl, vb, sizes, ints, sum(len(lay.names) for lay in lays)
+
+
+def encode_output_rows(
+    est: np.ndarray, res: np.ndarray, health: np.ndarray, t: np.ndarray, info: np.ndarray
+) -> tuple[bytes, tuple[int, ...]]:
+    """The est, res and health messages (:func:`output_layout`) of n rows at once: row k's
+    are ``est`` (n, len(EST_KEYS)), ``res``, ``health`` of row k, its time ``t[k]`` [s] and
+    ``info[k]`` = (commissioned, baseline_version) (n, 2) integers. Returns the bytes of the
+    n x 3 messages in the order est, res, health of row 0, then of row 1, ..., and the three
+    message sizes; the same bytes as :func:`encode_outputs` of each leaf."""
+    tmpl, vb, sizes, ints, nf = _fused()
+    n = len(t)
+    fe, fr = est.shape[1], res.shape[1]
+    w = np.empty((n, nf), "<f8")
+    w[:, :fe] = est
+    w[:, fe] = t
+    w[:, fe + 1 : fe + 1 + fr] = res
+    w[:, fe + 1 + fr] = t
+    w[:, fe + 2 + fr : nf - 3] = health
+    w[:, nf - 3] = t
+    w.view("<i8")[:, ints] = info
+    out = np.empty((n, len(tmpl)), np.uint8)
+    out[:] = tmpl
+    out[:, vb] = w.view(np.uint8)
+    return out.tobytes(), sizes
 
 
 def decode_output(
