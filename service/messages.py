@@ -441,7 +441,8 @@ def decode_json(payload: bytes, max_bytes: int = MAX_BYTES) -> dict[str, Any]:
 
 #: leaves of the published outputs, ``fleet/{aircraft}/{actuator}/{leaf}``
 OUTPUT_LEAVES: tuple[str, ...] = ("est", "res", "health")
-#: fields a published output carries after the log row's (docs/messages.md, "Outputs")
+#: fields a published output carries after the log row's
+#: (docs/messages.md, "Published outputs (Zenoh)")
 _OUTPUT_EXTRA = {"est": ("t",), "res": ("t",), "health": ("t", "commissioned", "baseline_version")}
 _OUTPUT_MESSAGE = {"est": "EstOutput", "res": "ResidualOutput", "health": "HealthOutput"}
 #: ``commissioned`` of a published health: unknown (no store), not commissioned, commissioned
