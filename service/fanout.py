@@ -6,7 +6,10 @@ Per actuator, counting its outputs 1, 2, ...:
 * est, residual and health are logged together for every ``log_every``-th output and for
   every output that carries an alarm event (one ``log_block`` per topic and block);
 * every alarm event is logged on ``.../events``;
-* est, res and health are published every ``publish_every``-th output.
+* est, res and health are published every ``publish_every``-th output, one put each (in
+  that order per output), as the protobuf rows of ``service.messages.output_layout`` (the
+  log row's fields, then ``t``; health also the commissioning of ``info``), made for all the
+  published outputs of an update in one array operation (decision record 0018).
 
 With ``live`` (a ``service.foxglove_feed.FoxgloveFeed``), the logged est, residual, health
 and events also go to the live Foxglove channels (the feed encodes only what a viewer
@@ -64,7 +67,7 @@ class _Target:
     name: str  # "{aircraft}/{actuator}"
     outputs: int = 0
     publishers: dict[str, Any] = field(default_factory=dict)
-    info: dict[str, Any] = field(default_factory=dict)  # added to each published health
+    info: dict[str, Any] = field(default_factory=dict)  # commissioned, baseline_version
     # ``info`` as the published health's (commissioned, baseline_version)
     info_row: tuple[int, int] = (m.COMMISSIONED_UNKNOWN, 0)
     acc: PeriodAccumulator | None = None
@@ -93,7 +96,8 @@ class FanOut:
     """Turns ``BankRows`` into log blocks (``logger.log_blocks``: one call per output topic
     leaf for every actuator of the update, or ``logger.log_block`` per topic), events
     (``logger.log``) and
-    Zenoh puts on ``fleet/{ac}/{act}/{est,res,health}`` (``session``; None: no publishing).
+    Zenoh puts on ``fleet/{ac}/{act}/{est,res,health}`` (``session``; None: no publishing),
+    each publisher declared with the encoding of its message (``output_encoding``).
 
     ``live`` receives what is logged (``log_block``/``log``, as a ``McapLogger``; None: no
     live view). ``on_publish_error(exc)`` is called when a put fails (None: the error
