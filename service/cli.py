@@ -36,6 +36,7 @@ COMMANDS: tuple[str, ...] = (
     "inject",
     "run",
     "status",
+    "listen",
     "router",
     "replay",
     "demo",

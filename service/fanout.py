@@ -6,7 +6,10 @@ Per actuator, counting its outputs 1, 2, ...:
 * est, residual and health are logged together for every ``log_every``-th output and for
   every output that carries an alarm event (one ``log_block`` per topic and block);
 * every alarm event is logged on ``.../events``;
-* est, res and health are published every ``publish_every``-th output.
+* est, res and health are published every ``publish_every``-th output, one put each (in
+  that order per output), as the protobuf rows of ``service.messages.output_layout`` (the
+  log row's fields, then ``t``; health also the commissioning of ``info``), made for all the
+  published outputs of an update in one array operation (decision record 0018).
 
 With ``live`` (a ``service.foxglove_feed.FoxgloveFeed``), the logged est, residual, health
 and events also go to the live Foxglove channels (the feed encodes only what a viewer
@@ -34,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from service import messages as m
-from service.jsonutil import event_dict, flat, jsonable
+from service.jsonutil import event_dict, flat
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, BankRows
 from service.prognostics import PeriodAccumulator, PeriodConfig
 from service.store import AlarmEvent, Period
@@ -61,9 +64,12 @@ class _Target:
     aircraft: str
     actuator: str
     prefix: str  # "/fleet/{aircraft}/{actuator}/"
+    name: str  # "{aircraft}/{actuator}"
     outputs: int = 0
     publishers: dict[str, Any] = field(default_factory=dict)
-    info: dict[str, Any] = field(default_factory=dict)  # added to each published health
+    info: dict[str, Any] = field(default_factory=dict)  # commissioned, baseline_version
+    # ``info`` as the published health's (commissioned, baseline_version)
+    info_row: tuple[int, int] = (m.COMMISSIONED_UNKNOWN, 0)
     acc: PeriodAccumulator | None = None
     nis_in_band: float | None = None  # of its last closed period
 
@@ -77,11 +83,21 @@ def _LEAVES(rows: BankRows) -> tuple[tuple[str, tuple[str, ...], np.ndarray], ..
     )
 
 
+def _info_row(info: Mapping[str, Any]) -> tuple[int, int]:
+    """(commissioned, baseline_version) of the published health (``service.messages.
+    output_layout``): -1 / 0 without a ``commissioned`` in ``info`` (no store)."""
+    if "commissioned" not in info:
+        return (m.COMMISSIONED_UNKNOWN, 0)
+    c = m.COMMISSIONED_YES if info["commissioned"] else m.COMMISSIONED_NO
+    return (c, int(info.get("baseline_version") or 0))
+
+
 class FanOut:
     """Turns ``BankRows`` into log blocks (``logger.log_blocks``: one call per output topic
     leaf for every actuator of the update, or ``logger.log_block`` per topic), events
     (``logger.log``) and
-    Zenoh puts on ``fleet/{ac}/{act}/{est,res,health}`` (``session``; None: no publishing).
+    Zenoh puts on ``fleet/{ac}/{act}/{est,res,health}`` (``session``; None: no publishing),
+    each publisher declared with the encoding of its message (``output_encoding``).
 
     ``live`` receives what is logged (``log_block``/``log``, as a ``McapLogger``; None: no
     live view). ``on_publish_error(exc)`` is called when a put fails (None: the error
@@ -131,7 +147,9 @@ class FanOut:
         """Name the actuator of bank row ``row`` (before its first output); ``c_lk0`` is the
         C_Lk of its baseline (for its periods), ``info`` goes into its published health."""
         if row not in self._targets:
-            tg = _Target(aircraft, actuator, f"/fleet/{aircraft}/{actuator}/")
+            tg = _Target(
+                aircraft, actuator, f"/fleet/{aircraft}/{actuator}/", f"{aircraft}/{actuator}"
+            )
             self._targets[row] = tg
             self._set(tg, c_lk0, info)
             if self.live is not None:
@@ -148,6 +166,7 @@ class FanOut:
 
     def _set(self, tg: _Target, c_lk0: float | None, info: Mapping[str, Any] | None) -> None:
         tg.info = dict(info or {})
+        tg.info_row = _info_row(tg.info)
         if self.on_periods is not None and c_lk0 is not None and c_lk0 > 0:
             tg.acc = PeriodAccumulator(
                 f"{tg.aircraft}/{tg.actuator}", c_lk0, self.source, EST_KEYS, HEALTH_KEYS,
@@ -189,24 +208,53 @@ class FanOut:
         inputs belonged to bank rows ``ks``); one :class:`Emitted` per actuator, in the order
         of the bank rows."""
         idx = rows.index
-        if len(idx) == 0:
+        n = len(idx)
+        if n == 0:
             return []
         owner = ks[idx]
-        has_ev = rows.events.flags()
         order = np.argsort(owner, kind="stable")
-        out = []
-        lg = self.logger
-        lv = self.live
+        so = owner[order]
+        cut = np.flatnonzero(so[1:] != so[:-1]) + 1
+        starts = np.concatenate(([0], cut))
+        lens = np.diff(np.concatenate((starts, [n])))
+        tgs = [self._targets[r] for r in so[starts].tolist()]
+        base = np.fromiter((tg.outputs for tg in tgs), np.int64, len(tgs))
+        # each row's output number (1, 2, ... per actuator), in ``order``
+        num = np.arange(1, n + 1) - np.repeat(starts - base, lens)
+        ev_rows = rows.events.rows()
+        ev = rows.events.flags()[order] if ev_rows else None
+        lg, lv = self.logger, self.live
         many = getattr(lg, "log_blocks", None)  # one record per leaf and call, not per topic
-        runs: list[tuple[str, np.ndarray]] = []  # (topic prefix, selected rows) for ``many``
-        for g in np.split(order, np.flatnonzero(np.diff(owner[order])) + 1):
-            row = int(owner[g[0]])
-            tg = self._targets[row]
-            num = tg.outputs + 1 + np.arange(len(g))
-            tg.outputs += len(g)
-            ev = has_ev[g]
-            em = Emitted(row, f"{tg.aircraft}/{tg.actuator}", len(g), int(g[-1]))
+        logged = None  # in ``order``: the rows logged
+        if lg is not None or lv is not None:
+            logged = num % self.log_every == 0 if self.log_every > 1 else np.ones(n, bool)
+            if ev is not None:
+                logged |= ev
+        pub = (num % self.publish_every == 0) if self.session is not None else None
+        # per actuator: first row in ``order``, rows, bank row, latest output, rows logged
+        # and published (plain ints: the loop below does no numpy per actuator unless it
+        # must select rows for the periods, a logger without ``log_blocks`` or the live view)
+        a_l, k_l = starts.tolist(), lens.tolist()
+        row_l, last_l = so[starts].tolist(), order[starts + lens - 1].tolist()
+        full = self.log_every == 1 and ev is None  # every row logged
+        n_log = None
+        if logged is not None:
+            n_log = k_l if full else np.add.reduceat(logged, starts, dtype=np.int64).tolist()
+        n_pub = None if pub is None else np.add.reduceat(pub, starts, dtype=np.int64).tolist()
+        each = lv is not None or (lg is not None and many is None)  # rows selected per actuator
+        out = []
+        who: list[_Target] = []  # the target of each published row, in ``order``
+        logged_at: list[str] = []  # topic prefixes of the actuators with logged rows
+        ev_at = iter(np.flatnonzero(ev).tolist()) if ev is not None else iter(())
+        ev_next = next(ev_at, n)
+        for gi, tg in enumerate(tgs):
+            a, k = a_l[gi], k_l[gi]
+            b = a + k
+            tg.outputs += k
+            row = row_l[gi]
+            em = Emitted(row, tg.name, k, last_l[gi])
             if tg.acc is not None:
+                g = order[a:b]
                 cnt = self.counters(row) if self.counters is not None else None
                 u = None if rows.usage is None else rows.usage[g]
                 closed = tg.acc.add_rows(
@@ -216,63 +264,90 @@ class FanOut:
                 if closed:
                     v = closed[-1].nis_in_band
                     tg.nis_in_band = v if math.isfinite(v) else None
-            if lg is not None or lv is not None:
-                sel = g[(num % self.log_every == 0) | ev]
-                if len(sel):
-                    ts = rows.t[sel]
-                    if many is not None:
-                        runs.append((tg.prefix, sel))
-                    for leaf, keys, arr in _LEAVES(rows):
-                        topic = tg.prefix + leaf
-                        blk = None
-                        if lg is not None and many is None:
-                            blk = arr[sel]
-                            lg.log_block(topic, ts, keys, blk)
-                        if lv is not None and lv.wants(topic):  # else nothing is made
-                            lv.log_block(topic, ts, keys, arr[sel] if blk is None else blk)
-            for r in g[ev].tolist():
-                t_r = float(rows.t[r])
-                for e in rows.events[r]:
-                    d = event_dict(e)
-                    te, fd = float(d.get("t") or t_r), flat(d)
-                    if lg is not None:
-                        lg.log(tg.prefix + "events", te, fd)
-                    if lv is not None:
-                        lv.log(tg.prefix + "events", te, fd)
-                    em.events.append(d)
-            if self.session is not None:
-                for r in g[num % self.publish_every == 0].tolist():
-                    o = rows.output(r)
-                    health = {**o.health, **tg.info} if tg.info else o.health
-                    self._publish(tg, o.t, {"est": o.est, "res": o.res, "health": health})
-                    em.published += 1
+            if n_log is not None and n_log[gi]:
+                if many is not None:
+                    logged_at.append(tg.prefix)
+                if each:
+                    sel = order[a:b] if full else order[a:b][logged[a:b]]
+                    self._log_rows(rows, tg.prefix, sel, lg is not None and many is None)
+            while ev_next < b:  # the events of this actuator's rows
+                r = int(order[ev_next])
+                self._events(tg, em, float(rows.t[r]), rows.events[r])
+                ev_next = next(ev_at, n)
+            if n_pub is not None and n_pub[gi]:
+                em.published = n_pub[gi]
+                who += [tg] * em.published
             out.append(em)
-        if runs:
-            sel = np.concatenate([r for _, r in runs])
-            counts = [len(r) for _, r in runs]
+        if logged_at:
+            sel = order if full else order[logged]
+            counts = [c for c in n_log if c]
             ts = rows.t[sel]
             for leaf, keys, arr in _LEAVES(rows):
-                many([p + leaf for p, _ in runs], counts, ts, keys, arr[sel])
+                many([p + leaf for p in logged_at], counts, ts, keys, arr[sel])
+        if who:
+            self._publish(rows, order[pub], who)
         return out
 
-    def _publish(self, tg: _Target, t: float, parts: dict[str, dict]) -> None:
-        for leaf, d in parts.items():
-            pub = tg.publishers.get(leaf)
-            try:
-                if pub is None:
-                    tmpl = {"est": m.KEY_EST, "res": m.KEY_RES, "health": m.KEY_HEALTH}[leaf]
-                    pub = tg.publishers[leaf] = self.session.declare_publisher(
-                        tmpl.format(aircraft=tg.aircraft, actuator=tg.actuator)
-                    )
-                try:  # the monitor's outputs are finite floats: plain json.dumps
-                    payload = m.encode_json({"t": t, **d})
-                except ValueError:
-                    payload = m.encode_json({"t": t, **jsonable(d)})
-                pub.put(payload)
-            except Exception as e:
-                if self.on_publish_error is None:
-                    raise
-                self.on_publish_error(e)
+    def _log_rows(self, rows: BankRows, prefix: str, sel: np.ndarray, log: bool) -> None:
+        """Rows ``sel`` of an actuator to the logger (``log``: one ``log_block`` per leaf)
+        and to the live view."""
+        lg, lv = self.logger, self.live
+        ts = rows.t[sel]
+        for leaf, keys, arr in _LEAVES(rows):
+            topic = prefix + leaf
+            blk = None
+            if log:
+                blk = arr[sel]
+                lg.log_block(topic, ts, keys, blk)
+            if lv is not None and lv.wants(topic):  # else nothing is made
+                lv.log_block(topic, ts, keys, arr[sel] if blk is None else blk)
+
+    def _events(self, tg: _Target, em: Emitted, t_r: float, events: list) -> None:
+        lg, lv = self.logger, self.live
+        for e in events:
+            d = event_dict(e)
+            te, fd = float(d.get("t") or t_r), flat(d)
+            if lg is not None:
+                lg.log(tg.prefix + "events", te, fd)
+            if lv is not None:
+                lv.log(tg.prefix + "events", te, fd)
+            em.events.append(d)
+
+    def _publish(
+        self,
+        rows: BankRows,
+        sel: np.ndarray,
+        who: list[_Target],
+    ) -> None:
+        """Put est, res and health of rows ``sel`` (of the actuators ``who``) in their
+        protobuf form (``service.messages.encode_output_rows``: all the messages in a few
+        array operations), one put per message."""
+        info = np.array([tg.info_row for tg in who], np.int64).reshape(len(who), 2)
+        buf, sizes = m.encode_output_rows(
+            rows.est[sel], rows.res[sel], rows.health[sel], rows.t[sel], info
+        )
+        leaves = tuple(zip(m.OUTPUT_LEAVES, sizes, strict=True))
+        off = 0
+        for tg in who:  # per row est, res, health: the order of the JSON era
+            for leaf, size in leaves:
+                p = tg.publishers.get(leaf)
+                try:
+                    if p is None:
+                        p = self._declare(tg, leaf)
+                    p.put(buf[off : off + size])
+                except Exception as e:
+                    if self.on_publish_error is None:
+                        raise
+                    self.on_publish_error(e)
+                off += size
+
+    def _declare(self, tg: _Target, leaf: str) -> Any:
+        tmpl = {"est": m.KEY_EST, "res": m.KEY_RES, "health": m.KEY_HEALTH}[leaf]
+        p = tg.publishers[leaf] = self.session.declare_publisher(
+            tmpl.format(aircraft=tg.aircraft, actuator=tg.actuator),
+            encoding=m.output_encoding(leaf),
+        )
+        return p
 
     def close(self) -> None:
         """Undeclare the publishers."""

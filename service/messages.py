@@ -19,6 +19,7 @@ because pydantic per sample costs more than a 20 kHz aggregate stream can afford
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -46,6 +47,13 @@ __all__ = [
     "MeasArrays",
     "encode_json",
     "decode_json",
+    "OUTPUT_LEAVES",
+    "output_layout",
+    "output_encoding",
+    "output_schema",
+    "encode_outputs",
+    "encode_output_rows",
+    "decode_output",
     "KEY_MEAS",
     "KEY_EST",
     "KEY_RES",
@@ -427,6 +435,134 @@ def decode_json(payload: bytes, max_bytes: int = MAX_BYTES) -> dict[str, Any]:
     if not isinstance(obj, dict):
         raise MessageError("must be a JSON object", "payload")
     return obj
+
+
+# --------------------------------------------------------------------------- outputs
+
+#: leaves of the published outputs, ``fleet/{aircraft}/{actuator}/{leaf}``
+OUTPUT_LEAVES: tuple[str, ...] = ("est", "res", "health")
+#: fields a published output carries after the log row's
+#: (docs/messages.md, "Published outputs (Zenoh)")
+_OUTPUT_EXTRA = {"est": ("t",), "res": ("t",), "health": ("t", "commissioned", "baseline_version")}
+_OUTPUT_MESSAGE = {"est": "EstOutput", "res": "ResidualOutput", "health": "HealthOutput"}
+#: ``commissioned`` of a published health: unknown (no store), not commissioned, commissioned
+COMMISSIONED_UNKNOWN, COMMISSIONED_NO, COMMISSIONED_YES = -1, 0, 1
+
+
+@functools.cache
+def output_layout(leaf: str) -> Any:
+    """The ``service.log.rows.RowLayout`` of a published ``est``, ``res`` or ``health``: the
+    log row's fields (field k + 1 = k-th name of ``EST_KEYS`` / ``RES_KEYS`` /
+    ``HEALTH_KEYS``, doubles) then ``t`` [s] (double) and, on health, ``commissioned`` (1,
+    0, -1: unknown) and ``baseline_version`` (0: none), both ``sfixed64``."""
+    from service.log.rows import PROTO_PACKAGE, RowLayout
+    from service.monitor.outputs import EST_KEYS, HEALTH_KEYS, RES_KEYS
+
+    if leaf not in _OUTPUT_MESSAGE:
+        raise MessageError(f"not one of {OUTPUT_LEAVES}", "leaf")
+    keys = {"est": EST_KEYS, "res": RES_KEYS, "health": HEALTH_KEYS}[leaf]
+    names = (*keys, *_OUTPUT_EXTRA[leaf])
+    ints = tuple(n in ("commissioned", "baseline_version") for n in names)
+    return RowLayout(f"{PROTO_PACKAGE}.{_OUTPUT_MESSAGE[leaf]}", names, ints)
+
+
+@functools.cache
+def output_encoding(leaf: str) -> str:
+    """The Zenoh encoding of a published output: ``application/protobuf;{message}``."""
+    return f"application/protobuf;{output_layout(leaf).message}"
+
+
+@functools.cache
+def output_schema() -> bytes:
+    """The serialised ``google.protobuf.FileDescriptorSet`` of the three output messages
+    (one file each, ``servowatch/EstOutput.proto`` ...): what a reader outside servowatch
+    needs to decode them with a stock protobuf library."""
+    return b"".join(output_layout(leaf).schema for leaf in OUTPUT_LEAVES)
+
+
+def encode_outputs(leaf: str, vals: np.ndarray) -> np.ndarray:
+    """The messages of ``leaf`` for the rows of ``vals`` (n, F): the log row's columns then
+    the extra fields of :func:`output_layout`, as an (n, size) uint8 array (row k is the
+    payload of one put). Integer fields must be finite."""
+    return output_layout(leaf).encode(vals)
+
+
+@functools.cache
+def _fused() -> tuple[np.ndarray, np.ndarray, tuple[int, ...], list[int], int]:
+    """The three output messages of a row side by side: (template bytes, positions of the
+    value bytes in field order, message sizes, columns of the integer fields, fields)."""
+    lays = [output_layout(leaf) for leaf in OUTPUT_LEAVES]
+    sizes = tuple(lay.size for lay in lays)
+    base = np.cumsum((0, *sizes[:-1]))
+    tmpl = np.concatenate([lay.template for lay in lays])
+    vb = np.concatenate([b + lay.value_bytes for b, lay in zip(base.tolist(), lays, strict=True)])
+    ints = [k for k, i in enumerate(i for lay in lays for i in lay.ints) if i]
+    return tmpl, vb, sizes, ints, sum(len(lay.names) for lay in lays)
+
+
+def encode_output_rows(
+    est: np.ndarray, res: np.ndarray, health: np.ndarray, t: np.ndarray, info: np.ndarray
+) -> tuple[bytes, tuple[int, ...]]:
+    """The est, res and health messages (:func:`output_layout`) of n rows at once: row k's
+    are ``est`` (n, len(EST_KEYS)), ``res``, ``health`` of row k, its time ``t[k]`` [s] and
+    ``info[k]`` = (commissioned, baseline_version) (n, 2) integers. Returns the bytes of the
+    n x 3 messages in the order est, res, health of row 0, then of row 1, ..., and the three
+    message sizes; the same bytes as :func:`encode_outputs` of each leaf."""
+    tmpl, vb, sizes, ints, nf = _fused()
+    n = len(t)
+    fe, fr = est.shape[1], res.shape[1]
+    w = np.empty((n, nf), "<f8")
+    w[:, :fe] = est
+    w[:, fe] = t
+    w[:, fe + 1 : fe + 1 + fr] = res
+    w[:, fe + 1 + fr] = t
+    w[:, fe + 2 + fr : nf - 3] = health
+    w[:, nf - 3] = t
+    w.view("<i8")[:, ints] = info
+    out = np.empty((n, len(tmpl)), np.uint8)
+    out[:] = tmpl
+    out[:, vb] = w.view(np.uint8)
+    return out.tobytes(), sizes
+
+
+def decode_output(
+    leaf: str, payload: bytes, encoding: str | None = None, max_bytes: int = MAX_BYTES
+) -> dict[str, Any]:
+    """A published ``est``, ``res`` or ``health`` as ``{"t": ..., name: value, ...}``: the
+    protobuf form of :func:`output_layout` (any valid protobuf encoding of it), or the JSON
+    object older daemons published. The Zenoh ``encoding`` decides (``application/protobuf``
+    or ``application/json``); without one of those (older daemons set none) the first byte
+    does: ``{`` (or a space, CR, LF) is not a field tag of these messages (a tab is: field
+    1's). Health's ``commissioned`` is a bool and
+    ``baseline_version`` an int or None, both left out when unknown. Raises
+    :class:`MessageError`."""
+    _check_size(payload, max_bytes)
+    payload = bytes(payload)
+    enc = (encoding or "").split(";", 1)[0]
+    if enc in ("application/json", "text/json") or (
+        enc != "application/protobuf" and payload[:1] in (b"{", b" ", b"\n", b"\r")
+    ):
+        return decode_json(payload, max_bytes)
+    lay = output_layout(leaf)
+    try:
+        vals = lay.decode_one(payload)
+    except (ValueError, struct.error) as e:
+        raise MessageError(f"malformed {lay.message}: {e}", "payload") from None
+    d = dict(zip(lay.names, vals, strict=True))
+    out: dict[str, Any] = {"t": d.pop("t")}
+    if leaf == "health":
+        c, v = d.pop("commissioned"), d.pop("baseline_version")
+        if c not in (COMMISSIONED_UNKNOWN, COMMISSIONED_NO, COMMISSIONED_YES):
+            raise MessageError(f"must be -1, 0 or 1, got {c}", "commissioned")
+        if v < 0:
+            raise MessageError(f"must be >= 0, got {v}", "baseline_version")
+        out.update(d)
+        if c != COMMISSIONED_UNKNOWN:
+            out["commissioned"] = c == COMMISSIONED_YES
+            out["baseline_version"] = v or None
+        return out
+    out.update(d)
+    return out
 
 
 # --------------------------------------------------------------------------- keys

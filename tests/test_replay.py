@@ -14,7 +14,7 @@ import zenoh
 from models.eha import simulate
 from service.cli import main
 from service.log import McapLogger, TruncatedLogWarning, read_log
-from service.messages import decode_json, mcap_topic
+from service.messages import decode_output, mcap_topic
 from service.monitor import Monitor, MonitorConfig
 from service.replay import INPUT_KEYS, read_metadata, replay
 from service.scenarios import load_scenario
@@ -123,9 +123,10 @@ def test_replay_republishes_on_zenoh(tmp_path, run_rows):
         zenoh.open(make_config("client", connect=[loopback(port)])) as watcher,
         zenoh.open(make_config("client", connect=[loopback(port)])) as pub,
     ):
-        q: BoundedQueue[tuple[str, bytes]] = BoundedQueue(10_000)
+        q: BoundedQueue[tuple[str, bytes, str]] = BoundedQueue(10_000)
         watcher.declare_subscriber(
-            "fleet/AC001/elevator_L/*", lambda s: q.put((str(s.key_expr), s.payload.to_bytes()))
+            "fleet/AC001/elevator_L/*",
+            lambda s: q.put((str(s.key_expr), s.payload.to_bytes(), str(s.encoding))),
         )
         assert wait_until(
             lambda: pub.put("fleet/AC001/elevator_L/probe", b"{}") or len(q) > 0, timeout=10
@@ -136,9 +137,12 @@ def test_replay_republishes_on_zenoh(tmp_path, run_rows):
         assert s.published == n and n > 0
         assert wait_until(lambda: len(q) >= 3 * n, timeout=10)  # (+ late probes)
         got = [x for x in q.get_batch(10_000, timeout=0.2) if not x[0].endswith("/probe")]
-    keys = sorted({k for k, _ in got})
+    keys = sorted({k for k, _, _ in got})
     assert keys == [f"fleet/AC001/elevator_L/{x}" for x in ("est", "health", "res")]
-    last_est = [decode_json(p) for k, p in got if k.endswith("/est")][-1]
+    assert {e for k, _, e in got if k.endswith("/est")} == {
+        "application/protobuf;servowatch.EstOutput"
+    }
+    last_est = [decode_output("est", p) for k, p, _ in got if k.endswith("/est")][-1]
     assert last_est["c_lk"] == s.final["AC001/elevator_L"]["est"]["c_lk"]
 
 

@@ -3,7 +3,6 @@ commissioning flags, operating periods written idempotently, SIGTERM flush."""
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -131,11 +130,13 @@ def test_own_baseline_reads_the_leak_the_default_misreads_and_periods_are_idempo
 
 
 class _Pub:
-    def __init__(self, key: str, sink: list) -> None:
-        self.key, self.sink = key, sink
+    def __init__(self, key: str, sink: list, encoding: str) -> None:
+        self.key, self.sink, self.encoding = key, sink, encoding
 
     def put(self, payload: bytes) -> None:
-        self.sink.append((self.key, json.loads(payload)))
+        from service.messages import decode_output
+
+        self.sink.append((self.key, decode_output(self.key.rsplit("/", 1)[1], payload)))
 
     def undeclare(self) -> None:
         pass
@@ -145,8 +146,8 @@ class _Session:
     def __init__(self) -> None:
         self.puts: list = []
 
-    def declare_publisher(self, key: str) -> _Pub:
-        return _Pub(key, self.puts)
+    def declare_publisher(self, key: str, *, encoding: str) -> _Pub:
+        return _Pub(key, self.puts, encoding)
 
 
 def _payloads(meas: dict, n0: int, n1: int, per: int = 50) -> list[bytes]:
