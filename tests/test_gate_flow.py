@@ -46,7 +46,7 @@ def test_a_tiny_ratio_holds_c_lk_wherever_the_jack_moves():
 def test_it_removes_the_spike_after_a_slew_onto_a_low_load_hold():
     """Suite member dc7_008 (healthy): after a 230 mm/s slew onto a hold at 1.1 MPa the
     deceleration's tail reads as a leak. With the gate off, C_Lk peaks above the 2.5x raise
-    level, and at WH's 1.2e-13 walk the alarm of the C-types (sigma(C_Lk) below 1x) is
+    level, and at WH's 1.2e-13 walk the alarm of the C-types (sigma(C_Lk) below 1x, no band) is
     raised: a false alarm. WH's alarm (sigma below 0.6x) does not raise on it, and with
     WH's default gate (5x the leak flow within 0.3 s of a slew) C_Lk stays under the 2x
     clear level (1.65x; 1.39x at the 1e-13 walk)."""
@@ -54,7 +54,10 @@ def test_it_removes_the_spike_after_a_slew_onto_a_low_load_hold():
     from evaluation.suite import monitor_run
 
     runs = {
-        "off, C-type alarm": {"c_lk_gate_flow": 0.0, "alarms": {"leak_max_sigma": 1.0}},
+        "off, C-type alarm": {
+            "c_lk_gate_flow": 0.0,
+            "alarms": {"leak_max_sigma": 1.0, "leak_z": 0.0},
+        },
         "off": {"c_lk_gate_flow": 0.0},
         "WH defaults": {},
     }
