@@ -79,6 +79,25 @@ def indicator_increase(
     return 100.0 * ((period.c_lk_mean - c_lk_base) - inc_true) / inc_true
 
 
+def indicator_window(
+    t: np.ndarray,
+    c_lk: np.ndarray,
+    c_lk_sigma: np.ndarray,
+    c_lk_base: float,
+    window_s: float = IND_WINDOW_S,
+) -> dict:
+    """What the health indicator had to read over the last ``window_s`` [s]: ``ind_sd`` the
+    smallest C_Lk sigma / baseline there (it reads only estimates under its
+    ``obs_sigma_ratio``, 0.25), ``ind_learn%`` the share of its samples on which the filter
+    learnt C_Lk (the estimate moved: the observability gate open)."""
+    w = t >= t[-1] - window_s
+    moved = np.concatenate(([False], np.diff(c_lk) != 0.0))[w]
+    return {
+        "ind_sd": float(np.min(c_lk_sigma[w]) / c_lk_base),
+        "ind_learn%": float(100.0 * np.mean(moved)),
+    }
+
+
 def monitor_run(
     dc: DutyCycle,
     fixed_noise: bool = False,
@@ -189,6 +208,7 @@ def run_one(
     if dc.leak_shape is not None:
         out["inc%"] = 100.0 * ((c_mean - base.c_lk) - inc_true) / inc_true
         out["ind%"] = indicator_increase(t, rows.est, rows.health, base.c_lk, inc_true)
+        out.update(indicator_window(t, est["c_lk"], est["c_lk_sigma"], base.c_lk))
         out["bias%"] = None
     else:
         out["inc%"] = out["ind%"] = None

@@ -15,7 +15,7 @@ C_TYPE_SETTINGS = {
     "c_lk_gate_flow": 0.0,
     "c_lk_gate_flow_s": 0.0,
     "process": {"p_sr": 2e6, "c_lk": 1e-13, "p_ch_common": 1e6},
-    "alarms": {"leak_max_sigma": 1.0},
+    "alarms": {"leak_max_sigma": 1.0, "leak_z": 0.0},
 }
 
 

@@ -262,3 +262,19 @@ def test_plot_suite_draws_every_member_where_it_belongs(tmp_path, monkeypatch):
     monkeypatch.undo()
     png = plots.plot_suite(rows, tmp_path / "s.png", "t").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+
+
+def test_indicator_window_by_hand():
+    """``indicator_window``: over the last 2 s of a 4 s run at 1 kHz, the smallest C_Lk sigma
+    / baseline there and the share of samples on which the estimate moved (C_Lk learnt);
+    the smaller sigma before the window does not count."""
+    from evaluation.suite import indicator_window
+
+    t = np.arange(4001) * 1e-3
+    c_lk = np.full(len(t), 2e-13)
+    learnt = (t > 2.5) & (t <= 3.0)  # 500 of the window's 2001 samples move
+    c_lk[learnt] += 1e-16 * np.arange(int(learnt.sum()))
+    sigma = np.where(t < 1.0, 0.1, np.where(t < 3.2, 0.4, 0.3)) * 2e-13
+    out = indicator_window(t, c_lk, sigma, 2e-13)
+    assert out["ind_sd"] == pytest.approx(0.3)
+    assert out["ind_learn%"] == pytest.approx(100.0 * 500 / 2001)

@@ -46,7 +46,7 @@ def test_a_tiny_ratio_holds_c_lk_wherever_the_jack_moves():
 def test_it_removes_the_spike_after_a_slew_onto_a_low_load_hold():
     """Suite member dc7_008 (healthy): after a 230 mm/s slew onto a hold at 1.1 MPa the
     deceleration's tail reads as a leak. With the gate off, C_Lk peaks above the 2.5x raise
-    level, and at WH's 1.2e-13 walk the alarm of the C-types (sigma(C_Lk) below 1x) is
+    level, and at WH's 1.2e-13 walk the alarm of the C-types (sigma(C_Lk) below 1x, no band) is
     raised: a false alarm. WH's alarm (sigma below 0.6x) does not raise on it, and with
     WH's default gate (5x the leak flow within 0.3 s of a slew) C_Lk stays under the 2x
     clear level (1.65x; 1.39x at the 1e-13 walk)."""
@@ -54,7 +54,10 @@ def test_it_removes_the_spike_after_a_slew_onto_a_low_load_hold():
     from evaluation.suite import monitor_run
 
     runs = {
-        "off, C-type alarm": {"c_lk_gate_flow": 0.0, "alarms": {"leak_max_sigma": 1.0}},
+        "off, C-type alarm": {
+            "c_lk_gate_flow": 0.0,
+            "alarms": {"leak_max_sigma": 1.0, "leak_z": 0.0},
+        },
         "off": {"c_lk_gate_flow": 0.0},
         "WH defaults": {},
     }
@@ -76,12 +79,15 @@ def test_a_ramp_is_not_a_slew():
     to follow a 30 mm/s position ramp. Counted as fast motion (c_lk_gate_flow_v_fast at
     30 mm/s, the setting before) the ramp keeps the post-slew gate shut and the alarm comes
     2.8 s after the crossing; at WH's default, 0.1 m/s, a slew to a step and not a commanded
-    ramp, within 1 s."""
+    ramp, within 1 s. Both with the leak alarm before its band (leak_z = 0): the raise at
+    0.9 s reads 2.53x at sigma 0.51x against a true 3.2x; with the band the alarm waits until
+    the gate reopens 2.8 s after the crossing (docs/decisions/0020-leak-alarm-band.md)."""
     from evaluation.dutycycle import duty_cycle
     from evaluation.suite import run_one
 
     dc = duty_cycle(5, 1)
-    before = run_one(dc, model="WH", overrides={"c_lk_gate_flow_v_fast": 0.03})
-    now = run_one(dc, model="WH")
+    no_band = {"alarms": {"leak_z": 0.0}}
+    before = run_one(dc, model="WH", overrides={"c_lk_gate_flow_v_fast": 0.03, **no_band})
+    now = run_one(dc, model="WH", overrides=no_band)
     assert before["delay"] > 2.0 and before["false"] == 0
     assert 0.0 < now["delay"] <= 1.0 and now["false"] == 0

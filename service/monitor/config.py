@@ -90,6 +90,13 @@ class AlarmConfig(_Cfg):
     leak_max_sigma: float = Field(
         0.6, gt=0, description="raise a leak alarm only if sigma(C_Lk) / baseline is below this"
     )
+    leak_z: float = Field(
+        1.96,
+        ge=0,
+        description="... and only while C_Lk / baseline - leak_z x sigma(C_Lk) / baseline >= "
+        "leak_clear: the clear level lies outside the estimate's band of +-leak_z sigma "
+        "(1.96: the 95 % band of the NIS check; 0 = off; docs/estimation.md, Alarms)",
+    )
     supply_max_sigma: float = Field(
         0.05, gt=0, description="raise a supply alarm only if sigma(P_SR) / rated is below this"
     )

@@ -104,6 +104,7 @@ CST_FIELDS: tuple[str, ...] = (
     "gate_v_flow",  # C_Lk held while |v_J| exceeds this times the gate's |P12| (filter units/Pa)
     "gate_flow_s",  # ... within this long after |v_J| last exceeded gate_flow_v_fast [s] (0: always)
     "gate_flow_v_fast",  # ... (filter units)
+    "leak_z",  # leak alarm raised only while C_Lk / baseline - leak_z sigma >= leak_clear (0: off)
 )
 (
     C_H_MAX,
@@ -143,6 +144,7 @@ CST_FIELDS: tuple[str, ...] = (
     C_GATE_V_FLOW,
     C_GATE_FLOW_S,
     C_GATE_FLOW_V_FAST,
+    C_LEAK_Z,
 ) = range(len(CST_FIELDS))
 
 # the bank's carry array (n_act, N_CARRY): the last current [A] (held when a sample has
@@ -473,10 +475,16 @@ def row_one(j, kk, k, X, PD, OL, T_INIT, NIS_AVG, mr, sm, y, nis, ALARM, PENDING
     for a in range(N_ALARMS):
         on = ALARM[k, a]
         if a == ALARM_LEAK:
+            # raised only where the posterior rules out a plant still at the clear level:
+            # the estimate leak_z sigmas above it (docs/estimation.md, "Alarms")
             want = (
                 lr <= cst_k[C_LEAK_CLEAR]
                 if on
-                else (lr >= cst_k[C_LEAK_RAISE] and sd_l < cst_k[C_LEAK_SIG])
+                else (
+                    lr >= cst_k[C_LEAK_RAISE]
+                    and sd_l < cst_k[C_LEAK_SIG]
+                    and lr - cst_k[C_LEAK_Z] * sd_l >= cst_k[C_LEAK_CLEAR]
+                )
             )
         else:
             want = (

@@ -92,6 +92,7 @@ def _vectors(c: MonitorConfig, b: Baseline, names, extra, prm, h_max) -> ModelVe
         supply_clear=a.supply_clear,
         hold=a.hold_s,
         leak_max_sigma=a.leak_max_sigma,
+        leak_z=a.leak_z,
         supply_max_sigma=a.supply_max_sigma,
         gate_v=c.c_lk_gate_v / scale[S_V_J],
         gate_x_s=_underlaps(c.c_lk_gate_x_u, rp.x_u) / scale[S_X_S],
