@@ -83,7 +83,6 @@ def _default_priors() -> dict[str, ModelPrior]:
         "power": ModelPrior((1.0, 0.0), (0.3, 8.0)),
         "knee": ModelPrior((1.0, 0.0, 0.0), (0.3, 8.0, 8.0)),
         "quadratic": ModelPrior((1.0, 0.0, 0.0), (0.3, 8.0, 8.0)),
-        "knee_exp": ModelPrior((1.0, 0.0, 0.0), (0.3, 8.0, 8.0)),
     }
 
 
@@ -94,7 +93,12 @@ class FleetPrior:
     p_model: dict[str, float] = field(
         default_factory=lambda: {
             "none": 0.4,
-            **dict.fromkeys(MODELS[1:], 0.6 / (len(MODELS) - 1)),
+            "linear": 0.1,
+            "exponential": 0.1,
+            "step": 0.1,
+            "power": 0.1,
+            "knee": 0.1,
+            "quadratic": 0.1,
         }  # fmt: skip
     )
     weights: dict[str, ModelPrior] = field(default_factory=_default_priors)
@@ -408,7 +412,7 @@ def sample_crossing(
             continue
         w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c), method="cholesky")
         u_now = fit.t_now / fit.t_scale
-        eta = fit.grids[m][g]  # a number, or (tau, beta) for knee_exp
+        eta = float(fit.grids[m][g])
         uc = crossing(m, w, eta, threshold, u_now)
         tc = uc * fit.t_scale
         if fit.q2 > 0:
@@ -562,5 +566,5 @@ def sample_paths(
     for (m, g), c in zip(keys, counts, strict=True):
         if c:
             w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c))
-            out.append(w @ basis(m, t / fit.t_scale, fit.grids[m][g]).T)
+            out.append(w @ basis(m, t / fit.t_scale, float(fit.grids[m][g])).T)
     return np.concatenate(out)
