@@ -5,27 +5,7 @@ models see it scaled, u = t / T with T the fleet's typical history span (``Fleet
 learned; default: the history's own span), so that no prior or grid assumes the length of a
 period or a unit of time. Every model is linear in its weights w given at most one nonlinear
 parameter eta on a grid, y = Phi(u; eta) w + e, e ~ N(0, sigma^2) (docs/prognostics.md,
-"Degradation models"):
-
-- ``none``        Phi = [1]                                   (no wear)
-- ``linear``      Phi = [1, t]
-- ``exponential`` Phi = [1, (exp(beta u) - 1) / beta], eta = beta > 0 on a log grid of
-  beta u_now in [``BETA_SPAN`` range] (relative to the history's own span u_now)
-  (MATLAB's exponential degradation model y = phi + theta exp(beta t) with phi = w0 - w1/beta,
-  theta = w1/beta; w1 is the initial wear rate, so beta -> 0 is the linear model)
-- ``step``        Phi = [1, H(t - tau), (t - tau)+], eta = tau on the observed times
-  (a step of the indicator followed by linear growth)
-- ``power``       Phi = [1, u^p], eta = p on ``POWER_GRID`` (wear that accelerates slower
-  than an exponential)
-- ``knee``        Phi = [1, u, (u - tau)+], eta = tau between observations with at least two
-  on either side (a broken stick: the wear rate changes once at an unknown knee, without a
-  jump; the posterior over tau is its profile of the marginal likelihood). After a knee the
-  path goes on at the new rate w1 + w2; an accelerating model (exponential, power) takes
-  over the extrapolation only where its evidence beats the knee's.
-- ``quadratic``   Phi = [1, u, u^2] (wear with an initial rate and a constant acceleration:
-  the exponential's initial rate, without its runaway; the power model, whose path starts
-  flat, misses the initial rate of such a path, which the exponential then reads as an
-  acceleration that goes on)
+"Degradation models"; the models' paths, grids and crossings are in ``paths``).
 
 Residual correlation: when the residuals about the posterior-mean path are positively
 correlated (lag-one autocorrelation rho > 0, a sign that no model describes the path
@@ -58,6 +38,17 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from service.prognostics.paths import (
+    BETA_GRID,
+    BETA_SPAN,
+    MODELS,
+    basis,
+    basis_grid,
+    crossing,
+    eta_grid,
+    slope,
+)
+
 __all__ = [
     "MODELS",
     "ModelPrior",
@@ -71,13 +62,6 @@ __all__ = [
     "BETA_GRID",
     "BETA_SPAN",
 ]
-
-MODELS: tuple[str, ...] = ("none", "linear", "exponential", "step", "power", "knee", "quadratic")
-POWER_GRID = np.geomspace(1.25, 4.0, 16)
-"""Exponents p of the ``power`` model's grid."""
-BETA_SPAN = np.geomspace(1e-2, 6.0, 120)
-"""Exponential rates of the grid times the history's span, beta u_now (dimensionless)."""
-BETA_GRID = BETA_SPAN  # kept name: the grid at u_now = 1
 
 
 @dataclass(frozen=True)
@@ -190,48 +174,9 @@ class Fit:
             g = np.flatnonzero(self.post[m] > 1e-9)
             if len(g) == 0:
                 continue
-            phi = _basis_grid(m, t, self.grids[m][g])  # (G, n, p)
+            phi = basis_grid(m, t, self.grids[m][g])  # (G, n, p)
             y += np.einsum("g,gnp,gp->n", self.post[m][g], phi, self.means[m][g])
         return y
-
-
-def _basis(model: str, t: NDArray, eta: float) -> NDArray:
-    """Phi(t; eta) of the module docstring, (len(t), p)."""
-    one = np.ones_like(t)
-    if model == "none":
-        return one[:, None]
-    if model == "linear":
-        return np.stack([one, t], axis=1)
-    if model == "exponential":
-        return np.stack([one, np.expm1(eta * t) / eta], axis=1)
-    if model == "step":
-        d = t - eta
-        return np.stack([one, (d > 0).astype(float), np.maximum(d, 0.0)], axis=1)
-    if model == "power":
-        return np.stack([one, np.maximum(t, 0.0) ** eta], axis=1)
-    if model == "knee":
-        return np.stack([one, t, np.maximum(t - eta, 0.0)], axis=1)
-    if model == "quadratic":
-        return np.stack([one, t, t * t], axis=1)
-    raise ValueError(f"unknown model {model!r}")
-
-
-def _basis_grid(model: str, t: NDArray, grid: NDArray) -> NDArray:
-    """``_basis`` at every eta of ``grid`` at once, (G, len(t), p)."""
-    g = np.asarray(grid, float)[:, None]
-    one = np.ones((len(g), len(t)))
-    if model == "exponential":
-        cols = [one, np.expm1(g * t[None, :]) / g]
-    elif model == "step":
-        d = t[None, :] - g
-        cols = [one, (d > 0).astype(float), np.maximum(d, 0.0)]
-    elif model == "power":
-        cols = [one, np.maximum(t, 0.0)[None, :] ** g]
-    elif model == "knee":
-        cols = [one, np.broadcast_to(t[None, :], one.shape), np.maximum(t[None, :] - g, 0.0)]
-    else:
-        return np.stack([_basis(model, t, float(e)) for e in grid])
-    return np.stack(cols, axis=2)
 
 
 def noise_sigma(y: NDArray) -> float:
@@ -244,24 +189,6 @@ def noise_sigma(y: NDArray) -> float:
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(6.0))
 
 
-def _grid(model: str, t: NDArray) -> NDArray:
-    if model == "exponential":
-        return BETA_SPAN / max(float(t[-1]), 1e-9)
-    if model == "step":
-        # change points between observations, at least two points after and one before
-        if len(t) < 4:
-            return np.zeros(0)
-        return 0.5 * (t[:-3] + t[1:-2])
-    if model == "power":
-        return POWER_GRID
-    if model == "knee":
-        # knees between observations, at least two points on either side
-        if len(t) < 5:
-            return np.zeros(0)
-        return 0.5 * (t[1:-2] + t[2:-1])
-    return np.zeros(1)
-
-
 def _fit_model(
     model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPrior,
     chol: NDArray | None = None,
@@ -269,10 +196,10 @@ def _fit_model(
     """Gaussian posteriors and log evidences of one model over its grid (batched). ``chol``:
     the Cholesky factor C of the noise covariance (then ``sigma`` is 1): the model is whitened
     by C^-1 and the evidence corrected by -log|C|."""
-    grid = _grid(model, t)
+    grid = eta_grid(model, t)
     if len(grid) == 0:
         return grid, np.full(0, -np.inf), np.zeros((0, 0)), np.zeros((0, 0, 0))
-    Phi = _basis_grid(model, t, grid)  # (G, n, p)
+    Phi = basis_grid(model, t, grid)  # (G, n, p)
     logdet_c = 0.0
     if chol is not None:
         c_inv = np.linalg.inv(chol)  # n x n, once per model: whitening is then a product
@@ -465,59 +392,6 @@ def diffusion(t: NDArray, r: NDArray, max_lag: int = 8) -> tuple[float, int]:
     return max(slope, 0.0), n - 1
 
 
-def _crossing(model: str, w: NDArray, eta: float, thr: float, t_now: float) -> NDArray:
-    """Crossing times of the noise-free paths Phi(t; eta) w = thr after t_now (inf if none);
-    t_now where the path is already above."""
-    a = w[:, 0]
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        if model == "none":
-            tc = np.full(len(w), np.inf)
-            level = a
-        elif model == "linear":
-            level = a + w[:, 1] * t_now
-            tc = np.where(w[:, 1] > 0, (thr - a) / w[:, 1], np.inf)
-        elif model == "exponential":
-            c = w[:, 1]
-            level = a + c * np.expm1(eta * t_now) / eta
-            arg = 1.0 + eta * (thr - a) / c
-            tc = np.where((c > 0) & (arg > 0), np.log(arg) / eta, np.inf)
-        elif model == "power":
-            c = w[:, 1]
-            level = a + c * max(t_now, 0.0) ** eta
-            tc = np.where((c > 0) & (thr > a), ((thr - a) / c) ** (1.0 / eta), np.inf)
-        elif model == "quadratic":  # first root of w0 - thr + w1 u + w2 u^2 after t_now
-            b, c = w[:, 1], w[:, 2]
-            level = a + b * t_now + c * t_now**2
-            tc = _quadratic_root(a - thr, b, c, t_now)
-        elif model == "knee":  # eta = tau < t_now: linear at w1 + w2 from the knee on
-            c = w[:, 1] + w[:, 2]
-            level = a + w[:, 1] * t_now + w[:, 2] * max(t_now - eta, 0.0)
-            tc = np.where(c > 0, t_now + (thr - level) / c, np.inf)
-        else:  # step, eta = tau < t_now
-            s, c = w[:, 1], w[:, 2]
-            level = a + s + c * max(t_now - eta, 0.0)
-            tc = np.where(c > 0, eta + (thr - a - s) / c, np.inf)
-    tc = np.where(level >= thr, t_now, tc)
-    return np.where(np.isfinite(tc), np.maximum(tc, t_now), np.inf)
-
-
-def _quadratic_root(a: NDArray, b: NDArray, c: NDArray, t_now: float) -> NDArray:
-    """The first root u >= t_now of a + b u + c u^2 (inf if none), per draw."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        disc = b * b - 4.0 * a * c
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        q = -0.5 * (b + np.where(b >= 0, sq, -sq))
-        r1 = np.where(c != 0, q / c, np.inf)
-        r2 = np.where(q != 0, a / q, np.inf)
-        lin = np.where(b > 0, -a / b, np.inf)  # c = 0: the linear root
-        r1 = np.where(c == 0, lin, r1)
-        r2 = np.where(c == 0, np.inf, r2)
-        ok = disc >= 0
-        r1 = np.where(ok & np.isfinite(r1) & (r1 >= t_now), r1, np.inf)
-        r2 = np.where(ok & np.isfinite(r2) & (r2 >= t_now), r2, np.inf)
-    return np.minimum(r1, r2)
-
-
 def sample_crossing(
     fit: Fit, threshold: float, n: int = 4000, rng: np.random.Generator | None = None
 ) -> NDArray:
@@ -539,16 +413,16 @@ def sample_crossing(
         w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c), method="cholesky")
         u_now = fit.t_now / fit.t_scale
         eta = float(fit.grids[m][g])
-        uc = _crossing(m, w, eta, threshold, u_now)
+        uc = crossing(m, w, eta, threshold, u_now)
         tc = uc * fit.t_scale
         if fit.q2 > 0:
             # first passage of the path plus a random walk of diffusion q2 (inverse-Gaussian
             # spread about the crossing, to first order): dt = q W(tc - t_now) / slope(tc)
-            slope = _slope(m, w, eta, uc) / fit.t_scale
-            ahead = np.isfinite(tc) & (tc > fit.t_now) & (slope > 0)
+            sl = slope(m, w, eta, uc) / fit.t_scale
+            ahead = np.isfinite(tc) & (tc > fit.t_now) & (sl > 0)
             z = rng.standard_normal(len(tc))
             with np.errstate(invalid="ignore", divide="ignore"):
-                d = np.sqrt(fit.q2 * np.maximum(tc - fit.t_now, 0.0)) * z / slope
+                d = np.sqrt(fit.q2 * np.maximum(tc - fit.t_now, 0.0)) * z / sl
             tc = np.where(ahead, np.maximum(tc + np.where(ahead, d, 0.0), fit.t_now), tc)
         if fit.cv2 > 0:
             # usage spread: the steps needed for the remaining wear vary, sd cv sqrt(n dt)
@@ -559,25 +433,6 @@ def sample_crossing(
                                             fit.t_now), tc)  # fmt: skip
         out.append(tc)
     return np.concatenate(out)
-
-
-def _slope(model: str, w: NDArray, eta: float, u: NDArray) -> NDArray:
-    """d(path)/du at ``u`` (per draw)."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        if model == "linear":
-            return w[:, 1]
-        if model == "exponential":
-            return w[:, 1] * np.exp(eta * np.where(np.isfinite(u), u, 0.0))
-        if model == "step":
-            return w[:, 2]
-        if model == "knee":
-            return w[:, 1] + w[:, 2] * (np.where(np.isfinite(u), u, np.inf) > eta)
-        if model == "quadratic":
-            return w[:, 1] + 2.0 * w[:, 2] * np.where(np.isfinite(u), u, 0.0)
-        if model == "power":
-            uu = np.where(np.isfinite(u), np.maximum(u, 0.0), 0.0)
-            return w[:, 1] * eta * uu ** (eta - 1.0)
-    return np.zeros(len(w))
 
 
 def learn_fleet_prior(
@@ -711,5 +566,5 @@ def sample_paths(
     for (m, g), c in zip(keys, counts, strict=True):
         if c:
             w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c))
-            out.append(w @ _basis(m, t / fit.t_scale, float(fit.grids[m][g])).T)
+            out.append(w @ basis(m, t / fit.t_scale, float(fit.grids[m][g])).T)
     return np.concatenate(out)
