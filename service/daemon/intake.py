@@ -564,25 +564,23 @@ class Intake:
                 streams.append(st)
             slot.append(k)
         ns = len(streams)
-        has_last = np.empty(ns, np.bool_)
-        divert = np.empty(ns, np.bool_)
-        last_seq = np.zeros(ns, np.int64)
-        refused = np.empty(ns, np.int64)
-        last_t = np.zeros(ns)
-        period = np.empty(ns)
-        first = np.empty(ns, np.int64)
-        for k, st in enumerate(streams):
-            known = st.last_t is not None and st.last_seq is not None
-            has_last[k] = known
-            # a silent stream's resumed event comes before its samples: no fast path, and
-            # neither for a half-known state (its own rules are accept's)
-            half = st.last_t is not None or st.last_seq is not None
-            divert[k] = st.silent or (half and not known)
-            if known:
-                last_seq[k], last_t[k] = st.last_seq, st.last_t
-            refused[k] = st.refused
-            period[k] = math.nan if st.period is None else st.period
-            first[k] = -1 if st.first_seq is None else st.first_seq
+        lts = [st.last_t for st in streams]
+        lss = [st.last_seq for st in streams]
+        known = [a is not None and b is not None for a, b in zip(lts, lss, strict=True)]
+        has_last = np.array(known, np.bool_).reshape(ns)
+        # a silent stream's resumed event comes before its samples: no fast path, and
+        # neither for a half-known state (its own rules are accept's)
+        divert = np.array(
+            [st.silent or (not k and (a is not None or b is not None))
+             for st, k, a, b in zip(streams, known, lts, lss, strict=True)], np.bool_,
+        ).reshape(ns)  # fmt: skip
+        last_seq = np.array([b if k else 0 for b, k in zip(lss, known, strict=True)], np.int64)
+        last_t = np.array([a if k else 0.0 for a, k in zip(lts, known, strict=True)], np.float64)
+        refused = np.array([st.refused for st in streams], np.int64)
+        period = np.array(
+            [math.nan if st.period is None else st.period for st in streams], np.float64
+        )
+        first = np.array([-1 if st.first_seq is None else st.first_seq for st in streams], np.int64)
         n = sum(map(len, payloads)) // m.REC_BYTES + 1  # at least the samples
         seq, t, vals = np.empty(n, np.int64), np.empty(n), np.empty((n, len(m.CHANNELS)))
         gaps, samples = np.zeros(ns, np.int64), np.zeros(ns, np.int64)
