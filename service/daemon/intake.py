@@ -543,6 +543,11 @@ class Intake:
             blk.preset_arrays(seq[:pos], t[:pos], vals[:pos])
         return blk
 
+    def warm_up(self) -> None:
+        """Load the compiled batch (``take``'s) now, not on the first message."""
+        p = m.encode_meas([{"seq": 0, "t": 0.0}])
+        m.decode_into([p], np.empty(2, np.int64), np.empty(2), np.empty((2, len(m.CHANNELS))))
+
     def _batch(self, msgs: list, sts: list, now: float) -> tuple | None:
         """Decode the messages at once and accept the plain ones (``take``): (seq, t, values,
         start, count, status) with the stream state of the accepted ones updated; None when a
