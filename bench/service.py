@@ -4,7 +4,10 @@ Three processes on loopback (a Zenoh router in this process):
 
 * a load generator (child process) publishing pre-computed samples of the virtual actuator
   (``scenarios/demo.toml``, HF bench with sensor noise), ``--spm`` samples per message,
-  paced by the wall clock, bounded in count and time;
+  paced by the wall clock, bounded in count and time: one HF run encoded once (binary
+  ``meas``), which every generator actuator sends on its own key; its reported CPU is the
+  sending loop's (``cpu_setup_s``: the HF run and the encoding, before the sample clock
+  starts);
 * the daemon (child process): ``service.daemon.Daemon`` exactly as ``servowatch run`` builds
   it, with the real ``MonitorBank`` (``--monitor real``) or a no-op monitor (``--monitor
   null``, which isolates the transport, validation, MCAP logging and bookkeeping);

@@ -26,6 +26,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+if sys.path and Path(sys.path[0]).resolve() == ROOT / "bench":
+    sys.path.pop(0)  # bench/service.py is not the service package (PYTHONPATH names the tree)
 
 
 def _proc_cpu(pid: int) -> float:
