@@ -84,11 +84,16 @@ KEY_ALIVE = "fleet/{aircraft}/{actuator}/alive"
 KEY_VIRTUAL = "fleet/{aircraft}/{actuator}/@virtual"
 KEY_STATUS = "monitor/{station}/{shard}/status"
 
+#: bytes of one binary record, and the status of a message after :func:`decode_into`:
+#: decoded and accepted whole by the intake's compiled checks, decoded only, not decoded
+REC_BYTES = 73
+BATCH_ACCEPTED, BATCH_DECODED, BATCH_UNDECODED = 0, 1, 2
+
 _MAGIC = b"SW"
 _VERSION = 1
 _KIND_MEAS = ord("M")
 _HEADER = struct.Struct("<2sBBI")
-_REC = struct.Struct("<qdB" + "d" * len(CHANNELS))  # 73 bytes
+_REC = struct.Struct("<qdB" + "d" * len(CHANNELS))  # REC_BYTES
 _ALLOWED_JSON_KEYS = frozenset(("seq", "t", *CHANNELS))
 _NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
 
@@ -383,23 +388,61 @@ class MeasArrays(NamedTuple):
     values: np.ndarray
 
 
-_REC_DTYPE = np.dtype(
-    [("seq", "<i8"), ("t", "<f8"), ("mask", "u1"), ("v", "<f8", (len(CHANNELS),))]
-)  # packed: 73 bytes, the layout of _REC
-
-
 def _bin_arrays(payload: bytes) -> MeasArrays:
-    """``_bin_rows`` compiled: same checks; on a violation the scalar decoder raises the same
-    error naming the first offending field."""
+    """``_bin_rows`` compiled (``service.wire_kernels.intake_batch`` on one message): same
+    checks; on a violation the scalar decoder raises the same error naming the first
+    offending field."""
     n = _bin_count(payload)
-    rec = np.frombuffer(payload, _REC_DTYPE, n, _HEADER.size)
     out = MeasArrays(np.empty(n, np.int64), np.empty(n), np.empty((n, len(CHANNELS))))
-    from service.wire_kernels import unpack_checked  # numba: loaded on the first decode
+    from service.wire_kernels import decode_message  # numba: loaded on the first decode
 
-    if not unpack_checked(rec["seq"], rec["t"], rec["mask"], rec["v"], *out):
+    if decode_message(np.frombuffer(payload, np.uint8), *out) != n:
         _bin_rows(payload)  # raises the error of the first offending field
         raise MessageError("invalid record", "samples")  # pragma: no cover - unreachable
     return out
+
+
+def decode_into(
+    payloads: Sequence[bytes],
+    seq: np.ndarray,
+    t: np.ndarray,
+    values: np.ndarray,
+    max_bytes: int = MAX_BYTES,
+    slot: np.ndarray | None = None,
+    state: tuple | None = None,
+    clock: tuple[float, float, float] = (2.0, 0.5, math.inf),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Decode binary messages into ``seq`` (N,), ``t`` (N,), ``values`` (N, 7) (N at least
+    the samples of every message) with the compiled decoder: ``(start, count, status)`` per
+    message (``service.wire_kernels``: a message that does not decode has ``count`` 0 and
+    status ``BATCH_UNDECODED``, and the Python decoder says why), or None when a payload is not
+    ``bytes``. ``slot``, ``state`` and ``clock`` (factor, tol_s, t_future): the intake's
+    acceptance of the plain messages (``service.daemon.intake.Intake.take``)."""
+    from service import wire_kernels as wk  # numba: loaded on the first decode
+
+    k = len(payloads)
+    for p in payloads:
+        if type(p) is not bytes:
+            return None
+    buf = np.frombuffer(b"".join(payloads), np.uint8)
+    lens = np.fromiter(map(len, payloads), np.int64, k)
+    offs = np.zeros(k, np.int64)
+    np.cumsum(lens[:-1], out=offs[1:])
+    start, count, status = np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k, np.int64)
+    if slot is None:
+        slot = np.full(k, -1, np.int64)
+    if state is None:
+        state = _NO_STATE
+    wk.intake_batch(
+        buf, offs, lens, max_bytes, slot, seq, t, values, start, count, status, *state, *clock
+    )
+    return start, count, status
+
+
+_NO_STATE = (
+    np.zeros(0, np.bool_), np.zeros(0, np.bool_), np.zeros(0, np.int64), np.zeros(0, np.int64),
+    np.zeros(0), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64),
+)  # fmt: skip
 
 
 def decode_meas_arrays(payload: bytes, max_bytes: int = MAX_BYTES) -> MeasArrays:

@@ -55,9 +55,11 @@ def _valves() -> None:
 
 
 def _monitor_run(model: str) -> None:
+    import numpy as np
+
     from models.eha import EHAStepper
     from models.params import EHAParams
-    from service.messages import decode_meas_arrays, encode_meas
+    from service.messages import decode_into, decode_meas_arrays, encode_meas
     from service.monitor import Monitor, MonitorBank, MonitorConfig
 
     cfg = MonitorConfig(model=model)
@@ -73,7 +75,9 @@ def _monitor_run(model: str) -> None:
     bank.update_rows([("a", s) for s in samples[:1]])
     for s in samples[1:]:
         bank.update_rows([("a", s)])
-    arr = decode_meas_arrays(encode_meas([{**s, "seq": k} for k, s in enumerate(samples)]))
+    payload = encode_meas([{**s, "seq": k} for k, s in enumerate(samples)])
+    arr = decode_meas_arrays(payload)
+    decode_into([payload], np.empty(20, np.int64), np.empty(20), np.empty((20, 7)))  # the intake's
     bank.update_arrays([bank.index_of("b")] * len(arr.t), arr.t, arr.values)
 
 
@@ -169,7 +173,7 @@ def _entries(group: str) -> list:
 
         return [compiled._integrate_hf, kernels.bank_step, kernels.output_rows, kernels.block_steps,
                 kernels.block_rows, kernels.prepare_inputs, usage.usage_rows,
-                wire_kernels.unpack_checked]  # fmt: skip
+                wire_kernels.decode_message, wire_kernels.intake_batch]  # fmt: skip
     from service.log import codec_read
 
     return [codec_read._scan, codec_read._fill, codec_read._objects]

@@ -126,6 +126,10 @@ class _PackedMessageIndex(MessageIndex):
         stream.start_record(Opcode.MESSAGE_INDEX)
         stream.write2(self.channel_id)
         stream.write4(n * 16)
+        if not recs:  # rows only (add_rows): the packed entries at once
+            stream.write(b"".join([b for _, b in self.packed]))
+            stream.finish_record()
+            return
         prev = 0
         for at, b in [*self.packed, (len(recs), b"")]:
             if at > prev:

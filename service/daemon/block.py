@@ -58,6 +58,13 @@ class Block:
         """Accepted samples in the block."""
         return sum(len(p.a.t) - p.j0 for p in self.parts)
 
+    def preset_arrays(
+        self, seq: NDArray[np.int64], t: NDArray[np.float64], ch: NDArray[np.float64]
+    ) -> None:
+        """Give :meth:`arrays` its result when the intake has it at hand (the parts' samples
+        in order, decoded into one buffer)."""
+        self._cat = (seq, t, ch)
+
     def arrays(self) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
         """The accepted samples of every part, in order: ``(seq, t, channels)`` (made once)."""
         if self._cat is None:

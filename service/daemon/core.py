@@ -288,6 +288,7 @@ class Daemon:
         seconds, during which Zenoh's callbacks could not queue samples (a unit would look
         silent) nor answer status (a daemon answers once it can monitor)."""
         warm = self.monitor.warm_up()
+        self.intake.warm_up()
         if warm > 0.05:
             log.info("monitor warm-up (JIT) took %.2f s", warm)
         if session is not None:

@@ -464,7 +464,11 @@ class Intake:
 
     # -- the worker ---------------------------------------------------------------------
     def take(self) -> Block | None:
-        """Drain up to ``max_batch`` messages: decode, check, accept. None if none queued."""
+        """Drain up to ``max_batch`` messages: decode, check, accept. None if none queued.
+
+        The binary messages are decoded at once, and the plain ones (every sample accepted,
+        no event) accepted by compiled code (``service.wire_kernels.intake_batch``); the rest
+        go through :func:`accept` in arrival order, on the same stream state."""
         q = self._queue
         if not q:
             return None
@@ -479,8 +483,19 @@ class Intake:
                 blk.restarts.append(f"fleet/{st.aircraft}/{st.actuator}/meas")
             blk.log.append(Event(st, "restart", t, seq))
 
-        for key, payload, t_recv in msgs:
-            st = self.state_for_key(key)
+        sts = [self.state_for_key(key) for key, _, _ in msgs]
+        batch = self._batch(msgs, sts, now)
+        if batch is None:  # a payload that is not bytes: every message one by one
+            starts = counts = [0] * len(msgs)
+            codes = [m.BATCH_UNDECODED] * len(msgs)
+            seq = t = vals = None
+        else:
+            seq, t, vals, starts, counts, codes = batch
+        contiguous = batch is not None  # the parts are the decoded rows in order, all of them
+        pos = 0
+        for (key, payload, t_recv), st, code, b0, nb in zip(
+            msgs, sts, codes, starts, counts, strict=True
+        ):
             if st is None:
                 reason = "unknown_actuator" if key.endswith("/meas") else "invalid_key"
                 try:
@@ -489,19 +504,33 @@ class Intake:
                     reason = "invalid_key"
                 self.unknown[reason] = self.unknown.get(reason, 0) + 1
                 self.bad_log.warning("key:" + reason, "%s: %r", reason, key[:200])
+                contiguous = contiguous and nb == 0
                 continue
             st.messages += 1
             st.last_recv = t_recv
             if st.silent:
                 st.silent = False
                 blk.log.append(Event(st, "resumed", st.last_t))
-            try:
-                a = m.decode_meas_arrays(payload, self.max_bytes)
-            except m.MessageError as e:
-                reason = reason_of(e)
-                st.count_bad(reason)
-                self.bad_log.warning(st.name, "bad message from %s: %s (%s)", st.name, e, reason)
+            if code == m.BATCH_ACCEPTED:
+                p = Part(st, key, m.MeasArrays(seq[b0 : b0 + nb], t[b0 : b0 + nb],
+                                               vals[b0 : b0 + nb]), 0, t_recv)  # fmt: skip
+                blk.parts.append(p)
+                blk.log.append(p)
+                pos += nb
                 continue
+            contiguous = False
+            if code == m.BATCH_DECODED:
+                a = m.MeasArrays(seq[b0 : b0 + nb], t[b0 : b0 + nb], vals[b0 : b0 + nb])
+            else:
+                try:
+                    a = m.decode_meas_arrays(payload, self.max_bytes)
+                except m.MessageError as e:
+                    reason = reason_of(e)
+                    st.count_bad(reason)
+                    self.bad_log.warning(
+                        st.name, "bad message from %s: %s (%s)", st.name, e, reason
+                    )
+                    continue
             j0, j1 = accept(st, a, self.bad_log, on_restart, self.clock, now)
             if j0 >= j1:
                 continue
@@ -510,7 +539,78 @@ class Intake:
             p = Part(st, key, a, j0, t_recv)
             blk.parts.append(p)
             blk.log.append(p)
+        if contiguous and blk.parts:
+            blk.preset_arrays(seq[:pos], t[:pos], vals[:pos])
         return blk
+
+    def warm_up(self) -> None:
+        """Load the compiled batch (``take``'s) now, not on the first message."""
+        p = m.encode_meas([{"seq": 0, "t": 0.0}])
+        m.decode_into([p], np.empty(2, np.int64), np.empty(2), np.empty((2, len(m.CHANNELS))))
+
+    def _batch(self, msgs: list, sts: list, now: float) -> tuple | None:
+        """Decode the messages at once and accept the plain ones (``take``): (seq, t, values,
+        start, count, status) with the stream state of the accepted ones updated; None when a
+        payload is not ``bytes``."""
+        payloads = [p for _, p, _ in msgs]
+        if any(type(p) is not bytes for p in payloads):
+            return None
+        ck = self.clock
+        slots: dict[int, int] = {}
+        streams: list[ActuatorState] = []
+        slot = []
+        for st in sts:
+            if st is None:
+                slot.append(-1)
+                continue
+            k = slots.get(id(st))
+            if k is None:
+                k = slots[id(st)] = len(streams)
+                streams.append(st)
+            slot.append(k)
+        ns = len(streams)
+        lts = [st.last_t for st in streams]
+        lss = [st.last_seq for st in streams]
+        known = [a is not None and b is not None for a, b in zip(lts, lss, strict=True)]
+        has_last = np.array(known, np.bool_).reshape(ns)
+        # a silent stream's resumed event comes before its samples: no fast path, and
+        # neither for a half-known state (its own rules are accept's)
+        divert = np.array(
+            [st.silent or (not k and (a is not None or b is not None))
+             for st, k, a, b in zip(streams, known, lts, lss, strict=True)], np.bool_,
+        ).reshape(ns)  # fmt: skip
+        last_seq = np.array([b if k else 0 for b, k in zip(lss, known, strict=True)], np.int64)
+        last_t = np.array([a if k else 0.0 for a, k in zip(lts, known, strict=True)], np.float64)
+        refused = np.array([st.refused for st in streams], np.int64)
+        period = np.array(
+            [math.nan if st.period is None else st.period for st in streams], np.float64
+        )
+        first = np.array([-1 if st.first_seq is None else st.first_seq for st in streams], np.int64)
+        n = sum(map(len, payloads)) // m.REC_BYTES + 1  # at least the samples
+        seq, t, vals = np.empty(n, np.int64), np.empty(n), np.empty((n, len(m.CHANNELS)))
+        gaps, samples = np.zeros(ns, np.int64), np.zeros(ns, np.int64)
+        state = (has_last, divert, last_seq, refused, last_t, period, first, gaps, samples)
+        clock = (float(ck.factor), float(ck.tol_s), float(now + ck.future_s))
+        out = m.decode_into(
+            payloads, seq, t, vals, self.max_bytes,
+            np.array(slot, np.int64), state, clock,
+        )  # fmt: skip
+        if out is None:
+            return None
+        starts, counts, codes = out
+        for st, dn, dg, ls, lt, pe, fs in zip(
+            streams, samples.tolist(), gaps.tolist(), last_seq.tolist(), last_t.tolist(),
+            period.tolist(), first.tolist(), strict=True,
+        ):  # fmt: skip
+            if dn:  # plain messages were accepted: the state accept() would have left
+                st.samples += dn
+                st.gaps += dg
+                st.last_seq, st.last_t = ls, lt
+                st.period = None if math.isnan(pe) else pe
+                st.first_seq = fs
+                st.refused = 0
+                st.resync = None
+        return seq, t, vals, starts.tolist(), counts.tolist(), codes.tolist()
 
     def silent(self, now: float, silence_s: float) -> list[tuple[str, ActuatorState, float]]:
         """Mark actuators silent after ``silence_s`` without a message: (key, state, seconds

@@ -24,7 +24,7 @@ import numpy as np
 from service import messages as m
 from service.config import ServiceConfig
 from service.daemon.block import Block, Part
-from service.daemon.intake import ActuatorState
+from service.daemon.intake import MAX_ACTUATORS, ActuatorState
 from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.systemd import sd_notify
 from service.fanout import FanOut
@@ -94,6 +94,7 @@ class Outputs:
         bad_log: RateLimitedLog,
     ) -> None:
         self.logger = logger
+        self._meas_topics: dict[str, str] = {}  # meas key -> its MCAP topic
         self.log_failure: str | None = None
         self.bad_log = bad_log
         self.errors = 0
@@ -170,7 +171,15 @@ class Outputs:
         if not run:
             return off
         seq, t, ch = blk.arrays()
-        topics = [m.mcap_topic(p.st.aircraft, p.st.actuator, "meas") for p in run]
+        cache = self._meas_topics
+        topics = []
+        for p in run:
+            tp = cache.get(p.key)
+            if tp is None:
+                if len(cache) > 4 * MAX_ACTUATORS:
+                    cache.clear()
+                tp = cache[p.key] = m.mcap_topic(p.st.aircraft, p.st.actuator, "meas")
+            topics.append(tp)
         counts = [len(p.a.t) - p.j0 for p in run]
         end = off + sum(counts)
         vals = np.column_stack([ch[off:end], seq[off:end], t[off:end]])  # MEAS_LOG_FIELDS
