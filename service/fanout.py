@@ -349,6 +349,17 @@ class FanOut:
         )
         return p
 
+    def warm_up(self) -> None:
+        """Make what the first outputs would make lazily: the NIS band (scipy.stats, about a
+        second of import under the GIL) and the published rows' protobuf layouts. The
+        daemon calls it before its Zenoh entities exist, so a unit does not look silent
+        while the first period is folded."""
+        from service.prognostics.indicators import nis_band
+
+        nis_band(np.array([1]))
+        for leaf in m.OUTPUT_LEAVES:
+            m.output_layout(leaf)
+
     def close(self) -> None:
         """Undeclare the publishers."""
         for tg in self._targets.values():

@@ -6,6 +6,9 @@ import json
 import logging
 import math
 import socket
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +18,8 @@ from service.config import ServiceConfig
 from service.daemon import Daemon, RateLimitedLog, percentiles, sd_notify, watchdog_interval
 from service.log import McapLogger
 from service.monitor import AlarmEvent, MonitorBank, RowEvents
+
+ROOT = Path(__file__).resolve().parents[1]
 
 KEY = "fleet/AC001/elevator_L/meas"
 KEY2 = "fleet/AC002/rudder/meas"
@@ -460,3 +465,24 @@ def test_the_log_process_writes_what_the_in_process_log_writes(tmp_path):
     got, want = run(True), run(False)
     assert len(want) == 10 + 5 + 5 + 9
     assert got == want
+
+
+def test_start_imports_what_the_first_period_needs(tmp_path):
+    """The first period's NIS band imports scipy.stats (about a second under the GIL): the
+    daemon's start does it, before any Zenoh entity exists, so a unit's first samples are
+    not followed by a stall that reads as silence."""
+    code = (
+        "import sys\n"
+        "from service.config import ServiceConfig\n"
+        "from service.daemon import Daemon\n"
+        f"d = Daemon(ServiceConfig(rotate_bytes=None, rotate_s=None), log_path={str(tmp_path / 'w.mcap')!r})\n"
+        "assert 'scipy.stats' not in sys.modules\n"
+        "d.start(None)\n"
+        "print('scipy.stats' in sys.modules)\n"
+        "d.stop()\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "True"

@@ -283,12 +283,14 @@ class Daemon:
 
     # -- lifecycle ----------------------------------------------------------------------
     def start(self, session=None) -> None:
-        """Load the monitor's kernels, then declare Zenoh entities on ``session`` (if given)
-        and start the worker thread. The kernels load first: loading holds the GIL for
-        seconds, during which Zenoh's callbacks could not queue samples (a unit would look
-        silent) nor answer status (a daemon answers once it can monitor)."""
+        """Load the monitor's kernels and what the first outputs import, then declare Zenoh
+        entities on ``session`` (if given) and start the worker thread. Loading comes first:
+        it holds the GIL for seconds, during which Zenoh's callbacks could not queue samples
+        (a unit would look silent) nor answer status (a daemon answers once it can
+        monitor)."""
         warm = self.monitor.warm_up()
         self.intake.warm_up()
+        self.outputs.fanout.warm_up()
         if warm > 0.05:
             log.info("monitor warm-up (JIT) took %.2f s", warm)
         if session is not None:
