@@ -173,6 +173,14 @@ def _unit(rng, name, driver, n, life=24.0):
     amplitude; ``load2_travel``: load^2 x amplitude), both usage figures recorded."""
     load, amp = rng.uniform(0.3, 1.7, 200), rng.uniform(0.3, 1.7, 200)
     per = load * amp if driver == "load_travel" else load**2 * amp
+    return usage_history(rng, name, n, per, load, amp, life)
+
+
+def usage_history(rng, name, n, per, load, amp, life):
+    """A history of ``n`` flights of one 2 s period each whose wear per flight is ``per``
+    (crossing THR after ``life`` flights of mean wear), with the travel, load-weighted and
+    F^2-weighted travel of a flight's ``load`` and command amplitude ``amp``; and the true
+    crossing in flights."""
     k = (THR - 1) / (life * float(np.mean(per)))
     r = 1 + k * np.concatenate(([0.0], np.cumsum(per)[:-1]))
     y = r[:n] + 0.04 * rng.standard_normal(n)

@@ -11,15 +11,13 @@ import pytest
 
 from service.prognostics.rul import (
     MEAN_AXES,
-    USAGE_AXES,
     History,
     RulConfig,
     axis_fits,
     fleet_prior,
     rul_of_history,
 )
-
-THR = 11.0
+from tests.test_rul_axes import THR, usage_history
 
 
 def _unit(rng: np.random.Generator, name: str, n: int, driver: str = "load2"):
@@ -32,19 +30,7 @@ def _unit(rng: np.random.Generator, name: str, n: int, driver: str = "load2"):
     amp = p_amp * rng.uniform(0.75, 1.25, 200)
     hours = rng.uniform(0.8, 1.2, 200)
     per = hours * (load**2 if driver == "load2" else load * amp)
-    life = rng.uniform(18, 30)
-    k = (THR - 1) / (life * float(np.mean(per)))
-    r = 1 + k * np.concatenate(([0.0], np.cumsum(per)[:-1]))
-    y = r[:n] + 0.04 * rng.standard_normal(n)
-    op = np.full(n, 2.0)
-    usage = {a: np.full(n, np.nan) for a in USAGE_AXES}
-    usage["travel"] = 0.004 * op * amp[:n]
-    usage["load_travel"] = 16.0 * op * load[:n] * amp[:n]
-    usage["load2_travel"] = 6e4 * op * load[:n] ** 2 * amp[:n]
-    h = History(name, np.cumsum(op) / 3600.0, y, 2.0 / 3600.0, np.arange(n, dtype=float),
-                None, usage)  # fmt: skip
-    j = int(np.flatnonzero(r >= THR)[0])
-    return h, j + (THR - r[j - 1]) / (r[j] - r[j - 1])
+    return usage_history(rng, name, n, per, load, amp, rng.uniform(18, 30))
 
 
 def test_the_mean_squared_load_is_the_flights_f2_travel_over_its_travel():
