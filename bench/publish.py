@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
@@ -33,6 +32,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
+from codec import _time as best_us_per_sample  # noqa: E402  (bench/codec.py, beside this)
 
 from service import messages as m  # noqa: E402
 from service.calibration import measured_run  # noqa: E402
@@ -61,19 +61,9 @@ def _update():
     return rows, ks, pub
 
 
-def _best_us(fn, per: int, repeat: int, min_s: float = 0.2) -> float:
+def _best_us(fn, per: int, repeat: int) -> float:
     """Best-of-``repeat`` microseconds per item (``fn`` does ``per`` items)."""
-    best = math.inf
-    for _ in range(repeat):
-        k, t0 = 0, time.perf_counter()
-        while True:
-            fn()
-            k += 1
-            dt = time.perf_counter() - t0
-            if dt >= min_s:
-                break
-        best = min(best, dt / (k * per) * 1e6)
-    return best
+    return best_us_per_sample(fn, per, repeat=repeat)
 
 
 def encode_json_rows(rows, pub) -> list[bytes]:
