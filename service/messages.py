@@ -31,9 +31,20 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from service.compat.pydantic import construct_unchecked
+from service.wire_format import (  # the wire's constants (measured channels: SI, wire order)
+    BATCH_ACCEPTED,
+    BATCH_DECODED,
+    BATCH_UNDECODED,
+    CHANNELS,
+    REC_BYTES,
+)
 
 __all__ = [
     "CHANNELS",
+    "REC_BYTES",
+    "BATCH_ACCEPTED",
+    "BATCH_DECODED",
+    "BATCH_UNDECODED",
     "DEFAULT_FORMAT",
     "MAX_BYTES",
     "MessageError",
@@ -68,8 +79,6 @@ __all__ = [
     "mcap_topic",
 ]
 
-#: Measured channels in wire order (SI: m, A, m, m, Pa abs, Pa abs, Pa).
-CHANNELS: tuple[str, ...] = ("x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr")
 DEFAULT_FORMAT: Literal["json", "bin"] = "bin"
 MAX_BYTES = 65536
 MAX_SAMPLES = 4096
@@ -84,10 +93,6 @@ KEY_ALIVE = "fleet/{aircraft}/{actuator}/alive"
 KEY_VIRTUAL = "fleet/{aircraft}/{actuator}/@virtual"
 KEY_STATUS = "monitor/{station}/{shard}/status"
 
-#: bytes of one binary record, and the status of a message after :func:`decode_into`:
-#: decoded and accepted whole by the intake's compiled checks, decoded only, not decoded
-REC_BYTES = 73
-BATCH_ACCEPTED, BATCH_DECODED, BATCH_UNDECODED = 0, 1, 2
 
 _MAGIC = b"SW"
 _VERSION = 1

@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from service.messages import BATCH_ACCEPTED as FAST
-from service.messages import BATCH_DECODED as DECODED
-from service.messages import BATCH_UNDECODED as UNDECODED
-from service.messages import CHANNELS, REC_BYTES
+from service.wire_format import BATCH_ACCEPTED as FAST
+from service.wire_format import BATCH_DECODED as DECODED
+from service.wire_format import BATCH_UNDECODED as UNDECODED
+from service.wire_format import CHANNELS, REC_BYTES
 
 __all__ = ["decode_message", "intake_batch"]
 
