@@ -67,8 +67,7 @@ class _Target:
     name: str  # "{aircraft}/{actuator}"
     outputs: int = 0
     publishers: dict[str, Any] = field(default_factory=dict)
-    info: dict[str, Any] = field(default_factory=dict)  # commissioned, baseline_version
-    # ``info`` as the published health's (commissioned, baseline_version)
+    # the published health's (commissioned, baseline_version), from ``track``'s ``info``
     info_row: tuple[int, int] = (m.COMMISSIONED_UNKNOWN, 0)
     acc: PeriodAccumulator | None = None
     nis_in_band: float | None = None  # of its last closed period
@@ -165,11 +164,10 @@ class FanOut:
         self._set(tg, c_lk0, info)
 
     def _set(self, tg: _Target, c_lk0: float | None, info: Mapping[str, Any] | None) -> None:
-        tg.info = dict(info or {})
-        tg.info_row = _info_row(tg.info)
+        tg.info_row = _info_row(info or {})
         if self.on_periods is not None and c_lk0 is not None and c_lk0 > 0:
             tg.acc = PeriodAccumulator(
-                f"{tg.aircraft}/{tg.actuator}", c_lk0, self.source, EST_KEYS, HEALTH_KEYS,
+                tg.name, c_lk0, self.source, EST_KEYS, HEALTH_KEYS,
                 RES_KEYS, self.period_config,
             )  # fmt: skip
 
