@@ -137,7 +137,7 @@ def import_file(
 
 def _first_times(path: Path, s: Series, start: float | None) -> tuple[float, float]:
     """The first finite time [s] of a time base and its nominal period (the median step of
-    its first block)."""
+    its first block; their mean when all steps are within 1 % of it)."""
     for t, _ in s.blocks():
         t = _shift(t, s, start)
         ok = t[np.isfinite(t)]
@@ -145,7 +145,11 @@ def _first_times(path: Path, s: Series, start: float | None) -> tuple[float, flo
         steps = steps[steps > 0]
         if not len(steps):
             raise InputError(path, s.columns[0], f"{s.name}: fewer than 2 increasing times")
-        return float(ok[0]), float(np.median(steps))
+        med = float(np.median(steps))
+        if len(ok) > 2 and np.all(np.abs(steps - med) < 0.01 * med):
+            # evenly sampled: the mean step, exact where a step of a Unix time is not
+            return float(ok[0]), float(ok[-1] - ok[0]) / (len(ok) - 1)
+        return float(ok[0]), med
     raise InputError(path, s.columns[0], f"{s.name}: no samples")
 
 

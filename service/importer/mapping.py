@@ -117,7 +117,6 @@ class ChannelMap(_Strict):
         for k, spec in v.items():
             if k not in DIMENSION:
                 raise ValueError(f"{k!r} is not a servowatch channel ({', '.join(m.CHANNELS)})")
-            si_factor(spec.unit, k)
         if not v:
             raise ValueError("map at least one channel")
         return v
@@ -166,7 +165,7 @@ def load_map(path: str | Path) -> tuple[ChannelMap, bytes]:
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
         raise InputError(p, "map", f"not TOML: {e}") from None
     try:
-        return ChannelMap.model_validate(data), raw
+        cmap = ChannelMap.model_validate(data)
     except ValidationError as e:
         err = e.errors()[0]
         field = ".".join(str(x) for x in err["loc"]) or "map"
@@ -174,6 +173,12 @@ def load_map(path: str | Path) -> tuple[ChannelMap, bytes]:
         if err["type"] == "extra_forbidden":
             msg = "unknown field (a typo?)"
         raise InputError(p, field, msg) from None
+    for k, spec in cmap.channels.items():
+        try:
+            si_factor(spec.unit, k)
+        except ValueError as e:
+            raise InputError(p, f"channels.{k}.unit", str(e)) from None
+    return cmap, raw
 
 
 def map_digest(raw: bytes) -> str:

@@ -6,6 +6,7 @@ properties of its channels (``wf_start_time``, ``wf_start_offset``, ``wf_increme
 from __future__ import annotations
 
 import contextlib
+import logging
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -31,12 +32,45 @@ def _unix(v) -> float | None:
         return None
 
 
+class _Warnings(logging.Handler):
+    """nptdms's warnings while the file is open, kept instead of printed."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+    def __enter__(self) -> _Warnings:
+        self._log = logging.getLogger("nptdms")
+        self._saved = self._log.handlers, self._log.propagate
+        self._log.handlers, self._log.propagate = [self], False
+        subs = [n for n in logging.root.manager.loggerDict if n.startswith("nptdms.")]
+        for name in subs:  # each has its own console handler
+            sub = logging.getLogger(name)
+            self._saved = (*self._saved, (sub, sub.handlers, sub.propagate))
+            sub.handlers, sub.propagate = [], True
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._log.handlers, self._log.propagate = self._saved[0], self._saved[1]
+        for sub, handlers, prop in self._saved[2:]:
+            sub.handlers, sub.propagate = handlers, prop
+
+
 def open_tdms(path: Path, cmap: ChannelMap, stack: contextlib.ExitStack) -> Source:
     """The TDMS file, kept open on ``stack`` while the import streams it."""
     from nptdms import TdmsFile
 
+    warned = _Warnings()
+    stack.enter_context(warned)
     try:
         f = stack.enter_context(TdmsFile.open(path))
+        if warned.messages:  # nptdms reads a short last segment as far as it goes
+            raise InputError(path, "file", f"truncated: {warned.messages[0]}")
+    except InputError:
+        raise
     except Exception as e:  # nptdms raises ValueError, struct.error, EOFError ...
         raise InputError(
             path, "file", f"not a readable TDMS file: {type(e).__name__}: {e}"
