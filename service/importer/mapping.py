@@ -114,7 +114,7 @@ class ChannelMap(_Strict):
     @field_validator("channels")
     @classmethod
     def _known(cls, v: dict[str, ChannelSpec]) -> dict[str, ChannelSpec]:
-        for k, spec in v.items():
+        for k in v:
             if k not in DIMENSION:
                 raise ValueError(f"{k!r} is not a servowatch channel ({', '.join(m.CHANNELS)})")
         if not v:
