@@ -14,9 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import json
 import logging
 import os
+import queue
+import threading
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -135,21 +139,24 @@ def import_file(
         return res
 
 
-def _first_times(path: Path, s: Series, start: float | None) -> tuple[float, float]:
-    """The first finite time [s] of a time base and its nominal period (the median step of
-    its first block; their mean when all steps are within 1 % of it)."""
-    for t, _ in s.blocks():
-        t = _shift(t, s, start)
-        ok = t[np.isfinite(t)]
+def _first_times(path: Path, s: Series, start: float | None) -> tuple[float, float, Iterator]:
+    """The first finite time [s] of a time base, its nominal period (the median step of its
+    first block; their mean when all steps are within 1 % of it) and its blocks (the first
+    one read again from memory)."""
+    it = s.blocks()
+    for t, raw in it:
+        ok = _shift(t, s, start)
+        ok = ok[np.isfinite(ok)]
         steps = np.diff(ok)
         steps = steps[steps > 0]
         if not len(steps):
             raise InputError(path, s.columns[0], f"{s.name}: fewer than 2 increasing times")
         med = float(np.median(steps))
+        blocks = itertools.chain([(t, raw)], it)
         if len(ok) > 2 and np.all(np.abs(steps - med) < 0.01 * med):
             # evenly sampled: the mean step, exact where a step of a Unix time is not
-            return float(ok[0]), float(ok[-1] - ok[0]) / (len(ok) - 1)
-        return float(ok[0]), med
+            return float(ok[0]), float(ok[-1] - ok[0]) / (len(ok) - 1), blocks
+        return float(ok[0]), med, blocks
     raise InputError(path, s.columns[0], f"{s.name}: no samples")
 
 
@@ -177,7 +184,7 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
     names = (*chan, "seq", "t")
     done = {"n": 0, "t": []}
 
-    def emit(k: NDArray, v: NDArray) -> None:
+    def write(k: NDArray, v: NDArray) -> None:
         t = t0 + k / rate
         lg.log_block(topic, t, names, np.column_stack([v, k, t]), int_fields=("seq",))
         done["n"] += len(k)
@@ -185,22 +192,23 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
 
     spool = ColumnSpool(tmp, chan) if len(src.series) > 1 else None
     try:
-        with McapLogger(tmp, background_flush=False, flush_s=1e12) as lg:
+        with McapLogger(tmp, background_flush=False, flush_s=1e12) as lg, _Behind(write) as emit:
             lg.add_metadata(IMPORT_RECORD, {**ident, "format": src.format,
                                             "map": map_raw.decode("utf-8")})  # fmt: skip
             if fl is not None:
                 dated = start is not None or any(s.absolute for s in src.series)
                 rec = FlightRecord(ac, act, int(fl), t0 if dated else None, t0)
                 lg.add_metadata(FLIGHT_RECORD, rec.to_metadata())
-            for s, (_, dt) in zip(src.series, firsts, strict=True):
+            for s, (_, dt, blocks) in zip(src.series, firsts, strict=True):
                 cols = [chan.index(conv[c][3]) for c in s.columns]
                 put = emit if spool is None else (lambda k, v, c=cols: spool.put(k, c, v))
-                rs = _stream(s, conv, finite, SeriesResampler(t0, rate, dt), start,
+                rs = _stream(s, blocks, conv, finite, SeriesResampler(t0, rate, dt), start,
                              UnitClock(ac, act, RateLimitedLog(log)), put)  # fmt: skip
                 counts.add(rs)
             if spool is not None:
                 for k, v in spool.rows():
                     emit(k, v)
+            emit.join()
             for k in chan:
                 if not finite[k]:
                     col = cmap.channels[k].column
@@ -220,10 +228,51 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
                         (t_last or 0.0) - (t_first or 0.0), chan, summary)  # fmt: skip
 
 
-def _stream(s: Series, conv: dict, finite: dict, rs: SeriesResampler, start: float | None,
+class _Behind:
+    """``fn(*args)`` on a thread of its own, a few calls behind the caller: the log's
+    encoding and compression (which release the GIL) overlap the reading. An exception of
+    ``fn`` is raised at the next call or at :meth:`join`."""
+
+    def __init__(self, fn, depth: int = 2) -> None:
+        self.fn, self.q = fn, queue.Queue(maxsize=depth)
+        self.error: BaseException | None = None
+        self.th = threading.Thread(target=self._run, name="import-write", daemon=True)
+
+    def _run(self) -> None:
+        while (args := self.q.get()) is not None:
+            if self.error is None:
+                try:
+                    self.fn(*args)
+                except BaseException as e:  # raised in the caller's thread
+                    self.error = e
+
+    def __call__(self, *args) -> None:
+        if self.error is not None:
+            raise self.error
+        self.q.put(args)
+
+    def join(self) -> None:
+        """Wait for every call; raise what ``fn`` raised."""
+        if self.th.is_alive():
+            self.q.put(None)
+            self.th.join()
+        if self.error is not None:
+            raise self.error
+
+    def __enter__(self) -> _Behind:
+        self.th.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.th.is_alive():
+            self.q.put(None)
+            self.th.join()
+
+
+def _stream(s: Series, blocks: Iterator, conv: dict, finite: dict, rs: SeriesResampler, start: float | None,
             clock, put) -> GridCounts:  # fmt: skip
     """One time base: SI units, the intake's time checks, onto the grid, to ``put``."""
-    for t, raw in s.blocks():
+    for t, raw in blocks:
         t = _shift(t, s, start)
         ch = np.full((len(t), len(m.CHANNELS)), np.nan)
         for c in s.columns:

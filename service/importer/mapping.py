@@ -130,7 +130,8 @@ class ChannelMap(_Strict):
 def _ureg():
     import pint
 
-    return pint.UnitRegistry()
+    # the parsed definitions cached in the user's cache folder: 0.2 s instead of 0.7 s
+    return pint.UnitRegistry(cache_folder=":auto:")
 
 
 def si_factor(unit: str, channel: str) -> float:
