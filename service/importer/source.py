@@ -15,7 +15,7 @@ from service.importer.errors import InputError
 
 __all__ = ["Series", "Source", "sniff", "check_columns", "BLOCK_ROWS"]
 
-BLOCK_ROWS = 1 << 18
+BLOCK_ROWS = 1 << 16
 """Rows per block a reader hands on (the importer's memory is a few such blocks)."""
 
 _MAGIC = (
