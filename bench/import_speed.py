@@ -42,15 +42,18 @@ def blocks(n: int):
     for a in range(0, n, BLOCK):
         t = (a + np.arange(min(BLOCK, n - a))) / RATE
         s = np.sin(2 * np.pi * 0.3 * t)
-        yield t, {
-            "PosDemand": 2.0 * s,
-            "ValveCurrent": 0.5 * s + 0.01 * rng.standard_normal(len(t)),
-            "SpoolPos": 20.0 * s + 0.5 * rng.standard_normal(len(t)),
-            "RamPos": 2.0 * s + 0.05 * rng.standard_normal(len(t)),
-            "P_A": 105.0 + 10 * s + 0.5 * rng.standard_normal(len(t)),
-            "P_B": 105.0 - 10 * s + 0.5 * rng.standard_normal(len(t)),
-            "P_Supply": 205.0 + 0.5 * rng.standard_normal(len(t)),
-        }
+        yield (
+            t,
+            {
+                "PosDemand": 2.0 * s,
+                "ValveCurrent": 0.5 * s + 0.01 * rng.standard_normal(len(t)),
+                "SpoolPos": 20.0 * s + 0.5 * rng.standard_normal(len(t)),
+                "RamPos": 2.0 * s + 0.05 * rng.standard_normal(len(t)),
+                "P_A": 105.0 + 10 * s + 0.5 * rng.standard_normal(len(t)),
+                "P_B": 105.0 - 10 * s + 0.5 * rng.standard_normal(len(t)),
+                "P_Supply": 205.0 + 0.5 * rng.standard_normal(len(t)),
+            },
+        )
 
 
 def write(fmt: str, path: Path, n: int) -> None:

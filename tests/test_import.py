@@ -124,6 +124,7 @@ BAD = {
     "truncated tdms": ("tdms", lambda f, mp: _cut(f, 0.6), "file", "truncated"),
     "truncated mdf": ("mdf", lambda f, mp: _cut(f, 0.5), "file", "MDF"),
     "truncated parquet": ("parquet", lambda f, mp: _cut(f, 0.7), "file", "Parquet"),
+    "truncated csv": ("csv", lambda f, mp: _cut(f, 0.5), "file", "CSV parse error"),
 }  # fmt: skip
 
 
@@ -132,8 +133,8 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, healthy, cas
     fmt, edit, field, text = BAD[case]
     f, mp = _write(tmp_path, fmt, healthy)
     edit(f, mp)
-    out = tmp_path / "out" / "run.mcap"
-    out.parent.mkdir()
+    out = tmp_path / "out" / "new" / "run.mcap"  # its folders made by the import
+    out.parent.parent.mkdir()
     capsys.readouterr()
     code = main(["import", str(f), "--map", str(mp), "--out", str(out), "--start-unix", "0"])
     err = capsys.readouterr().err
@@ -141,7 +142,7 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, healthy, cas
     assert len(err.strip().splitlines()) == 1, err
     assert field in err and text in err, err
     assert str(f) in err or str(mp) in err, err
-    assert not out.exists() and list(out.parent.iterdir()) == []
+    assert list(out.parent.parent.iterdir()) == []  # not even the folder it would have made
 
 
 def test_an_all_nan_channel_is_refused(tmp_path, healthy, capsys):
@@ -257,3 +258,26 @@ def test_a_parquet_file_another_tool_wrote(tmp_path, capsys):
     assert main(["import", str(f), "--map", str(mp), "--out", str(tmp_path / "x.mcap")]) == 2
     err = capsys.readouterr().err
     assert "channels.x_j.column: no column 'dept'; the file has 'carat', 'cut', 'color'" in err
+
+
+def test_absolute_timestamps_in_a_csv(tmp_path, healthy, capsys):
+    import datetime as dt
+
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    n = 500
+    stamps = [(rf.START + dt.timedelta(milliseconds=k)).isoformat() for k in range(n)]
+    cols = {"Stamp": stamps, **{k: v[:n] for k, v in rf.rig_columns(healthy).items()}}
+    f = tmp_path / "abs.csv"
+    pcsv.write_csv(pa.table(cols), f)
+    mp = tmp_path / "m.toml"
+    mp.write_text(rf.map_text("csv", "", '[time]\ncolumn = "Stamp"\nunit = "datetime"'))
+    out = tmp_path / "abs.mcap"
+    assert main(["import", str(f), "--map", str(mp), "--out", str(out), "--flight", "3"]) == 0
+    _, names, v = _log(out)
+    np.testing.assert_allclose(v[:, -1], rf.START.timestamp() + np.arange(n) / 1e3, atol=1e-6)
+    from service.flightrec import flight_records
+
+    (rec,) = flight_records(out)
+    assert (rec.flight, rec.start_unix) == (3, rf.START.timestamp())

@@ -60,8 +60,6 @@ def run(args: argparse.Namespace) -> int:
         cmap, raw = load_map(args.map)
     except InputError as e:
         return fail(str(e))
-    if Path(args.out).suffix.lower() != ".mcap":
-        Path(args.out).mkdir(parents=True, exist_ok=True)
     check_outputs(
         [("--out", o) for _, o in targets],
         [("FILE", f) for f, _ in targets] + [("--map", args.map)],

@@ -129,9 +129,16 @@ def import_file(
             raise InputError(out, "--out", "exists and is not this file's import (remove it "
                              "or choose another --out)")  # fmt: skip
         tmp = out.with_name(f".{out.name}.part-{os.getpid()}")
+        made = [d for d in (out.parent, *out.parent.parents) if not d.exists()]
         try:
             res = _write(src, cmap, map_raw, tmp, ident, start, fl)
             os.replace(tmp, out)
+        except BaseException:
+            for d in made:  # the folders this import made, innermost first
+                with contextlib.suppress(OSError):
+                    tmp.unlink(missing_ok=True)
+                    d.rmdir()
+            raise
         finally:
             with contextlib.suppress(FileNotFoundError):
                 tmp.unlink()
