@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -76,7 +75,7 @@ def write(fmt: str, path: Path, n: int) -> None:
         props = {"wf_increment": 1 / RATE, "wf_start_offset": 0.0,
                  "wf_start_time": np.datetime64("2026-03-01T08:00:00", "us")}  # fmt: skip
         with TdmsWriter(path) as w:
-            for t, cols in blocks(n):
+            for _, cols in blocks(n):
                 w.write_segment([RootObject({}), GroupObject("Rig")] + [
                     ChannelObject("Rig", k, v, properties=props) for k, v in cols.items()])  # fmt: skip
     elif fmt == "mdf":
