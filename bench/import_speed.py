@@ -1,7 +1,9 @@
 """``servowatch import`` on a long flight (issue 52): a 2 h recording of 7 channels at 1 kHz
 (7.2 M samples, 50.4 M values) written by each format's own library (pyarrow Parquet and CSV,
-nptdms TDMS, asammdf MDF4), then imported, each in a child process of its own: wall time and
-the child's peak resident memory (``ru_maxrss``), side by side in one run.
+nptdms TDMS, asammdf MDF4), then imported, each in a child process of its own: wall and CPU
+time, the child's peak anonymous resident memory (its heap: ``RssAnon``, sampled every 20 ms)
+and its peak resident set (``ru_maxrss``, which also counts the pages of a file a reader maps,
+as asammdf does: page cache the kernel can drop), side by side in one run.
 
 The recording is made block by block (a smooth position sine, pressures about 100 bar, noise),
 so neither the writer nor the importer ever holds it whole; the peak memory shows that the
@@ -106,12 +108,29 @@ def map_text(fmt: str) -> str:
 
 
 CHILD = """
-import resource, sys, time
+import resource, sys, threading, time
 from service.cli import main
+
+peak = [0]
+
+def anon():  # resident anonymous memory (heap), kB: a reader's mmap of the file is not in it
+    for line in open("/proc/self/status"):
+        if line.startswith("RssAnon:"):
+            return int(line.split()[1])
+    return 0
+
+def watch():
+    while True:
+        peak[0] = max(peak[0], anon())
+        time.sleep(0.02)
+
+threading.Thread(target=watch, daemon=True).start()
 t0 = time.perf_counter()
 code = main(["import", sys.argv[1], "--map", sys.argv[2], "--out", sys.argv[3],
              "--start-unix", "1772352000"])
-print(time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, code)
+wall = time.perf_counter() - t0
+ru = resource.getrusage(resource.RUSAGE_SELF)
+print(wall, ru.ru_utime + ru.ru_stime, max(peak[0], anon()), ru.ru_maxrss, code)
 """
 
 
@@ -138,10 +157,11 @@ def main() -> int:
             if r.returncode or not last.endswith(" 0"):
                 print(f"{fmt}: import failed: {r.stderr.strip()[-400:]}", file=sys.stderr)
                 return 1
-            wall, rss_kb, _ = last.split()
+            wall, cpu, anon_kb, rss_kb, _ = last.split()
             rows.append({"format": fmt, "samples": n, "values": 7 * n,
                          "file_mb": src.stat().st_size / 1e6, "write_s": write_s,
-                         "import_s": float(wall), "peak_rss_mb": int(rss_kb) / 1024,
+                         "import_s": float(wall), "cpu_s": float(cpu),
+                         "peak_anon_mb": int(anon_kb) / 1024, "peak_rss_mb": int(rss_kb) / 1024,
                          "log_mb": out.stat().st_size / 1e6})  # fmt: skip
             src.unlink()
             out.unlink()
@@ -149,10 +169,11 @@ def main() -> int:
         print(json.dumps({"hours": a.hours, "rate_hz": RATE, "rows": rows}))
         return 0
     print(f"{a.hours:g} h at {RATE:g} Hz: {n} samples x 7 channels = {7 * n / 1e6:.1f} M values")
-    print(f"{'format':<8} {'file MB':>8} {'import s':>9} {'peak RSS MB':>12} {'log MB':>7}")
+    print(f"{'format':<8} {'file MB':>8} {'import s':>9} {'CPU s':>6} {'heap MB':>8} "
+          f"{'RSS MB':>7} {'log MB':>7}")  # fmt: skip
     for r in rows:
-        print(f"{r['format']:<8} {r['file_mb']:>8.0f} {r['import_s']:>9.2f} "
-              f"{r['peak_rss_mb']:>12.0f} {r['log_mb']:>7.0f}")  # fmt: skip
+        print(f"{r['format']:<8} {r['file_mb']:>8.0f} {r['import_s']:>9.2f} {r['cpu_s']:>6.1f} "
+              f"{r['peak_anon_mb']:>8.0f} {r['peak_rss_mb']:>7.0f} {r['log_mb']:>7.0f}")  # fmt: skip
     return 0
 
 

@@ -41,6 +41,8 @@ def open_mdf(path: Path, cmap: ChannelMap, stack: contextlib.ExitStack) -> Sourc
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             mdf = stack.enter_context(MDF(path))
+            # data fragments of about 4 MB (asammdf's default is 256 MB, per channel read)
+            mdf.configure(read_fragment_size=4 << 20)
     except Exception as e:  # asammdf raises many kinds on a damaged file
         raise InputError(
             path, "file", f"not a readable MDF file: {type(e).__name__}: {e}"
@@ -64,27 +66,46 @@ def open_mdf(path: Path, cmap: ChannelMap, stack: contextlib.ExitStack) -> Sourc
 def _group(path: Path, mdf, group: int, chans: list[tuple[str, int]], t_zero) -> Series:
     cycles = int(mdf.groups[group].channel_group.cycles_nr)
 
+    def fragments() -> Iterator[tuple[NDArray, dict[str, NDArray]]]:
+        # one iterator per channel over the group's data fragments, in lockstep
+        its = [mdf.iter_get(group=group, index=idx) for _, idx in chans]
+        for sigs in zip(*its, strict=True):
+            t = np.asarray(sigs[0].timestamps, np.float64)
+            yield (
+                t,
+                {
+                    col: as_float(path, col, s.samples)
+                    for (col, _), s in zip(chans, sigs, strict=True)
+                },
+            )
+
     def blocks() -> Iterator[tuple[NDArray, dict[str, NDArray]]]:
-        for a in range(0, max(cycles, 1), BLOCK_ROWS):
-            m = min(BLOCK_ROWS, cycles - a)
-            vals: dict[str, NDArray] = {}
-            t = None
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    for col, idx in chans:
-                        sig = mdf.get(group=group, index=idx, record_offset=a, record_count=m)
-                        vals[col] = as_float(path, col, sig.samples)
-                        if t is None:
-                            t = np.asarray(sig.timestamps, np.float64) + (t_zero or 0.0)
-            except InputError:
-                raise
-            except Exception as e:
-                raise InputError(path, "file", f"cannot read on at record {a} of channel group "
-                                 f"{group}: {type(e).__name__}: {e}") from None  # fmt: skip
-            if t is None or len(t) != m or any(len(v) != m for v in vals.values()):
-                raise InputError(path, "file", f"truncated: channel group {group} ends before "
-                                 f"its {cycles} records")  # fmt: skip
-            yield t, vals
+        got, buf = 0, []
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                for t, vals in fragments():
+                    if any(len(v) != len(t) for v in vals.values()):
+                        raise InputError(path, "file", f"truncated: channel group {group}")
+                    buf.append((t, vals))
+                    got += len(t)
+                    if sum(len(b[0]) for b in buf) >= BLOCK_ROWS:
+                        yield _joined(buf, t_zero)
+                        buf = []
+        except InputError:
+            raise
+        except Exception as e:
+            raise InputError(path, "file", f"cannot read on at record {got} of channel group "
+                             f"{group}: {type(e).__name__}: {e}") from None  # fmt: skip
+        if buf:
+            yield _joined(buf, t_zero)
+        if got != cycles:
+            raise InputError(path, "file", f"truncated: channel group {group} holds {got} of "
+                             f"its {cycles} records")  # fmt: skip
 
     return Series(f"group {group}", [c for c, _ in chans], blocks, t_zero is not None)
+
+
+def _joined(buf: list, t_zero: float | None) -> tuple[NDArray, dict[str, NDArray]]:
+    t = np.concatenate([b[0] for b in buf]) + (t_zero or 0.0)
+    return t, {c: np.concatenate([b[1][c] for b in buf]) for c in buf[0][1]}
