@@ -20,7 +20,8 @@ import logging
 import os
 import queue
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -117,12 +118,13 @@ def import_file(
         fl = next((x for x in (flight, cmap.actuator.flight, src.flight) if x is not None), None)
         ident = {
             "file": path.name,
-            "sha256": file_digest(path),
+            "sha256": "",  # below
             "map_sha256": map_digest(map_raw),
             "start_unix": "" if start is None else repr(float(start)),
             "flight": "" if fl is None else str(int(fl)),
         }
         if out.exists():
+            ident["sha256"] = file_digest(path)
             old = read_import_record(out)
             if old is not None and all(old.get(k) == v for k, v in ident.items()):
                 return ImportResult(str(path), str(out), "unchanged", src.format)
@@ -130,8 +132,10 @@ def import_file(
                              "or choose another --out)")  # fmt: skip
         tmp = out.with_name(f".{out.name}.part-{os.getpid()}")
         made = [d for d in (out.parent, *out.parent.parents) if not d.exists()]
+        hasher = stack.enter_context(ThreadPoolExecutor(1, "import-sha256"))
+        digest = hasher.submit(file_digest, path)  # beside the import (hashlib frees the GIL)
         try:
-            res = _write(src, cmap, map_raw, tmp, ident, start, fl)
+            res = _write(src, cmap, map_raw, tmp, ident, start, fl, digest.result)
             os.replace(tmp, out)
         except BaseException:
             for d in made:  # the folders this import made, innermost first
@@ -172,7 +176,7 @@ def _shift(t: NDArray, s: Series, start: float | None) -> NDArray:
 
 
 def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict,
-           start: float | None, fl: int | None) -> ImportResult:  # fmt: skip
+           start: float | None, fl: int | None, sha256: Callable[[], str]) -> ImportResult:  # fmt: skip
     from service.daemon.ratelimit import RateLimitedLog
     from service.flightrec import FLIGHT_RECORD, FlightRecord
     from service.log import McapLogger
@@ -200,8 +204,6 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
     spool = ColumnSpool(tmp, chan) if len(src.series) > 1 else None
     try:
         with McapLogger(tmp, background_flush=False, flush_s=1e12) as lg, _Behind(write) as emit:
-            lg.add_metadata(IMPORT_RECORD, {**ident, "format": src.format,
-                                            "map": map_raw.decode("utf-8")})  # fmt: skip
             if fl is not None:
                 dated = start is not None or any(s.absolute for s in src.series)
                 rec = FlightRecord(ac, act, int(fl), t0 if dated else None, t0)
@@ -221,6 +223,8 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
                     col = cmap.channels[k].column
                     raise InputError(path, f"channels.{k}", f"column {col!r} holds no finite value")
             summary = {**asdict(counts), "rate_hz": rate}
+            lg.add_metadata(IMPORT_RECORD, {**ident, "sha256": sha256(), "format": src.format,
+                                            "map": map_raw.decode("utf-8")})  # fmt: skip
             lg.add_metadata(
                 IMPORT_RECORD + ".counts", {"counts": json.dumps(summary, sort_keys=True)}
             )
