@@ -118,6 +118,8 @@ BAD = {
                  "time.colum", "unknown field"),
     "another format": ("csv", lambda f, mp: mp.write_text(mp.read_text().replace('"csv"', '"tdms"')),
                        "format", "the map's format says tdms, the file is csv"),
+    "section typo": ("tdms", lambda f, mp: mp.write_text(mp.read_text().replace("[channels]", "[channel]")),
+                     "channel", "unknown field (a typo?)"),
     "binary as csv": ("csv", lambda f, mp: f.write_bytes(bytes(range(256)) * 4),
                       "format", "says csv, the file is unknown binary"),
     "empty file": ("csv", lambda f, mp: f.write_bytes(b""), "file", "empty file"),

@@ -168,7 +168,8 @@ def load_map(path: str | Path) -> tuple[ChannelMap, bytes]:
     try:
         cmap = ChannelMap.model_validate(data)
     except ValidationError as e:
-        err = e.errors()[0]
+        errs = e.errors()  # an unknown field first: a typo also makes its field "missing"
+        err = next((x for x in errs if x["type"] == "extra_forbidden"), errs[0])
         field = ".".join(str(x) for x in err["loc"]) or "map"
         msg = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
