@@ -76,7 +76,7 @@ def open_parquet(path: Path, cmap: ChannelMap) -> Source:
 
     tcol = _need_time(path, cmap)
     try:
-        pf = pq.ParquetFile(path)
+        pf = pq.ParquetFile(path, pre_buffer=False)  # pre-buffered column chunks pile up
     except (pa.ArrowException, OSError) as e:
         raise InputError(path, "file", f"not a readable Parquet file: {e}") from None
     names = list(pf.schema_arrow.names)
@@ -86,8 +86,14 @@ def open_parquet(path: Path, cmap: ChannelMap) -> Source:
         path,
         "parquet",
         names,
-        [_series(path, cmap, lambda: pf.iter_batches(batch_size=BLOCK_ROWS, columns=read))],
+        [_series(path, cmap, lambda: _row_groups(pf, read))],
     )
+
+
+def _row_groups(pf, columns: list[str]):
+    """The batches of a Parquet file, one row group after the other."""
+    for g in range(pf.num_row_groups):
+        yield from pf.iter_batches(batch_size=BLOCK_ROWS, columns=columns, row_groups=[g])
 
 
 def open_csv(path: Path, cmap: ChannelMap) -> Source:
@@ -96,7 +102,7 @@ def open_csv(path: Path, cmap: ChannelMap) -> Source:
     import pyarrow.csv as pcsv
 
     tcol = _need_time(path, cmap)
-    ro = pcsv.ReadOptions(block_size=16 << 20)
+    ro = pcsv.ReadOptions(block_size=4 << 20, use_threads=False)
     try:
         with pcsv.open_csv(path, read_options=ro) as rd:
             names = list(rd.schema.names)
