@@ -283,3 +283,26 @@ def test_absolute_timestamps_in_a_csv(tmp_path, healthy, capsys):
 
     (rec,) = flight_records(out)
     assert (rec.flight, rec.start_unix) == (3, rf.START.timestamp())
+
+
+def test_scale_and_offset_in_the_columns_unit(tmp_path, healthy, capsys):
+    """A gauge transducer in psi (offset 14.696 psi to absolute) and a position in inches
+    with a scale of 2 (a half-scale channel): ``(scale * raw + offset) [unit] -> SI``."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    psi, inch = 6894.757293168361, 0.0254
+    cols = {"Time": healthy["t"], "P_A_g": healthy["p1"] / psi - 14.696,
+            "Ram_half": healthy["x_j"] / inch / 2}  # fmt: skip
+    f = tmp_path / "g.parquet"
+    pq.write_table(pa.table(cols), f)
+    mp = tmp_path / "m.toml"
+    mp.write_text('[time]\ncolumn = "Time"\n[actuator]\naircraft = "RIG1"\nname = "rudder"\n'
+                  '[channels]\np1 = { column = "P_A_g", unit = "psi", offset = 14.696 }\n'
+                  'x_j = { column = "Ram_half", unit = "in", scale = 2.0 }\n')  # fmt: skip
+    out = tmp_path / "g.mcap"
+    assert main(["import", str(f), "--map", str(mp), "--out", str(out)]) == 0
+    _, names, v = _log(out)
+    assert names == ("x_j", "p1", "seq", "t")  # the channels left out are absent
+    np.testing.assert_allclose(v[:, 0], healthy["x_j"], rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(v[:, 1], healthy["p1"], rtol=1e-12)
