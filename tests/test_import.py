@@ -306,3 +306,21 @@ def test_scale_and_offset_in_the_columns_unit(tmp_path, healthy, capsys):
     assert names == ("x_j", "p1", "seq", "t")  # the channels left out are absent
     np.testing.assert_allclose(v[:, 0], healthy["x_j"], rtol=1e-12, atol=1e-18)
     np.testing.assert_allclose(v[:, 1], healthy["p1"], rtol=1e-12)
+
+
+def test_a_stock_reader_decodes_the_log(tmp_path, healthy, capsys):
+    """What Foxglove does: the protobuf schema in the file, decoded by mcap's stock reader."""
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    f, mp = _write(tmp_path, "tdms", healthy)
+    out = tmp_path / "run.mcap"
+    assert main(["import", str(f), "--map", str(mp), "--out", str(out)]) == 0
+    with open(out, "rb") as fh:
+        rows = [(m.log_time, r) for _, _, m, r in
+                make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]  # fmt: skip
+    assert len(rows) == len(healthy["t"])
+    lt, r = rows[10]
+    assert r.seq == 10 and math.isclose(r.x_j, healthy["x_j"][10], rel_tol=1e-12)
+    assert math.isclose(r.p1, healthy["p1"][10], rel_tol=1e-12)
+    assert lt == round(r.t * 1e9)
