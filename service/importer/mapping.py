@@ -119,6 +119,10 @@ class ChannelMap(_Strict):
                 raise ValueError(f"{k!r} is not a servowatch channel ({', '.join(m.CHANNELS)})")
         if not v:
             raise ValueError("map at least one channel")
+        cols = [spec.column for spec in v.values()]
+        dup = next((c for c in cols if cols.count(c) > 1), None)
+        if dup is not None:
+            raise ValueError(f"column {dup!r} is mapped to two channels")
         return v
 
     def ordered(self) -> list[tuple[str, ChannelSpec]]:
