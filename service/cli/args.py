@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # the config pulls in the monitor (numba): imported when used
@@ -13,6 +14,8 @@ __all__ = [
     "add_tls_arguments",
     "tls_overrides",
     "service_config_from_args",
+    "zenoh_config",
+    "open_zenoh_session",
 ]
 
 
@@ -119,3 +122,30 @@ def service_config_from_args(args: argparse.Namespace) -> ServiceConfig:
         loc = ".".join(str(x) for x in err["loc"])
         raise ConfigError(err["msg"], f"zenoh.{loc}", "command line") from None
     return cfg.model_copy(update={"zenoh": zs})
+
+
+def zenoh_config(
+    args: argparse.Namespace, then: Callable[[ServiceConfig], ServiceConfig] | None = None
+) -> ServiceConfig:
+    """The config of a Zenoh command (:func:`service_config_from_args`, then ``then`` on it):
+    a bad file, field or override is a ``CommandError`` (one line, exit 2)."""
+    from service.cli.util import CommandError
+    from service.config import ConfigError
+
+    try:
+        cfg = service_config_from_args(args)
+        return cfg if then is None else then(cfg)
+    except (ConfigError, ValueError) as e:
+        raise CommandError(str(e)) from None
+
+
+def open_zenoh_session(cfg: ServiceConfig) -> Any:
+    """``cfg.zenoh.open_session()``; an unreachable or refusing router is a ``CommandError``
+    with the session error's exit code (``EXIT_UNREACHABLE``, ``EXIT_REFUSED``)."""
+    from service.cli.util import CommandError
+    from service.config import SessionError
+
+    try:
+        return cfg.zenoh.open_session()
+    except SessionError as e:
+        raise CommandError(str(e), e.exit_code) from None

@@ -1,9 +1,9 @@
-"""The ``servowatch`` command line: one module per subcommand under ``service.commands``.
+"""The ``servowatch`` command line: one module per subcommand under ``service.cli.commands``.
 
 Each command module exposes ``NAME``, ``HELP``, ``add_arguments(parser)`` and
 ``run(args) -> int``. SI units in and out; ``--json`` prints exactly one JSON object on stdout.
 Bad arguments exit 2 (argparse), a bad input file exits 2 with a message naming it; the exit
-codes are ``service.cliutil.EXIT_*`` (docs/cli.md, "Exit codes"). Whatever a user can cause
+codes are ``service.cli.util.EXIT_*`` (docs/cli.md, "Exit codes"). Whatever a user can cause
 ends in one line on stderr, never a traceback: a command raises ``CommandError`` (its message
 and code), and ``main`` turns a ``StoreError`` (exit 2), an ``OSError`` or a store engine's
 error met during the work (exit 5) into one line as a backstop.
@@ -45,7 +45,7 @@ COMMANDS: tuple[str, ...] = (
 
 
 def _module_name(name: str) -> str:
-    return f"service.commands.{name.replace('-', '_')}"
+    return f"service.cli.commands.{name.replace('-', '_')}"
 
 
 def _load(name: str):
@@ -145,7 +145,7 @@ _STORE_ENGINES = ("sqlite3", "psycopg")
 def _one_line(e: Exception, args: argparse.Namespace) -> int | None:
     """Report a failure a user can cause as one line on stderr and return its exit code;
     None for anything else (a bug: its traceback is kept)."""
-    from service.cliutil import EXIT_IO, EXIT_USAGE, CommandError, _cause, fail
+    from service.cli.util import EXIT_IO, EXIT_USAGE, CommandError, _cause, fail
 
     if isinstance(e, CommandError):
         return fail(str(e), e.code)

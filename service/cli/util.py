@@ -62,7 +62,7 @@ EXIT_IO = 5  # a file or the store failed while being read or written (disk full
 
 
 class CommandError(Exception):
-    """A failure a user can cause, reported by ``service.cli.main`` as one line on stderr
+    """A failure a user can cause, reported by ``service.cli.dispatch`` as one line on stderr
     (``servowatch: error: MESSAGE``) and the exit ``code``; never a traceback."""
 
     def __init__(self, message: str, code: int = EXIT_USAGE) -> None:

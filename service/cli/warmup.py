@@ -1,5 +1,5 @@
 """Compile and cache the numba kernels ahead of use (``servowatch warmup``,
-``python -m service.warmup``).
+``python -m service.cli.warmup``).
 
 ``make`` runs this right after installing, so the first ``servowatch demo`` or test run does
 not spend its first minutes compiling; a pip-installed copy runs ``servowatch warmup`` once.
@@ -59,8 +59,8 @@ def _monitor_run(model: str) -> None:
 
     from models.eha import EHAStepper
     from models.params import EHAParams
-    from service.messages import decode_into, decode_meas_arrays, encode_meas
     from service.monitor import Monitor, MonitorBank, MonitorConfig
+    from service.wire.messages import decode_into, decode_meas_arrays, encode_meas
 
     cfg = MonitorConfig(model=model)
     st = EHAStepper(EHAParams(), "HF")
@@ -95,7 +95,7 @@ def _ukf_step(model: str) -> None:
     import numpy as np
 
     from service.monitor import MonitorBank, MonitorConfig
-    from service.ukf import merwe_weights, ukf_one, ukf_one_wh, workspace
+    from service.monitor.ukf import merwe_weights, ukf_one, ukf_one_wh, workspace
 
     bank = MonitorBank(MonitorConfig(model=model))
     n, m = len(bank.scale), len(bank._zscale)
@@ -168,8 +168,8 @@ def _entries(group: str) -> list:
         return list(compiled._LOOPS[1:])
     if group == "monitor":
         from models import compiled
-        from service import wire_kernels
         from service.monitor import kernels, usage
+        from service.wire import kernels as wire_kernels
 
         return [compiled._integrate_hf, kernels.bank_step, kernels.output_rows, kernels.block_steps,
                 kernels.block_rows, kernels.prepare_inputs, usage.usage_rows,
@@ -181,7 +181,7 @@ def _entries(group: str) -> list:
 
 def _part_entries(part: str) -> list:
     if part in ("ukf_wh", "ukf_c"):
-        from service import ukf
+        from service.monitor import ukf
 
         return [ukf.ukf_one_wh if part == "ukf_wh" else ukf.ukf_one]
     return _entries(part)
@@ -263,7 +263,7 @@ def run_parts(
     while todo or running:
         ready = [p for p in todo if not any(d in todo or d in running for d in PARTS[p][1])]
         for p in sorted(ready, key=lambda q: -_path_s(q, parts))[: jobs - len(running)]:
-            cmd = [sys.executable, "-m", "service.warmup", "--part", p]
+            cmd = [sys.executable, "-m", "service.cli.warmup", "--part", p]
             running[p] = subprocess.Popen(
                 cmd + (["--record"] if record else []), env=env, text=True,
                 stdout=subprocess.PIPE, stderr=err,
@@ -392,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
 
     ap = argparse.ArgumentParser(
-        prog="python -m service.warmup", description=__doc__.split("\n")[0]
+        prog="python -m service.cli.warmup", description=__doc__.split("\n")[0]
     )
     ap.add_argument("--table", action="store_true", help="print the compile seconds per kernel")
     ap.add_argument("--group", action="append", choices=tuple(GROUPS), default=None,

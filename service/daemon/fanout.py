@@ -7,11 +7,11 @@ Per actuator, counting its outputs 1, 2, ...:
   every output that carries an alarm event (one ``log_block`` per topic and block);
 * every alarm event is logged on ``.../events``;
 * est, res and health are published every ``publish_every``-th output, one put each (in
-  that order per output), as the protobuf rows of ``service.messages.output_layout`` (the
+  that order per output), as the protobuf rows of ``service.wire.messages.output_layout`` (the
   log row's fields, then ``t``; health also the commissioning of ``info``), made for all the
   published outputs of an update in one array operation (decision record 0018).
 
-With ``live`` (a ``service.foxglove_feed.FoxgloveFeed``), the logged est, residual, health
+With ``live`` (a ``service.edge.foxglove_feed.FoxgloveFeed``), the logged est, residual, health
 and events also go to the live Foxglove channels (the feed encodes only what a viewer
 subscribed to).
 
@@ -36,11 +36,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from service import messages as m
 from service.jsonutil import event_dict, flat
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, BankRows
 from service.prognostics import PeriodAccumulator, PeriodConfig
 from service.store import AlarmEvent, Period
+from service.wire import messages as m
 
 __all__ = ["FanOut", "Emitted"]
 
@@ -83,7 +83,7 @@ def _LEAVES(rows: BankRows) -> tuple[tuple[str, tuple[str, ...], np.ndarray], ..
 
 
 def _info_row(info: Mapping[str, Any]) -> tuple[int, int]:
-    """(commissioned, baseline_version) of the published health (``service.messages.
+    """(commissioned, baseline_version) of the published health (``service.wire.messages.
     output_layout``): -1 / 0 without a ``commissioned`` in ``info`` (no store)."""
     if "commissioned" not in info:
         return (m.COMMISSIONED_UNKNOWN, 0)
@@ -318,7 +318,7 @@ class FanOut:
         who: list[_Target],
     ) -> None:
         """Put est, res and health of rows ``sel`` (of the actuators ``who``) in their
-        protobuf form (``service.messages.encode_output_rows``: all the messages in a few
+        protobuf form (``service.wire.messages.encode_output_rows``: all the messages in a few
         array operations), one put per message."""
         info = np.array([tg.info_row for tg in who], np.int64).reshape(len(who), 2)
         buf, sizes = m.encode_output_rows(

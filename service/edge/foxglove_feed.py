@@ -31,14 +31,14 @@ from typing import Any
 
 import numpy as np
 
-from service import messages as m
-from service.foxglove_guard import GuardLimits, start_guarded
+from service.edge.foxglove_guard import GuardLimits, start_guarded
 from service.jsonutil import event_dict, flat
+from service.log.proclog import MEAS_LOG_FIELDS
 from service.log.rows import RowLayout
 from service.log.writer import encode_message, json_schema_for, row_schema
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS
 from service.monitor.outputs import AlarmEvent
-from service.proclog import MEAS_LOG_FIELDS
+from service.wire import messages as m
 
 __all__ = ["FoxgloveFeed", "LEAVES", "topic_schemas", "DEFAULT_QUEUE"]
 
@@ -90,7 +90,7 @@ class FoxgloveFeed:
 
     Use :meth:`add_actuator` once per actuator (advertises its channels), then
     :meth:`log_block` / :meth:`log` as on a ``McapLogger``; :meth:`status` for the status,
-    :meth:`close` at the end. ``host`` must already be checked (``service.listen``).
+    :meth:`close` at the end. ``host`` must already be checked (``service.edge.listen``).
     """
 
     def __init__(

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from service.httpguard import loopback_names
+from service.edge.httpguard import loopback_names
 
 __all__ = ["GuardLimits", "Guard", "FrameCheck", "ephemeral_tls", "start_guarded"]
 

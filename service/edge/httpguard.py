@@ -1,7 +1,7 @@
 """What every HTTP endpoint of servowatch does before its routes (docs/security.md, "HTTP"):
 a Host header that names the server (DNS rebinding), a bounded wait for a request's first
 byte and a bounded time for the whole request, however slowly it trickles in. The fleet page
-(``service.web.server``) and the daemon's metrics endpoint (``service.metrics``) share it."""
+(``service.edge.web.server``) and the daemon's metrics endpoint (``service.edge.metrics``) share it."""
 
 from __future__ import annotations
 

@@ -36,7 +36,7 @@ from prometheus_client.core import (
 from prometheus_client.exposition import choose_encoder
 from prometheus_client.registry import Collector, CollectorRegistry
 
-from service.httpguard import GuardedHandler, loopback_names
+from service.edge.httpguard import GuardedHandler, loopback_names
 
 __all__ = ["METRICS", "MetricsServer", "StatusCollector", "collect_status"]
 

@@ -18,7 +18,13 @@ import re
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["check_reply", "name_of_key", "believed", "MAX_REPLY_BYTES"]
+__all__ = [
+    "check_reply", "name_of_key", "believed", "query_status", "MAX_REPLY_BYTES",
+    "STATUS_SELECTOR",
+]  # fmt: skip
+
+#: every daemon's status queryable
+STATUS_SELECTOR = "monitor/*/*/status"
 
 #: a reply larger than this is refused unread [bytes] (a station's status is far smaller)
 MAX_REPLY_BYTES = 16 << 20
@@ -174,3 +180,16 @@ def believed(key: str, st: dict[str, Any]) -> bool:
         and "name_mismatch" not in st
         and ("error" not in st)
     )
+
+
+def query_status(session, timeout: float = 2.0, selector: str = STATUS_SELECTOR) -> dict:
+    """``{key: status dict}`` of every daemon that answered within ``timeout``; each reply
+    checked (``service.edge.status.check_reply``): a malformed one is a ``malformed``
+    marker, one whose name is not its key's is marked ``name_mismatch``."""
+    out: dict[str, dict] = {}
+    for reply in session.get(selector, timeout=timeout):
+        if reply.ok is None:
+            continue
+        key = str(reply.ok.key_expr)
+        out[key] = check_reply(key, reply.ok.payload.to_bytes())
+    return out

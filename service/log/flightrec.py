@@ -160,12 +160,12 @@ def write_flight_log(
 ) -> Path:
     """An acquisition-style log of one flight: ``record`` as ``servowatch.flight`` metadata,
     then the samples on ``/fleet/{aircraft}/{actuator}/meas`` (``t`` and each channel of
-    ``messages.CHANNELS`` given, one message per sample)."""
-    from service import messages as m
+    ``models.channels.SENSORS`` given, one message per sample)."""
+    from models.channels import SENSORS
     from service.log import McapLogger
 
     t = np.asarray(t, float)
-    names = ("t", *[k for k in m.CHANNELS if k in channels])
+    names = ("t", *[k for k in SENSORS if k in channels])
     vals = np.column_stack([t] + [np.asarray(channels[k], float) for k in names[1:]])
     topic = f"/fleet/{record.aircraft}/{record.actuator}/meas"
     with McapLogger(path, background_flush=False, flush_s=1e9) as lg:

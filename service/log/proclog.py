@@ -21,13 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from service import messages as m
+from models.channels import SENSORS
 
 __all__ = ["ProcessLogger", "MEAS_LOG_FIELDS"]
 
 #: fields of a logged measurement, in the key order of ``messages.decode_meas_dicts``: the
 #: channels (NaN: absent), seq and t
-MEAS_LOG_FIELDS: tuple[str, ...] = (*m.CHANNELS, "seq", "t")
+MEAS_LOG_FIELDS: tuple[str, ...] = (*SENSORS, "seq", "t")
 
 
 def _log_process_entry() -> None:
@@ -120,7 +120,7 @@ class ProcessLogger:
         a, b = socket.socketpair()
         arg = json.dumps({"fd": b.fileno(), "path": str(path), "kwargs": kwargs})
         self._proc = subprocess.Popen(
-            [sys.executable, "-c", "import service.proclog as p; p._log_process_entry()", arg],
+            [sys.executable, "-c", "import service.log.proclog as p; p._log_process_entry()", arg],
             pass_fds=(b.fileno(),),
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,

@@ -228,8 +228,8 @@ def run_monitor(
 
 def meas_channels(meas: dict[str, NDArray]) -> NDArray:
     """The measured arrays as ``MonitorBank.update_arrays`` takes them: (n, 7) in
-    ``service.messages.CHANNELS`` order, NaN where a channel is absent."""
-    from service.messages import CHANNELS
+    ``service.wire.messages.CHANNELS`` order, NaN where a channel is absent."""
+    from models.channels import SENSORS as CHANNELS
 
     ch = np.full((len(meas["t"]), len(CHANNELS)), np.nan)
     for j, c in enumerate(CHANNELS):

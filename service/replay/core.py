@@ -12,7 +12,7 @@ gives results that do not depend on the batch composition (``tests/test_monitor.
 replay reproduces the live daemon's estimates when it uses the same monitor configuration and
 baseline. Outputs go to a new MCAP log with the daemon's topic layout (``meas`` copied, ``est``,
 ``residual``, ``health``, ``events``) and, optionally, are republished on Zenoh and served
-live to Foxglove (``live``, a ``service.foxglove_feed.FoxgloveFeed``: the same channels as the
+live to Foxglove (``live``, a ``service.edge.foxglove_feed.FoxgloveFeed``: the same channels as the
 daemon's, best paced).
 
 With a health store (``store``), each actuator runs on its latest baseline from the store
@@ -45,9 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from service import messages as m
-from service.fanout import FanOut
-from service.flightrec import MAX_FLIGHT
+from service.daemon.fanout import FanOut
 from service.jsonutil import jsonable
 from service.log import (
     CorruptChunkWarning,
@@ -58,6 +56,7 @@ from service.log import (
     read_blocks,
     rotated_files,
 )
+from service.log.flightrec import MAX_FLIGHT
 from service.monitor import (
     EST_KEYS,
     HEALTH_KEYS,
@@ -72,7 +71,7 @@ from service.monitor import (
 )
 from service.prognostics import PeriodConfig
 from service.prognostics.life import FLIGHT_GAP_S, FlightStamper
-from service.replay_input import (
+from service.replay.input import (
     LogError,
     StoreWriteError,
     UnitClock,
@@ -82,6 +81,7 @@ from service.replay_input import (
     named,
     unit_source,
 )
+from service.wire import messages as m
 
 __all__ = [
     "ReplaySummary",
@@ -95,6 +95,8 @@ __all__ = [
     "legacy_log_source",
     "check_mcap",
     "LogError",
+    "StoreWriteError",
+    "log_actuators",
 ]
 
 log = logging.getLogger("servowatch.replay")
@@ -400,7 +402,7 @@ def replay(
     ``log_path`` is a file or, when no such file exists, the base name of a rotation set
     (``{stem}-NNNN-*.mcap`` beside it, replayed in order). A pipeline of three stages, each
     passed once: read (``_read_stage``) -> monitor (``_monitor_stage``) -> fan-out and write
-    (``_write_stage``, ``service.fanout.FanOut`` as in the daemon).
+    (``_write_stage``, ``service.daemon.fanout.FanOut`` as in the daemon).
 
     Parameters
     ----------
@@ -472,7 +474,7 @@ def replay(
         hs = store
     life = None
     if hs is not None:
-        from service.flightrec import flight_records
+        from service.log.flightrec import flight_records
 
         records = [r for f in files for r in flight_records(f)]
         life = (FlightStamper(None, flight_gap_s), records, flight, start_unix, flight_gap_s)
@@ -656,7 +658,7 @@ def log_order(paths: list[Path]) -> list[Path]:
     """``paths`` in life order: logs with a flight record by its calendar start, then by its
     flight number, then the rest by name (digits compared as numbers). The order a batch
     reads its logs in; the flights stored do not depend on it (``HealthStore.ingest_log``)."""
-    from service.flightrec import flight_records
+    from service.log.flightrec import flight_records
     from service.store.lifeorder import natural_key
 
     def key(p: Path) -> tuple:
@@ -694,11 +696,11 @@ def replay_many(
     ``jobs`` > 1 (a store path or URL only): the logs are split into groups that share no
     actuator (``_groups``), each group in its given order in one of ``jobs`` worker
     processes, so every actuator's logs still go in order through one monitor; the workers
-    die with the batch (``service.replay_jobs``)."""
+    die with the batch (``service.replay.jobs``)."""
     if "flight" in kw:
         raise ValueError("replay_many: flight numbers come from each log (or the gap rule)")
     if jobs > 1 and isinstance(store, str | Path) and len(logs) > 1:
-        from service.replay_jobs import replay_parallel
+        from service.replay.jobs import replay_parallel
 
         return replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw, replay_many,
                                ReplaySummary)  # fmt: skip

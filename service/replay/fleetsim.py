@@ -2,8 +2,8 @@
 
 The simulator makes what a user has, a folder of measurement logs, and takes them the user's
 way: one MCAP log per unit and flight (``/fleet/{aircraft}/{actuator}/meas`` with its
-``servowatch.flight`` record, ``service.flightrec``), the unit's baseline calibrated on its
-flight 0 (``service.calibration.calibrate``, as ``servowatch calibrate --log``), and every
+``servowatch.flight`` record, ``service.log.flightrec``), the unit's baseline calibrated on its
+flight 0 (``service.monitor.calibration.calibrate``, as ``servowatch calibrate --log``), and every
 log ingested by ``service.replay.replay_many`` (the code of ``servowatch replay``: monitor,
 periods, flights, calendar time, alarms). No period is written any other way.
 
@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.model_choice import DEFAULT_MODEL
+from service.monitor.model_choice import DEFAULT_MODEL
 from service.prognostics.metrics import LAMBDAS, score_unit
 
 __all__ = [
@@ -285,8 +285,8 @@ def _segment(unit: UnitTruth, flight: int, ratio: float, cfg: FleetSimConfig):
     """Measured signals of one flight's log (HF bench at the flight's leakage, load and
     command amplitude, with the scenario's sensor noise times the unit's factor)."""
     from models.scenario import Profile
-    from service.calibration import measured_run
-    from service.scenarios import load_scenario
+    from service.monitor.calibration import measured_run
+    from service.sim.scenarios import load_scenario
 
     base = load_scenario("healthy_noise")
     seed = int(np.random.SeedSequence([cfg.seed, unit.index, flight]).generate_state(1)[0])
@@ -316,9 +316,9 @@ def _segment(unit: UnitTruth, flight: int, ratio: float, cfg: FleetSimConfig):
 def simulate_unit(unit: UnitTruth, cfg: FleetSimConfig, log_dir: str) -> dict:
     """One unit's flights as MCAP logs, one per flight with its ``servowatch.flight`` record
     (stops after the flight in which it reaches its end of life), and its baseline calibrated
-    on flight 0 (``service.calibration.calibrate``, as ``servowatch calibrate --log``)."""
-    from service.calibration import calibrate
-    from service.flightrec import FlightRecord, write_flight_log
+    on flight 0 (``service.monitor.calibration.calibrate``, as ``servowatch calibrate --log``)."""
+    from service.log.flightrec import FlightRecord, write_flight_log
+    from service.monitor.calibration import calibrate
 
     w0 = time.perf_counter()
     thr = cfg.threshold()

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from service import messages as m
 from service.log import LogBlock
+from service.wire import messages as m
 
 __all__ = [
     "LogError",

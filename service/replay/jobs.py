@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from service.log import rotated_files
-from service.replay_input import LogError, StoreWriteError, check_mcap
+from service.replay.input import LogError, StoreWriteError, check_mcap
 
 __all__ = ["replay_parallel"]
 
@@ -17,7 +17,7 @@ __all__ = ["replay_parallel"]
 def _groups(logs: list[Path]) -> list[list[Path]]:
     """``logs`` split into groups that share no actuator (by the logs' meas topics), each in
     the given order (a file that is not a readable log: a group of its own)."""
-    from service.flightrec import log_units
+    from service.log.flightrec import log_units
 
     parent: dict[str, str] = {}
 

@@ -441,7 +441,7 @@ class VirtualActuator:
         router restart or a short disconnect lost (docs/messages.md, "Publishing").
         """
 
-        from service import messages as m
+        from service.wire import messages as m
 
         key = m.KEY_MEAS.format(aircraft=aircraft, actuator=actuator)
         fkey = m.KEY_FAULT.format(aircraft=aircraft, actuator=actuator)

@@ -13,7 +13,7 @@ from service.strictnum import bool_in_number
 
 __all__ = ["ScenarioError", "load_scenario", "SCENARIO_DIR", "resolve_scenario"]
 
-SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+SCENARIO_DIR = Path(__file__).resolve().parents[2] / "scenarios"
 
 
 class ScenarioError(ValueError):

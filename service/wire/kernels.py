@@ -1,4 +1,4 @@
-"""The compiled part of the wire decoder (``service.messages``) and of the intake's
+"""The compiled part of the wire decoder (``service.wire.messages``) and of the intake's
 acceptance checks (``service.daemon.intake``): kept apart so that importing the message types
 does not import numba.
 
@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from service.wire_format import BATCH_ACCEPTED as FAST
-from service.wire_format import BATCH_DECODED as DECODED
-from service.wire_format import BATCH_UNDECODED as UNDECODED
-from service.wire_format import CHANNELS, REC_BYTES
+from service.wire.format import BATCH_ACCEPTED as FAST
+from service.wire.format import BATCH_DECODED as DECODED
+from service.wire.format import BATCH_UNDECODED as UNDECODED
+from service.wire.format import CHANNELS, REC_BYTES
 
 __all__ = ["decode_message", "intake_batch"]
 

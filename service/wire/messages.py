@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from service.compat.pydantic import construct_unchecked
-from service.wire_format import (  # the wire's constants (measured channels: SI, wire order)
+from service.wire.format import (  # the wire's constants (measured channels: SI, wire order)
     BATCH_ACCEPTED,
     BATCH_DECODED,
     BATCH_UNDECODED,
@@ -394,12 +394,12 @@ class MeasArrays(NamedTuple):
 
 
 def _bin_arrays(payload: bytes) -> MeasArrays:
-    """``_bin_rows`` compiled (``service.wire_kernels.intake_batch`` on one message): same
+    """``_bin_rows`` compiled (``service.wire.kernels.intake_batch`` on one message): same
     checks; on a violation the scalar decoder raises the same error naming the first
     offending field."""
     n = _bin_count(payload)
     out = MeasArrays(np.empty(n, np.int64), np.empty(n), np.empty((n, len(CHANNELS))))
-    from service.wire_kernels import decode_message  # numba: loaded on the first decode
+    from service.wire.kernels import decode_message  # numba: loaded on the first decode
 
     if decode_message(np.frombuffer(payload, np.uint8), *out) != n:
         _bin_rows(payload)  # raises the error of the first offending field
@@ -419,11 +419,11 @@ def decode_into(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Decode binary messages into ``seq`` (N,), ``t`` (N,), ``values`` (N, 7) (N at least
     the samples of every message) with the compiled decoder: ``(start, count, status)`` per
-    message (``service.wire_kernels``: a message that does not decode has ``count`` 0 and
+    message (``service.wire.kernels``: a message that does not decode has ``count`` 0 and
     status ``BATCH_UNDECODED``, and the Python decoder says why), or None when a payload is not
     ``bytes``. ``slot``, ``state`` and ``clock`` (factor, tol_s, t_future): the intake's
     acceptance of the plain messages (``service.daemon.intake.Intake.take``)."""
-    from service import wire_kernels as wk  # numba: loaded on the first decode
+    from service.wire import kernels as wk  # numba: loaded on the first decode
 
     k = len(payloads)
     for p in payloads:

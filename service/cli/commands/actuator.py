@@ -9,14 +9,14 @@ import sys
 import threading
 import time
 
-from service.cliutil import emit_json, fail
+from service.cli.util import emit_json, fail
 
 NAME = "actuator"
 HELP = "Run a virtual actuator (HF bench paced by the wall clock) publishing on Zenoh."
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.cliargs import add_zenoh_arguments
+    from service.cli.args import add_zenoh_arguments
 
     p.add_argument("--scenario", default="demo", help="scenario TOML file or bundled name")
     p.add_argument("--aircraft", default="AC001")
@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--format",
         choices=("bin", "json"),
         default=None,
-        help="wire format (default: service.messages.DEFAULT_FORMAT)",
+        help="wire format (default: service.wire.messages.DEFAULT_FORMAT)",
     )
     p.add_argument(
         "--duration",
@@ -50,11 +50,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
-    from service import messages as msgs
-    from service.actuator import VirtualActuator
-    from service.cliargs import service_config_from_args
-    from service.config import ConfigError, SessionError
-    from service.scenarios import ScenarioError, load_scenario
+    from service.cli.args import open_zenoh_session, zenoh_config
+    from service.sim.actuator import VirtualActuator
+    from service.sim.scenarios import ScenarioError, load_scenario
+    from service.wire import messages as msgs
 
     logging.basicConfig(
         level=logging.INFO,
@@ -64,14 +63,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         msgs.key(msgs.KEY_MEAS, aircraft=args.aircraft, actuator=args.actuator)
         scenario = load_scenario(args.scenario)
-        cfg = service_config_from_args(args)
-    except (ScenarioError, ConfigError, msgs.MessageError, ValueError) as e:
+    except (ScenarioError, msgs.MessageError, ValueError) as e:
         return fail(str(e))
+    cfg = zenoh_config(args)
     if not args.rate > 0 or args.samples_per_msg < 1:
         return fail("--rate must be > 0 and --samples-per-msg >= 1")
     if not 0 < args.cache_s <= 3600:
         return fail(f"--cache-s: must be in (0, 3600] s, got {args.cache_s}")
-    from service.warmup import ensure
+    from service.cli.warmup import ensure
 
     ensure("models")  # before publishing: a first run compiles (and says so)
     va = VirtualActuator(scenario, rate_hz=args.rate, t_origin=time.time(), seed=args.seed)
@@ -82,11 +81,7 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    try:
-        session = cfg.zenoh.open_session()
-    except SessionError as e:
-        return fail(str(e), e.exit_code)
-    with session:
+    with open_zenoh_session(cfg) as session:
         logging.getLogger("servowatch.actuator").info(
             "actuator %s/%s publishing %s at %g Hz",
             args.aircraft,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 
-from service.cliutil import emit_json, fail
+from service.cli.util import emit_json, fail
 from service.store import StoreError, check_actuator
 from service.store.cli import add_store_argument, open_store_arg
 

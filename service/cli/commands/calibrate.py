@@ -2,7 +2,7 @@
 
 The healthy run is a scenario (HF bench + its sensor noise) or a recorded MCAP log whose
 topic ending in ``/meas`` carries t, x_cmd, i, x_s, x_j, p1, p2 (as written by
-``servowatch estimate --out``). The method is in ``service.calibration``.
+``servowatch estimate --out``). The method is in ``service.monitor.calibration``.
 
 ``--out`` writes the baseline JSON; ``--actuator AC/ACT`` records it as that actuator's next
 baseline version in the health store (``--store``, default servowatch-data/health.sqlite).
@@ -18,10 +18,10 @@ import time
 
 import numpy as np
 
-from service.cliutil import check_outputs, emit_json, fail, writing
-from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
+from service.cli.util import check_outputs, emit_json, fail, writing
+from service.monitor.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
-from service.scenarios import ScenarioError, load_scenario, resolve_scenario
+from service.sim.scenarios import ScenarioError, load_scenario, resolve_scenario
 from service.store import StoreError, check_actuator
 from service.store.cli import add_store_argument, open_store_arg, store_path_arg
 
@@ -54,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def log_actuators(path: str) -> list[str]:
     """``{aircraft}/{actuator}`` of each ``/fleet/{aircraft}/{actuator}/meas`` topic of a log."""
-    from service.flightrec import log_units
+    from service.log.flightrec import log_units
 
     return log_units(path)
 
@@ -129,7 +129,7 @@ def meas_from_log(path: str, actuator: str | None = None) -> dict[str, np.ndarra
 
 
 def run(args: argparse.Namespace) -> int:
-    from service.warmup import ensure, monitor_group
+    from service.cli.warmup import ensure, monitor_group
 
     if args.model not in MONITOR_MODELS:
         return fail(f"unknown model {args.model!r}; expected one of {', '.join(MONITOR_MODELS)}")
@@ -178,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, store) -> int:
-    from service.calibration import calibrate, measured_run
+    from service.monitor.calibration import calibrate, measured_run
 
     prog = Progress("calibrate")
     t0 = time.perf_counter()

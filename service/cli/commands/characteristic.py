@@ -9,7 +9,7 @@ import numpy as np
 
 from models.params import EHAParams, simplified_params
 from models.valve_laws import LAW_NAMES, p12
-from service.cliutil import check_outputs, emit_json, finite_float, float_list, writing
+from service.cli.util import check_outputs, emit_json, finite_float, float_list, writing
 
 NAME = "characteristic"
 HELP = "P12-x_S valve characteristic of one model, parameterised by the jack flow Q_J"
@@ -54,12 +54,12 @@ def run(args: argparse.Namespace) -> int:
     base = EHAParams()
     params = base if args.c_lk is None else base.with_overrides(c_lk=args.c_lk)
     if args.c_lk is not None and args.c_lk < 0:
-        from service.cliutil import fail
+        from service.cli.util import fail
 
         return fail("--c-lk must be >= 0")
     p_sr = base.p_sr if args.p_sr is None else args.p_sr
     if p_sr <= 0:
-        from service.cliutil import fail
+        from service.cli.util import fail
 
         return fail("--p-sr must be > 0 Pa")
     x_s = np.asarray(

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cliutil import check_outputs, emit_json, fail, writing
+from service.cli.util import check_outputs, emit_json, fail, writing
 from service.progress import Progress
-from service.scenarios import SCENARIO_DIR, ScenarioError, load_scenario, resolve_scenario
+from service.sim.scenarios import SCENARIO_DIR, ScenarioError, load_scenario, resolve_scenario
 
 NAME = "compare"
 HELP = "run HF and every simplified model on a scenario or a suite: NRMSE tables, costs, plot"
@@ -54,7 +54,7 @@ def compare(scenario, progress=None) -> tuple[dict, dict]:
     """
     from models.eha import simulate
     from models.metrics import nrmse_pct
-    from service.commands.simulate import warm_up
+    from service.cli.commands.simulate import warm_up
 
     names = ("HF", *SIMPLIFIED)
     for name in names:
@@ -154,7 +154,7 @@ def _run_suite(args: argparse.Namespace) -> int:
     files = suite_files(args.suite)
     if not files:
         return fail(f"{args.suite}: no scenario files (*.toml)")
-    from service.warmup import ensure
+    from service.cli.warmup import ensure
 
     ensure("models", "valves")
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True))
@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
     except ScenarioError as e:
         return fail(str(e))
     check_outputs([("--png", args.png)], [("--scenario", resolve_scenario(args.scenario))])
-    from service.warmup import ensure
+    from service.cli.warmup import ensure
 
     ensure("models", "valves")
     prog = Progress("compare")

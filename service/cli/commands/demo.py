@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from service.cliutil import EXIT_IO, check_outputs, emit_json, fail, finite_float
+from service.cli.util import EXIT_IO, check_outputs, emit_json, fail, finite_float
 
 NAME = "demo"
 HELP = "Self-contained live demo: router, virtual actuator with a leak, daemon, MCAP, plot."
@@ -29,7 +29,7 @@ AIRCRAFT = "AC001"
 ACTUATOR = "elevator_L"
 # ``servowatch actuator`` without the dispatcher (which imports every command module)
 _ACTUATOR_MAIN = (
-    "import argparse, sys; from service.commands import actuator as a; "
+    "import argparse, sys; from service.cli.commands import actuator as a; "
     "p = argparse.ArgumentParser(); a.add_arguments(p); sys.exit(a.run(p.parse_args()))"
 )
 
@@ -236,11 +236,11 @@ _INJECT_TRIES = 5
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
-    from service import messages as msgs
-    from service.commands.inject import send_fault
+    from service.cli.commands.inject import send_fault
     from service.config import FoxgloveSettings, ServiceConfig, ZenohSettings
     from service.daemon import Daemon
-    from service.scenarios import ScenarioError, resolve_scenario
+    from service.sim.scenarios import ScenarioError, resolve_scenario
+    from service.wire import messages as msgs
     from service.zenoh_util import free_port, loopback, make_config
 
     if not (args.duration > 0 and 0 <= args.inject_at < args.duration and args.rate > 0):
@@ -258,7 +258,7 @@ def run(args: argparse.Namespace) -> int:
         fx = None if args.foxglove is None else FoxgloveSettings(listen=args.foxglove)
     except ValueError as e:
         return fail(f"--foxglove: {e}")
-    from service.warmup import ensure
+    from service.cli.warmup import ensure
 
     ensure("models", "monitor", "log")  # a first run compiles here, and says so
     out = Path(args.out)

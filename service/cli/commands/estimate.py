@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
-from service.cliutil import check_outputs, emit_json, fail, writing
-from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
+from service.cli.util import check_outputs, emit_json, fail, writing
+from service.monitor.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
-from service.scenarios import ScenarioError, load_scenario, resolve_scenario
+from service.sim.scenarios import ScenarioError, load_scenario, resolve_scenario
 
 NAME = "estimate"
 HELP = "run the HF bench on a scenario and the degradation monitor (UKF) on its signals"
@@ -77,8 +77,8 @@ def evaluate(scenario, config=None, baseline=None, *, progress=None, keep_output
 
     With ``keep_outputs`` the dict also holds ``_sim``, ``_meas`` and ``_outs`` (not JSON).
     """
-    from service.calibration import measured_run
     from service.monitor import Baseline, Monitor, MonitorConfig
+    from service.monitor.calibration import measured_run
 
     config = config or MonitorConfig()
     baseline = baseline or Baseline.default(config.model)
@@ -289,8 +289,8 @@ def run(args: argparse.Namespace) -> int:
         [("--png", args.png), ("--out", args.out)],
         [("--scenario", resolve_scenario(args.scenario)), ("--baseline", args.baseline)],
     )
+    from service.cli.warmup import ensure, monitor_group
     from service.monitor import Baseline, BaselineModelError, MonitorConfig, check_baseline_model
-    from service.warmup import ensure, monitor_group
 
     if args.model not in MONITOR_MODELS:
         return fail(f"unknown model {args.model!r}; expected one of {', '.join(MONITOR_MODELS)}")

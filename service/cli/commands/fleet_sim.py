@@ -1,7 +1,7 @@
 """``servowatch fleet-sim``: a simulated fleet with hidden wear laws as MCAP logs (HF bench),
 ingested by the replay's code into the health store; ``--evaluate`` scores the RUL
 predictions against the truth with Saxena et al.'s PHM metrics, interval coverage, Kendall's
-tau and the healthy units' crossing probability (``service.prognostics.fleetsim``,
+tau and the healthy units' crossing probability (``service.replay.fleetsim``,
 docs/prognostics.md).
 """
 
@@ -12,8 +12,8 @@ import json
 import time
 from pathlib import Path
 
-from service.cliutil import check_outputs, emit_json, fail, finite_float, to_jsonable, writing
-from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
+from service.cli.util import check_outputs, emit_json, fail, finite_float, to_jsonable, writing
+from service.monitor.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 from service.progress import Progress
 from service.store import StoreError
 from service.store.cli import add_store_argument, open_store_arg, store_path_arg
@@ -54,9 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from service.prognostics.fleetsim import FleetSimConfig, evaluate, run_fleet_sim
+    from service.cli.warmup import ensure
     from service.prognostics.rul import RulConfig, compute_rul
-    from service.warmup import ensure
+    from service.replay.fleetsim import FleetSimConfig, evaluate, run_fleet_sim
 
     if args.score_only:
         return _score_only(args)
@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _score_only(args: argparse.Namespace) -> int:
     """``--score-only``: ``fleetsim.evaluate_store`` on the stored histories and the truth."""
-    from service.prognostics.fleetsim import FleetSimConfig, evaluate_store
+    from service.replay.fleetsim import FleetSimConfig, evaluate_store
 
     if args.eval_every < 1 or args.horizon_h <= 0:
         return fail("need --eval-every >= 1, --horizon-h > 0")

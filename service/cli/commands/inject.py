@@ -5,14 +5,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from service.cliutil import emit_json, fail, finite_float
+from service.cli.util import emit_json, fail, finite_float
 
 NAME = "inject"
 HELP = "Inject a fault into a virtual actuator (leak, supply, sensor_bias, dropout, clear)."
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.cliargs import add_zenoh_arguments
+    from service.cli.args import add_zenoh_arguments
 
     p.add_argument("--aircraft", default="AC001")
     p.add_argument("--actuator", default="elevator_L")
@@ -39,7 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def is_virtual(session, aircraft: str, actuator: str, timeout: float = 3.0) -> bool:
     """True if a virtual actuator holds its ``fleet/{ac}/{act}/@virtual`` liveliness token."""
-    from service import messages as msgs
+    from service.wire import messages as msgs
 
     vkey = msgs.key(msgs.KEY_VIRTUAL, aircraft=aircraft, actuator=actuator)
     return any(r.ok is not None for r in session.liveliness().get(vkey, timeout=timeout))
@@ -52,7 +52,7 @@ def send_fault(session, aircraft: str, actuator: str, command, timeout: float = 
     not visible (a real aircraft's acquisition, an absent actuator, or an identity the router
     does not let see it) gets a refusal without any command being sent.
     """
-    from service import messages as msgs
+    from service.wire import messages as msgs
 
     key = msgs.key(msgs.KEY_FAULT, aircraft=aircraft, actuator=actuator)
     if not is_virtual(session, aircraft, actuator, timeout):
@@ -72,9 +72,8 @@ def send_fault(session, aircraft: str, actuator: str, command, timeout: float = 
 def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
-    from service import messages as msgs
-    from service.cliargs import service_config_from_args
-    from service.config import ConfigError, SessionError
+    from service.cli.args import open_zenoh_session, zenoh_config
+    from service.wire import messages as msgs
 
     try:
         cmd = msgs.FaultCommand(
@@ -85,17 +84,12 @@ def run(args: argparse.Namespace) -> int:
             duration_s=args.duration_s,
         )
         msgs.key(msgs.KEY_FAULT, aircraft=args.aircraft, actuator=args.actuator)
-        cfg = service_config_from_args(args)
     except ValidationError as e:
         err = e.errors()[0]
         return fail(f"invalid fault command: {'.'.join(map(str, err['loc']))}: {err['msg']}")
-    except (ConfigError, msgs.MessageError, ValueError) as e:
+    except (msgs.MessageError, ValueError) as e:
         return fail(str(e))
-    try:
-        session = cfg.zenoh.open_session()
-    except SessionError as e:
-        return fail(str(e), e.exit_code)
-    with session:
+    with open_zenoh_session(zenoh_config(args)) as session:
         ack = send_fault(session, args.aircraft, args.actuator, cmd, args.timeout)
     if ack is None:
         return fail(

@@ -10,7 +10,7 @@ import threading
 import time
 from typing import Any
 
-from service.cliutil import emit_json, fail
+from service.cli.util import emit_json, fail
 
 NAME = "listen"
 HELP = (
@@ -20,7 +20,7 @@ HELP = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.cliargs import add_zenoh_arguments
+    from service.cli.args import add_zenoh_arguments
 
     p.add_argument(
         "--unit", default="*/*", help="AIRCRAFT/ACTUATOR to listen to (Zenoh wildcards: */*)"
@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 class OutputListener:
-    """Decodes published outputs (``service.messages.decode_output``), counting them per
+    """Decodes published outputs (``service.wire.messages.decode_output``), counting them per
     key and the malformed ones (a bad message is counted and logged on stderr, never an
     exception in Zenoh's thread); ``echo`` prints a line ``KEY {json}`` per output."""
 
@@ -58,7 +58,12 @@ class OutputListener:
         self._lock = threading.Lock()
 
     def on_sample(self, key: str, payload: bytes, encoding: str | None) -> None:
-        from service.messages import OUTPUT_LEAVES, MessageError, decode_output, parse_fleet_key
+        from service.wire.messages import (
+            OUTPUT_LEAVES,
+            MessageError,
+            decode_output,
+            parse_fleet_key,
+        )
 
         try:
             leaf = parse_fleet_key(key)[2]
@@ -87,9 +92,8 @@ class OutputListener:
 
 
 def run(args: argparse.Namespace) -> int:
-    from service.cliargs import service_config_from_args
-    from service.config import ConfigError, SessionError
-    from service.messages import output_schema
+    from service.cli.args import open_zenoh_session, zenoh_config
+    from service.wire.messages import output_schema
 
     if args.write_schema:
         try:
@@ -100,17 +104,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.count < 0 or not (args.duration >= 0 and math.isfinite(args.duration)):
         return fail("--count and --duration must be >= 0")
-    try:
-        unit = args.unit.strip("/")
-        if unit.count("/") != 1:
-            raise ValueError(f"--unit: expected AIRCRAFT/ACTUATOR, got {args.unit!r}")
-        cfg = service_config_from_args(args)
-    except (ConfigError, ValueError) as e:
-        return fail(str(e))
-    try:
-        session = cfg.zenoh.open_session()
-    except SessionError as e:
-        return fail(str(e), e.exit_code)
+    unit = args.unit.strip("/")
+    if unit.count("/") != 1:
+        return fail(f"--unit: expected AIRCRAFT/ACTUATOR, got {args.unit!r}")
+    session = open_zenoh_session(zenoh_config(args))
     lis = OutputListener(echo=not args.json, count=args.count)
 
     def cb(s) -> None:

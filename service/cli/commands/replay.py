@@ -12,7 +12,7 @@ import argparse
 import logging
 import sys
 
-from service.cliutil import emit_json, fail
+from service.cli.util import emit_json, fail
 
 NAME = "replay"
 HELP = "replay an MCAP log through the monitor (as fast as possible or paced)"
@@ -72,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--log-every", type=int, default=1, metavar="N",
         help="with --out: log est/residual/health every N outputs (default 1 = all)",
     )  # fmt: skip
-    from service.cliargs import add_foxglove_arguments
+    from service.cli.args import add_foxglove_arguments
 
     add_foxglove_arguments(p, what="the replay, paced by --speed,", every=10, every_help="10")
     p.add_argument(
@@ -149,7 +149,7 @@ def run(args: argparse.Namespace) -> int:
             logs = expand_logs(args.log)
         except FileNotFoundError as e:
             return fail(str(e))
-    from service.flightrec import MAX_FLIGHT
+    from service.log.flightrec import MAX_FLIGHT
 
     if args.flight is not None and (not 0 <= args.flight <= MAX_FLIGHT or len(logs) > 1):
         return fail(f"--flight: an integer in 0..{MAX_FLIGHT}, for one log only")
@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = load_config(args.config) if args.config else None
     except ConfigError as e:
         return fail(str(e))
-    from service.warmup import ensure, monitor_group
+    from service.cli.warmup import ensure, monitor_group
 
     ensure(monitor_group(cfg.monitor.model if cfg is not None else "C5"), "log")
     monitor_config = cfg.monitor if cfg is not None else None
@@ -190,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
     if cfg is not None:
         pr = cfg.prognostics
         pc = PeriodConfig(silence_s=pr.period_silence_s, window_s=pr.period_window_s)
-    from service.cliutil import check_outputs
+    from service.cli.util import check_outputs
 
     inputs = [("LOG", f) for lg in logs for f in (rotated_files(lg) or [lg])]
     inputs += [("--config", args.config), ("baseline", cfg.baseline if cfg is not None else None)]
@@ -216,8 +216,8 @@ def run(args: argparse.Namespace) -> int:
         args.speed = 1.0 if args.foxglove is not None else None
     live = None
     if args.foxglove is not None:
-        from service.foxglove_feed import FoxgloveFeed
-        from service.listen import check_listen
+        from service.edge.foxglove_feed import FoxgloveFeed
+        from service.edge.listen import check_listen
 
         try:
             host, port = check_listen(
@@ -244,7 +244,8 @@ def _run(args, logs, cfg, monitor_config, baseline, store, pc, gap, live) -> int
     if live is not None and args.foxglove_wait > 0:
         import time
 
-        from service.replay import log_actuators, rotated_files
+        from service.log import rotated_files
+        from service.replay import log_actuators
 
         for ac, act in log_actuators(rotated_files(logs[0])):
             live.add_actuator(ac, act)

@@ -16,7 +16,7 @@ import json
 import signal
 import threading
 
-from service.cliutil import fail
+from service.cli.util import fail
 
 NAME = "router"
 HELP = "run a Zenoh router (Python session in router mode) until SIGINT/SIGTERM"
@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --allow-remote: accept a non-loopback listen endpoint without TLS (tcp/...; "
         "unauthenticated, logged as a warning)",
     )  # fmt: skip
-    from service.cliargs import add_tls_arguments
+    from service.cli.args import add_tls_arguments
 
     add_tls_arguments(p)
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from service.cliutil import check_outputs, emit_json, fail, finite_float, writing
+from service.cli.util import check_outputs, emit_json, fail, finite_float, writing
 from service.store import StoreError
 from service.store.cli import add_store_argument, open_store_arg, store_path_arg
 

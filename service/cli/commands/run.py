@@ -10,7 +10,7 @@ import sys
 import threading
 import time
 
-from service.cliutil import check_outputs, emit_json, fail
+from service.cli.util import check_outputs, emit_json, fail
 
 NAME = "run"
 HELP = "Run the monitoring daemon: subscribe, monitor each actuator, publish, log to MCAP."
@@ -64,7 +64,7 @@ def setup_logging(level: str, structured: bool) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.cliargs import add_zenoh_arguments
+    from service.cli.args import add_zenoh_arguments
 
     add_zenoh_arguments(p)
     p.add_argument("--log", default=None, help="MCAP file to write (default: log_dir/...)")
@@ -82,7 +82,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="health store (SQLite path or postgresql:// URL; 'off': none); default: the "
         "config's store, else $SERVOWATCH_STORE or servowatch-data/health.sqlite",
     )  # fmt: skip
-    from service.cliargs import add_foxglove_arguments, add_serve_arguments
+    from service.cli.args import add_foxglove_arguments, add_serve_arguments
 
     add_foxglove_arguments(p, what="the channels (overrides [foxglove] listen)", every=None,
                            every_help="[foxglove] every, 10")  # fmt: skip
@@ -101,7 +101,7 @@ def _serve_override(
     not given); ``refusal``: the ConfigError's message when neither ``--name`` nor the
     section is there to apply them to."""
     from service.config import ConfigError
-    from service.listen import check_listen
+    from service.edge.listen import check_listen
 
     fields = {k: v for k, v in fields.items() if v is not None}
     if listen is None and not allow_remote and not fields:
@@ -162,16 +162,14 @@ def _check_identity(cfg) -> None:
 
 def run(args: argparse.Namespace) -> int:
 
-    from service.cliargs import service_config_from_args
-    from service.config import ConfigError, SessionError
+    from service.cli.args import open_zenoh_session, zenoh_config
     from service.daemon import EXIT_LOG_FAILURE, Daemon
 
-    try:
-        cfg = service_config_from_args(args)
+    def overrides(cfg):
         cfg = foxglove_override(cfg, args.foxglove, args.foxglove_allow_remote, args.foxglove_every)
-        cfg = metrics_override(cfg, args.metrics, args.metrics_allow_remote)
-    except (ConfigError, ValueError) as e:
-        return fail(str(e))
+        return metrics_override(cfg, args.metrics, args.metrics_allow_remote)
+
+    cfg = zenoh_config(args, overrides)
     from service.store import default_store
 
     store = args.store or cfg.store or default_store()
@@ -184,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = cfg.model_copy(update={"rotate_bytes": None, "rotate_s": None})
     setup_logging(cfg.log_level, not args.plain_logs)
     _check_identity(cfg)
-    from service.warmup import ensure, monitor_group
+    from service.cli.warmup import ensure, monitor_group
 
     ensure(
         monitor_group(cfg.monitor.model), "log"
@@ -197,10 +195,7 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    try:
-        session = cfg.zenoh.open_session()
-    except SessionError as e:
-        return fail(str(e), e.exit_code)
+    session = open_zenoh_session(cfg)
     try:
         daemon = Daemon(cfg, log_path=args.log)
     except Exception as e:  # bad baseline, unwritable log directory, ...

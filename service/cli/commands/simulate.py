@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.cliutil import check_outputs, emit_json, fail, writing
+from service.cli.util import check_outputs, emit_json, fail, writing
 from service.progress import Progress
-from service.scenarios import ScenarioError, load_scenario, resolve_scenario
+from service.sim.scenarios import ScenarioError, load_scenario, resolve_scenario
 
 NAME = "simulate"
 HELP = "run the EHA bench on a scenario with one valve model (HF, A, B, C1, C3, C5, WH)"
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         [("--scenario", resolve_scenario(args.scenario))],
     )
     from models.eha import simulate
-    from service.warmup import ensure
+    from service.cli.warmup import ensure
 
     ensure("models" if args.valve == "HF" else "valves")
     warm_up(scenario, args.valve)

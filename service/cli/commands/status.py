@@ -5,35 +5,20 @@ from __future__ import annotations
 import argparse
 import math
 
-from service.cliutil import emit_json, fail
+from service.cli.util import emit_json
+from service.edge.fleet import rul_interval
+from service.edge.status import query_status
 
 NAME = "status"
 HELP = "Query the status of every monitoring daemon reachable on Zenoh."
 
-STATUS_SELECTOR = "monitor/*/*/status"
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.cliargs import add_zenoh_arguments
+    from service.cli.args import add_zenoh_arguments
 
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--timeout", type=float, default=2.0, help="reply timeout [s]")
     add_zenoh_arguments(p)
-
-
-def query_status(session, timeout: float = 2.0, selector: str = STATUS_SELECTOR) -> dict:
-    """``{key: status dict}`` of every daemon that answered within ``timeout``; each reply
-    checked (``service.status_reply.check_reply``): a malformed one is a ``malformed``
-    marker, one whose name is not its key's is marked ``name_mismatch``."""
-    from service.status_reply import check_reply
-
-    out: dict[str, dict] = {}
-    for reply in session.get(selector, timeout=timeout):
-        if reply.ok is None:
-            continue
-        key = str(reply.ok.key_expr)
-        out[key] = check_reply(key, reply.ok.payload.to_bytes())
-    return out
 
 
 def _fmt(v, spec: str = ".3g") -> str:
@@ -57,8 +42,6 @@ def format_rul(rul: dict | None) -> str:
     that counts flights: flights, its 90 % interval and calendar days where known), ``RUL
     120 h [30-400]`` (operating hours), ``RUL - (insufficient history)``, ``RUL none
     predicted``, or ``RUL -`` without one."""
-    from service.commands.fleet import rul_interval
-
     iv = rul_interval(rul if isinstance(rul, dict) else None)
     if iv is None:
         return "RUL -"
@@ -170,18 +153,9 @@ def format_status(daemons: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
 
-    from service.cliargs import service_config_from_args
-    from service.config import ConfigError, SessionError
+    from service.cli.args import open_zenoh_session, zenoh_config
 
-    try:
-        cfg = service_config_from_args(args)
-    except (ConfigError, ValueError) as e:
-        return fail(str(e))
-    try:
-        session = cfg.zenoh.open_session()
-    except SessionError as e:
-        return fail(str(e), e.exit_code)
-    with session:
+    with open_zenoh_session(zenoh_config(args)) as session:
         daemons = query_status(session, args.timeout)
     if args.json:
         bad = sum(1 for v in daemons.values() if "malformed" in v or "name_mismatch" in v)

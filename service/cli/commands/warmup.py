@@ -10,14 +10,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from service.cliutil import emit_json
+from service.cli.util import emit_json
 
 NAME = "warmup"
 HELP = "compile the numba kernels once (a first run: about a minute on 2 cores; then seconds)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from service.warmup import DEFAULT_GROUPS, GROUPS
+    from service.cli.warmup import DEFAULT_GROUPS, GROUPS
 
     p.add_argument(
         "--group", action="append", choices=tuple(GROUPS), default=None,
@@ -35,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from service.warmup import DEFAULT_GROUPS, GROUPS, ensure, print_table, table
+    from service.cli.warmup import DEFAULT_GROUPS, GROUPS, ensure, print_table, table
 
     groups = tuple(GROUPS) if args.all else tuple(args.group or DEFAULT_GROUPS)
     if args.table:

@@ -19,7 +19,7 @@ import signal
 import sys
 import threading
 
-from service.cliutil import check_outputs, fail, writing
+from service.cli.util import check_outputs, fail, writing
 
 NAME = "web"
 HELP = "serve the fleet health page (ranked RUL, trends, alarms) over HTTP, read only"
@@ -54,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="service TOML whose [zenoh] table opens the live-status session "
         "(e.g. deploy/secure/dashboard.toml)",
     )  # fmt: skip
-    from service.cliargs import add_tls_arguments
+    from service.cli.args import add_tls_arguments
 
     add_tls_arguments(p)
     p.add_argument(
@@ -72,9 +72,9 @@ def _open_live(args: argparse.Namespace, refresh_s: float):
     """A started ``LiveStatus`` whose session comes from ``--connect``/``--config``/
     ``--tls-*``, or the exit code 2 with the error printed when those do not parse. The
     session itself is opened (and retried) by the status thread."""
-    from service.cliargs import service_config_from_args
+    from service.cli.args import service_config_from_args
     from service.config import ConfigError
-    from service.web.live import LiveStatus
+    from service.edge.web.live import LiveStatus
 
     zargs = argparse.Namespace(**{**vars(args), "listen": None, "mode": None})  # HTTP --listen
     try:
@@ -88,7 +88,7 @@ def _snapshot(srv, url: str, out: str, unit: str | None) -> int:
     """Serve in a thread, take the picture, stop."""
     from urllib.parse import quote
 
-    from service.web.browser import BrowserError, screenshot
+    from service.edge.web.browser import BrowserError, screenshot
 
     worker = threading.Thread(target=srv.serve_forever, kwargs={"poll_interval": 0.1}, daemon=True)
     worker.start()
@@ -106,9 +106,9 @@ def _snapshot(srv, url: str, out: str, unit: str | None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from service.edge.web.server import check_listen, make_server
     from service.store import StoreError, default_store
     from service.store.cli import open_store_arg
-    from service.web.server import check_listen, make_server
 
     if not 0 <= args.refresh <= 3600:
         return fail(f"--refresh: expected 0-3600 s, got {args.refresh:g}")

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from service.commands.status import STATUS_SELECTOR, query_status
+from service.edge.status import STATUS_SELECTOR, query_status
 
 __all__ = ["LiveStatus", "slim"]
 
@@ -20,7 +20,7 @@ def slim(daemons: dict[str, dict[str, Any]], queried_s: float) -> dict[str, Any]
     (station, shard, state, counters, latency p99 [ms], silent units, raised alarms) and per
     unit ``AIRCRAFT/ACTUATOR`` the daemon that monitors it with that unit's samples, silence,
     bad/dropped/missed counts and raised alarm kinds."""
-    from service.status_reply import believed, name_of_key
+    from service.edge.status import believed, name_of_key
 
     out_d: list[dict[str, Any]] = []
     units: dict[str, dict[str, Any]] = {}

@@ -27,11 +27,11 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-from service.httpguard import REQUEST_S, GuardedHandler, loopback_names
+from service.edge.httpguard import REQUEST_S, GuardedHandler, loopback_names
+from service.edge.listen import check_listen
+from service.edge.web.view import UnknownActuatorError, fleet_view, unit_view
 from service.jsonutil import jsonable
-from service.listen import check_listen
 from service.store import StoreError, open_store
-from service.web.view import UnknownActuatorError, fleet_view, unit_view
 
 __all__ = ["STATIC", "check_listen", "make_server", "SECURITY_HEADERS"]
 

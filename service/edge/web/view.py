@@ -1,5 +1,5 @@
 """The JSON the fleet page reads, from the health store: the ranked fleet with a status per
-unit, and one unit's indicator history. No HTTP here (``service.web.server`` serves it)."""
+unit, and one unit's indicator history. No HTTP here (``service.edge.web.server`` serves it)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import time
 from typing import Any
 
-from service.commands.fleet import finite_or_none as _finite
-from service.commands.fleet import rank_fleet
+from service.edge.fleet import finite_or_none as _finite
+from service.edge.fleet import rank_fleet
 from service.jsonutil import jsonable
 from service.prognostics.rul import history_of
 from service.store import HealthStore
