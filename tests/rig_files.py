@@ -28,8 +28,8 @@ def run(kind: str, seconds: float = 4.0, ratio: float = 3.0) -> dict[str, np.nda
     """``healthy`` (healthy_noise) or ``leak`` (C_Lk ``ratio`` x nominal from the start, its
     own sensor seed): the measured signals in SI, ``t`` from 0."""
     from models.scenario import Profile
-    from service.calibration import measured_run
-    from service.scenarios import load_scenario
+    from service.monitor.calibration import measured_run
+    from service.sim.scenarios import load_scenario
 
     sc = load_scenario("healthy_noise")
     upd: dict = {"duration_s": seconds}

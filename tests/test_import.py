@@ -91,7 +91,7 @@ def test_same_input_same_bytes_and_a_second_import_writes_nothing(tmp_path, heal
 
 
 def test_flight_record_and_replay_identity(tmp_path, healthy, capsys):
-    from service.flightrec import flight_records
+    from service.log.flightrec import flight_records
 
     f, mp = _write(tmp_path, "mdf", healthy)
     out = tmp_path / "run.mcap"
@@ -279,7 +279,7 @@ def test_absolute_timestamps_in_a_csv(tmp_path, healthy, capsys):
     assert main(["import", str(f), "--map", str(mp), "--out", str(out), "--flight", "3"]) == 0
     _, names, v = _log(out)
     np.testing.assert_allclose(v[:, -1], rf.START.timestamp() + np.arange(n) / 1e3, atol=1e-6)
-    from service.flightrec import flight_records
+    from service.log.flightrec import flight_records
 
     (rec,) = flight_records(out)
     assert (rec.flight, rec.start_unix) == (3, rf.START.timestamp())

@@ -28,12 +28,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from service import messages as m
 from service.importer.errors import InputError
 from service.importer.mapping import ChannelMap, map_digest, si_factor
 from service.importer.merge import ColumnSpool
 from service.importer.source import Series, Source, sniff
 from service.importer.timebase import GridCounts, SeriesResampler
+from service.wire import messages as m
 
 __all__ = ["ImportResult", "import_file", "IMPORT_RECORD", "read_import_record", "file_digest"]
 
@@ -178,9 +178,9 @@ def _shift(t: NDArray, s: Series, start: float | None) -> NDArray:
 def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict,
            start: float | None, fl: int | None, sha256: Callable[[], str]) -> ImportResult:  # fmt: skip
     from service.daemon.ratelimit import RateLimitedLog
-    from service.flightrec import FLIGHT_RECORD, FlightRecord
     from service.log import McapLogger
-    from service.replay_input import UnitClock
+    from service.log.flightrec import FLIGHT_RECORD, FlightRecord
+    from service.replay.input import UnitClock
 
     path, rate = src.path, cmap.time.rate_hz
     mapped = cmap.ordered()

@@ -20,8 +20,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from service import messages as m
 from service.importer.errors import InputError
+from service.wire import messages as m
 
 __all__ = [
     "ChannelMap",

@@ -2,7 +2,7 @@
 
 Every time base of a source (a TDMS group, an MDF channel group, a table) is streamed through
 
-1. the daemon's intake rules (``service.replay_input.UnitClock`` -> ``daemon.intake.accept``):
+1. the daemon's intake rules (``service.replay.input.UnitClock`` -> ``daemon.intake.accept``):
    non-finite times, repeated or older times refused and counted, a clock that steps back
    followed after ``resync_n`` samples (a restart);
 2. cut into segments at gaps (a step over 1.5 nominal periods) and restarts: no value is ever
