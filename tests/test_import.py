@@ -324,3 +324,33 @@ def test_a_stock_reader_decodes_the_log(tmp_path, healthy, capsys):
     assert r.seq == 10 and math.isclose(r.x_j, healthy["x_j"][10], rel_tol=1e-12)
     assert math.isclose(r.p1, healthy["p1"][10], rel_tol=1e-12)
     assert lt == round(r.t * 1e9)
+
+
+def test_tdms_groups_at_two_rates(tmp_path, healthy, capsys):
+    """A TDMS file of two groups: the rig at 1 kHz and a supply transducer at 2 kHz in a
+    group of its own with its own waveform start; both on the one grid."""
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    f = rf.write_tdms(tmp_path / "two.tdms", healthy)
+    t2 = np.arange(2 * len(healthy["t"])) / 2000.0
+    sup = 205.0 + np.sin(2 * np.pi * 2.0 * t2)
+    start = np.datetime64(rf.START.replace(tzinfo=None), "us")
+    props = {"wf_increment": 0.0005, "wf_start_time": start, "wf_start_offset": 0.0}
+    with TdmsWriter(f, mode="a") as w:
+        w.write_segment([RootObject({}), GroupObject("Supply"),
+                         ChannelObject("Supply", "P_S", sup, properties=props)])  # fmt: skip
+    mp = tmp_path / "m.toml"
+    mp.write_text(rf.map_text("tdms", "Rig/") + 'p_sr = { column = "Supply/P_S", unit = "bar" }\n')
+    out = tmp_path / "two.mcap"
+    assert main(["import", str(f), "--map", str(mp), "--out", str(out), "--json"]) == 0
+    import json
+
+    c = json.loads(capsys.readouterr().out)["imports"][0]["counts"]
+    assert (c["copied"], c["downsampled"]) == (len(healthy["t"]), len(t2))
+    _, names, v = _log(out)
+    assert len(v) == len(healthy["t"]) and np.isfinite(v).all()  # both on every grid point
+    t = v[:, names.index("t")] - rf.START.timestamp()
+    ok = (t > 0.05) & (t < 1.45)
+    want = 205e5 + 1e5 * np.sin(2 * np.pi * 2.0 * t[ok])
+    np.testing.assert_allclose(v[ok, names.index("p_sr")], want, rtol=0, atol=0.01e5)
+    np.testing.assert_allclose(v[:, names.index("x_j")], healthy["x_j"], rtol=1e-12)
