@@ -179,7 +179,7 @@ def test_gaps_and_times_that_repeat_or_step_back_are_counted(tmp_path, healthy, 
     (res,) = json.loads(capsys.readouterr().out)["imports"]
     c = res["counts"]
     # the 0.2 s gap, and the one-sample holes the two refused samples leave
-    assert c["gaps"] == 3 and c["intake"] == {"duplicate": 1, "clock": 1}
+    assert c["gaps"] == 3 and c["intake"] == {"duplicate": 1, "clock": 1, "refused": 2}
     assert c["copied"] == len(keep) - 2 == res["samples"]
     _, _, v = _log(out)
     seq = v[:, 6]
@@ -354,3 +354,34 @@ def test_tdms_groups_at_two_rates(tmp_path, healthy, capsys):
     want = 205e5 + 1e5 * np.sin(2 * np.pi * 2.0 * t[ok])
     np.testing.assert_allclose(v[ok, names.index("p_sr")], want, rtol=0, atol=0.01e5)
     np.testing.assert_allclose(v[:, names.index("x_j")], healthy["x_j"], rtol=1e-12)
+
+
+def test_a_clock_that_steps_back_is_refused_by_the_intake(tmp_path, healthy, capsys):
+    """Two TDMS groups with time channels; the supply's clock steps back 0.3 s: the samples
+    at times already passed are refused (as the replay's intake refuses them) and counted,
+    and the grid keeps the values written first."""
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    t = healthy["t"][:1200]
+    ts = np.r_[t[:1000], 0.7 + np.arange(500) / 1000.0]
+    sup = np.r_[np.full(1000, 200.0), np.full(500, 300.0)]
+    rig = {k: v[:1200] for k, v in rf.rig_columns(healthy).items()}
+    f = tmp_path / "back.tdms"
+    with TdmsWriter(f) as w:
+        w.write_segment([RootObject({}), GroupObject("Rig"), GroupObject("Supply"),
+                         ChannelObject("Rig", "Time", t),
+                         *[ChannelObject("Rig", k, v) for k, v in rig.items()],
+                         ChannelObject("Supply", "Time", ts), ChannelObject("Supply", "P_S", sup)])  # fmt: skip
+    mp = tmp_path / "m.toml"
+    mp.write_text(rf.map_text("tdms", "Rig/", '[time]\ncolumn = "Time"')
+                  + 'p_sr = { column = "Supply/P_S", unit = "bar" }\n')  # fmt: skip
+    out = tmp_path / "back.mcap"
+    assert main(["import", str(f), "--map", str(mp), "--out", str(out), "--json"]) == 0
+    import json
+
+    c = json.loads(capsys.readouterr().out)["imports"][0]["counts"]
+    assert c["intake"]["refused"] == 300 and c["intake"]["clock"] >= 1
+    assert c["copied"] == 1200 + 1200
+    _, names, v = _log(out)
+    tt, p_sr = v[:, names.index("t")], v[:, names.index("p_sr")]
+    assert np.all(p_sr[tt < 0.9995] == 200e5) and np.all(p_sr[tt > 0.9995] == 300e5)

@@ -159,10 +159,10 @@ def _first_times(path: Path, s: Series, start: float | None) -> tuple[float, flo
         ok = _shift(t, s, start)
         ok = ok[np.isfinite(ok)]
         steps = np.diff(ok)
-        steps = steps[steps > 0]
-        if not len(steps):
+        fwd = steps[steps > 0]
+        if not len(fwd):
             raise InputError(path, s.columns[0], f"{s.name}: fewer than 2 increasing times")
-        med = float(np.median(steps))
+        med = float(np.median(fwd))
         blocks = itertools.chain([(t, raw)], it)
         if len(ok) > 2 and np.all(np.abs(steps - med) < 0.01 * med):
             # evenly sampled: the mean step, exact where a step of a Unix time is not
@@ -210,8 +210,9 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
                 lg.add_metadata(FLIGHT_RECORD, rec.to_metadata())
             for s, (_, dt, blocks) in zip(src.series, firsts, strict=True):
                 cols = [chan.index(conv[c][3]) for c in s.columns]
-                put = emit if spool is None else (lambda k, v, c=cols: spool.put(k, c, v))
-                rs = _stream(s, blocks, conv, finite, SeriesResampler(t0, rate, dt), start,
+                rsm = SeriesResampler(t0, rate, dt)
+                put = emit if spool is None else _Forward(rsm.counts, spool, cols)
+                rs = _stream(s, blocks, conv, finite, rsm, start,
                              UnitClock(ac, act, RateLimitedLog(log)), put)  # fmt: skip
                 counts.add(rs)
             if spool is not None:
@@ -237,6 +238,24 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
         raise InputError(path, "file", "no sample passed the intake's time checks")
     return ImportResult(str(path), "", "written", src.format, n, t_first,
                         (t_last or 0.0) - (t_first or 0.0), chan, summary)  # fmt: skip
+
+
+class _Forward:
+    """A time base's grid values into the spool, grid index increasing: after a clock was
+    followed back, the values at indices already written are dropped and counted (the log
+    of one time base keeps them, as the live stream would)."""
+
+    def __init__(self, counts: GridCounts, spool: ColumnSpool, cols: list[int]) -> None:
+        self.counts, self.spool, self.cols, self.last = counts, spool, cols, -1
+
+    def __call__(self, k: NDArray, v: NDArray) -> None:
+        keep = k > self.last
+        if not keep.all():
+            self.counts.overlap += int((~keep).sum())
+            k, v = k[keep], v[keep]
+        if len(k):
+            self.spool.put(k, self.cols, v)
+            self.last = int(k[-1])
 
 
 class _Behind:
@@ -283,6 +302,7 @@ class _Behind:
 def _stream(s: Series, blocks: Iterator, conv: dict, finite: dict, rs: SeriesResampler, start: float | None,
             clock, put) -> GridCounts:  # fmt: skip
     """One time base: SI units, the intake's time checks, onto the grid, to ``put``."""
+    refused = 0
     for t, raw in blocks:
         t = _shift(t, s, start)
         ch = np.full((len(t), len(m.CHANNELS)), np.nan)
@@ -293,9 +313,14 @@ def _stream(s: Series, blocks: Iterator, conv: dict, finite: dict, rs: SeriesRes
             finite[k] += int(np.isfinite(v).sum())
         vals = ch[:, [m.CHANNELS.index(conv[c][3]) for c in s.columns]]
         for idx, restart in clock.check(t, ch, None):
+            refused -= len(idx)
             for k, v in rs.push(t[idx], vals[idx], restart):
                 put(k, v)
+        refused += len(t)
     for k, v in rs.finish():
         put(k, v)
-    rs.counts.intake = {k: v for k, v in clock.counts().items() if v}
+    # every sample the intake refused (its own counts name the reasons it counts)
+    rs.counts.intake = {k: v for k, v in clock.counts().items() if v} | (
+        {"refused": refused} if refused else {}
+    )
     return rs.counts

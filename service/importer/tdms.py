@@ -1,6 +1,7 @@
 """LabVIEW TDMS through nptdms (``TdmsFile.open``: the metadata read, the data streamed by
 ``channel.read_data(offset, length)``). Columns are ``"Group/Channel"``; each group is one
-time base: the map's ``time.column`` of that group (``"Group/Time"``), else the waveform
+time base: the map's ``time.column`` in that group (``"Time"``, or ``"Group/Time"``: the
+channel of that name in each group), else the waveform
 properties of its channels (``wf_start_time``, ``wf_start_offset``, ``wf_increment``)."""
 
 from __future__ import annotations
@@ -78,9 +79,7 @@ def open_tdms(path: Path, cmap: ChannelMap, stack: contextlib.ExitStack) -> Sour
     chans = {f"{g.name}/{c.name}": c for g in f.groups() for c in g.channels()}
     names = list(chans)
     wanted = [(f"channels.{k}.column", s.column) for k, s in cmap.ordered()]
-    if cmap.time.column is not None:
-        wanted.insert(0, ("time.column", cmap.time.column))
-    check_columns(path, wanted, names)
+    check_columns(path, wanted, names)  # the time channel: per group, below
     by_group: dict[str, list[str]] = {}
     for _, s in cmap.ordered():
         by_group.setdefault(s.column.split("/", 1)[0], []).append(s.column)

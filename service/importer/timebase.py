@@ -45,6 +45,7 @@ class GridCounts:
     downsampled: int = 0  # source samples that went through the polyphase filter
     interpolated: int = 0  # grid samples made by interpolation (upsampling, phase)
     gaps: int = 0  # segment boundaries at a gap
+    overlap: int = 0  # grid samples dropped: a clock followed back onto times already had
     intake: dict[str, int] = field(default_factory=dict)  # refused by the intake's rules
 
     def add(self, other: GridCounts) -> None:
@@ -52,6 +53,7 @@ class GridCounts:
         self.downsampled += other.downsampled
         self.interpolated += other.interpolated
         self.gaps += other.gaps
+        self.overlap += other.overlap
         for k, v in other.intake.items():
             self.intake[k] = self.intake.get(k, 0) + v
 
