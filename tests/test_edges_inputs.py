@@ -10,7 +10,7 @@ import json
 import pytest
 from test_status_reply import GOOD, _Session
 
-from service.wire.names import MAX_NAME_CHARS, is_name, is_unit
+from service.names import MAX_NAME_CHARS, is_name, is_unit
 
 LONG = "a" * (MAX_NAME_CHARS + 1)  # the probe's 129 characters
 MAX = "b" * MAX_NAME_CHARS

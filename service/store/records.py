@@ -11,7 +11,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-from service.wire.names import MAX_NAME_CHARS, is_unit
+from service.names import MAX_NAME_CHARS, is_unit
 
 __all__ = [
     "ActuatorKey",
@@ -30,7 +30,7 @@ ActuatorKey = str  # "AC001/elevator_L": aircraft / actuator
 
 def check_actuator(actuator: object, field_name: str = "actuator") -> str:
     """Return ``actuator`` if it reads ``AIRCRAFT/ACTUATOR``, two names of the station's
-    grammar (``service.wire.names``: letters, digits, ``_.-``, at most 128 each)."""
+    grammar (``service.names``: letters, digits, ``_.-``, at most 128 each)."""
     if not is_unit(actuator):
         raise ValueError(
             f"{field_name}: expected 'AIRCRAFT/ACTUATOR' (letters, digits, '_', '.', '-', at "
