@@ -62,24 +62,29 @@ def test_concurrent_scrapes_share_one_build():
 
 
 def test_connections_are_capped_and_idle_ones_time_out():
-    srv = MetricsServer(_Counting(), "127.0.0.1", 0, max_connections=4, idle_s=1.0).start()
+    srv = MetricsServer(_Counting(), "127.0.0.1", 0, max_connections=4, idle_s=2.0).start()
     held = []
     try:
         port = srv.address[1]
         threads0 = threading.active_count()
         held = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(30)]
-        time.sleep(0.3)
+        time.sleep(0.5)
         assert threading.active_count() - threads0 <= 4 + 1, threading.active_count() - threads0
-        # beyond the cap: answered 503 at once and closed
-        extra = held[-1]
-        extra.settimeout(2)
-        assert extra.recv(100).startswith(b"HTTP/1.1 503"), "not refused"
+        # beyond the cap: answered 503 at once and closed, without a thread
+        refused = 0
+        for s in held:
+            s.settimeout(0.1)
+            try:
+                refused += s.recv(100).startswith(b"HTTP/1.1 503")
+            except TimeoutError:  # one of the 4 served: idle
+                pass
+        assert refused >= 20, refused
         # the idle ones are closed after idle_s; a scrape then gets in
-        time.sleep(1.5)
+        time.sleep(2.5)
         code, _ = _get(f"http://127.0.0.1:{port}/metrics")
         assert code == 200
         st = srv.stats()
-        assert st["refused"] >= 1 and st["max_connections"] == 4, st
+        assert st["refused"] >= 20 and st["max_connections"] == 4, st
     finally:
         for s in held:
             s.close()
