@@ -5,6 +5,7 @@ private port but the guard. Raw sockets on loopback, against a real ``FoxgloveFe
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pwd
 import shutil
@@ -47,11 +48,11 @@ def _bound(addr: str, port: int) -> socket.socket:
 def test_idle_connections_cannot_lock_a_viewer_out():
     """The probe's pattern: 16 upgraded connections that never send nor read, then a viewer
     that must get in within a few seconds and then stays (it answers the guard's pings)."""
-    f = _feed(max_connections=16, idle_s=2.0)
+    f = _feed(max_connections=16, idle_s=2.0, max_per_address=16)
     idle = []
     try:
         p = f.port
-        for k in range(16):  # from 16 loopback addresses: the per-address cap does not help
+        for k in range(16):  # one user may hold every slot here: only idle_s frees them
             s = _bound(f"127.0.0.{k + 2}", p)
             line, s = _handshake_on(s, p)
             assert " 101 " in line, line
@@ -78,10 +79,8 @@ def _answer_pings(c: FoxgloveClient, seconds: float) -> None:
     c.sock.settimeout(0.3)
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        try:
+        with contextlib.suppress(TimeoutError):
             c._frame()
-        except TimeoutError:
-            pass
 
 
 def _handshake_on(s: socket.socket, port: int) -> tuple[str, socket.socket]:
@@ -129,7 +128,21 @@ def test_connections_in_the_handshake_do_not_count_against_viewers():
         f.close()
 
 
-def test_one_address_cannot_hold_every_slot():
+_HOLD = (
+    "import base64, os, socket, sys, time\n"
+    "p = int(sys.argv[1]); s = socket.create_connection(('127.0.0.1', p), timeout=10)\n"
+    "k = base64.b64encode(os.urandom(16)).decode()\n"
+    "s.sendall((f'GET / HTTP/1.1\\r\\nHost: 127.0.0.1:{p}\\r\\nUpgrade: websocket\\r\\n'\n"
+    "  f'Connection: Upgrade\\r\\nSec-WebSocket-Key: {k}\\r\\nSec-WebSocket-Version: 13\\r\\n'\n"
+    "  'Sec-WebSocket-Protocol: foxglove.sdk.v1\\r\\n\\r\\n').encode())\n"
+    "print(s.recv(4096).split(b'\\r\\n')[0].decode(), flush=True); time.sleep(5)\n"
+)
+
+
+def test_one_address_or_local_user_cannot_hold_every_slot():
+    """Every local process connects from 127.0.0.1, so a local client's slots are counted by
+    its user (the uid owning the peer socket): this user's third connection is refused from
+    any loopback address, another user's is let in."""
     f = _feed(max_connections=4, max_per_address=2)
     held = []
     try:
@@ -137,14 +150,20 @@ def test_one_address_cannot_hold_every_slot():
             line, s = _handshake_on(_bound("127.0.0.1", f.port), f.port)
             assert " 101 " in line, line
             held.append(s)
-        line, s = _handshake_on(_bound("127.0.0.1", f.port), f.port)
-        s.close()
-        assert " 503 " in line, line
-        line, s = _handshake_on(_bound("127.0.0.3", f.port), f.port)  # another address
-        held.append(s)
-        assert " 101 " in line, line
+        for addr in ("127.0.0.1", "127.0.0.3"):
+            line, s = _handshake_on(_bound(addr, f.port), f.port)
+            s.close()
+            assert " 503 " in line, (addr, line)
         st = f.status()["guard"]
-        assert st["refused"] == {"per_address": 1} and st["max_per_address"] == 2, st
+        assert st["refused"] == {"per_address": 2} and st["max_per_address"] == 2, st
+        if os.geteuid() == 0 and shutil.which("setpriv"):
+            nobody = pwd.getpwnam("nobody")
+            r = subprocess.run(
+                ["setpriv", f"--reuid={nobody.pw_uid}", f"--regid={nobody.pw_gid}",
+                 "--clear-groups", sys.executable, "-I", "-c", _HOLD, str(f.port)],
+                capture_output=True, text=True, timeout=30,
+            )  # fmt: skip
+            assert " 101 " in r.stdout, r.stdout + r.stderr
     finally:
         for s in held:
             s.close()
