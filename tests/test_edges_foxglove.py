@@ -17,8 +17,8 @@ import time
 from _foxglove_ws import FoxgloveClient
 from test_foxglove_guard import _handshake
 
-from service.foxglove_feed import FoxgloveFeed
-from service.foxglove_guard import GuardLimits
+from service.edge.foxglove_feed import FoxgloveFeed
+from service.edge.foxglove_guard import GuardLimits
 
 
 def _feed(**limits) -> FoxgloveFeed:
@@ -84,21 +84,7 @@ def _answer_pings(c: FoxgloveClient, seconds: float) -> None:
 
 
 def _handshake_on(s: socket.socket, port: int) -> tuple[str, socket.socket]:
-    import base64
-
-    key = base64.b64encode(os.urandom(16)).decode()
-    s.sendall(
-        (f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
-         f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-         "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode()
-    )  # fmt: skip
-    head = b""
-    while b"\r\n\r\n" not in head:
-        chunk = s.recv(4096)
-        if not chunk:
-            break
-        head += chunk
-    return head.split(b"\r\n", 1)[0].decode("latin-1"), s
+    return _handshake(port, {"Host": f"127.0.0.1:{port}"}, s)
 
 
 def test_connections_in_the_handshake_do_not_count_against_viewers():

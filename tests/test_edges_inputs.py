@@ -18,7 +18,8 @@ UNIT_GOOD = "fleet/AC001/elevator_L/meas"
 
 
 def _status_funcs():
-    from service.commands.status import format_status, query_status
+    from service.cli.commands.status import format_status
+    from service.edge.status import query_status
 
     return format_status, query_status
 
@@ -35,7 +36,7 @@ def test_one_grammar_with_a_length_limit():
 
 def test_a_key_whose_name_ends_in_a_newline_is_not_a_key():
     """``^...$`` with ``re.match`` let ``x\\n`` through as a name."""
-    from service import messages as m
+    from service.wire import messages as m
 
     with pytest.raises(m.MessageError):
         m.parse_meas_key("fleet/AC001/x\n/meas")
@@ -47,7 +48,7 @@ def test_a_key_whose_name_ends_in_a_newline_is_not_a_key():
 def test_the_intake_refuses_a_name_longer_than_the_grammar_and_admits_the_longest():
     from test_daemon import make, sample
 
-    from service import messages as m
+    from service.wire import messages as m
 
     d, _, _ = make()
     long_key, max_key = f"fleet/AC001/{LONG}/meas", f"fleet/AC001/{MAX}/meas"
@@ -58,11 +59,11 @@ def test_the_intake_refuses_a_name_longer_than_the_grammar_and_admits_the_longes
     assert st["unknown"]["invalid_key"] == 1, st["unknown"]
     assert list(st["actuators"]) == [max_key]
     # every reader accepts every name the intake admits
-    from service.status_reply import check_reply
+    from service.edge.status import check_reply
 
     reply = check_reply("monitor/ground1/0/status", json.dumps(st).encode())
     assert "malformed" not in reply and not reply.get("bad_units"), reply.get("bad_units")
-    from service.metrics import collect_status
+    from service.edge.metrics import collect_status
 
     fams = {f.name: f for f in collect_status(st)}
     (s,) = fams["servowatch_unit_samples"].samples
@@ -116,7 +117,7 @@ def test_one_bad_unit_shows_the_rest_and_is_named():
     text = format_status(daemons)
     assert "AC001/elevator_L: 10 samples" in text, text
     assert "BAD UNIT 'fleet/AC001/rudder/meas'" in text and "BAD UNIT 'fleet/AC001/aaaa" in text
-    from service.web.live import slim
+    from service.edge.web.live import slim
 
     live = slim(daemons, 1.0)
     (d,) = live["daemons"]
@@ -187,8 +188,8 @@ def test_control_characters_in_every_string_shown_are_escaped():
 
 
 def test_listen_bounds_the_keys_it_remembers():
-    from service import messages as m
-    from service.commands.listen import OutputListener
+    from service.cli.commands.listen import OutputListener
+    from service.wire import messages as m
 
     lis = OutputListener(echo=False, max_keys=10)
     payload = m.encode_json({"t": 1.0, "leak_ratio": 1.0})
@@ -207,8 +208,8 @@ def test_listen_escapes_nothing_it_did_not_parse():
     """A key with a trailing newline is a malformed output, not a printed line."""
     import io
 
-    from service import messages as m
-    from service.commands.listen import OutputListener
+    from service.cli.commands.listen import OutputListener
+    from service.wire import messages as m
 
     out = io.StringIO()
     lis = OutputListener(echo=True, out=out)
@@ -223,7 +224,7 @@ def test_listen_escapes_nothing_it_did_not_parse():
 def test_a_json_seq_beyond_int64_is_a_bad_sample_and_loses_nothing_else(seq):
     from test_daemon import KEY, KEY2, make, sample
 
-    from service import messages as m
+    from service.wire import messages as m
 
     with pytest.raises(m.MessageError, match="seq"):
         m.decode_meas_arrays(json.dumps({"seq": seq, "t": 1.0}).encode())

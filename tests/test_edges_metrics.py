@@ -13,7 +13,7 @@ import urllib.request
 
 from test_status_reply import GOOD
 
-from service.metrics import MetricsServer
+from service.edge.metrics import MetricsServer
 
 
 class _Counting:

@@ -28,11 +28,12 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _handshake(
-    port: int, headers: dict[str, str] | list[tuple[str, str]]
+    port: int, headers: dict[str, str] | list[tuple[str, str]], s: socket.socket | None = None
 ) -> tuple[str, socket.socket]:
-    """Send an upgrade request with ``headers`` (besides the WebSocket ones); (status line,
-    socket)."""
-    s = socket.create_connection(("127.0.0.1", port), timeout=10)
+    """Send an upgrade request with ``headers`` (besides the WebSocket ones) on ``s`` (None:
+    a new connection); (status line, socket)."""
+    if s is None:
+        s = socket.create_connection(("127.0.0.1", port), timeout=10)
     key = base64.b64encode(os.urandom(16)).decode()
     items = headers.items() if isinstance(headers, dict) else headers
     extra = "".join(f"{k}: {v}\r\n" for k, v in items)
