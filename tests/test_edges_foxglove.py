@@ -158,7 +158,7 @@ def test_one_address_or_local_user_cannot_hold_every_slot():
 
 _CONNECT = (
     "import socket, sys\n"
-    "s = socket.socket(); s.settimeout(3)\n"
+    "s = socket.socket(); s.settimeout(3); s.bind((sys.argv[2], 0))\n"
     "try:\n"
     "    s.connect(('127.0.0.1', int(sys.argv[1]))); print('connected')\n"
     "except OSError as e:\n"
@@ -169,20 +169,22 @@ _CONNECT = (
 def test_only_the_guard_reaches_the_sdks_private_port():
     """The probe found the SDK's port in /proc/net/tcp and connected to it, as ``nobody``,
     with any Origin. Now the kernel drops every connection to it that does not carry the
-    guard's TCP-MD5 key (RFC 2385), whatever its user: this process's, and ``nobody``."""
+    guard's TCP-MD5 key (RFC 2385), whatever its user (this process's, and ``nobody``) and
+    its source address (an exact key for 127.0.0.1 would let 127.0.0.2 in)."""
     f = _feed()
     try:
         sdk = int(f.server.port)
         st = f.status()["guard"]
         assert st["upstream_private"] is True, st
-        r = subprocess.run([sys.executable, "-c", _CONNECT, str(sdk)], capture_output=True,
-                           text=True, timeout=30)  # fmt: skip
-        assert r.stdout.startswith("refused"), r.stdout + r.stderr
+        for src in ("127.0.0.1", "127.0.0.2"):  # from any source address
+            r = subprocess.run([sys.executable, "-c", _CONNECT, str(sdk), src],
+                               capture_output=True, text=True, timeout=30)  # fmt: skip
+            assert r.stdout.startswith("refused"), (src, r.stdout + r.stderr)
         if os.geteuid() == 0 and shutil.which("setpriv"):
             nobody = pwd.getpwnam("nobody")
             r = subprocess.run(
                 ["setpriv", f"--reuid={nobody.pw_uid}", f"--regid={nobody.pw_gid}",
-                 "--clear-groups", sys.executable, "-I", "-c", _CONNECT, str(sdk)],
+                 "--clear-groups", sys.executable, "-I", "-c", _CONNECT, str(sdk), "127.0.0.1"],
                 capture_output=True, text=True, timeout=30,
             )  # fmt: skip
             assert r.stdout.startswith("refused"), r.stdout + r.stderr

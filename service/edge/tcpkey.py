@@ -17,9 +17,11 @@ import os
 import socket
 import struct
 
-__all__ = ["TCP_MD5SIG", "new_key", "key_listener", "keyed_socket"]
+__all__ = ["TCP_MD5SIG", "TCP_MD5SIG_EXT", "new_key", "key_listener", "keyed_socket"]
 
 TCP_MD5SIG = getattr(socket, "TCP_MD5SIG", 14)  # linux/tcp.h
+TCP_MD5SIG_EXT = getattr(socket, "TCP_MD5SIG_EXT", 32)  # linux/tcp.h, Linux 4.13
+_FLAG_PREFIX = 1  # TCP_MD5SIG_FLAG_PREFIX: the key covers tcpm_prefixlen bits of the address
 _KEY_BYTES = 32  # at most TCP_MD5SIG_MAXKEYLEN (80)
 
 
@@ -28,16 +30,19 @@ def new_key() -> bytes:
     return os.urandom(_KEY_BYTES)
 
 
-def _md5sig(key: bytes, peer: str) -> bytes:
-    """``struct tcp_md5sig`` for the IPv4 ``peer``: sockaddr_storage (128 bytes), flags,
-    prefix length, key length, ifindex, the key (80 bytes)."""
+def _md5sig(key: bytes, peer: str, prefix: int | None = None) -> bytes:
+    """``struct tcp_md5sig`` for the IPv4 ``peer`` (with ``prefix``: the peers of
+    ``peer/prefix``): sockaddr_storage (128 bytes), flags, prefix length, key length,
+    ifindex, the key (80 bytes)."""
     sa = struct.pack("=HH4s", socket.AF_INET, 0, socket.inet_aton(peer)).ljust(128, b"\0")
-    return sa + struct.pack("=BBHI", 0, 0, len(key), 0) + key.ljust(80, b"\0")
+    flags = 0 if prefix is None else _FLAG_PREFIX
+    return sa + struct.pack("=BBHI", flags, prefix or 0, len(key), 0) + key.ljust(80, b"\0")
 
 
-def key_listener(port: int, key: bytes, host: str = "127.0.0.1", peer: str = "127.0.0.1") -> bool:
-    """Set ``key`` for ``peer`` on this process's listening TCP socket bound to
-    ``host:port``; False when there is none or the kernel refuses (no ``TCP_MD5SIG``)."""
+def key_listener(port: int, key: bytes, host: str = "127.0.0.1") -> bool:
+    """Set ``key`` for every IPv4 peer (``0.0.0.0/0``: a process that binds 127.0.0.2, or
+    any other source address, needs it too) on this process's listening TCP socket bound to
+    ``host:port``; False when there is none or the kernel refuses (no ``TCP_MD5SIG_EXT``)."""
     done = False
     for name in os.listdir("/proc/self/fd"):
         try:
@@ -58,7 +63,7 @@ def key_listener(port: int, key: bytes, host: str = "127.0.0.1", peer: str = "12
                 and s.getsockname() == (host, port)
                 and s.getsockopt(socket.SOL_SOCKET, socket.SO_ACCEPTCONN)
             ):
-                s.setsockopt(socket.IPPROTO_TCP, TCP_MD5SIG, _md5sig(key, peer))
+                s.setsockopt(socket.IPPROTO_TCP, TCP_MD5SIG_EXT, _md5sig(key, "0.0.0.0", 0))
                 done = True
     return done
 
