@@ -37,7 +37,9 @@ def _get(url: str, timeout: float = 10.0) -> tuple[int, bytes]:
 
 def test_concurrent_scrapes_share_one_build():
     status = _Counting(cost_s=0.05)
-    srv = MetricsServer(status, "127.0.0.1", 0, max_age_s=1.0, max_connections=64).start()
+    srv = MetricsServer(
+        status, "127.0.0.1", 0, max_age_s=1.0, max_connections=64, max_per_s=1e6
+    ).start()
     try:
         url = f"http://127.0.0.1:{srv.address[1]}/metrics"
         codes: list[int] = []
@@ -87,4 +89,20 @@ def test_connections_are_capped_and_idle_ones_time_out():
     finally:
         for s in held:
             s.close()
+        srv.close()
+
+
+def test_scrapes_are_limited_per_second():
+    """Beyond ``max_per_s`` a second, a scrape is answered 503 on the listening thread."""
+    status = _Counting()
+    srv = MetricsServer(status, "127.0.0.1", 0, max_per_s=5.0).start()
+    try:
+        url = f"http://127.0.0.1:{srv.address[1]}/metrics"
+        t0 = time.monotonic()
+        codes = [_get(url)[0] for _ in range(40)]
+        took = time.monotonic() - t0
+        assert set(codes) == {200, 503}, codes
+        assert codes.count(200) <= 5 + 5 * took + 1, (codes.count(200), took)
+        assert srv.stats()["refused"] == codes.count(503)
+    finally:
         srv.close()

@@ -16,8 +16,8 @@ only. The metric names are listed in :data:`METRICS` (docs/dashboard.md, "Promet
 A scrape cannot starve the monitor (issue 50): the exposition is built at most once per
 ``max_age_s`` (1 s) by one thread, and every scrape in between is served that body, so any
 number of scrapers cost the daemon one build a second; at most ``max_connections`` (8)
-connections are served at once (beyond: 503 and closed, without a thread), and one idle
-for ``idle_s`` (5 s) is closed. A unit whose names are not of the grammar
+connections are served at once and ``max_per_s`` (10) a second, one request each (beyond:
+503 and closed, without a thread), and one idle for ``idle_s`` (5 s) is closed. A unit whose names are not of the grammar
 (``service.names``) gets no series.
 """
 
@@ -295,9 +295,10 @@ class _Handler(GuardedHandler):
         self.send_header("X-Content-Type-Options", "nosniff")
         if code == HTTPStatus.METHOD_NOT_ALLOWED:
             self.send_header("Allow", "GET, HEAD")
-        if self.headers.get("Content-Length") or self.headers.get("Transfer-Encoding"):
-            self.close_connection = True  # a body is never read: never taken as a request
-            self.send_header("Connection", "close")
+        # one request per connection: the rate of requests is the rate of connections,
+        # which the server limits before a thread is made (a body is never read either)
+        self.close_connection = True
+        self.send_header("Connection", "close")
         self.end_headers()
         if not head:
             self.wfile.write(body)
@@ -341,24 +342,34 @@ _BUSY = (
 
 
 class _Server(ThreadingHTTPServer):
-    """A thread per connection, at most ``max_connections`` at once: one more is answered
-    503 and closed on the listening thread, without a thread of its own."""
+    """A thread per connection (one request each), at most ``max_connections`` at once and
+    ``max_per_s`` a second (a token bucket of as many): one more is answered 503 and closed
+    on the listening thread, without a thread of its own."""
 
     daemon_threads = True
     request_queue_size = 128  # the listen backlog (docs/security.md, "HTTP")
     max_connections = 8
+    max_per_s = 10.0
 
     def __init__(self, *a: Any, **kw: Any) -> None:
         super().__init__(*a, **kw)
         self._count_lock = threading.Lock()
         self.active = 0
         self.refused = 0
+        self._tokens = float(self.max_per_s)
+        self._t_tokens = time.monotonic()
 
     def process_request(self, request: Any, client_address: Any) -> None:
         with self._count_lock:
-            full = self.active >= self.max_connections
+            now = time.monotonic()
+            self._tokens = min(
+                self.max_per_s, self._tokens + (now - self._t_tokens) * self.max_per_s
+            )
+            self._t_tokens = now
+            full = self.active >= self.max_connections or self._tokens < 1.0
             if not full:
                 self.active += 1
+                self._tokens -= 1.0
             else:
                 self.refused += 1
         if full:
@@ -392,8 +403,9 @@ class MetricsServer:
     """The endpoint on ``host:port`` (port 0: a free one, ``address`` tells which) over
     ``status()``; bound at construction (an address in use raises OSError), served by
     :meth:`start` on a daemon thread until :meth:`close`. ``max_age_s``: a built exposition
-    is served this long [s]; ``max_connections`` served at once; ``idle_s``: a connection
-    without a request is closed after this long [s]."""
+    is served this long [s]; ``max_connections`` served at once and ``max_per_s`` a second
+    (one request each); ``idle_s``: a connection without a request is closed after this
+    long [s]."""
 
     def __init__(
         self,
@@ -405,6 +417,7 @@ class MetricsServer:
         max_age_s: float = 1.0,
         max_connections: int = 8,
         idle_s: float = 5.0,
+        max_per_s: float = 10.0,
     ) -> None:
         self.registry = CollectorRegistry(auto_describe=False)
         self.registry.register(StatusCollector(status))
@@ -420,8 +433,9 @@ class MetricsServer:
             },
         )
         cls: type[ThreadingHTTPServer] = type(
-            "_Server", (_Server,), {"max_connections": int(max_connections)}
-        )
+            "_Server", (_Server,),
+            {"max_connections": int(max_connections), "max_per_s": float(max_per_s)},
+        )  # fmt: skip
         if ":" in host:
             import socket
 
