@@ -396,6 +396,9 @@ class MetricsSettings(BaseModel):
     idle_s: float = Field(
         5.0, gt=0, le=300, description="a connection idle this long is closed [s]"
     )
+    max_per_s: float = Field(
+        10.0, gt=0, le=10000, description="requests served a second at most (beyond: 503)"
+    )
 
     @model_validator(mode="after")
     def _loopback(self) -> MetricsSettings:

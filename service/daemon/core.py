@@ -110,7 +110,7 @@ class Daemon:
             m = config.metrics
             self.metrics = MetricsServer(
                 self.status, host, port, allow_remote=m.allow_remote,
-                max_connections=m.max_connections, idle_s=m.idle_s,
+                max_connections=m.max_connections, idle_s=m.idle_s, max_per_s=m.max_per_s,
             )  # fmt: skip
         store_url = store_target(config.store)
         baseline = Baseline.load(config.baseline) if config.baseline and bank is None else None
