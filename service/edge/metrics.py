@@ -341,10 +341,14 @@ _BUSY = (
 )
 
 
+_REFUSE_S = 0.01  # the listening thread's pause after a refusal [s]
+
+
 class _Server(ThreadingHTTPServer):
     """A thread per connection (one request each), at most ``max_connections`` at once and
     ``max_per_s`` a second (a token bucket of as many): one more is answered 503 and closed
-    on the listening thread, without a thread of its own."""
+    on the listening thread, without a thread of its own; then that thread pauses
+    ``_REFUSE_S``, so refusals cost the daemon at most 100 a second."""
 
     daemon_threads = True
     request_queue_size = 128  # the listen backlog (docs/security.md, "HTTP")
@@ -377,6 +381,9 @@ class _Server(ThreadingHTTPServer):
                 request.setblocking(False)
                 request.send(_BUSY)
             self.shutdown_request(request)
+            # a refusal costs the daemon too: at most 1/_REFUSE_S a second, the others wait
+            # in the kernel's listen queue meanwhile (no thread, no GIL)
+            time.sleep(_REFUSE_S)
             return
         try:
             super().process_request(request, client_address)
