@@ -107,9 +107,11 @@ class Daemon:
             from service.edge.metrics import MetricsServer
 
             host, port = config.metrics.host_port()
+            m = config.metrics
             self.metrics = MetricsServer(
-                self.status, host, port, allow_remote=config.metrics.allow_remote
-            )
+                self.status, host, port, allow_remote=m.allow_remote,
+                max_connections=m.max_connections, idle_s=m.idle_s, max_per_s=m.max_per_s,
+            )  # fmt: skip
         store_url = store_target(config.store)
         baseline = Baseline.load(config.baseline) if config.baseline and bank is None else None
         self.monitor = MonitorStage(config.monitor, baseline, store_url=store_url, bank=bank)

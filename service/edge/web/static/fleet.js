@@ -216,6 +216,13 @@ function renderDaemons() {
     if (d.unmonitored && d.unmonitored.length) {
       c.appendChild(el("div", { class: "rising" }, `unmonitored: ${d.unmonitored.join(", ")}`));
     }
+    // what the reply check left out (service/edge/status.py): named, the rest shown
+    if (d.bad_units && d.bad_units.length) {
+      c.appendChild(el("div", { class: "rising" }, `bad units (not shown): ${d.bad_units.join(", ")}`));
+    }
+    if (d.bad_fields && d.bad_fields.length) {
+      c.appendChild(el("div", { class: "rising" }, `bad fields (not shown): ${d.bad_fields.join(", ")}`));
+    }
     list.appendChild(c);
   }
 }
