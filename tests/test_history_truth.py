@@ -281,3 +281,151 @@ def test_a_flight_given_for_a_stored_log_is_applied_with_a_message(store_url, tm
 
 
 _ = (AlarmEvent, math)
+
+
+# ------------------------------------------------------------------ the daemon's log
+
+
+def test_live_periods_and_a_replay_of_the_daemons_own_log_store_each_sample_once(
+    store_url, tmp_path, meas
+):
+    """The daemon stores its periods live beside its log (its ``log_id``); a catch-up replay
+    of that log into the same store replaces them rather than adding the run again."""
+    from service.log import McapLogger
+
+    names = _chans(meas)
+    vals = np.column_stack([meas[c] for c in names]).astype(float)
+    t = meas["t"] + T0
+    log = tmp_path / "servowatch-st-0.mcap"
+    with McapLogger(log, chunk_size=16_384, background_flush=False,
+                    metadata={"source": "daemon", "log_id": "d41d8cd98f00b204"}) as lg:  # fmt: skip
+        for a in range(0, len(t), 250):
+            lg.log_block(f"/fleet/AC1/ail_L/meas", t[a : a + 250], ("t", *names),
+                         np.column_stack([t, vals])[a : a + 250])  # fmt: skip
+    scratch = str(tmp_path / "scratch.sqlite")
+    replay(log, store=scratch)
+    with open_store(scratch) as s:  # what the daemon stored live, beside that log
+        live = [Period.from_dict({**p.to_dict(), "source": "live:st/0@d41d8cd98f00b204"})
+                for p in s.periods(UNIT)]  # fmt: skip
+    with open_store(store_url) as s:
+        s.add_periods(live)
+    n = _samples(store_url)
+    s = replay(log, store=store_url)
+    assert _samples(store_url) == n == len(t)
+    assert s.stored == {UNIT: "superseded"}
+
+
+# ------------------------------------------------------------------ 3. views that agree
+
+
+def _period(unit, src, start_t, ratio, flight=None, start_unix=None, op=600.0) -> Period:
+    return Period(
+        actuator=unit, source=src, start_t=start_t, end_t=start_t + op, op_time_s=op,
+        samples=int(op * 1000), flight=flight, c_lk_mean=ratio * 1e-13, c_lk_sigma=1e-15,
+        c_lk_ratio=ratio, observable_samples=int(op * 800), p_sr_mean=2.07e7, p_sr_min=2.0e7,
+        i_b_mean=0.0, nis_mean=1.0, nis_in_band=0.95, alarms=0, bad_samples=0, dropped=0,
+        start_unix=start_unix,
+    )  # fmt: skip
+
+
+def _src(*parts) -> str:
+    return "log:" + hashlib.sha256(repr(parts).encode()).hexdigest()[:32]
+
+
+def _views_store(url) -> None:
+    """Units stored each way of issue 49: fleet-sim logs (log time 0, flight records) past
+    the threshold and below it; undated logs without records (gap rule); dated logs; a
+    log whose clock stepped back a day; the daemon's live periods."""
+    ratios = np.linspace(1.03, 12.3, 10)
+    with open_store(url) as s:
+        for unit, rs in (("SIM/failed", ratios), ("SIM/healthy", np.full(10, 1.02))):
+            for f, r in enumerate(rs):
+                src = _src(unit, f)
+                s.ingest_log([LogUnit(unit, src, 1, f"f{f}.mcap", False)],
+                             [_period(unit, src, 0.0, float(r), flight=f)], [], 1800.0)  # fmt: skip
+        for k, r in enumerate(np.linspace(1.0, 3.0, 10)):  # undated, no records
+            src = _src("U", k)
+            s.ingest_log([LogUnit("UND/eha", src, 1, f"u{k}.mcap", True)],
+                         [_period("UND/eha", src, 0.0, float(r))], [], 1800.0)  # fmt: skip
+        for k, r in enumerate(np.linspace(1.0, 2.0, 10)):  # dated, one a day
+            src = _src("D", k)
+            su = T0 + k * DAY
+            s.ingest_log([LogUnit("DAT/eha", src, 1, f"d{k}.mcap", True)],
+                         [_period("DAT/eha", src, su, float(r), start_unix=su)], [], 1800.0)  # fmt: skip
+        src = _src("C")  # one log: the clock a day back after its first period
+        ps = [_period("CLK/eha", src, T0 + 600.0 * i - (DAY if i >= 5 else 0.0), 1.0 + 0.05 * i,
+                      start_unix=T0 + 600.0 * i - (DAY if i >= 5 else 0.0)) for i in range(10)]  # fmt: skip
+        order = tuple(p.start_t for p in ps)
+        s.ingest_log([LogUnit("CLK/eha", src, 1, "c.mcap", True, order=order)], ps, [], 1800.0)
+        s.add_periods([_period("LIV/eha", "live:st/0", T0 + k * DAY, 1.0 + 0.02 * k, flight=k,
+                               start_unix=T0 + k * DAY) for k in range(10)])  # fmt: skip
+
+
+def test_views_agree(store_url, capsys):
+    """fleet (text and JSON), the page's fleet and unit JSON, rul, status and the metrics show
+    the same latest ratio, life axis, RUL and trend for every unit, and the unit past its
+    failure threshold is failed in every view."""
+    from service.cli import main
+    from service.cli.commands.status import format_unit
+    from service.edge.fleet import condition_of
+    from service.edge.metrics import collect_status
+    from service.edge.web.view import fleet_view, unit_view
+    from service.store.writer import StoreWriter
+
+    _views_store(store_url)
+    capsys.readouterr()
+    assert main(["rul", "--store", store_url, "--json"]) == 0
+    rul = {r["actuator"]: r for r in json.loads(capsys.readouterr().out)["actuators"]}
+    assert main(["fleet", "--store", store_url, "--json"]) == 0
+    fleet = {r["actuator"]: r for r in json.loads(capsys.readouterr().out)["fleet"]}
+    assert main(["fleet", "--store", store_url]) == 0
+    text = capsys.readouterr().out
+    with open_store(store_url, read_only=True) as s:
+        page = {r["actuator"]: r for r in fleet_view(s)["fleet"]}
+        units = {a: unit_view(s, a) for a in s.actuators()}
+        w = StoreWriter.__new__(StoreWriter)
+        w._load(s)
+        info = w._info
+    assert len(fleet) == 7
+    with_rul = {
+        a
+        for a, r in rul.items()
+        if r.get(f"median_{'flights' if r['axis'] == 'flights' else 'h'}") is not None
+    }  # noqa: E501
+    assert {
+        a for a, r in fleet.items() if (r["rul_interval"] or {}).get("median") is not None
+    } == with_rul
+    assert {
+        a for a, r in page.items() if (r["rul_interval"] or {}).get("median") is not None
+    } == with_rul
+    for a in fleet:
+        f, p, r, u = fleet[a], page[a], rul[a], units[a]
+        last_u = [x["c_lk_ratio"] for x in u["periods"] if x["c_lk_ratio"] is not None][-1]
+        assert f["last_ratio"] == p["last_ratio"] == pytest.approx(r["last_ratio"]) == \
+            pytest.approx(last_u), a  # fmt: skip
+        axis = "flights" if r["axis"] == "flights" else "h"
+        assert f["life"]["unit"] == p["life"]["unit"] == axis, a
+        assert f["life"]["value"] == pytest.approx(r["t_now"] if axis == "flights"
+                                                   else r["t_now_h"]), a  # fmt: skip
+        assert f["trend"] == p["trend"], a
+        med = r.get(f"median_{axis}")
+        assert (f["rul_interval"] or {}).get("median") == pytest.approx(med) if med is not None \
+            else (f["rul_interval"] or {}).get("median") is None  # fmt: skip
+        cond = condition_of(f)
+        assert condition_of(p) == cond == condition_of({**info[a], "actuator": a}), a
+        st_unit = {"aircraft": a.split("/")[0], "actuator": a.split("/")[1], "samples": 1,
+                   "dropped": 0, "gaps": 0, **info[a]}  # fmt: skip
+        lines = "\n".join(format_unit(st_unit))
+        fams = {m.name: m for m in collect_status({"actuators": {a: st_unit}})}
+        failed = [s.value for s in fams["servowatch_unit_failed"].samples]
+        if cond[0] == "failed":
+            assert p["status"] == "critical" and r["status"] == "failed", a
+            assert "FAILED" in lines and failed == [1.0], a
+            assert any(a in ln and "FAILED" in ln for ln in text.splitlines()), a
+        else:
+            assert "FAILED" not in lines and failed == [0.0], a
+    assert condition_of(fleet["SIM/failed"])[0] == "failed"
+    assert fleet["SIM/failed"]["last_ratio"] == pytest.approx(12.3)
+    assert fleet["SIM/healthy"]["last_ratio"] == pytest.approx(1.02)
+    assert fleet["CLK/eha"]["last_ratio"] == pytest.approx(1.45)
+    assert fleet["UND/eha"]["life"]["unit"] == "flights"

@@ -400,6 +400,15 @@ class HealthStore:
                                   tuple(json.loads(order)) if order else None)  # fmt: skip
         return out
 
+    def stream_ids(self, actuator: str) -> dict[str, Any]:
+        """``{source: StreamId}`` of the replayed logs of ``actuator`` stored with a stream
+        identity (``service.log.identity``; schema v7)."""
+        from service.log.identity import StreamId
+
+        rows = self._b.execute("SELECT source, identity FROM log_sources WHERE actuator = ? "
+                               "AND identity IS NOT NULL", (actuator,)).fetchall()  # fmt: skip
+        return {src: StreamId.loads(text) for src, text in rows}
+
     def life(self, actuator: str) -> list[Period]:
         """The actuator's periods in its **life order** (``lifeorder.life_order``: calendar
         time, then given flights, then the logs' content identity; a log's periods in its

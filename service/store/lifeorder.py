@@ -68,17 +68,25 @@ def _end_unix(p: Period) -> float | None:
     return None if p.start_unix is None else p.start_unix + (p.end_t - p.start_t)
 
 
-def next_flight(prev: Period | None, p: Period, start_unix: float | None, gap_s: float) -> int:
+def next_flight(
+    prev: Period | None,
+    p: Period,
+    start_unix: float | None,
+    gap_s: float,
+    same_log: bool = False,
+) -> int:
     """The gap rule: the flight of ``p`` (calendar start ``start_unix``) after ``prev``, the
     unit's period before it in life order (None: ``p`` is its first, flight 0). A gap from
     ``prev``'s end to ``p``'s start above ``gap_s`` (calendar time when both have it, else
-    sample time) or below zero (the clock restarted) opens the next flight."""
+    sample time) opens the next flight, as does one below zero between two logs (another
+    log's clock); inside one log (``same_log``) a clock that stepped back does not: its
+    samples follow each other."""
     if prev is None:
         return 0
     base = prev.flight if prev.flight is not None else 0
     pe = _end_unix(prev)
     gap = start_unix - pe if start_unix is not None and pe is not None else p.start_t - prev.end_t
-    return base + 1 if (gap > gap_s or gap < 0) else base
+    return base + 1 if (gap > gap_s or (gap < 0 and not same_log)) else base
 
 
 def life_keys(periods: Sequence[Period], rules: Mapping[str, SourceRule]) -> list[tuple]:
@@ -129,7 +137,8 @@ def number_flights(
     for p in life_order(periods, rules):
         r = rules.get(p.source)
         if (r is not None and r.gap) or p.flight is None:
-            fl = next_flight(prev, p, p.start_unix, gap_s)
+            same = prev is not None and r is not None and prev.source == p.source
+            fl = next_flight(prev, p, p.start_unix, gap_s, same)
             if fl != p.flight:
                 p = replace(p, flight=fl)
         out.append(p)
