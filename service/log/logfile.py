@@ -5,7 +5,7 @@ batch and the store need of it: whether it is an MCAP log at all (``check``), it
 ``servowatch`` metadata, its ``servowatch.flight`` records, the units of its
 ``/fleet/{aircraft}/{actuator}/meas`` channels, its blocks of samples (``blocks``) and, once
 read, each unit's stream identity (``identity``, filled by the replay:
-``service.log.identity``). A file without a summary (cut short) is scanned once for its
+``service.store.identity``). A file without a summary (cut short) is scanned once for its
 metadata, records and channels. ``LogSet`` is a rotation set (or one file) as one log.
 """
 

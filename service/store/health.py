@@ -402,8 +402,8 @@ class HealthStore:
 
     def stream_ids(self, actuator: str) -> dict[str, Any]:
         """``{source: StreamId}`` of the replayed logs of ``actuator`` stored with a stream
-        identity (``service.log.identity``; schema v7)."""
-        from service.log.identity import StreamId
+        identity (``service.store.identity``; schema v7)."""
+        from service.store.identity import StreamId
 
         rows = self._b.execute("SELECT source, identity FROM log_sources WHERE actuator = ? "
                                "AND identity IS NOT NULL", (actuator,)).fetchall()  # fmt: skip

@@ -69,7 +69,8 @@ def ingest_log(
                 changed = keep == u.source and _apply_given(hs, u, notes)
             else:
                 gone = _superseded(hs, u, stored, notes)
-                status = "superseded" if gone else "new"
+                mine, n_live = _replace_live(hs, u, mine, notes)
+                status = "superseded" if gone or n_live else "new"
                 changed = True
                 for src in gone | {u.source}:
                     for t in ("periods", "alarms", "log_sources"):
@@ -159,6 +160,35 @@ def _superseded(hs: Any, u: LogUnit, stored: dict[str, tuple], notes: list[str])
         ):
             gone.add(old)
     return gone
+
+
+def _replace_live(
+    hs: Any, u: LogUnit, mine: list[Period], notes: list[str]
+) -> tuple[list[Period], int]:
+    """The daemon's live periods written beside this log (source ``live:...@{log_id}``)
+    that lie within its samples are replaced by the log's (with their alarms); a log period
+    that overlaps a live one kept (it straddles the log's first or last sample) is left
+    out. Returns the log's periods to store and how many live periods went."""
+    if not u.live or not mine:
+        return mine, 0
+    b = hs._b
+    lo = min(p.start_t for p in mine)
+    hi = max(p.end_t for p in mine)
+    rows = b.execute("SELECT source, start_t, end_t FROM periods WHERE actuator = ? AND "
+                     "source LIKE ?", (u.actuator, "live:%")).fetchall()  # fmt: skip
+    rows = [(s, float(a), float(e)) for s, a, e in rows if s.endswith(u.live)]
+    gone = [(s, a) for s, a, e in rows if a >= lo and e <= hi]
+    kept = [(a, e) for s, a, e in rows if not (a >= lo and e <= hi)]
+    for s, a in gone:
+        b.execute("DELETE FROM periods WHERE actuator = ? AND source = ? AND start_t = ?",
+                  (u.actuator, s, a))  # fmt: skip
+    for s in {s for s, _ in gone}:
+        b.execute("DELETE FROM alarms WHERE actuator = ? AND source = ? AND t >= ? AND t <= ?",
+                  (u.actuator, s, lo, hi))  # fmt: skip
+    out = [p for p in mine if not any(p.start_t < e and p.end_t > a for a, e in kept)]
+    if gone:
+        notes.append(f"replaces {len(gone)} live period(s) the daemon stored beside this log")
+    return out, len(gone)
 
 
 def _apply_given(hs: Any, u: LogUnit, notes: list[str]) -> bool:

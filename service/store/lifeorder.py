@@ -11,7 +11,7 @@ periods, periods stored before schema v4) is a stretch of its own. Stretches go
 
 1. with a calendar time (the stretch's first period's ``start_unix``), by it;
 2. else with a flight given by the log (a flight record, ``replay --flight``), by that flight;
-3. else by the log's content identity (its source, ``service.log.identity.stream_source``):
+3. else by the log's content identity (its source, ``service.store.identity.stream_source``):
    an order that neither a copy under another name nor a re-run in any split can change.
 
 Nothing is read from a file name or compared across logs by log-relative time. Walking that
@@ -51,7 +51,7 @@ class LogUnit(NamedTuple):
     """What one replayed log holds of one unit, for ``HealthStore.ingest_log``."""
 
     actuator: str
-    source: str  # the unit's stream identity (``service.log.identity.stream_source``)
+    source: str  # the unit's stream identity (``service.store.identity.stream_source``)
     samples: int  # samples of the unit accepted from the log
     name: str  # the log's file name (for messages only)
     gap: bool  # its flights follow the gap rule (no flight record, no ``--flight``)
@@ -62,6 +62,7 @@ class LogUnit(NamedTuple):
     flight: int | None = None  # ``--flight`` given for this log
     start_unix: float | None = None  # ``--start-unix`` given for this log
     first_t: float | None = None  # its first accepted sample time
+    live: str | None = None  # ``@{log_id}``: the daemon's live periods written beside it
 
 
 def _end_unix(p: Period) -> float | None:

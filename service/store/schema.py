@@ -136,7 +136,7 @@ _V5: tuple[str, ...] = (
 
 # a log's identity from all of its samples and one life order (docs/store.md, "What
 # identifies a log"; decision records 0033, 0034): per replayed log and unit its stream
-# identity (``service.log.identity.StreamId`` as JSON; NULL: stored before, identified by its
+# identity (``service.store.identity.StreamId`` as JSON; NULL: stored before, identified by its
 # first sample, adopted when the log is replayed again) and its periods' start_t in the log's
 # sample order; per summary row where the unit stands in that order (the key of its last
 # period), its life axis, first flight and flight count, and its latest observable C_Lk ratio.

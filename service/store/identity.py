@@ -176,6 +176,11 @@ class StreamDigest:
         self._after_boundary: int | None = None  # mix of the block-ending sample before
         self._begin_run()
 
+    @property
+    def stored(self) -> Mapping[str, StreamId]:
+        """The stored streams this digest compares with."""
+        return self._stored
+
     # -- building --------------------------------------------------------------------------
     def _begin_run(self) -> None:
         self._rh = hashlib.blake2b(digest_size=16)
