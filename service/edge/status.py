@@ -92,7 +92,7 @@ _UNIT: dict[str, Callable[[Any], bool]] = {
     "bad": lambda v: _num(v) or _dict_of(_num)(v), "missed": _num, "silent": _bool, "commissioned": _bool,
     "baseline_version": _num, "est": _dict_of(_num), "health": _dict_of(lambda x: True),
     "alarms": _list_of(lambda x: isinstance(x, dict) and _str(x.get("kind"))),
-    "periods": _num, "rul": lambda v: v is None or (isinstance(v, dict) and _num(v.get("median_h"))),
+    "periods": _num, "last_ratio": _num, "rul": lambda v: v is None or (isinstance(v, dict) and _num(v.get("median_h"))),
 }  # fmt: skip
 
 #: what every unit entry of a daemon's status has (the readers index these)

@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from service.log import LogBlock
+from service.log.logfile import LogFile, LogFileError
 from service.wire import messages as m
 
 __all__ = [
@@ -28,38 +29,15 @@ __all__ = [
 ]
 
 
-class LogError(ValueError):
-    """A file that cannot be replayed: the message names the file and the cause."""
+LogError = LogFileError
+"""A file that cannot be replayed: the message names the file and the cause
+(``service.log.logfile.LogFileError``)."""
 
 
 def check_mcap(path: Path) -> None:
     """LogError unless ``path`` is a readable file that starts as an MCAP log."""
-    from mcap.writer import MCAP0_MAGIC
-
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(len(MCAP0_MAGIC))
-    except OSError as e:
-        raise LogError(f"{path}: cannot read: {e.strerror or e}") from None
-    if not head:
-        raise LogError(f"{path}: empty file, not an MCAP log")
-    if head != MCAP0_MAGIC:
-        raise LogError(f"{path}: not an MCAP log (no MCAP magic at its start)")
-    from mcap.records import Chunk, Footer, Message
-
-    from service.compat.mcap import SkipIndexStreamReader
-
-    why = "it ends after its header"
-    try:
-        with open(path, "rb") as fh:
-            for rec in SkipIndexStreamReader(
-                fh, emit_chunks=True, record_size_limit=1 << 30
-            ).records:
-                if isinstance(rec, Chunk | Message | Footer):
-                    return
-    except Exception:  # a record cut short (or garbled) before the first chunk
-        why = "it ends inside a record"
-    raise LogError(f"{path}: not a usable MCAP log: no chunk, message or footer ({why})")
+    with LogFile(path) as lf:
+        lf.check()
 
 
 def legacy_log_source(files: list[Path]) -> str:

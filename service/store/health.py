@@ -77,6 +77,10 @@ def _dumps(obj: Any) -> str:
     return json.dumps(obj, separators=(",", ":"), sort_keys=True)
 
 
+def _opt(v: Any, kind: type) -> Any:
+    return None if v is None else kind(v)
+
+
 def _float(v: Any) -> float:
     return math.nan if v is None else float(v)
 
@@ -583,10 +587,10 @@ class HealthStore:
                     "rul": None if r[-2] is None else json.loads(r[-2]),
                     "rul_updated_s": None if r[-1] is None else float(r[-1]),
                     "usage": usage_totals(s),
-                    "last_ratio": None if s["last_ratio"] is None else float(s["last_ratio"]),
-                    "life_axis": s["life_axis"] or "hours",
-                    "first_flight": None if s["first_flight"] is None else int(s["first_flight"]),
-                    "flights": int(s["n_flights"] or 0),
+                    "last_ratio": _opt(s.get("last_ratio"), float),
+                    "life_axis": s.get("life_axis") or "hours",
+                    "first_flight": _opt(s.get("first_flight"), int),
+                    "flights": int(s.get("n_flights") or 0),
                 }
             )
         return out

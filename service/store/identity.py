@@ -28,7 +28,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -296,6 +296,11 @@ class StreamDigest:
             if not len(r.tail) or nxt in self._tail_at.get((src, i), ()):
                 return True
         return False
+
+    def relate(self, new: StreamId) -> Callable[[str], Relation | None]:
+        """``source -> relation(new, source)`` for the stored streams this digest compared
+        with while it read (None for any other source)."""
+        return lambda source: self.relation(new, source) if source in self._stored else None
 
     def relation(self, new: StreamId, source: str) -> Relation:
         """``new`` (this digest's ``finish()``) against stored ``source``."""
