@@ -7,7 +7,8 @@ zero ends a **block** (content-defined: about one sample in 256), so a block's b
 on the samples alone, not on where a file starts or was cut. A stream is a list of **runs**
 (a corrupt chunk skipped in the middle of a log starts a new run); each run is kept as
 
-- ``d``, ``n``: a digest (BLAKE2b-128) of all of its bytes and its sample count;
+- ``d``, ``n``: a digest (BLAKE2b-128) over its blocks' digests in order (so of all of its
+  bytes) and its sample count;
 - ``head``: the ``h`` of its first block (through its first block-ending sample; the whole
   run when no sample ends a block);
 - ``blocks``: ``[digest, count]`` of each block after the first that ends at a block-ending
@@ -201,7 +202,6 @@ class StreamDigest:
             return
         h = sample_mix(x)
         raw = x.tobytes()
-        self._rh.update(raw)
         self._rn += len(x)
         ends = np.flatnonzero((h & _MASK) == 0)
         a = 0
@@ -220,6 +220,7 @@ class StreamDigest:
     def _close_block(self, at_boundary: bool) -> None:
         hb = np.concatenate(self._bbuf) if self._bbuf else np.empty(0, np.uint64)
         dig = (self._bh.hexdigest(), self._bn)
+        self._rh.update(f"{dig[0]}:{dig[1]};".encode())  # the run's digest: its blocks' chain
         idx = len(self._nblocks)
         self._nblocks.append(dig)
         self._match(hb, idx, at_boundary)
