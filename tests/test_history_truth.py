@@ -415,3 +415,65 @@ def test_views_agree(store_url, capsys):
     assert fleet["SIM/healthy"]["last_ratio"] == pytest.approx(1.02)
     assert fleet["CLK/eha"]["last_ratio"] == pytest.approx(1.45)
     assert fleet["UND/eha"]["life"]["unit"] == "flights"
+
+
+# ------------------------------------------------------------------ 5. migration 7
+
+
+def _as_before_v7(url) -> None:
+    """The store as servowatch wrote it before schema v7: no stream identities, no sample
+    order, no life-order summary columns, its summary's latest period by ``start_t``."""
+    with open_store(url) as s, s._b.transaction():
+        b = s._b
+        for t, c in (("log_sources", "identity"), ("log_sources", "sample_order"),
+                     ("summary", "last_key"), ("summary", "life_axis"),
+                     ("summary", "first_flight"), ("summary", "n_flights"),
+                     ("summary", "last_ratio")):  # fmt: skip
+            b.execute(f"ALTER TABLE {t} DROP COLUMN {c}")
+        b.execute("DELETE FROM schema_migrations WHERE version = 7")
+        for (a,) in b.execute("SELECT name FROM actuators").fetchall():
+            last = b.execute("SELECT start_t, source FROM periods WHERE actuator = ? "
+                             "ORDER BY start_t DESC, source DESC LIMIT 1", (a,)).fetchone()  # fmt: skip
+            p = [q for q in s.periods(a) if (q.start_t, q.source) == (last[0], last[1])][0]
+            b.execute("UPDATE summary SET last_period = ? WHERE actuator = ?",
+                      (json.dumps(p.to_dict()), a))  # fmt: skip
+
+
+def test_migration_7_reorders_an_old_store_without_its_logs(store_url):
+    """A fleet-sim store written before v7 read its latest period by source hash; opening
+    it migrates it and the summary follows the life order, no log at hand."""
+    ratios = list(np.linspace(1.03, 12.3, 12))
+    _fleet_sim_store(store_url, ratios)
+    _as_before_v7(store_url)
+    with open_store(store_url, create=False) as s:  # a writer's open migrates
+        from service.store.schema import LATEST_VERSION
+
+        assert s.schema_version() == LATEST_VERSION
+        row = s.fleet_summary()[0]
+        assert row["last"]["flight"] == 11 and row["last_ratio"] == pytest.approx(12.3)
+        assert row["life_axis"] == "flights" and s.check() == []
+
+
+def test_migration_7_adopts_an_old_log_when_it_is_replayed(store_url, tmp_path, meas):
+    """A log stored before v7 (its first-sample id, no stream identity) is re-identified
+    when it is replayed again: the same periods under its new source, nothing twice."""
+    from service.replay.input import unit_source
+    from service.wire import messages as m
+
+    log = _log(tmp_path / "old.mcap", meas, T0)
+    replay(log, store=store_url)
+    ref = _snapshot(store_url)
+    with open_store(store_url) as s:
+        (p,) = s.periods(UNIT)[:1]
+        new_src = p.source
+    ch0 = np.array([meas[c][0] if c in meas else np.nan for c in m.CHANNELS])
+    old_src = unit_source(UNIT, float(meas["t"][0] + T0), ch0)  # the id before v7
+    _as_before_v7(store_url)
+    with open_store(store_url) as s, s._b.transaction():
+        for t in ("periods", "alarms", "log_sources"):
+            s._b.execute(f"UPDATE {t} SET source = ?", (old_src,))
+    with open_store(store_url) as s:
+        assert {q.source for q in s.periods(UNIT)} == {old_src}
+    s2 = replay(log, store=store_url)
+    assert s2.stored == {UNIT: "superseded"}
+    assert _snapshot(store_url) == ref and _sources(store_url) == {new_src}
