@@ -134,8 +134,8 @@ _V5: tuple[str, ...] = (
     "ALTER TABLE summary ADD COLUMN usage_load_travel_j DOUBLE PRECISION NOT NULL DEFAULT 0",
 )
 
-# a log's identity from all of its samples and one life order (docs/store.md, "What
-# identifies a log"; decision records 0033, 0034): per replayed log and unit its stream
+# a log's identity from all of its samples and one life order (decision records 0033 and
+# 0034; docs/store.md, "What identifies a log"): per replayed log and unit its stream
 # identity (``service.store.identity.StreamId`` as JSON; NULL: stored before, identified by its
 # first sample, adopted when the log is replayed again) and its periods' start_t in the log's
 # sample order; per summary row where the unit stands in that order (the key of its last

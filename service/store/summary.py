@@ -1,8 +1,8 @@
-"""An actuator's summary row along its life order (docs/store.md, "Trend" and "What a
-re-run does"; decision record 0034): the running totals, the latest period and the recent
+"""An actuator's summary row along its life order (docs/store.md, "What a re-run does";
+decision record 0034): the running totals, the latest period and the recent
 window for the trend, where the unit stands on its life axis and its latest observable C_Lk
-ratio. ``summarise`` adds periods that come after every stored one; ``rebuild`` makes the
-row afresh from the unit's whole history (``HealthStore.life``)."""
+ratio. ``summarise`` adds periods that come after every stored one; ``reset`` then
+``summarise`` over the whole history make it afresh (``HealthStore.rebuild_summary``)."""
 
 from __future__ import annotations
 
