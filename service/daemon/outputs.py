@@ -312,12 +312,11 @@ class Outputs:
                     with open_store(url, read_only=True) as st:
                         if name not in st.actuators():
                             return None
-                        ps = st.periods(name)
+                        ps = st.life(name)  # the unit's life order (every view's)
                 except Exception as e:  # a store the writer cannot read: count from 0
                     log.warning("store: last period of %s: %s", name, e)
                     return None
-                key = lambda p: (p.flight if p.flight is not None else -1, p.start_t)  # noqa: E731
-                return max(ps, key=key, default=None)
+                return ps[-1] if ps else None
 
             self._life = FlightStamper(last, self.flight_gap_s)
         return self._life
