@@ -56,6 +56,17 @@ class LogFile:
     def close(self) -> None:
         self._fh.close()
 
+    @property
+    def size(self) -> int:
+        """The file's size [bytes] (of the open handle)."""
+        import os
+
+        return os.fstat(self._fh.fileno()).st_size
+
+    def head(self, n: int) -> bytes:
+        """The file's first ``n`` bytes."""
+        return self._at().read(n)
+
     def _at(self, offset: int = 0) -> IO[bytes]:
         self._fh.seek(offset)
         return self._fh

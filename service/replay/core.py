@@ -520,7 +520,6 @@ def _replay(logset, log_path, summary, cfg, base, hs, speed, out, publish, publi
     """``replay`` once the log, the configuration and the store (``hs``) are resolved."""
     closed: list = []
     alarms: list = []
-    files = logset.paths
     digests: dict[str, StreamDigest] = {}
     if hs is None:
         bank: MonitorBank | MonitorFleet = MonitorBank(cfg, base)
@@ -568,7 +567,7 @@ def _replay(logset, log_path, summary, cfg, base, hs, speed, out, publish, publi
                 writer.close()
     _check_read(log_path, stats)
     if hs is not None:
-        _store_log(hs, files, log_path, summary, closed, alarms, life, digests,
+        _store_log(hs, logset.files, log_path, summary, closed, alarms, life, digests,
                    logset.metadata.get("log_id"))  # fmt: skip
     summary.wall_s = time.perf_counter() - wall0
     summary.corrupt_chunks = stats.corrupt

@@ -40,16 +40,21 @@ def check_mcap(path: Path) -> None:
         lf.check()
 
 
-def legacy_log_source(files: list[Path]) -> str:
+def legacy_log_source(files: list[Path] | list[LogFile]) -> str:
     """The identity a store before schema v4 gave a log: ``log:{first file name}:{hash}``,
     the hash over the files' names, sizes and first MiB (its periods are adopted when the log
-    is replayed again)."""
+    is replayed again). ``files``: paths, or the ``LogFile`` handles the replay has open."""
     h = hashlib.sha256()
     for f in files:
+        if isinstance(f, LogFile):
+            h.update(f"{f.path.name}:{f.size};".encode())
+            h.update(f.head(1 << 20))
+            continue
         h.update(f"{f.name}:{f.stat().st_size};".encode())
         with open(f, "rb") as fh:
             h.update(fh.read(1 << 20))
-    return f"log:{files[0].name}:{h.hexdigest()[:16]}"
+    first = files[0].path if isinstance(files[0], LogFile) else files[0]
+    return f"log:{first.name}:{h.hexdigest()[:16]}"
 
 
 def block_columns(blk: LogBlock) -> tuple[NDArray, NDArray, NDArray | None]:
