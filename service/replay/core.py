@@ -18,15 +18,21 @@ daemon's, best paced).
 With a health store (``store``), each actuator runs on its latest baseline from the store
 (``service.monitor.MonitorFleet``; none: the default, ``commissioned: false``), and the
 fan-out's operating periods and alarm raises are written to the store at the end in one
-transaction (``HealthStore.ingest_log``), named by each unit's identity in the log
-(``unit_source``: its content, not the file's path), so replaying the same log again, or a
-copy of it, adds nothing, and a longer version of it (a log ingested while still written, a
-repaired log) replaces what the shorter one stored. Each period is stamped with its flight
-and calendar time (``service.prognostics.life``: the log's ``servowatch.flight`` record, the
-caller's ``flight``/``start_unix``, or the gap rule, renumbered by the store over the unit's
-whole history so that the flights never depend on the order or split of the ingests).
+transaction (``HealthStore.ingest_log``), named by each unit's stream identity
+(``service.store.identity``: digests of all of its accepted samples, built while the log is
+read and compared there with the unit's stored streams; never the file's name), so replaying
+the same log again, a copy of it, or a log whose samples are stored already adds nothing,
+and a log that holds stored ones (a log ingested while still written, a repaired log, the
+rotation set of stored members, the daemon's own log beside its live periods) replaces
+them. Each period is stamped with its flight and calendar time (``service.prognostics.life``:
+the log's ``servowatch.flight`` record, the caller's ``flight``/``start_unix``, or the gap
+rule, renumbered by the store along the unit's life order so that the flights never depend
+on the order, split or names of the ingests). Each file is opened once
+(``service.log.logfile.LogSet``): its check, metadata, flight records, units and blocks
+are read through that one handle.
 
-``replay_many`` ingests many logs into one store in one process, in life order (``log_order``).
+``replay_many`` ingests many logs into one store in one process, in a reading order (``log_order``;
+the store's flights do not depend on it).
 """
 
 from __future__ import annotations

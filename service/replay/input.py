@@ -1,6 +1,8 @@
 """The replay's input checks (docs/store.md, "What identifies a log" and "What a re-run
-does"): whether a file is an MCAP log at all (``check_mcap``), each unit's identity in a log
-(``unit_source``), and the daemon's intake time checks on logged samples (``UnitClock``).
+does"): whether a file is an MCAP log at all (``check_mcap``, through ``LogFile``), the id
+a store before schema v7 gave a unit of a log (``unit_source``: its first sample; adopted
+when the log is replayed again), and the daemon's intake time checks on logged samples
+(``UnitClock``).
 ``LogError`` names a file that cannot be replayed, ``StoreWriteError`` a store that failed
 while a log was written."""
 
@@ -149,9 +151,10 @@ class UnitClock:
 
 
 def unit_source(name: str, t0: float, ch0: NDArray, records: list | tuple = ()) -> str:
-    """A log's identity for one unit (docs/store.md): ``log:`` and a hash of the unit's name,
-    its first accepted sample (time and channels) and its ``servowatch.flight`` records,
-    whatever the file's name or length."""
+    """The id a store of schema v4 to v6 gave a log's unit (decision record 0010, replaced by
+    0033): ``log:`` and a hash of the unit's name, its first accepted sample (time and
+    channels) and its ``servowatch.flight`` records. Kept to adopt those stored logs when
+    they are replayed again (``ingest._superseded``)."""
     h = hashlib.sha256(name.encode())
     h.update(np.float64(t0).tobytes())
     h.update(np.ascontiguousarray(ch0, np.float64).tobytes())
