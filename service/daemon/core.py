@@ -37,6 +37,7 @@ import contextlib
 import logging
 import threading
 import time
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -115,16 +116,18 @@ class Daemon:
         store_url = store_target(config.store)
         baseline = Baseline.load(config.baseline) if config.baseline and bank is None else None
         self.monitor = MonitorStage(config.monitor, baseline, store_url=store_url, bank=bank)
+        log_id = None  # the id of the log the live periods are written beside
         if logger is None:
             b = self.monitor.bank
+            log_id = uuid.uuid4().hex[:16]
             meta = {"source": "daemon", "station": self.station, "shard": self.shard,
                     "monitor_config": b.config.model_dump_json(),
-                    "baseline": b.baseline.model_dump_json()}  # fmt: skip
+                    "baseline": b.baseline.model_dump_json(), "log_id": log_id}  # fmt: skip
             logger, log_path = open_logger(config, log_path, meta, log_process)
         self.log_path = Path(log_path) if log_path is not None else None
         self.outputs = Outputs(
             config, logger, counters=self.monitor.counters_of_row, store_url=store_url,
-            bad_log=bad_log,
+            bad_log=bad_log, log_id=log_id,
         )  # fmt: skip
         pc = config.prognostics
         if self.outputs.store is not None and pc.auto_commission_s is not None:

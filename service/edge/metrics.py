@@ -44,6 +44,7 @@ from prometheus_client.core import (
 from prometheus_client.exposition import choose_encoder
 from prometheus_client.registry import Collector, CollectorRegistry
 
+from service.edge.fleet import condition_of
 from service.edge.httpguard import GuardedHandler, loopback_names
 from service.names import is_name
 
@@ -113,6 +114,10 @@ METRICS: dict[str, tuple[str, str]] = {
     "unit_rul_median_flights": ("gauge", "stored RUL median [flights] (history counts flights)"),
     "unit_rul_median_days": ("gauge", "stored RUL median [calendar days] where known"),
     "unit_rul_median_hours": ("gauge", "stored RUL median [operating hours] where known"),
+    "unit_failed": (
+        "gauge",
+        "1 when the unit's latest stored C_Lk ratio is past its failure threshold",
+    ),
 }
 
 _ALARM_KINDS = ("leak", "supply")
@@ -238,6 +243,8 @@ def collect_status(st: dict[str, Any]) -> list[Metric]:
         f.add("unit_rul_median_flights", rul.get("median_flights"), u, unit)
         f.add("unit_rul_median_days", rul.get("median_days"), u, unit)
         f.add("unit_rul_median_hours", rul.get("median_h"), u, unit)
+        if "periods" in a or "rul" in a:  # the store's view of the unit (a daemon with one)
+            f.add("unit_failed", condition_of(a)[0] == "failed", u, unit)
     return list(f.f.values())
 
 

@@ -106,7 +106,7 @@ _UNIT: dict[str, Callable[[Any], bool]] = {
     "bad": lambda v: _num(v) or _dict_of(_num)(v), "missed": _num, "silent": _bool, "commissioned": _bool,
     "baseline_version": _num, "est": _dict_of(_num), "health": _dict_of(lambda x: True),
     "alarms": _list_of(_alarm), "bad_total": _num, "nis_in_band": _num,
-    "periods": _num, "rul": lambda v: v is None or (
+    "periods": _num, "last_ratio": _num, "rul": lambda v: v is None or (
         isinstance(v, dict) and _num(v.get("median_h")) and _str(v.get("status"))
         and _num(v.get("median")) and _num(v.get("median_flights"))
         and _num(v.get("median_days")) and _num(v.get("periods"))),

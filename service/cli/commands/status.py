@@ -6,7 +6,7 @@ import argparse
 import math
 
 from service.cli.util import emit_json
-from service.edge.fleet import rul_interval
+from service.edge.fleet import condition_of, rul_interval
 from service.edge.status import query_status
 
 NAME = "status"
@@ -122,6 +122,9 @@ def format_unit(a: dict) -> list[str]:
         flags.append(f"commissioned, baseline v{_int(a.get('baseline_version'))}")
     if "periods" in a:
         flags.append(f"{_int(a['periods'])} periods, {format_rul(a.get('rul'))}")
+        cond, why = condition_of(a)
+        if cond == "failed":
+            flags.append(f"FAILED: {why}")
     return [head, ind, "    " + "; ".join(flags)]
 
 
