@@ -404,6 +404,17 @@ class HealthStore:
 
         return ingest_log(self, units, periods, alarms, gap_s)
 
+    def ingest_logs(
+        self,
+        logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
+        gap_s: float,
+    ) -> list[dict[str, dict[str, Any]]]:
+        """Several replayed logs in one transaction, each unit renumbered once:
+        ``service.store.ingest.ingest_logs`` (the store ``ingest_log`` one by one gives)."""
+        from service.store.ingest import ingest_logs
+
+        return ingest_logs(self, logs, gap_s)
+
     @staticmethod
     def _summarise(s: dict[str, Any], fresh: list[Period]) -> None:
         s["n_periods"] = int(s["n_periods"]) + len(fresh)

@@ -12,7 +12,7 @@ from service.store.lifeorder import LogUnit, natural_key, number_flights
 from service.store.records import PERIOD_FIELDS, AlarmEvent, Period
 from service.store.usage import USAGE_TOTALS
 
-__all__ = ["ingest_log"]
+__all__ = ["ingest_log", "ingest_logs"]
 
 # column order of the periods table as written (as ``health._PERIOD_COLS``)
 _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
@@ -37,6 +37,65 @@ def ingest_log(
     history (``lifeorder.number_flights``) and its summary row rebuilt. Returns per unit
     ``status`` (``new``, ``superseded``, ``stored``), ``periods_new`` and ``flights``
     (the final flight numbers of this log's periods of the unit)."""
+    return ingest_logs(hs, [(units, periods, alarms)], gap_s)[0]
+
+
+def ingest_logs(
+    hs: Any,
+    logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
+    gap_s: float,
+) -> list[dict[str, dict[str, Any]]]:
+    """Several replayed logs, each ``(units, periods, alarms)`` as ``ingest_log`` takes
+    them, in one transaction: each log as ``ingest_log`` stores it, in the given order,
+    then each changed unit renumbered and its summary rebuilt once (the renumbering reads
+    the unit's whole history: once per batch, not once per log). The store is the one
+    the logs give one by one (the flights are a function of the stored periods); the
+    ``flights`` returned are the final ones. Returns ``ingest_log``'s dict per log."""
+    b = hs._b
+    acts = sorted({u.actuator for units, _, _ in logs for u in units})
+    out: list[dict[str, dict[str, Any]]] = []
+    changed: set[str] = set()
+    with b.transaction():
+        for a in acts:
+            hs._ensure(a)
+        summaries = hs._lock_summaries(acts)
+        for units, periods, alarms in logs:
+            res = _store_units(hs, units, periods, alarms)
+            changed.update(a for a, (_, ch) in res.items() if ch)
+            out.append({a: {"status": st} for a, (st, _) in res.items()})
+        final: dict[str, dict[str, list]] = {}
+        for a in sorted(changed):
+            final[a] = defaultdict(list)
+            for (_, src), f in _renumber(hs, a, summaries[a], gap_s).items():
+                final[a][src].append(f)
+        for (units, periods, _), res in zip(logs, out, strict=True):
+            mine = defaultdict(int)
+            for p in periods:
+                mine[p.actuator] += 1
+            for u in units:
+                a = u.actuator
+                if a in final:
+                    fl = final[a].get(u.source, [])
+                else:
+                    fl = [r[0] for r in b.execute(
+                        "SELECT flight FROM periods WHERE actuator = ? AND source = ?",
+                        (a, u.source),
+                    ).fetchall()]  # fmt: skip
+                st = res[a]["status"]
+                res[a] = {
+                    "status": st,
+                    "periods_new": 0 if st == "stored" else mine[a],
+                    "flights": sorted({int(f) for f in fl if f is not None}),
+                }
+    hs._known.update(acts)
+    return out
+
+
+def _store_units(
+    hs: Any, units: Sequence[LogUnit], periods: Iterable[Period], alarms: Iterable[AlarmEvent]
+) -> dict[str, tuple[str, bool]]:
+    """One log's units written (inside the caller's transaction, summaries locked): per
+    unit its status and whether its rows changed (it must be renumbered)."""
     by_act: dict[str, list[Period]] = defaultdict(list)
     for p in periods:
         by_act[p.actuator].append(p)
@@ -44,79 +103,58 @@ def ingest_log(
     for e in alarms:
         al_by[e.actuator].append(e)
     b = hs._b
-    out: dict[str, dict[str, Any]] = {}
-    acts = sorted({u.actuator for u in units})
-    with b.transaction():
-        for a in acts:
-            hs._ensure(a)
-        summaries = hs._lock_summaries(acts)
-        for u in units:
-            a = u.actuator
-            row = b.execute(
-                "SELECT samples, name FROM log_sources WHERE actuator = ? AND source = ?",
-                (a, u.source),
-            ).fetchone()
-            legacy = 0
-            if u.legacy:
-                legacy = int(b.execute(
-                    "SELECT COUNT(*) FROM periods WHERE actuator = ? AND source = ?",
-                    (a, u.legacy),
-                ).fetchone()[0])  # fmt: skip
-            mine = [replace(p, source=u.source) for p in by_act.get(a, [])]
-            if row is not None and int(row[0]) >= u.samples and not legacy:
-                status, changed = "stored", False
-                if natural_key(u.name) < natural_key(row[1]):  # life order of the names
-                    b.execute(
-                        "UPDATE log_sources SET name = ? WHERE actuator = ? AND source = ?",
-                        (u.name, a, u.source),
-                    )
-                    changed = True
-            else:
-                status = "new" if row is None and not legacy else "superseded"
-                changed = True
-                name = u.name if row is None else min(u.name, row[1], key=natural_key)
-                for src in {u.source, u.legacy} - {None}:
-                    b.execute("DELETE FROM periods WHERE actuator = ? AND source = ?",
-                              (a, src))  # fmt: skip
-                    b.execute("DELETE FROM alarms WHERE actuator = ? AND source = ?",
-                              (a, src))  # fmt: skip
-                b.execute("DELETE FROM log_sources WHERE actuator = ? AND source = ?",
-                          (a, u.source))  # fmt: skip
+    out: dict[str, tuple[str, bool]] = {}
+    for u in units:
+        a = u.actuator
+        row = b.execute(
+            "SELECT samples, name FROM log_sources WHERE actuator = ? AND source = ?",
+            (a, u.source),
+        ).fetchone()
+        legacy = 0
+        if u.legacy:
+            legacy = int(b.execute(
+                "SELECT COUNT(*) FROM periods WHERE actuator = ? AND source = ?",
+                (a, u.legacy),
+            ).fetchone()[0])  # fmt: skip
+        mine = [replace(p, source=u.source) for p in by_act.get(a, [])]
+        if row is not None and int(row[0]) >= u.samples and not legacy:
+            status, changed = "stored", False
+            if natural_key(u.name) < natural_key(row[1]):  # life order of the names
                 b.execute(
-                    "INSERT INTO log_sources (actuator, source, samples, name, flights) "
-                    "VALUES (?, ?, ?, ?, ?)",
-                    (a, u.source, int(u.samples), name, "gap" if u.gap else "log"),
+                    "UPDATE log_sources SET name = ? WHERE actuator = ? AND source = ?",
+                    (u.name, a, u.source),
                 )
-                uniq = {float(p.start_t): p for p in mine}
-                if uniq:
-                    b.bulk_insert("periods", _PERIOD_COLS,
-                                  [[getattr(p, c) for c in _PERIOD_COLS]
-                                   for p in uniq.values()])  # fmt: skip
-                ev = {(float(e.t), e.kind): replace(e, source=u.source)
-                      for e in al_by.get(a, [])}  # fmt: skip
-                if ev:
-                    b.bulk_insert(
-                        "alarms",
-                        ("actuator", "t", "kind", "source", "value"),
-                        [[e.actuator, e.t, e.kind, e.source, e.value] for e in ev.values()],
-                    )
-            flights = _renumber(hs, a, summaries[a], gap_s) if changed else None
-            if flights is None:
-                flights = {
-                    float(r[0]): r[1]
-                    for r in b.execute(
-                        "SELECT start_t, flight FROM periods WHERE actuator = ? AND source = ?",
-                        (a, u.source),
-                    ).fetchall()
-                }
-            else:
-                flights = {float(t): f for (t, src), f in flights.items() if src == u.source}
-            out[a] = {
-                "status": status,
-                "periods_new": 0 if status == "stored" else len(mine),
-                "flights": sorted({int(f) for f in flights.values() if f is not None}),
-            }
-    hs._known.update(acts)
+                changed = True
+        else:
+            status = "new" if row is None and not legacy else "superseded"
+            changed = True
+            name = u.name if row is None else min(u.name, row[1], key=natural_key)
+            for src in {u.source, u.legacy} - {None}:
+                b.execute("DELETE FROM periods WHERE actuator = ? AND source = ?",
+                          (a, src))  # fmt: skip
+                b.execute("DELETE FROM alarms WHERE actuator = ? AND source = ?",
+                          (a, src))  # fmt: skip
+            b.execute("DELETE FROM log_sources WHERE actuator = ? AND source = ?",
+                      (a, u.source))  # fmt: skip
+            b.execute(
+                "INSERT INTO log_sources (actuator, source, samples, name, flights) "
+                "VALUES (?, ?, ?, ?, ?)",
+                (a, u.source, int(u.samples), name, "gap" if u.gap else "log"),
+            )
+            uniq = {float(p.start_t): p for p in mine}
+            if uniq:
+                b.bulk_insert("periods", _PERIOD_COLS,
+                              [[getattr(p, c) for c in _PERIOD_COLS]
+                               for p in uniq.values()])  # fmt: skip
+            ev = {(float(e.t), e.kind): replace(e, source=u.source)
+                  for e in al_by.get(a, [])}  # fmt: skip
+            if ev:
+                b.bulk_insert(
+                    "alarms",
+                    ("actuator", "t", "kind", "source", "value"),
+                    [[e.actuator, e.t, e.kind, e.source, e.value] for e in ev.values()],
+                )
+        out[a] = (status, changed)
     return out
 
 

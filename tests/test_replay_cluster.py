@@ -1,0 +1,308 @@
+"""``replay --cluster`` (issue 53): a batch on a real Dask scheduler and two ``dask worker``
+processes on loopback gives the store of a one-process replay, also when a worker is killed
+with SIGKILL mid-batch; an unreachable scheduler is one line, exit 3, nothing written; logs
+by path and ``file://`` URL; every server socket on 127.0.0.1. Real logs of the HF bench
+(3 s each) through the real monitor; SQLite and PostgreSQL."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from test_ingest import DAY, T0, _fresh, _log, _rul_json, _snapshot
+
+from service.cli import main
+from service.replay import log_order, replay_many
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+ACTS = ("ail_L", "ail_R", "elev", "rud")
+
+
+@pytest.fixture(scope="module")
+def meas():
+    """3 s of the healthy HF bench with the scenario's sensor noise, 1 kHz."""
+    from service.calibration import measured_run
+    from service.scenarios import load_scenario
+
+    sc = load_scenario("healthy_noise").model_copy(update={"duration_s": 3.0})
+    return measured_run(sc)[1]
+
+
+class DaskProcs:
+    """A ``dask scheduler`` and ``dask worker`` processes, all on 127.0.0.1, dashboards off."""
+
+    def __init__(self, folder: Path, workers: int = 2) -> None:
+        self.file = folder / "scheduler.json"
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.logs = folder
+        self._start("scheduler", ["scheduler", "--host", "127.0.0.1", "--port", "0",
+                                  "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
+                                  "--scheduler-file", str(self.file)])  # fmt: skip
+        end = time.monotonic() + 60
+        while not self.file.exists() and time.monotonic() < end:
+            time.sleep(0.1)
+        assert self.file.exists(), (folder / "scheduler.err").read_text()
+        self.address = json.loads(self.file.read_text())["address"]
+        for k in range(1, workers + 1):
+            self._start(f"w{k}", ["worker", "--scheduler-file", str(self.file), "--name",
+                                  f"w{k}", "--host", "127.0.0.1", "--nthreads", "1",
+                                  "--no-nanny", "--no-dashboard", "--dashboard-address",
+                                  "127.0.0.1:0"])  # fmt: skip
+        self.wait_workers(workers)
+
+    def _start(self, name: str, args: list[str]) -> None:
+        err = open(self.logs / f"{name}.err", "w")  # noqa: SIM115 - closed with the process
+        self.procs[name] = subprocess.Popen([sys.executable, "-m", "dask", *args], cwd=ROOT,
+                                            env=ENV, stdout=err, stderr=err)  # fmt: skip
+
+    def client(self):
+        from distributed import Client
+
+        return Client(self.address, timeout="30s")
+
+    def wait_workers(self, n: int) -> None:
+        with self.client() as c:
+            c.wait_for_workers(n, timeout=120)
+
+    def close(self) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.terminate()
+        for p in self.procs.values():
+            try:
+                p.wait(15)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+@pytest.fixture(scope="module")
+def dask_procs(tmp_path_factory):
+    d = DaskProcs(tmp_path_factory.mktemp("dask"))
+    yield d
+    d.close()
+
+
+def _logs(folder: Path, meas, n: int = 3, acts=ACTS) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    return [_log(folder / f"{a}-{k:02d}.mcap", meas, T0 + k * DAY, act=a)
+            for k in range(n) for a in acts]  # fmt: skip
+
+
+def _cli(*args) -> list[str]:
+    return [sys.executable, "-m", "service.cli", *args]
+
+
+def _fleet_json(url, capsys) -> list:
+    capsys.readouterr()
+    assert main(["fleet", "--store", str(url), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+
+    def strip(x):
+        if isinstance(x, dict):
+            return {k: strip(v) for k, v in x.items() if not k.endswith(("updated_s", "wall_s"))
+                    and k != "store"}  # fmt: skip
+        if isinstance(x, list):
+            return [strip(v) for v in x]
+        return x
+
+    return strip(rows)
+
+
+def _views(url, capsys) -> tuple:
+    """What a reader sees: ``fleet --json`` and ``rul --json`` (wall-clock fields dropped),
+    and every stored period, flight and alarm."""
+    return _fleet_json(url, capsys), _rul_json(url, capsys), _snapshot(url)
+
+
+def _reference(request, store_url, tmp_path, logs, capsys) -> tuple:
+    ref = _fresh(request, store_url, tmp_path, "ref")
+    replay_many(log_order(logs), ref)
+    return _views(ref, capsys)
+
+
+# --------------------------------------------------------------------- 1. the same store
+
+
+@pytest.mark.slow
+def test_a_batch_on_two_dask_workers_stores_what_one_process_does(request, store_url, tmp_path,
+                                                                   meas, capsys, dask_procs):  # fmt: skip
+    logs = _logs(tmp_path / "logs", meas)
+    ref = _reference(request, store_url, tmp_path, logs, capsys)
+    got = _fresh(request, store_url, tmp_path, "got")
+    r = subprocess.run(_cli("replay", str(tmp_path / "logs"), "--store", got, "--cluster",
+                            dask_procs.address, "--json"), cwd=ROOT, env=ENV,
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["logs"] == 12 and out["failed"] == []
+    assert _views(got, capsys) == ref
+    # the summary names the workers and what each did: all 12 logs, by the two workers
+    w = out["workers"]
+    assert sum(d["logs"] for d in w.values()) == 12
+    assert sum(d["samples"] for d in w.values()) == out["samples"] > 12 * 2900
+    with dask_procs.client() as c:
+        assert set(w) <= set(c.scheduler_info()["workers"])
+    # again: nothing added
+    r = subprocess.run(_cli("replay", str(tmp_path / "logs"), "--store", got, "--cluster",
+                            dask_procs.address, "--json"), cwd=ROOT, env=ENV,
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0 and json.loads(r.stdout)["periods_new"] == 0
+    assert _views(got, capsys) == ref
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_batch_loses_and_doubles_nothing(request, store_url, tmp_path, meas,
+                                                             capsys):  # fmt: skip
+    logs = _logs(tmp_path / "logs", meas, n=4)
+    ref = _reference(request, store_url, tmp_path, logs, capsys)
+    got = _fresh(request, store_url, tmp_path, "got")
+    (tmp_path / "dask").mkdir()
+    procs = DaskProcs(tmp_path / "dask")
+    try:
+        p = subprocess.Popen(_cli("replay", str(tmp_path / "logs"), "--store", got, "--cluster",
+                                  procs.address, "--json"), cwd=ROOT, env=ENV,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        killed = None
+        with procs.client() as c:
+            end = time.monotonic() + 120
+            while killed is None and time.monotonic() < end and p.poll() is None:
+                info = c.scheduler_info()["workers"]
+                for addr, keys in c.processing().items():
+                    if keys and info.get(addr, {}).get("name") == "w1":
+                        procs.procs["w1"].send_signal(signal.SIGKILL)  # holding a task
+                        killed = addr
+                time.sleep(0.01)
+        assert killed is not None, "w1 never held a task"
+        out, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err
+        res = json.loads(out)
+        assert res["logs"] == 16 and res["failed"] == []
+        assert killed not in res["workers"] or res["workers"][killed]["logs"] < 16
+        assert sum(d["logs"] for d in res["workers"].values()) == 16
+        assert _views(got, capsys) == ref
+    finally:
+        procs.close()
+
+
+# ------------------------------------------------------------------- 2. what fails, fails
+
+
+def test_an_unreachable_scheduler_is_one_line_exit_3_and_nothing_written(tmp_path, meas):
+    import socket
+
+    logs = _logs(tmp_path / "logs", meas, n=1, acts=ACTS[:2])
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # nothing listens there once closed
+    store = tmp_path / "h.sqlite"
+    t0 = time.monotonic()
+    r = subprocess.run(_cli("replay", *map(str, logs), "--store", str(store), "--cluster",
+                            f"tcp://127.0.0.1:{port}"), cwd=ROOT, env=ENV,
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 3
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("servowatch: error: --cluster tcp://127.0.0.1")
+    assert "no Dask scheduler reachable" in lines[0]
+    assert not store.exists() and not list(tmp_path.glob("h.sqlite*"))
+    assert time.monotonic() - t0 < 60
+
+
+@pytest.mark.slow
+def test_a_bad_file_on_the_cluster_is_named_and_the_rest_stored(tmp_path, meas, capsys,
+                                                                 dask_procs):  # fmt: skip
+    logs = _logs(tmp_path / "logs", meas, n=2, acts=ACTS[:2])
+    (tmp_path / "logs" / "notes.mcap").write_text("not a log\n")
+    store = tmp_path / "h.sqlite"
+    capsys.readouterr()
+    rc = main(["replay", str(tmp_path / "logs"), "--store", str(store), "--cluster",
+               dask_procs.address, "--json"])  # fmt: skip
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 1 and [Path(f["log"]).name for f in out["failed"]] == ["notes.mcap"]
+    assert out["failed"][0]["error"].startswith(str(tmp_path / "logs" / "notes.mcap"))
+    assert out["actuators"] == {
+        "AC1/ail_L": {"flights": 2, "first": 0, "last": 1},
+        "AC1/ail_R": {"flights": 2, "first": 0, "last": 1},
+    }
+    assert len(logs) == 4 and sum(d["logs"] for d in out["workers"].values()) == 5
+
+
+# -------------------------------------------------------------- 3. logs by URL, loopback
+
+
+@pytest.mark.slow
+def test_file_urls_store_what_paths_do(tmp_path, meas, capsys, dask_procs):
+    logs = _logs(tmp_path / "logs", meas, n=2, acts=ACTS[:2])
+    by_path, by_url = tmp_path / "a.sqlite", tmp_path / "b.sqlite"
+    replay_many(log_order(logs), by_path)
+    capsys.readouterr()
+    rc = main(["replay", (tmp_path / "logs").as_uri(), "--store", str(by_url), "--cluster",
+               dask_procs.address, "--json"])  # fmt: skip
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["logs"] == 4 and out["failed"] == []
+    assert _snapshot(by_url) == _snapshot(by_path)
+    # one file's URL, and a glob of them
+    rc = main(
+        [
+            "replay",
+            logs[0].as_uri(),
+            (tmp_path / "logs").as_uri() + "/ail_R-*.mcap",
+            "--store",
+            str(tmp_path / "c.sqlite"),
+            "--cluster",
+            dask_procs.address,
+            "--json",
+        ]
+    )
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["logs"] == 3 and out["failed"] == []
+
+
+@pytest.mark.slow
+def test_the_scheduler_and_workers_listen_on_loopback_only(dask_procs):
+    import psutil
+
+    seen = []
+    for name, p in dask_procs.procs.items():
+        for c in psutil.Process(p.pid).net_connections(kind="inet"):
+            if c.status == psutil.CONN_LISTEN:
+                seen.append((name, c.laddr.ip))
+    assert {n for n, _ in seen} == {"scheduler", "w1", "w2"}
+    assert {ip for _, ip in seen} == {"127.0.0.1"}, seen
+
+
+# ------------------------------------------------------ 4. the client's batched writes
+
+
+def test_a_task_written_in_one_transaction_stores_what_its_logs_do_one_by_one(
+    request, store_url, tmp_path, meas, capsys
+):
+    """``write_logs`` (``HealthStore.ingest_logs``: a task's logs in one transaction, each
+    unit renumbered once) gives the store, and the flights, of one ``ingest_log`` per log;
+    a copy of a log in the same batch adds nothing."""
+    from service.replay_cluster import GroupTask, run_group, write_logs
+    from service.store import open_store
+
+    logs = log_order(_logs(tmp_path / "logs", meas, n=3, acts=ACTS[:2]))
+    (tmp_path / "logs" / "copy.mcap").write_bytes(logs[0].read_bytes())
+    ref = _reference(request, store_url, tmp_path, logs, capsys)
+    got = _fresh(request, store_url, tmp_path, "got")
+    res = run_group(GroupTask([str(p) for p in logs] + [str(tmp_path / "logs" / "copy.mcap")],
+                              str(got), {}, 1800.0, {}))  # fmt: skip
+    assert [e for _, _, e, _ in res.logs] == [None] * 7
+    done = [(s, c) for _, s, _, c in res.logs]
+    assert all(s.periods_new == 0 for s, _ in done)  # not written on the worker
+    with open_store(got) as hs:
+        write_logs(hs, done)
+    assert _views(got, capsys) == ref
+    assert [s.stored for s, _ in done][-1] == {"AC1/ail_L": "stored"}
+    assert sum(s.periods_new for s, _ in done[:-1]) > 0 and done[-1][0].periods_new == 0
+    one = {a: f for s, _ in done[:-1] for a, f in s.flights.items() if s.log == str(logs[-1])}
+    assert one == {"AC1/ail_R": [2]}  # the final flight numbers (days 0, 1, 2)
