@@ -35,26 +35,43 @@ def meas():
     return measured_run(sc)[1]
 
 
+def unit_command(unit: str, **subst: str) -> list[str]:
+    """The ``ExecStart`` of a ``deploy/dask`` systemd unit as argv, run by this Python,
+    with ``subst`` replacing words (the scheduler's port, the worker's name, its folder)."""
+    line = next(x for x in (ROOT / "deploy" / "dask" / unit).read_text().splitlines()
+                if x.startswith("ExecStart="))  # fmt: skip
+    argv = line.removeprefix("ExecStart=").split()
+    assert argv[:3] == ["/opt/servowatch/.venv/bin/python", "-m", "dask"], argv
+    for k, v in subst.items():
+        argv = [a.replace(k, v) for a in argv]
+    return argv[3:]
+
+
 class DaskProcs:
-    """A ``dask scheduler`` and ``dask worker`` processes, all on 127.0.0.1, dashboards off."""
+    """A ``dask scheduler`` and ``dask worker`` processes as ``deploy/dask``'s systemd units
+    start them (127.0.0.1, dashboards off), on a free port."""
 
     def __init__(self, folder: Path, workers: int = 2) -> None:
-        self.file = folder / "scheduler.json"
+        import socket
+
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs = folder
-        self._start("scheduler", ["scheduler", "--host", "127.0.0.1", "--port", "0",
-                                  "--no-dashboard", "--dashboard-address", "127.0.0.1:0",
-                                  "--scheduler-file", str(self.file)])  # fmt: skip
-        end = time.monotonic() + 60
-        while not self.file.exists() and time.monotonic() < end:
-            time.sleep(0.1)
-        assert self.file.exists(), (folder / "scheduler.err").read_text()
-        self.address = json.loads(self.file.read_text())["address"]
+        for _ in range(20):
+            with socket.socket() as s:
+                s.bind(("127.0.0.1", 0))
+                port = str(s.getsockname()[1])
+            self._start("scheduler", unit_command("servowatch-dask-scheduler.service",
+                                                  **{"8786": port}))  # fmt: skip
+            self.address = f"tcp://127.0.0.1:{port}"
+            try:
+                self.wait_workers(0)
+                break
+            except OSError:  # the port was taken meanwhile: another
+                self.procs.pop("scheduler").kill()
         for k in range(1, workers + 1):
-            self._start(f"w{k}", ["worker", "--scheduler-file", str(self.file), "--name",
-                                  f"w{k}", "--host", "127.0.0.1", "--nthreads", "1",
-                                  "--no-nanny", "--no-dashboard", "--dashboard-address",
-                                  "127.0.0.1:0"])  # fmt: skip
+            self._start(f"w{k}", unit_command(
+                "servowatch-dask-worker@.service", **{"8786": port, "%H-%i": f"w{k}",
+                "/var/lib/servowatch-dask/worker-%i": str(folder / f"w{k}")}))  # fmt: skip
         self.wait_workers(workers)
 
     def _start(self, name: str, args: list[str]) -> None:
@@ -69,7 +86,8 @@ class DaskProcs:
 
     def wait_workers(self, n: int) -> None:
         with self.client() as c:
-            c.wait_for_workers(n, timeout=120)
+            if n:
+                c.wait_for_workers(n, timeout=120)
 
     def close(self) -> None:
         for p in self.procs.values():
