@@ -61,6 +61,29 @@ def local_path(item: str | Path) -> Path | None:
     return None
 
 
+def expand_urls(item: str) -> list[str]:
+    """The logs an fsspec URL names, as URLs: a file, a folder (its ``*.mcap`` files,
+    recursively) or a glob pattern, listed where this runs (the client must be able to list
+    the location; the workers read the files). FileNotFoundError names an item that
+    matches nothing."""
+    import fsspec
+
+    try:
+        fs, path = fsspec.core.url_to_fs(item)
+        if any(c in path for c in "*?["):
+            found = sorted(f for f in fs.glob(path) if fs.isfile(f))
+        elif fs.isdir(path):
+            found = sorted(f for f in fs.find(path) if f.endswith(".mcap"))
+        else:
+            found = [path] if fs.isfile(path) else []
+    except (ImportError, ValueError) as e:  # an unknown protocol, its package missing
+        raise FileNotFoundError(f"{item}: cannot list it: {e}") from None
+    if not found:
+        raise FileNotFoundError(f"{item}: no such log, folder or matching file")
+    return [item if f == path and not fs.isdir(path) else fs.unstrip_protocol(f)
+            for f in found]  # fmt: skip
+
+
 def fetch(item: str, cache: str) -> Path:
     """A local file holding log ``item``: the path itself (a path, ``file://``), else a copy
     under ``cache`` with the same file name (fsspec ``simplecache``: s3://, gs://, http://,
@@ -220,7 +243,6 @@ def run_group(task: GroupTask) -> GroupResult:
     import tempfile
 
     from service.replay import replay_many
-    from service.replay_input import named
 
     w0 = time.perf_counter()
     cap = CaptureStore(task.store, task.baselines)
@@ -230,8 +252,9 @@ def run_group(task: GroupTask) -> GroupResult:
             cap.calls.clear()
             try:
                 p = fetch(item, cache)
-            except Exception as e:
-                out.append((item, None, named(Path(item), e), None))
+            except Exception as e:  # not there, not readable: named by its URL
+                cause = (str(e).strip().splitlines() or [""])[0] or type(e).__name__
+                out.append((item, None, f"{item}: cannot read: {cause}", None))
                 continue
             got: list = []
             replay_many([p], cap, flight_gap_s=task.gap_s, on_log=lambda _p, s, e, got=got:

@@ -324,3 +324,29 @@ def test_a_task_written_in_one_transaction_stores_what_its_logs_do_one_by_one(
     assert sum(s.periods_new for s, _ in done[:-1]) > 0 and done[-1][0].periods_new == 0
     one = {a: f for s, _ in done[:-1] for a, f in s.flights.items() if s.log == str(logs[-1])}
     assert one == {"AC1/ail_R": [2]}  # the final flight numbers (days 0, 1, 2)
+
+
+def test_a_log_by_another_protocol_is_fetched_under_its_own_name(tmp_path, meas):
+    """A URL of a protocol other than the local files' (fsspec's in-process ``memory://``
+    here) is copied under its own file name: the task stores what the path gives, and names
+    the URL, not the copy."""
+    import fsspec
+
+    from service.replay_cluster import GroupTask, log_facts, run_group
+
+    log = _log(tmp_path / "ail_L-00.mcap", meas, T0)
+    url = "memory://fleet/logs/ail_L-00.mcap"
+    with fsspec.open(url, "wb") as fh:
+        fh.write(log.read_bytes())
+    assert log_facts(url).units == log_facts(str(log)).units == ["AC1/ail_L"]
+    by_url, by_path = (run_group(GroupTask([x], "s", {}, 1800.0, {})).logs[0]
+                       for x in (url, str(log)))  # fmt: skip
+    assert by_url[0] == by_url[1].log == url and by_url[2] is None
+    assert by_url[3].units == by_path[3].units  # the same identity and file name
+    assert by_url[3].periods == by_path[3].periods
+    with fsspec.open("memory://fleet/logs/notes.mcap", "wb") as fh:
+        fh.write(b"not a log\n")
+    bad = run_group(GroupTask(["memory://fleet/logs/notes.mcap", "memory://fleet/none.mcap"],
+                              "s", {}, 1800.0, {})).logs  # fmt: skip
+    assert [b[2].split(": ")[0] for b in bad] == ["memory://fleet/logs/notes.mcap",
+                                                  "memory://fleet/none.mcap"]  # fmt: skip
