@@ -100,11 +100,12 @@ def store_writes(
     """(flight, periods of the unit stored before it, ms of client and store time per
     flight) for one unit's ``flights`` written into a fresh PostgreSQL database, ``batch``
     flights per transaction (``write_logs`` of ``batch`` captured logs: a task's)."""
+    from service.replay import replay_many
     from service.replay_cluster import GroupTask, run_group, write_logs
     from service.store import open_store
     from service.store.pgtemp import TempCluster
 
-    res = run_group(GroupTask([str(log)], "bench", {}, 1800.0, {}))
+    res = run_group(GroupTask([str(log)], "bench", {}, 1800.0, {}, replay_many))
     _, s0, _, call = res.logs[0]
     p0 = call.periods[0]
 

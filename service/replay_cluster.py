@@ -206,13 +206,15 @@ class CaptureStore:
 @dataclass
 class GroupTask:
     """What travels to a worker: the group's logs (paths or URLs, in life order), the
-    baselines of their actuators from the client's store, and ``replay``'s settings."""
+    baselines of their actuators from the client's store, ``replay``'s settings and the
+    per-log work function (pickled by name)."""
 
     logs: list[str]
     store: str
     baselines: dict[str, Any]
     gap_s: float
     kw: dict[str, Any]
+    work: Callable[..., Any]  # service.replay.replay_many (passed in: no import back up)
 
 
 @dataclass
@@ -238,11 +240,10 @@ def worker_name() -> str:
 
 
 def run_group(task: GroupTask) -> GroupResult:
-    """A worker's task: each log of the group through ``replay_many`` (one at a time, so a
-    log's failure is its own) on a ``CaptureStore``; nothing is written here."""
+    """A worker's task: each log of the group through ``task.work`` (``replay_many``, one log
+    at a time, so a log's failure is its own) on a ``CaptureStore``; nothing is written
+    here."""
     import tempfile
-
-    from service.replay import replay_many
 
     w0 = time.perf_counter()
     cap = CaptureStore(task.store, task.baselines)
@@ -257,7 +258,7 @@ def run_group(task: GroupTask) -> GroupResult:
                 out.append((item, None, f"{item}: cannot read: {cause}", None))
                 continue
             got: list = []
-            replay_many([p], cap, flight_gap_s=task.gap_s, on_log=lambda _p, s, e, got=got:
+            task.work([p], cap, flight_gap_s=task.gap_s, on_log=lambda _p, s, e, got=got:
                         got.append((s, e)), **task.kw)  # fmt: skip
             s, e = got[0] if got else (None, RuntimeError("no result"))
             if s is not None and str(p) != item:
@@ -463,15 +464,23 @@ def run_batch(
     tick: Callable[[], None] | None = None,
     flight_gap_s: float,
     kw: dict[str, Any],
+    work: Callable[..., Any],
     report: BatchReport | None = None,
+    task_logs: int | None = None,
 ) -> list:
-    """``logs`` (paths or fsspec URLs) replayed by ``pool``'s workers, one task per group
+    """``logs`` (paths or fsspec URLs) replayed by ``pool``'s workers with ``work``
+    (``service.replay.replay_many``, run on one log at a time), one task per group
     (``groups``, each in life order), and written to ``store`` here as each task completes;
     ``on_log`` and ``tick`` as ``replay_many`` calls them (``tick`` once per log of a
     completed task; a URL is passed as its text, a path as a ``Path``). A task whose workers
     all died (more often than the scheduler allows) names each of its logs as failed.
     ``report`` gets the pool and each worker's load. ``StoreWriteError``: the store failed
-    (the logs written before it stay, each whole)."""
+    (the logs written before it stay, each whole).
+
+    ``task_logs``: a group is cut into tasks of at most this many consecutive logs, which
+    may run at once: each log's replay starts its monitor afresh (``replay``) and only this
+    client writes, in any order (the store is the same for any split and order of the
+    logs, decision record 0010), so the batch is no longer as long as its largest group."""
     from service.replay_input import LogError
     from service.store import open_store
 
@@ -489,10 +498,13 @@ def run_batch(
         out: list = []
         with open_store(store) as hs:
             tasks = []
-            for g in groups(items, facts):
+            k = task_logs or len(items)
+            for g in (
+                grp[i : i + k] for grp in groups(items, facts) for i in range(0, len(grp), k)
+            ):
                 acts = sorted({a for i in g for a in facts[i].units if not a.startswith("?")})
                 bl = {a: rec for a in acts if (rec := hs.latest_baseline(a)) is not None}
-                tasks.append(GroupTask(g, str(store), bl, flight_gap_s, kw))
+                tasks.append(GroupTask(g, str(store), bl, flight_gap_s, kw, work))
             futs = [pool.submit(run_group, t) for t in tasks]
             by_fut = {id(f): t for f, t in zip(futs, tasks, strict=True)}
             for f in pool.as_completed(futs):

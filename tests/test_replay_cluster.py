@@ -313,7 +313,7 @@ def test_a_task_written_in_one_transaction_stores_what_its_logs_do_one_by_one(
     ref = _reference(request, store_url, tmp_path, logs, capsys)
     got = _fresh(request, store_url, tmp_path, "got")
     res = run_group(GroupTask([str(p) for p in logs] + [str(tmp_path / "logs" / "copy.mcap")],
-                              str(got), {}, 1800.0, {}))  # fmt: skip
+                              str(got), {}, 1800.0, {}, replay_many))  # fmt: skip
     assert [e for _, _, e, _ in res.logs] == [None] * 7
     done = [(s, c) for _, s, _, c in res.logs]
     assert all(s.periods_new == 0 for s, _ in done)  # not written on the worker
@@ -339,7 +339,7 @@ def test_a_log_by_another_protocol_is_fetched_under_its_own_name(tmp_path, meas)
     with fsspec.open(url, "wb") as fh:
         fh.write(log.read_bytes())
     assert log_facts(url).units == log_facts(str(log)).units == ["AC1/ail_L"]
-    by_url, by_path = (run_group(GroupTask([x], "s", {}, 1800.0, {})).logs[0]
+    by_url, by_path = (run_group(GroupTask([x], "s", {}, 1800.0, {}, replay_many)).logs[0]
                        for x in (url, str(log)))  # fmt: skip
     assert by_url[0] == by_url[1].log == url and by_url[2] is None
     assert by_url[3].units == by_path[3].units  # the same identity and file name
@@ -347,6 +347,6 @@ def test_a_log_by_another_protocol_is_fetched_under_its_own_name(tmp_path, meas)
     with fsspec.open("memory://fleet/logs/notes.mcap", "wb") as fh:
         fh.write(b"not a log\n")
     bad = run_group(GroupTask(["memory://fleet/logs/notes.mcap", "memory://fleet/none.mcap"],
-                              "s", {}, 1800.0, {})).logs  # fmt: skip
+                              "s", {}, 1800.0, {}, replay_many)).logs  # fmt: skip
     assert [b[2].split(": ")[0] for b in bad] == ["memory://fleet/logs/notes.mcap",
                                                   "memory://fleet/none.mcap"]  # fmt: skip
