@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import time
 import warnings
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -340,6 +342,34 @@ class ProcessPool:
 CONNECT_TIMEOUT_S = 10.0  # a scheduler that does not answer in this time is unreachable
 
 
+def check_cluster(spec: str) -> int | None:
+    """N of ``local:N``, None for a scheduler's address; ValueError (one line naming
+    ``--cluster``) for anything else."""
+    if spec.startswith("local:"):
+        n = spec.removeprefix("local:")
+        if not n.isdigit() or int(n) < 1:
+            raise ValueError(f"--cluster {spec}: local:N takes a number of workers >= 1")
+        return int(n)
+    if not re.match(r"^[a-z][a-z0-9+.-]*://\S+$", spec):
+        raise ValueError(f"--cluster {spec}: expected tcp://HOST:PORT (a Dask scheduler) or "
+                         "local:N")  # fmt: skip
+    return None
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """Dask's, Tornado's and asyncio's loggers at CRITICAL meanwhile."""
+    quiet = [logging.getLogger(n) for n in ("distributed", "tornado", "asyncio")]
+    levels = [q.level for q in quiet]
+    for q in quiet:
+        q.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for q, lv in zip(quiet, levels, strict=True):
+            q.setLevel(lv)
+
+
 class DaskPool:
     """``--cluster``: a Dask distributed scheduler at an address (``tcp://HOST:PORT``,
     ``tls://...``), or ``local:N``, a ``LocalCluster`` of N single-threaded worker processes
@@ -348,38 +378,26 @@ class DaskPool:
     def __init__(self, spec: str, timeout_s: float = CONNECT_TIMEOUT_S) -> None:
         from distributed import Client
 
+        n = check_cluster(spec)
         self.spec = spec
         self._cluster = None
-        quiet = [logging.getLogger(n) for n in ("distributed", "tornado", "asyncio")]
-        levels = [q.level for q in quiet]
-        for q in quiet:  # the connect's retries are logged at ERROR: one line is ours
-            q.setLevel(logging.CRITICAL)
-        try:
-            if spec.startswith("local:"):
-                n = spec.removeprefix("local:")
-                if not n.isdigit() or int(n) < 1:
-                    raise ClusterError(f"--cluster {spec}: local:N takes a number of workers >= 1")
+        with _quiet():  # the connect's retries are logged at ERROR: one line is ours
+            if n is not None:
                 from distributed import LocalCluster
 
                 self._cluster = LocalCluster(
-                    n_workers=int(n), threads_per_worker=1, processes=True, host="127.0.0.1",
+                    n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                     dashboard_address=None, worker_dashboard_address=None, scheduler_port=0,
                     silence_logs=logging.ERROR,
                 )  # fmt: skip
                 self.client = Client(self._cluster, timeout=f"{timeout_s}s")
             else:
-                if "://" not in spec:
-                    raise ClusterError(f"--cluster {spec}: expected tcp://HOST:PORT (a Dask "
-                                       "scheduler) or local:N")  # fmt: skip
                 try:
                     self.client = Client(spec, timeout=f"{timeout_s}s")
                 except (OSError, TimeoutError, ValueError) as e:
                     text = (str(e).strip().splitlines() or [""])[0] or type(e).__name__
                     raise ClusterError(f"--cluster {spec}: no Dask scheduler reachable: "
                                        f"{text}") from None  # fmt: skip
-        finally:
-            for q, lv in zip(quiet, levels, strict=True):
-                q.setLevel(lv)
 
     def describe(self) -> str:
         n = len(self.client.scheduler_info().get("workers", {}))
@@ -400,9 +418,10 @@ class DaskPool:
         """The cluster stays (``close`` leaves it)."""
 
     def close(self) -> None:
-        self.client.close()
-        if self._cluster is not None:
-            self._cluster.close()
+        with _quiet():  # a LocalCluster's shutdown is logged line by line
+            self.client.close()
+            if self._cluster is not None:
+                self._cluster.close()
 
 
 def open_pool(jobs: int = 1, cluster: str | None = None) -> ProcessPool | DaskPool:
@@ -471,8 +490,9 @@ def run_batch(
     """``logs`` (paths or fsspec URLs) replayed by ``pool``'s workers with ``work``
     (``service.replay.replay_many``, run on one log at a time), one task per group
     (``groups``, each in life order), and written to ``store`` here as each task completes;
-    ``on_log`` and ``tick`` as ``replay_many`` calls them (``tick`` once per log of a
-    completed task; a URL is passed as its text, a path as a ``Path``). A task whose workers
+    ``tick`` as ``replay_many`` calls it, once per log of a completed task; ``on_log`` at
+    once for a log that failed, at the end of the batch for the others, with the flights
+    as the store numbers them then (a URL is passed as its text, a path as a ``Path``). A task whose workers
     all died (more often than the scheduler allows) names each of its logs as failed.
     ``report`` gets the pool and each worker's load. ``StoreWriteError``: the store failed
     (the logs written before it stay, each whole).
@@ -481,10 +501,11 @@ def run_batch(
     may run at once: each log's replay starts its monitor afresh (``replay``) and only this
     client writes, in any order (the store is the same for any split and order of the
     logs, decision record 0010), so the batch is no longer as long as its largest group."""
-    from service.replay_input import LogError
+    from service.replay_input import LogError, StoreWriteError
     from service.store import open_store
 
     report = report if report is not None else BatchReport()
+    written: list[tuple[Any, Any]] = []  # on_log after the batch: the final flights
     report.pool = pool.describe()
     items = [str(p) for p in logs]
     pool.start(len(items))
@@ -518,19 +539,44 @@ def run_batch(
                 load = report.workers.setdefault(res.worker, WorkerLoad())
                 load.tasks += 1
                 load.busy_s += res.wall_s
-                write_logs(hs, [(s, c) for _, s, _, c in res.logs if s is not None and c])
+                try:
+                    write_logs(hs, [(s, c) for _, s, _, c in res.logs if s is not None and c])
+                except StoreWriteError:
+                    for key, s in written:  # the logs stored before it
+                        if on_log is not None:
+                            on_log(key, s, None)
+                    raise
                 for item, s, err, _ in res.logs:
                     load.logs += 1
+                    key = item if is_url(item) else Path(item)
                     if s is not None:
                         load.samples += s.samples
                         out.append(s)
+                        written.append((key, s))
                     else:
                         load.failed += 1
-                    if on_log is not None:
-                        key = item if is_url(item) else Path(item)
-                        on_log(key, s, None if err is None else LogError(err))
+                        if on_log is not None:
+                            on_log(key, None, LogError(err or "failed"))
                     if tick is not None:
                         tick()
+            final_flights(hs, out)
     finally:
         pool.stop()
+    for key, s in written:
+        if on_log is not None:
+            on_log(key, s, None)
     return out
+
+
+def final_flights(hs: Any, summaries: list) -> None:
+    """Each summary's ``flights`` as the store numbers them at the end of the batch (a log
+    written before an earlier one of its unit had its gap-rule flights renumbered since)."""
+    acts = sorted({a for s in summaries for a in s.flights})
+    for a in acts:
+        by_src: dict[str, set[int]] = {}
+        for p in hs.periods(a):
+            if p.flight is not None:
+                by_src.setdefault(p.source, set()).add(int(p.flight))
+        for s in summaries:
+            if a in s.flights and a in s.sources:
+                s.flights[a] = sorted(by_src.get(s.sources[a], ()))

@@ -168,7 +168,8 @@ def test_a_batch_on_two_dask_workers_stores_what_one_process_does(request, store
     assert sum(d["samples"] for d in w.values()) == out["samples"] > 12 * 2900
     with dask_procs.client() as c:
         assert set(w) <= set(c.scheduler_info()["workers"])
-    # again: nothing added
+    # again: nothing added (compared with the views after the first, which `rul` wrote to)
+    ref = _views(got, capsys)
     r = subprocess.run(_cli("replay", str(tmp_path / "logs"), "--store", got, "--cluster",
                             dask_procs.address, "--json"), cwd=ROOT, env=ENV,
                        capture_output=True, text=True, timeout=300)  # fmt: skip
@@ -250,6 +251,25 @@ def test_a_bad_file_on_the_cluster_is_named_and_the_rest_stored(tmp_path, meas, 
         "AC1/ail_R": {"flights": 2, "first": 0, "last": 1},
     }
     assert len(logs) == 4 and sum(d["logs"] for d in out["workers"].values()) == 5
+
+
+@pytest.mark.slow
+def test_tasks_of_one_log_each_store_and_report_what_one_process_does(tmp_path, meas, capsys,
+                                                                      dask_procs):  # fmt: skip
+    """``--task-logs 1``: an actuator's logs on both workers at once, written in the order
+    they complete: the same store, and the summary's flights the final ones."""
+    logs = _logs(tmp_path / "logs", meas, n=4, acts=ACTS[:2])
+    one, got = tmp_path / "one.sqlite", tmp_path / "got.sqlite"
+    capsys.readouterr()
+    assert main(["replay", str(tmp_path / "logs"), "--store", str(one), "--json"]) == 0
+    ref = json.loads(capsys.readouterr().out)
+    rc = main(["replay", str(tmp_path / "logs"), "--store", str(got), "--cluster",
+               dask_procs.address, "--task-logs", "1", "--json"])  # fmt: skip
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["actuators"] == ref["actuators"] and len(logs) == 8
+    assert out["actuators"]["AC1/ail_L"] == {"flights": 4, "first": 0, "last": 3}
+    assert sum(d["tasks"] for d in out["workers"].values()) == 8
+    assert _snapshot(got) == _snapshot(one)
 
 
 # -------------------------------------------------------------- 3. logs by URL, loopback
