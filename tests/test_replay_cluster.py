@@ -52,10 +52,17 @@ class DaskProcs:
     start them (127.0.0.1, dashboards off), on a free port."""
 
     def __init__(self, folder: Path, workers: int = 2) -> None:
-        import socket
-
         self.procs: dict[str, subprocess.Popen] = {}
         self.logs = folder
+        try:
+            self._up(folder, workers)
+        except BaseException:
+            self.close()  # nothing left running
+            raise
+
+    def _up(self, folder: Path, workers: int) -> None:
+        import socket
+
         for _ in range(20):
             with socket.socket() as s:
                 s.bind(("127.0.0.1", 0))
