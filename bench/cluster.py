@@ -101,7 +101,7 @@ def store_writes(
     flight) for one unit's ``flights`` written into a fresh PostgreSQL database, ``batch``
     flights per transaction (``write_logs`` of ``batch`` captured logs: a task's)."""
     from service.replay import replay_many
-    from service.replay_cluster import GroupTask, run_group, write_logs
+    from service.replay.cluster import GroupTask, run_group, write_logs
     from service.store import open_store
     from service.store.pgtemp import TempCluster
 

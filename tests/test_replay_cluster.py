@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+import test_ingest
 from test_ingest import DAY, T0, _fresh, _log, _rul_json, _snapshot
 
 from service.cli import main
@@ -23,16 +24,7 @@ from service.replay import log_order, replay_many
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
 ACTS = ("ail_L", "ail_R", "elev", "rud")
-
-
-@pytest.fixture(scope="module")
-def meas():
-    """3 s of the healthy HF bench with the scenario's sensor noise, 1 kHz."""
-    from service.calibration import measured_run
-    from service.scenarios import load_scenario
-
-    sc = load_scenario("healthy_noise").model_copy(update={"duration_s": 3.0})
-    return measured_run(sc)[1]
+meas = test_ingest.meas  # the fixture: 3 s of the healthy HF bench, 1 kHz
 
 
 def unit_command(unit: str, **subst: str) -> list[str]:
@@ -332,7 +324,7 @@ def test_a_task_written_in_one_transaction_stores_what_its_logs_do_one_by_one(
     """``write_logs`` (``HealthStore.ingest_logs``: a task's logs in one transaction, each
     unit renumbered once) gives the store, and the flights, of one ``ingest_log`` per log;
     a copy of a log in the same batch adds nothing."""
-    from service.replay_cluster import GroupTask, run_group, write_logs
+    from service.replay.cluster import GroupTask, run_group, write_logs
     from service.store import open_store
 
     logs = log_order(_logs(tmp_path / "logs", meas, n=3, acts=ACTS[:2]))
@@ -359,7 +351,7 @@ def test_a_log_by_another_protocol_is_fetched_under_its_own_name(tmp_path, meas)
     the URL, not the copy."""
     import fsspec
 
-    from service.replay_cluster import GroupTask, log_facts, run_group
+    from service.replay.cluster import GroupTask, log_facts, run_group
 
     log = _log(tmp_path / "ail_L-00.mcap", meas, T0)
     url = "memory://fleet/logs/ail_L-00.mcap"
