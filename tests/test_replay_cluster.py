@@ -369,3 +369,27 @@ def test_a_log_by_another_protocol_is_fetched_under_its_own_name(tmp_path, meas)
                               "s", {}, 1800.0, {}, replay_many)).logs  # fmt: skip
     assert [b[2].split(": ")[0] for b in bad] == ["memory://fleet/logs/notes.mcap",
                                                   "memory://fleet/none.mcap"]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_the_progress_counts_every_log_from_the_completed_tasks(tmp_path, meas, dask_procs):
+    """``run_batch``'s ``tick`` (the progress bar's) once per log as its task completes, and
+    ``on_log`` once per log; the report names the scheduler's workers."""
+    from service.replay.cluster import BatchReport, DaskPool, run_batch
+
+    logs = _logs(tmp_path / "logs", meas, n=2, acts=ACTS[:3])
+    ticks, seen = [], []
+    report = BatchReport()
+    pool = DaskPool(dask_procs.address)
+    try:
+        out = run_batch(logs, tmp_path / "h.sqlite", pool, flight_gap_s=1800.0, kw={},
+                        work=replay_many, report=report, task_logs=1,
+                        tick=lambda: ticks.append(time.monotonic()),
+                        on_log=lambda p, s, e: seen.append((p, e)))  # fmt: skip
+    finally:
+        pool.close()
+    assert len(ticks) == len(out) == 6 and sorted(p for p, _ in seen) == sorted(logs)
+    assert all(e is None for _, e in seen)
+    assert report.pool.startswith("Dask scheduler tcp://127.0.0.1:")
+    assert sum(w.tasks for w in report.workers.values()) == 6
+    assert sum(w.logs for w in report.workers.values()) == 6
