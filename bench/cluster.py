@@ -181,10 +181,13 @@ def main() -> int:
                 assert ref is None or fr == ref, f"{name}: another store than --jobs 1"
                 ref = fr
         finally:
-            for p in procs:
+            for p in reversed(procs):  # the workers, then the scheduler
                 p.terminate()
-            for p in procs:
-                p.wait(30)
+                try:
+                    p.wait(10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
         first = sorted(logs.glob("*.mcap"))[0]
         one = store_writes(first, a.pg_flights, a.periods, 1, a.pg_budget_s)
         many = store_writes(first, a.pg_flights, a.periods, a.batch, a.pg_budget_s)
