@@ -89,12 +89,11 @@ class DaskProcs:
                 c.wait_for_workers(n, timeout=120)
 
     def close(self) -> None:
-        for p in self.procs.values():
+        for p in reversed(list(self.procs.values())):  # the workers, then the scheduler
             if p.poll() is None:
                 p.terminate()
-        for p in self.procs.values():
             try:
-                p.wait(15)
+                p.wait(10)
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
