@@ -695,26 +695,12 @@ def expand_logs(items: list[str | Path]) -> list[Path]:
 
 def log_order(paths: list[Path]) -> list[Path]:
     """``paths`` in life order: logs with a flight record by its calendar start, then by its
-    flight number, then the rest by name (digits compared as numbers). The order a batch
-    reads its logs in; the flights stored do not depend on it (``HealthStore.ingest_log``)."""
-    from service.log.logfile import LogFile
-    from service.store.lifeorder import natural_key
+    flight number, then the rest by name (digits compared as numbers;
+    ``service.replay.cluster.order_key``). The order a batch reads its logs in; the flights stored
+    do not depend on it (``HealthStore.ingest_log``)."""
+    from service.replay.cluster import order_key
 
-    def key(p: Path) -> tuple:
-        try:
-            files = rotated_files(p)
-            with LogFile(files[0]) as lf:
-                recs = lf.flight_records
-        except (ValueError, IndexError):  # a malformed record: the file fails when replayed
-            recs = []
-        natural = natural_key(str(p))
-        if recs and recs[0].start_unix is not None:
-            return (0, recs[0].start_unix, recs[0].flight, natural)
-        if recs:
-            return (1, 0.0, recs[0].flight, natural)
-        return (2, 0.0, 0, natural)
-
-    return sorted(paths, key=key)
+    return sorted(paths, key=lambda p: order_key(Path(p), str(p)))
 
 
 def replay_many(
@@ -725,6 +711,9 @@ def replay_many(
     flight_gap_s: float = FLIGHT_GAP_S,
     jobs: int = 1,
     tick: Callable[[], None] | None = None,
+    pool: Any | None = None,
+    report: Any | None = None,
+    task_logs: int | None = None,
     **kw: Any,
 ) -> list[ReplaySummary]:
     """Ingest ``logs`` (in the given order: ``log_order``) into ``store`` (one store
@@ -734,17 +723,21 @@ def replay_many(
     None)``; ``tick()`` is called as each log is done (a progress bar). A store that fails
     while a log is written raises ``StoreWriteError`` (the logs before it are stored).
 
-    ``jobs`` > 1 (a store path or URL only): the logs are split into groups that share no
-    actuator (``_groups``), each group in its given order in one of ``jobs`` worker
-    processes, so every actuator's logs still go in order through one monitor; the workers
-    die with the batch (``service.replay.jobs``)."""
+    ``jobs`` > 1 or a ``pool`` (``service.replay.cluster``: ``ProcessPool``, ``DaskPool``;
+    a store path or URL only): the logs (paths or fsspec URLs) are split into groups that
+    share no actuator, each group in life order, one task per group (at most ``task_logs``
+    logs each) on the pool's workers, which replay them with this function and return the
+    periods; this process writes them to the store as the tasks complete
+    (``service.replay.cluster.run_batch``; ``report`` gets each worker's load). ``jobs``: spawned
+    processes that die with the batch."""
     if "flight" in kw:
         raise ValueError("replay_many: flight numbers come from each log (or the gap rule)")
-    if jobs > 1 and isinstance(store, str | Path) and len(logs) > 1:
-        from service.replay.jobs import replay_parallel
+    if (pool is not None or jobs > 1) and isinstance(store, str | Path):
+        from service.replay.cluster import ProcessPool, run_batch
 
-        return replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw, replay_many,
-                               ReplaySummary)  # fmt: skip
+        return run_batch(logs, store, pool if pool is not None else ProcessPool(jobs),
+                         on_log=on_log, tick=tick, flight_gap_s=flight_gap_s, kw=kw,
+                         work=replay_many, report=report, task_logs=task_logs)  # fmt: skip
     hs, own = store, False
     if isinstance(store, str | Path):
         from service.store import open_store

@@ -441,6 +441,17 @@ class HealthStore:
             s["last_alarm_t"], s["last_alarm_kind"] = float(r[0]), r[1]
         self._write_summary(actuator, s)
 
+    def ingest_logs(
+        self,
+        logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
+        gap_s: float,
+    ) -> list[dict[str, dict[str, Any]]]:
+        """Several replayed logs in one transaction, each unit renumbered once:
+        ``service.store.ingest.ingest_logs`` (the store ``ingest_log`` one by one gives)."""
+        from service.store.ingest import ingest_logs
+
+        return ingest_logs(self, logs, gap_s)
+
     def periods(self, actuator: str) -> list[Period]:
         """The actuator's periods, by start_t."""
         rows = self._b.execute(

@@ -13,7 +13,7 @@ from typing import Any
 from service.store.lifeorder import LogUnit, number_flights
 from service.store.records import PERIOD_FIELDS, AlarmEvent, Period
 
-__all__ = ["ingest_log"]
+__all__ = ["ingest_log", "ingest_logs"]
 
 # column order of the periods table as written (as ``health._PERIOD_COLS``)
 _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
@@ -42,6 +42,57 @@ def ingest_log(
     gap-rule flights are renumbered along its life order and its summary row rebuilt.
     Returns per unit ``status``, ``periods_new``, ``flights`` (the final flight numbers of
     this log's periods of the unit) and ``notes``."""
+    return ingest_logs(hs, [(units, periods, alarms)], gap_s)[0]
+
+
+def ingest_logs(
+    hs: Any,
+    logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
+    gap_s: float,
+) -> list[dict[str, dict[str, Any]]]:
+    """Several replayed logs, each ``(units, periods, alarms)`` as ``ingest_log`` takes
+    them, in one transaction: each log as ``ingest_log`` stores it, in the given order,
+    then each changed unit renumbered and its summary rebuilt once (the renumbering reads
+    the unit's whole history: once per batch, not once per log). The store is the one
+    the logs give one by one (the flights are a function of the stored periods); the
+    ``flights`` returned are the final ones. Returns ``ingest_log``'s dict per log."""
+    b = hs._b
+    acts = sorted({u.actuator for units, _, _ in logs for u in units})
+    stored_as: list[dict[str, dict[str, Any]]] = []
+    changed: set[str] = set()
+    with b.transaction():
+        for a in acts:
+            hs._ensure(a)
+        summaries = hs._lock_summaries(acts)
+        for units, periods, alarms in logs:
+            res = _store_units(hs, units, periods, alarms)
+            changed.update(a for a, r in res.items() if r["changed"])
+            stored_as.append(res)
+        for a in sorted(changed):
+            _renumber(hs, a, summaries[a], gap_s)
+        out: list[dict[str, dict[str, Any]]] = []
+        for res in stored_as:
+            one = {}
+            for a, r in res.items():
+                flights = b.execute("SELECT DISTINCT flight FROM periods WHERE actuator = ? "
+                                    "AND source = ?", (a, r["source"])).fetchall()  # fmt: skip
+                one[a] = {
+                    "status": r["status"],
+                    "periods_new": 0 if r["status"] == "stored" else r["periods_new"],
+                    "flights": sorted({int(f[0]) for f in flights if f[0] is not None}),
+                    "notes": r["notes"],
+                }
+            out.append(one)
+    hs._known.update(acts)
+    return out
+
+
+def _store_units(
+    hs: Any, units: Sequence[LogUnit], periods: Iterable[Period], alarms: Iterable[AlarmEvent]
+) -> dict[str, dict[str, Any]]:
+    """One log's units written (inside the caller's transaction, summaries locked): per
+    unit its ``status``, whether its rows ``changed`` (it must be renumbered), the
+    ``source`` that holds its samples, ``periods_new`` and ``notes``."""
     by_act: dict[str, list[Period]] = defaultdict(list)
     for p in periods:
         by_act[p.actuator].append(p)
@@ -50,64 +101,55 @@ def ingest_log(
         al_by[e.actuator].append(e)
     b = hs._b
     out: dict[str, dict[str, Any]] = {}
-    acts = sorted({u.actuator for u in units})
-    with b.transaction():
-        for a in acts:
-            hs._ensure(a)
-        summaries = hs._lock_summaries(acts)
-        for u in units:
-            a = u.actuator
-            stored = {r[0]: (int(r[1]), r[2], r[3]) for r in b.execute(
-                "SELECT source, samples, name, identity FROM log_sources WHERE actuator = ?",
-                (a,)).fetchall()}  # fmt: skip
-            notes: list[str] = []
-            keep = _stored_as(u, stored, notes)
-            mine = [replace(p, source=u.source) for p in by_act.get(a, [])]
-            changed = False
-            if keep is not None:
-                status = "stored"
-                changed = keep == u.source and _apply_given(hs, u, notes)
-            else:
-                gone = _superseded(hs, u, stored, notes)
-                mine, n_live = _replace_live(hs, u, mine, notes)
-                status = "superseded" if gone or n_live else "new"
-                changed = True
-                for src in gone | {u.source}:
-                    for t in ("periods", "alarms", "log_sources"):
-                        b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?", (a, src))
-                order = [float(t) for t in u.order] or sorted(float(p.start_t) for p in mine)
-                b.execute(
-                    "INSERT INTO log_sources (actuator, source, samples, name, flights, identity, "
-                    "sample_order) VALUES (?, ?, ?, ?, ?, ?, ?)",
-                    (a, u.source, int(u.samples), u.name, "gap" if u.gap else "log",
-                     None if u.identity is None else u.identity.dumps(),
-                     json.dumps(order)),
-                )  # fmt: skip
-                uniq = {float(p.start_t): p for p in mine}
-                if uniq:
-                    b.bulk_insert("periods", _PERIOD_COLS,
-                                  [[getattr(p, c) for c in _PERIOD_COLS]
-                                   for p in uniq.values()])  # fmt: skip
-                ev = {(float(e.t), e.kind): replace(e, source=u.source)
-                      for e in al_by.get(a, [])}  # fmt: skip
-                if ev:
-                    b.bulk_insert(
-                        "alarms",
-                        ("actuator", "t", "kind", "source", "value"),
-                        [[e.actuator, e.t, e.kind, e.source, e.value] for e in ev.values()],
-                    )
-            if changed:
-                _renumber(hs, a, summaries[a], gap_s)
-            src = keep if keep is not None else u.source
-            flights = b.execute("SELECT DISTINCT flight FROM periods WHERE actuator = ? "
-                                "AND source = ?", (a, src)).fetchall()  # fmt: skip
-            out[a] = {
-                "status": status,
-                "periods_new": 0 if status == "stored" else len(mine),
-                "flights": sorted({int(f[0]) for f in flights if f[0] is not None}),
-                "notes": notes,
-            }
-    hs._known.update(acts)
+    for u in units:
+        a = u.actuator
+        stored = {r[0]: (int(r[1]), r[2], r[3]) for r in b.execute(
+            "SELECT source, samples, name, identity FROM log_sources WHERE actuator = ?",
+            (a,)).fetchall()}  # fmt: skip
+        notes: list[str] = []
+        keep = _stored_as(u, stored, notes)
+        mine = [replace(p, source=u.source) for p in by_act.get(a, [])]
+        changed = False
+        if keep is not None:
+            status = "stored"
+            changed = keep == u.source and _apply_given(hs, u, notes)
+        else:
+            gone = _superseded(hs, u, stored, notes)
+            mine, n_live = _replace_live(hs, u, mine, notes)
+            status = "superseded" if gone or n_live else "new"
+            changed = True
+            for src in gone | {u.source}:
+                for t in ("periods", "alarms", "log_sources"):
+                    b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?", (a, src))
+            order = [float(t) for t in u.order] or sorted(float(p.start_t) for p in mine)
+            b.execute(
+                "INSERT INTO log_sources (actuator, source, samples, name, flights, identity, "
+                "sample_order) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (a, u.source, int(u.samples), u.name, "gap" if u.gap else "log",
+                 None if u.identity is None else u.identity.dumps(),
+                 json.dumps(order)),
+            )  # fmt: skip
+            uniq = {float(p.start_t): p for p in mine}
+            if uniq:
+                b.bulk_insert("periods", _PERIOD_COLS,
+                              [[getattr(p, c) for c in _PERIOD_COLS]
+                               for p in uniq.values()])  # fmt: skip
+            ev = {(float(e.t), e.kind): replace(e, source=u.source)
+                  for e in al_by.get(a, [])}  # fmt: skip
+            if ev:
+                b.bulk_insert(
+                    "alarms",
+                    ("actuator", "t", "kind", "source", "value"),
+                    [[e.actuator, e.t, e.kind, e.source, e.value] for e in ev.values()],
+                )
+        prev = out.get(a)
+        out[a] = {
+            "status": status,
+            "changed": changed or bool(prev and prev["changed"]),
+            "source": keep if keep is not None else u.source,
+            "periods_new": len(mine),
+            "notes": notes,
+        }
     return out
 
 
