@@ -191,12 +191,29 @@ class IngestCall:
 
 class CaptureStore:
     """The store a task's replay sees: ``latest_baseline`` from the baselines the task
-    carries, ``ingest_log`` captured (``calls``) for the client to write."""
+    carries, ``stream_ids`` from the stored streams it carries and those of the task's logs
+    read so far (the replay looks for them inside each log, ``service.store.identity``),
+    ``ingest_log`` captured (``calls``) for the client to write."""
 
-    def __init__(self, where: str, baselines: dict[str, Any]) -> None:
+    def __init__(
+        self,
+        where: str,
+        baselines: dict[str, Any],
+        streams: dict[str, dict[str, str]] | None = None,
+    ) -> None:
         self.where = where
         self._baselines = baselines
+        self._streams = streams or {}
+        self._seen: dict[str, dict[str, Any]] = {}
         self.calls: list[IngestCall] = []
+
+    def stream_ids(self, actuator: str) -> dict[str, Any]:
+        """``{source: StreamId}`` of ``actuator``: the client's stored ones, then the task's."""
+        from service.store.identity import StreamId
+
+        out = {src: StreamId.loads(text) for src, text in self._streams.get(actuator, {}).items()}
+        out.update(self._seen.get(actuator, {}))
+        return out
 
     def latest_baseline(self, actuator: str) -> Any:
         """The client's store's latest baseline of ``actuator`` (None: not commissioned)."""
@@ -205,6 +222,9 @@ class CaptureStore:
     def ingest_log(self, units, periods, alarms, gap_s) -> dict[str, dict[str, Any]]:
         """Captured; the status and flight numbers come when the client writes it."""
         self.calls.append(IngestCall(list(units), list(periods), list(alarms), float(gap_s)))
+        for u in units:
+            if u.identity is not None:
+                self._seen.setdefault(u.actuator, {})[u.source] = u.identity
         return {u.actuator: {"status": "new", "periods_new": 0, "flights": []} for u in units}
 
     def close(self) -> None:
@@ -223,6 +243,7 @@ class GroupTask:
     gap_s: float
     kw: dict[str, Any]
     work: Callable[..., Any]  # service.replay.replay_many (passed in: no import back up)
+    streams: dict[str, dict[str, str]] = field(default_factory=dict)  # stored StreamIds, dumped
 
 
 @dataclass
@@ -254,7 +275,7 @@ def run_group(task: GroupTask) -> GroupResult:
     import tempfile
 
     w0 = time.perf_counter()
-    cap = CaptureStore(task.store, task.baselines)
+    cap = CaptureStore(task.store, task.baselines, task.streams)
     out: list[tuple[str, Any, str | None, IngestCall | None]] = []
     with tempfile.TemporaryDirectory(prefix="servowatch-logs-") as cache:
         for item in task.logs:
@@ -531,7 +552,9 @@ def run_batch(
             ):
                 acts = sorted({a for i in g for a in facts[i].units if not a.startswith("?")})
                 bl = {a: rec for a in acts if (rec := hs.latest_baseline(a)) is not None}
-                tasks.append(GroupTask(g, str(store), bl, flight_gap_s, kw, work))
+                streams = {a: {src: sid.dumps() for src, sid in hs.stream_ids(a).items()}
+                           for a in acts}  # fmt: skip
+                tasks.append(GroupTask(g, str(store), bl, flight_gap_s, kw, work, streams))
             futs = [pool.submit(run_group, t) for t in tasks]
             by_fut = {id(f): t for f, t in zip(futs, tasks, strict=True)}
             for f in pool.as_completed(futs):
