@@ -63,20 +63,22 @@ def indicator_increase(
     c_lk_base: float,
     inc_true: float,
     window_s: float = IND_WINDOW_S,
+    pooled: np.ndarray | None = None,
 ) -> float | None:
     """C_Lk increase error [%] of the health indicator (``periods_of_rows``, its default
-    observability threshold, no settling time) over the last ``window_s`` of the rows taken as
-    one operating period, against the true increase ``inc_true`` [m^3/s/Pa]; None where the
-    indicator has no observable estimate there."""
+    observability limit, no settling time; ``c_lk_ratio``: the pooled reading of
+    ``pooled``, ``BankRows.pooled``) over the last ``window_s`` of the rows taken as one
+    operating period, against the true increase ``inc_true`` [m^3/s/Pa]; None where the
+    indicator abstains there."""
     from service.prognostics.indicators import PeriodConfig, periods_of_rows
 
     w = t >= t[-1] - window_s
     cfg = PeriodConfig(settle_s=0.0, window_s=float("inf"))
     (period,) = periods_of_rows("suite/member", c_lk_base, "suite", t[w], est[w], health[w],
-                                config=cfg)  # fmt: skip
-    if not np.isfinite(period.c_lk_mean):
+                                config=cfg, pooled=None if pooled is None else pooled[w])  # fmt: skip
+    if not np.isfinite(period.c_lk_ratio):
         return None
-    return 100.0 * ((period.c_lk_mean - c_lk_base) - inc_true) / inc_true
+    return 100.0 * ((period.c_lk_ratio - 1.0) * c_lk_base - inc_true) / inc_true
 
 
 def indicator_window(
@@ -207,8 +209,11 @@ def run_one(
     inc_true = float(c_true[-1] - c0)
     if dc.leak_shape is not None:
         out["inc%"] = 100.0 * ((c_mean - base.c_lk) - inc_true) / inc_true
-        out["ind%"] = indicator_increase(t, rows.est, rows.health, base.c_lk, inc_true)
+        out["ind%"] = indicator_increase(t, rows.est, rows.health, base.c_lk, inc_true,
+                                         pooled=rows.pooled)  # fmt: skip
         out.update(indicator_window(t, est["c_lk"], est["c_lk_sigma"], base.c_lk))
+        out["ind_pool_sd"] = float(rows.pooled[-1, 1] / base.c_lk)
+        out["ind_pool%"] = float(100.0 * ((rows.pooled[-1, 0] - base.c_lk) - inc_true) / inc_true)
         out["bias%"] = None
     else:
         out["inc%"] = out["ind%"] = None

@@ -255,9 +255,11 @@ class FanOut:
                 g = order[a:b]
                 cnt = self.counters(row) if self.counters is not None else None
                 u = None if rows.usage is None else rows.usage[g]
+                pl = None if rows.pooled is None else rows.pooled[g]
                 closed = tg.acc.add_rows(
-                    rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt, usage=u
-                )
+                    rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt, usage=u,
+                    pooled=pl,
+                )  # fmt: skip
                 self._deliver(closed, [tg.acc])
                 if closed:
                     v = closed[-1].nis_in_band

@@ -132,6 +132,13 @@ _V5: tuple[str, ...] = (
     "ALTER TABLE summary ADD COLUMN usage_load_travel_j DOUBLE PRECISION NOT NULL DEFAULT 0",
 )
 
+# the pooled C_Lk reading of each period and its sigma (service.store.records.POOLED_FIELDS;
+# NULL in the periods stored before: their c_lk_ratio stays the median reading it was)
+_V6: tuple[str, ...] = (
+    "ALTER TABLE periods ADD COLUMN c_lk_pooled DOUBLE PRECISION",
+    "ALTER TABLE periods ADD COLUMN c_lk_pooled_sigma DOUBLE PRECISION",
+)
+
 # (version, description, statements): append only; never edit a released migration. A
 # statement is SQL, or RECOMPUTE_TRENDS (a data step run by the store in the same transaction)
 MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
@@ -144,6 +151,7 @@ MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
         "usage per period (travel, load-weighted travel, reversals, time under load and at pressure)",
         _V5,
     ),
+    (6, "pooled C_Lk reading of each period and its sigma", _V6),
 )
 
 LATEST_VERSION = MIGRATIONS[-1][0]

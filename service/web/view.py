@@ -106,8 +106,7 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
     hist = history_of(actuator, periods)
     rows = []
     for p, t_h, y in zip(periods, hist.t_h, hist.y, strict=True):
-        base = p.c_lk_mean / p.c_lk_ratio if p.c_lk_ratio else math.nan
-        sig = p.c_lk_sigma / base if math.isfinite(base) and base > 0 else math.nan
+        sig = p.c_lk_ratio_sigma()
         rows.append(
             {
                 "start_t": p.start_t,
