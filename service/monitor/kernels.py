@@ -158,12 +158,11 @@ CST_FIELDS: tuple[str, ...] = (
 # detections since the actuator was added, the low-passed measured P1 - P2 [Pa] of the
 # C_Lk gate, and when the estimated |v_J| last exceeded gate_flow_v_fast [s]; then the pooled
 # C_Lk (docs/estimation.md, "The pooled C_Lk"; filter units): its information and
-# information-weighted sum since the last detected change, its own CUSUMs (+, -), the
-# information and sum since each of them was last at zero (the change's onset), and its
+# information-weighted sum since the last detected change, its own CUSUMs (+, -) and its
 # number of detections
 (CARRY_I, CARRY_GP, CARRY_GM, CARRY_N, CARRY_P12, CARRY_T_FAST, CARRY_PI, CARRY_PS,
- CARRY_HP, CARRY_HM, CARRY_PI_P, CARRY_PS_P, CARRY_PI_M, CARRY_PS_M, CARRY_PN) = range(15)  # fmt: skip
-N_CARRY = 15
+ CARRY_HP, CARRY_HM, CARRY_PN) = range(11)  # fmt: skip
+N_CARRY = 11
 POOL_CARRY = slice(CARRY_PI, CARRY_PN)  # the pool's columns (restarted together)
 
 # the bank's pending array (n_act, N_PENDING): per alarm, since when its change is due (NaN:
@@ -288,9 +287,8 @@ def pool_add(cr, d_i, d_s, c_walk, c0, cst_k):
     pool's own change test: a two-sided adaptive Page CUSUM of the log-likelihood ratio of a
     shift delta, increment delta (d_s - (S / I) d_i) - delta^2 d_i / 2, where delta is the
     walk filter's prior ``c_walk`` (the recent information) less the pool, at least
-    pool_tol x max(|S / I - c0|, pool_d_min) each way. Past pool_h the pool becomes what was
-    learnt since that CUSUM was last at zero (the change's onset). Returns True on a
-    detection."""
+    pool_tol x max(|S / I - c0|, pool_d_min) each way. Past pool_h the pool starts again
+    from this sample. Returns True on a detection."""
     h = cst_k[C_POOL_H]
     if h > 0.0 and cr[CARRY_PI] > 0.0:
         m = cr[CARRY_PS] / cr[CARRY_PI]
@@ -300,22 +298,10 @@ def pool_add(cr, d_i, d_s, c_walk, c0, cst_k):
         e = d_s - m * d_i
         hp = max(0.0, cr[CARRY_HP] + d_p * e - 0.5 * d_p * d_p * d_i)
         hm = max(0.0, cr[CARRY_HM] - d_m * e - 0.5 * d_m * d_m * d_i)
-        if hp > 0.0:
-            cr[CARRY_PI_P] += d_i
-            cr[CARRY_PS_P] += d_s
-        else:
-            cr[CARRY_PI_P] = cr[CARRY_PS_P] = 0.0
-        if hm > 0.0:
-            cr[CARRY_PI_M] += d_i
-            cr[CARRY_PS_M] += d_s
-        else:
-            cr[CARRY_PI_M] = cr[CARRY_PS_M] = 0.0
         if hp > h or hm > h:
-            up = hp > h
-            cr[CARRY_PI] = cr[CARRY_PI_P] if up else cr[CARRY_PI_M]
-            cr[CARRY_PS] = cr[CARRY_PS_P] if up else cr[CARRY_PS_M]
-            for r in range(CARRY_HP, CARRY_PN):
-                cr[r] = 0.0
+            cr[CARRY_PI] = d_i
+            cr[CARRY_PS] = d_s
+            cr[CARRY_HP] = cr[CARRY_HM] = 0.0
             cr[CARRY_PN] += 1.0
             return True
         cr[CARRY_HP] = hp
