@@ -87,6 +87,7 @@ _UNIT: dict[str, Callable[[Any], bool]] = {
     "baseline_version": _num, "est": _dict_of(_num), "health": _dict_of(lambda x: True),
     "alarms": _list_of(lambda x: isinstance(x, dict) and _str(x.get("kind"))),
     "periods": _num, "rul": lambda v: v is None or (isinstance(v, dict) and _num(v.get("median_h"))),
+    "c_lk_pooled": lambda v: v is None or _dict_of(_num)(v),
 }  # fmt: skip
 
 #: what every unit entry of a daemon's status has (the readers index these)

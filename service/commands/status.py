@@ -93,6 +93,14 @@ def format_unit(a: dict) -> list[str]:
         f"supply ratio {_fmt(_num(health.get('supply_ratio')))}, "
         f"NIS in band {_pct(a.get('nis_in_band'))}"
     )
+    pooled = a.get("c_lk_pooled") if isinstance(a.get("c_lk_pooled"), dict) else None
+    if "c_lk_pooled" in a:  # the health indicator (issue 51): the pooled C_Lk, or abstains
+        ind += (
+            f", indicator {_fmt(_num(pooled.get('value')))} +- "
+            f"{_fmt(_num(pooled.get('sigma')), '.2g')}"
+            if pooled
+            else ", indicator abstains"
+        )
     flags = []
     if a.get("silent"):
         flags.append("SILENT")

@@ -266,6 +266,14 @@ class PeriodAccumulator:
         ev, self._events = self._events, []
         return ev
 
+    def pooled_reading(self) -> tuple[float, float] | None:
+        """The open period's indicator so far: its last pooled C_Lk within the observability
+        limit and that sigma [m^3/s/Pa] (None without an open period or before such a row)."""
+        o = self._open
+        if o is None or not math.isfinite(o.pooled[0]):
+            return None
+        return o.pooled
+
     def nis_in_band(self) -> float | None:
         """Fraction of the open period's rows whose NIS lies in its 95 % band (None without
         an open period or before its first row with a NIS)."""
