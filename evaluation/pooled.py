@@ -28,8 +28,8 @@ EXTRA = ("incipient_leak", "paper_bench")
 
 def run(name: str, model: str = "WH", overrides: dict | None = None) -> dict:
     """One scenario through the monitor: the figures of the module docstring."""
-    from service.monitor.calibration import meas_channels, measured_run
     from service.monitor import EST_KEYS, Baseline, MonitorBank, MonitorConfig
+    from service.monitor.calibration import meas_channels, measured_run
     from service.prognostics.indicators import PeriodConfig, periods_of_rows, pooled_limit
     from service.sim.scenarios import load_scenario
 

@@ -34,9 +34,10 @@ issue 10 in brackets):
   target is marked ``delay(obs)`` (still a miss).
 - ``ind%`` (no target): the C_Lk increase error of the health indicator the prognostics
   store would record for the last ``IND_WINDOW_S`` seconds as one operating period
-  (``service.prognostics.indicators``: the median of the estimates whose own sigma is under
-  ``obs_sigma_ratio`` x baseline; ``indicator_increase``); "-" where no estimate there is
-  that sure, and the indicator abstains.
+  (``service.prognostics.indicators``: the pooled C_Lk of its last row within the
+  observability limit ``pooled_limit``; ``indicator_increase``); "-" where no row passes
+  it, and the indicator abstains. Each leak member's JSON row also has ``ind_pool%`` and
+  ``ind_pool_sd``: the last row's pooled reading error [%] and its sigma / baseline.
 """
 
 from __future__ import annotations
