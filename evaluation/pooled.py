@@ -8,8 +8,9 @@ Per scenario (the HF bench with the scenario's seeded sensor noise is the truth;
 on the model's default baseline, full channel set): the C_Lk increase error [%] over the last
 second of the walk filter's mean (``walk%``) and its last 1-sigma / baseline (``walk_sd``);
 the pooled reading of the last row (``pool%``, ``pool_sd``) and the observability limit it
-is judged on (``limit``, ``service.prognostics.indicators.pooled_limit``); ``ind%`` the
-indicator a period of the last 2 s stores ("-": it abstains); without a true increase of at
+is judged on (``limit``, ``service.prognostics.indicators.pooled_limit``); ``period%`` the
+pooled reading a period of the last 2 s records beside its indicator (``c_lk_pooled``;
+"-": no row within the limit); without a true increase of at
 least 0.25x (healthy, supply), the errors are against nominal C_Lk in % of it (``*``).
 """
 
@@ -64,7 +65,7 @@ def run(name: str, model: str = "WH", overrides: dict | None = None) -> dict:
         "pool%": err(float(pr)),
         "pool_sd": float(ps / c0),
         "limit": float(pooled_limit(pr / c0, pcfg)),
-        "ind%": err(p.c_lk_ratio * c0) if math.isfinite(p.c_lk_ratio) else None,
+        "period%": err(p.c_lk_pooled) if math.isfinite(p.c_lk_pooled) else None,
         "changes": bank.c_lk_changes_of("a"),
     }
 
@@ -83,10 +84,10 @@ def main(argv: list[str] | None = None) -> int:
     with ProcessPoolExecutor(a.workers) as ex:
         rows = list(ex.map(run, names, [a.model] * len(names), [ov] * len(names)))
     print(f"{'scenario':<18}{'walk%':>8}{'walk_sd':>8}{'pool%':>8}{'pool_sd':>8}{'limit':>7}"
-          f"{'ind%':>8}{'changes':>8}")  # fmt: skip
+          f"{'period%':>8}{'changes':>8}")  # fmt: skip
     for r in rows:
         star = "" if r["rel"] else "*"
-        ind = "-" if r["ind%"] is None else f"{r['ind%']:+.1f}{star}"
+        ind = "-" if r["period%"] is None else f"{r['period%']:+.1f}{star}"
         print(f"{r['scenario']:<18}{r['walk%']:>+7.1f}{star or ' '}{r['walk_sd']:>8.3f}"
               f"{r['pool%']:>+7.1f}{star or ' '}{r['pool_sd']:>8.3f}{r['limit']:>7.3f}"
               f"{ind:>8}{r['changes']:>8}")  # fmt: skip

@@ -79,7 +79,7 @@ def test_scrape_is_the_status_snapshot(leaking):
     assert v("servowatch_unit_supply_ratio") == pytest.approx(a["health"]["supply_ratio"], 1e-3)
     assert v("servowatch_unit_c_lk") == pytest.approx(a["est"]["c_lk"], rel=1e-3)
     assert v("servowatch_unit_nis_in_band_ratio") == pytest.approx(a["nis_in_band"], abs=0.02)
-    # the health indicator (issue 51): the pooled C_Lk of the open period, near 4x nominal
+    # the pooled C_Lk (issue 51, shown beside the indicator): the open period's, near 4x nominal
     pooled = a["c_lk_pooled"]
     assert v("servowatch_unit_c_lk_pooled") == pytest.approx(pooled["value"], rel=1e-3)
     assert v("servowatch_unit_c_lk_pooled_sigma") == pytest.approx(pooled["sigma"], rel=1e-3)

@@ -1,7 +1,9 @@
 """The pooled C_Lk (issue 51; docs/estimation.md, "The pooled C_Lk"): the pool of the walk
 filter's updates equals a filter without the walk, restarts on a change, reads a leak step
-with a sigma under the walk's; the period's indicator is the last pooled reading within the
-observability limit; the store's migration 6 keeps old stores (SQLite and PostgreSQL)."""
+with a sigma under the walk's; the period records its last pooled reading within the
+observability limit beside the indicator, which stays the median reading (decisions/0025:
+the pool does not drive the indicator or the RUL yet); the store's migration 6 keeps old
+stores and the page shows the pooled reading (SQLite and PostgreSQL)."""
 
 from __future__ import annotations
 
@@ -88,7 +90,7 @@ def test_the_pool_reads_a_leak_step_with_a_sigma_under_the_walk():
     assert r["changes"] >= 1  # the walk's detector restarted the pool at the step
     assert abs(r["pool%"]) < 5.0
     assert r["pool_sd"] < 0.5 * r["walk_sd"]
-    assert r["pool_sd"] <= r["limit"] and r["ind%"] == pytest.approx(r["pool%"], abs=2.0)
+    assert r["pool_sd"] <= r["limit"] and r["period%"] == pytest.approx(r["pool%"], abs=2.0)
 
 
 def test_the_incipient_leak_pools_within_10_percent():
@@ -104,10 +106,12 @@ def test_the_incipient_leak_pools_within_10_percent():
     assert r["pool_sd"] == pytest.approx(r["limit"], rel=0.1)
 
 
-def _rows(n, ratio, sd, c0=2e-13):
+def _rows(n, ratio, sd, c0=2e-13, walk=1.0, walk_sd=0.5):
+    """n rows whose walk reads ``walk`` x c0 with sigma ``walk_sd`` x c0 (0.5: never under
+    the indicator's 0.25x) and whose pool reads ``ratio`` x c0 with sigma ``sd`` x c0."""
     est = np.zeros((n, len(EST_KEYS)))
-    est[:, EST_KEYS.index("c_lk")] = c0
-    est[:, EST_KEYS.index("c_lk_sigma")] = 0.5 * c0  # the walk: never under 0.25x
+    est[:, EST_KEYS.index("c_lk")] = walk * c0
+    est[:, EST_KEYS.index("c_lk_sigma")] = walk_sd * c0
     pooled = np.column_stack([np.full(n, ratio * c0), np.asarray(sd, float) * c0])
     return est, np.zeros((n, len(HEALTH_KEYS))), np.zeros((n, len(RES_KEYS))), pooled
 
@@ -125,23 +129,50 @@ def test_pooled_limit_is_relative_to_the_increase_with_a_floor():
     assert pooled_limit(1.2, cfg) == pytest.approx(0.1 * 0.5 / 1.96)
 
 
-def test_the_period_reads_the_last_pooled_reading_within_the_limit():
+def test_the_period_records_the_last_pooled_reading_within_the_limit_beside_the_indicator():
     n = 100
     t = np.arange(n) * 1e-3
     sd = np.where(np.arange(n) < 60, 0.05, 0.02)  # 3x: the limit is 0.102 -> every row
-    est, health, res, pooled = _rows(n, 3.0, sd)
-    pooled[:, 0] *= 1.0 + 1e-3 * np.arange(n)  # the pool moves: the last row's is read
+    est, health, res, pooled = _rows(n, 3.0, sd, walk=2.0, walk_sd=0.1)
+    pooled[:, 0] *= 1.0 + 1e-3 * np.arange(n)  # the pool moves: the last row's is recorded
     (p,) = _periods(t, est, health, res, pooled)
-    assert p.c_lk_ratio == pytest.approx(3.0 * (1 + 0.099))
+    assert p.c_lk_pooled == pytest.approx(3.0 * (1 + 0.099) * 2e-13)
     assert p.c_lk_pooled_sigma == pytest.approx(0.02 * 2e-13)
-    assert p.observable_samples == n
-    assert p.c_lk_ratio_sigma() == pytest.approx(0.02)
-    # 1.2x with sigma 0.03: over the floor's limit 0.0255 -> the indicator abstains
-    est, health, res, pooled = _rows(n, 1.2, np.full(n, 0.03))
+    # the indicator is the median of the observable walk estimates, as without a pool
+    assert p.c_lk_ratio == pytest.approx(2.0) and p.observable_samples == n
+    assert p.c_lk_ratio_sigma() == pytest.approx(0.0)
+    # the walk never under 0.25x: the indicator abstains though the pool is within its limit
+    est, health, res, pooled = _rows(n, 3.0, np.full(n, 0.02))
     (p,) = _periods(t, est, health, res, pooled)
-    assert math.isnan(p.c_lk_ratio) and math.isnan(p.c_lk_pooled)
-    assert p.observable_samples == 0
+    assert math.isnan(p.c_lk_ratio) and p.observable_samples == 0
     assert math.isnan(p.c_lk_ratio_sigma())
+    assert p.c_lk_pooled == pytest.approx(3.0 * 2e-13)
+    # 1.2x with sigma 0.03: over the floor's limit 0.0255 -> no pooled reading; the
+    # indicator reads the walk
+    est, health, res, pooled = _rows(n, 1.2, np.full(n, 0.03), walk=1.1, walk_sd=0.1)
+    (p,) = _periods(t, est, health, res, pooled)
+    assert math.isnan(p.c_lk_pooled) and math.isnan(p.c_lk_pooled_sigma)
+    assert p.c_lk_ratio == pytest.approx(1.1) and p.observable_samples == n
+
+
+def test_the_pool_changes_no_field_of_main_s_period():
+    """Rows with and without a pool fold into the same period but for the two pooled fields:
+    the indicator, its observable rows and everything the RUL reads stay main's."""
+    rng = np.random.default_rng(5)
+    n = 3000
+    t = np.arange(n) * 1e-3
+    walk_sd = np.where(np.arange(n) % 500 < 250, 0.1, 0.4)  # observable half the time
+    est, health, res, pooled = _rows(n, 2.0, np.linspace(0.2, 0.01, n), walk=2.0)
+    est[:, EST_KEYS.index("c_lk")] *= 1.0 + 0.05 * rng.standard_normal(n)
+    est[:, EST_KEYS.index("c_lk_sigma")] = walk_sd * 2e-13
+    with_pool = _periods(t, est, health, res, pooled)
+    without = _periods(t, est, health, res, None)
+    assert len(with_pool) == len(without) >= 1
+    for a, b in zip(with_pool, without, strict=True):
+        assert math.isfinite(a.c_lk_pooled) and math.isnan(b.c_lk_pooled)
+        assert a == Period(**{**b.to_dict(), "c_lk_pooled": a.c_lk_pooled,
+                              "c_lk_pooled_sigma": a.c_lk_pooled_sigma})  # fmt: skip
+        assert 0 < a.observable_samples < a.samples and math.isfinite(a.c_lk_ratio)
 
 
 def _old_period(k: int) -> Period:
@@ -175,5 +206,12 @@ def test_migration_6_keeps_an_old_store_and_reads_null_pooled(store_url, monkeyp
         assert s.add_periods([new]) == 1
         back = s.periods("AC1/ail_L")[-1]
         assert back == new
-        assert back.c_lk_ratio_sigma() == pytest.approx(0.02)
+        assert back.c_lk_ratio_sigma() == pytest.approx(0.15)  # the median's, not the pool's
         assert s.check() == []
+        # the page shows the pooled reading beside the indicator (null where none)
+        from service.edge.web.view import unit_view
+
+        rows = unit_view(s, "AC1/ail_L")["periods"]
+        assert [r["c_lk_pooled"] for r in rows] == [None, None, None, 3e-13]
+        assert rows[-1]["c_lk_pooled_sigma"] == 4e-15
+        assert rows[-1]["c_lk_ratio"] == 1.5

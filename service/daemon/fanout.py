@@ -71,7 +71,7 @@ class _Target:
     info_row: tuple[int, int] = (m.COMMISSIONED_UNKNOWN, 0)
     acc: PeriodAccumulator | None = None
     nis_in_band: float | None = None  # of its last closed period
-    pooled: tuple[float, float] | None = None  # the indicator of its last closed period
+    pooled: tuple[float, float] | None = None  # the pooled C_Lk of its last closed period
 
 
 def _LEAVES(rows: BankRows) -> tuple[tuple[str, tuple[str, ...], np.ndarray], ...]:
@@ -199,9 +199,10 @@ class FanOut:
         return v if v is not None else tg.nis_in_band
 
     def pooled_of(self, row: int | None) -> dict[str, float] | None:
-        """The health indicator of bank row ``row``: the pooled C_Lk within its observability
-        limit and its sigma [m^3/s/Pa] (``PeriodAccumulator.pooled_reading``) over its open
-        period, else its last closed one's; None without periods or while it abstains."""
+        """The pooled C_Lk of bank row ``row`` (shown beside the indicator, decisions/0025):
+        the last within its observability limit and its sigma [m^3/s/Pa]
+        (``PeriodAccumulator.pooled_reading``) over its open period, else its last closed
+        one's; None without periods or while it abstains."""
         tg = self._targets.get(row) if row is not None else None
         if tg is None or tg.acc is None:
             return None

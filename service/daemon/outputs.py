@@ -337,7 +337,7 @@ class Outputs:
 
     def unit_status(self, name: str, row: int | None = None) -> dict[str, Any]:
         """Stored periods and the last RUL of actuator ``name`` (none without a store) and
-        the NIS in band and the pooled C_Lk indicator of bank row ``row``
+        the NIS in band and the pooled C_Lk of bank row ``row``
         (``FanOut.nis_in_band_of``, ``FanOut.pooled_of``)."""
         out = self.store.info(name) if self.store is not None else {}
         out["nis_in_band"] = self.fanout.nis_in_band_of(row)

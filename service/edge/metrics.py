@@ -91,7 +91,8 @@ METRICS: dict[str, tuple[str, str]] = {
     "unit_c_lk_sigma": ("gauge", "1-sigma of C_Lk [m^3/(s Pa)]"),
     "unit_c_lk_pooled": (
         "gauge",
-        "the health indicator: the pooled C_Lk within its observability limit [m^3/(s Pa)]",
+        "the pooled C_Lk within its observability limit (shown beside the indicator, "
+        "not driving it) [m^3/(s Pa)]",
     ),
     "unit_c_lk_pooled_sigma": ("gauge", "1-sigma of the pooled C_Lk [m^3/(s Pa)]"),
     "unit_nis_in_band_ratio": (

@@ -243,13 +243,13 @@ class MonitorConfig(_Cfg):
         0.1,
         gt=0,
         description="... its design shift: this share of the increase the pool reads, "
-        "|pooled / baseline - 1|, at least c_lk_pool_d_min (0.1: the indicator's 10 %)",
+        "|pooled / baseline - 1|, at least c_lk_pool_d_min (0.1: the 10 % target)",
     )
     c_lk_pool_d_min: float = Field(
         0.5,
         gt=0,
         description="... the smallest increase it scales with, as a share of baseline C_Lk "
-        "(0.5: the leak alarm's band, leak_raise - leak_clear); the indicator's "
+        "(0.5: the leak alarm's band, leak_raise - leak_clear); the pooled reading's "
         "observability limit uses the same two (service.prognostics.indicators)",
     )
     p_sr_max_ratio: float = Field(

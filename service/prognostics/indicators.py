@@ -5,23 +5,20 @@ A period closes when the actuator goes silent (no sample for ``silence_s``) or a
 ``window_s`` of sample time. Per period (docs/prognostics.md section 1):
 
 - operating time: the sum of the sample intervals no longer than ``max_dt_s``; samples;
-- C_Lk over the *observable* samples only (``c_lk_mean``, ``c_lk_sigma``; with a pool, the
-  indicator is the pooled reading below): the filter's own 1-sigma of C_Lk below
+- C_Lk over the *observable* samples only: the filter's own 1-sigma of C_Lk below
   ``obs_sigma_ratio`` times the baseline C_Lk, at least ``settle_s`` after the period's first
   sample. The UKF's posterior sigma is small only where the data constrain C_Lk (a loaded
   hold with the full channel set, P12 != 0: the null relation of docs/estimation.md); with
   no load, a reduced channel set or just after a re-initialisation it stays near its prior.
   The observable estimates, decimated to ``c_lk_rate_hz`` (the estimate is correlated over
   much longer than that), give the robust mean (median) and sigma (1.4826 MAD);
-  c_lk_ratio = median / C_Lk,baseline;
-- the pooled C_Lk (``BankRows.pooled``: everything the filter learnt since the last detected
-  change, with the sigma of that pooled information; docs/estimation.md, "The pooled C_Lk"):
-  the period's reading is the pool of its last row whose pooled sigma is within the
-  observability limit ``pooled_limit`` (its +-z band inside ``pool_tol`` of the increase
-  read, at least of ``pool_d_min``); ``c_lk_ratio``, the indicator the views read, is that
-  reading over the baseline, NaN where no row passes (the indicator abstains). Rows without
-  a pool (a source that makes none) leave the pooled fields NaN and ``c_lk_ratio`` the
-  median's, as before;
+  c_lk_ratio = median / C_Lk,baseline, the indicator the views and the RUL read;
+- the pooled C_Lk, recorded beside the indicator and not driving it (``BankRows.pooled``:
+  everything the filter learnt since the last detected change, with the sigma of that pooled
+  information; docs/estimation.md, "The pooled C_Lk"; decisions/0025): ``c_lk_pooled`` and
+  ``c_lk_pooled_sigma`` are the pool of the period's last row whose pooled sigma is within
+  the observability limit ``pooled_limit`` (its +-z band inside ``pool_tol`` of the increase
+  read, at least of ``pool_d_min``), NaN where no row passes or the rows came without a pool;
 - P_SR mean and minimum, null bias i_b mean, NIS/dof mean and the share of samples whose NIS
   lies in the two-sided 95 % chi-square band of its degrees of freedom;
 - alarms raised (rising edges of the health alarm flags, every kind) and data quality: the
@@ -209,8 +206,9 @@ class PeriodAccumulator:
         actuator after these rows (the increase of ``BAD_COUNTERS`` is charged to the open
         period); ``dropped``: messages lost in transport since the last call; ``flight``:
         flight number recorded on a period opened by these rows; ``usage``: the rows' usage
-        rates (``BankRows.usage``; None: the periods these rows fall in get NaN usage); ``pooled``:
-        the rows' pooled C_Lk and sigma (``BankRows.pooled``; None: no pooled reading)."""
+        rates (``BankRows.usage``; None: the periods these rows fall in get NaN usage);
+        ``pooled``: the rows' pooled C_Lk and sigma (``BankRows.pooled``; recorded as
+        ``c_lk_pooled``, not the indicator; None: no pooled reading)."""
         t = np.asarray(t, float)
         closed: list[Period] = []
         bad = self._bad_delta(counters)
@@ -267,8 +265,9 @@ class PeriodAccumulator:
         return ev
 
     def pooled_reading(self) -> tuple[float, float] | None:
-        """The open period's indicator so far: its last pooled C_Lk within the observability
-        limit and that sigma [m^3/s/Pa] (None without an open period or before such a row)."""
+        """The open period's pooled C_Lk so far (recorded beside the indicator, 0025): its
+        last pooled C_Lk within the observability limit and that sigma [m^3/s/Pa] (None
+        without an open period or before such a row)."""
         o = self._open
         if o is None or not math.isfinite(o.pooled[0]):
             return None
@@ -321,8 +320,7 @@ class PeriodAccumulator:
         c, cs = est[:, self._i_c], est[:, self._i_cs]
         obs = (cs < cfg.obs_sigma_ratio * self.c_lk0) & (t - o.start_t >= cfg.settle_s)
         obs &= np.isfinite(c)
-        if pooled is None:
-            o.n_obs += int(obs.sum())
+        o.n_obs += int(obs.sum())
         if obs.any():
             tb = np.floor(t[obs] * cfg.c_lk_rate_hz)
             first = np.concatenate(([tb[0] != self._keep_bin], tb[1:] != tb[:-1]))
@@ -334,7 +332,6 @@ class PeriodAccumulator:
             r = pooled[:, 0] / self.c_lk0
             sd = pooled[:, 1] / self.c_lk0
             ok = np.flatnonzero((sd <= pooled_limit(r, cfg)) & np.isfinite(r))
-            o.n_obs += len(ok)  # rows whose pooled reading is observable
             if len(ok):
                 o.pooled = (float(pooled[ok[-1], 0]), float(pooled[ok[-1], 1]))
         p = est[:, self._i_p]
@@ -381,7 +378,7 @@ class PeriodAccumulator:
             flight=o.flight,
             c_lk_mean=med,
             c_lk_sigma=sig,
-            c_lk_ratio=(o.pooled[0] if o.pool_rows else med) / self.c_lk0,
+            c_lk_ratio=med / self.c_lk0,
             c_lk_pooled=o.pooled[0] if o.pool_rows else math.nan,
             c_lk_pooled_sigma=o.pooled[1] if o.pool_rows else math.nan,
             observable_samples=o.n_obs,

@@ -143,11 +143,9 @@ class Period:
                 raise ValueError(f"{name}: expected a finite number >= 0 or NaN, got {v!r}")
 
     def c_lk_ratio_sigma(self) -> float:
-        """The 1-sigma of ``c_lk_ratio`` (a share of baseline C_Lk): the pooled reading's own
-        sigma where the period has one (migration 6), else the scatter of the observable
-        estimates (``c_lk_sigma``) the median reading came with; NaN where it abstains."""
-        if math.isfinite(self.c_lk_pooled) and self.c_lk_pooled > 0:
-            return self.c_lk_pooled_sigma * self.c_lk_ratio / self.c_lk_pooled
+        """The 1-sigma of ``c_lk_ratio`` (a share of baseline C_Lk): the scatter of the
+        observable estimates (``c_lk_sigma``) over the baseline the median reading came with;
+        NaN where it abstains. The pooled reading has its own (``c_lk_pooled_sigma``)."""
         if math.isfinite(self.c_lk_mean) and self.c_lk_mean > 0:
             return self.c_lk_sigma * self.c_lk_ratio / self.c_lk_mean
         return math.nan
