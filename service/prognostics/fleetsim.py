@@ -536,12 +536,12 @@ def evaluate(
         row = {"actuator": a, "law": tr["law"], "eol_flight": tr["eol_flight"],
                "predictions": len(p), "warned": warned}  # fmt: skip
         eol = tr["eol_flight"]
+        ps = [x[4] for x in p if x[4] is not None]
+        row["max_p_horizon"] = max(ps) if ps else None  # every unit's (a healthy law's too)
         if tr["law"] == "none":
             healthy += 1
             false_warn += int(warned)
-            ps = [x[4] for x in p if x[4] is not None]
             healthy_p.extend(ps)
-            row["max_p_horizon"] = max(ps) if ps else None
         elif p and eol <= tr["flown"] + 1 and p[0][0] < eol:
             before = [x for x in p if x[0] < eol]
             s = score_unit([x[0] for x in before], [x[1] for x in before], eol)
