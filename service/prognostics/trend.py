@@ -77,6 +77,7 @@ def _kalman(u, y, rvar, lvar, m0, p0, gs, qs, smooth):  # pragma: no cover - com
     p_end = np.zeros((nc, 3))
     lev = np.zeros((nc, n))
     lvr = np.zeros((nc, n))
+    inn = np.zeros((nc, n))
     mp = np.zeros((n, 2))
     pp = np.zeros((n, 3))
     mf = np.zeros((n, 2))
@@ -102,6 +103,7 @@ def _kalman(u, y, rvar, lvar, m0, p0, gs, qs, smooth):  # pragma: no cover - com
             sv = s00 + rvar[k]
             r = y[k] - a
             logev[c] += -0.5 * (math.log(2.0 * math.pi * sv) + r * r / sv)
+            inn[c, k] = r * r / sv
             k0, k1 = s00 / sv, s01 / sv
             a, b = a + k0 * r, b + k1 * r
             s00, s01, s11 = s00 - k0 * k0 * sv, s01 - k0 * k1 * sv, s11 - k1 * k1 * sv
@@ -145,7 +147,7 @@ def _kalman(u, y, rvar, lvar, m0, p0, gs, qs, smooth):  # pragma: no cover - com
             z01 = f01 + h00 * g10 + h01 * g11
             z11 = f11 + h10 * g10 + h11 * g11
             lev[c, k], lvr[c, k] = sa, z00
-    return logev, m_end, p_end, lev, lvr
+    return logev, m_end, p_end, lev, lvr, inn
 
 
 @dataclass
@@ -278,7 +280,7 @@ def fit_trend(
     prior = np.outer(pg / pg.sum(), pq / pq.sum()).ravel()
     lv = np.zeros(len(u)) if lvar is None else np.ascontiguousarray(lvar, float)
     p0 = np.array([sd0[0] ** 2, 0.0, sd0[1] ** 2])
-    le, m_end, p_end, lev, _ = _kalman(u, y, np.ascontiguousarray(rvar, float), lv,
+    le, m_end, p_end, lev, _, _ = _kalman(u, y, np.ascontiguousarray(rvar, float), lv,
                                        np.asarray(m0, float), p0, g, q, smooth)  # fmt: skip
     z = le + np.log(np.maximum(prior, 1e-300))
     mx = float(z.max())
@@ -299,11 +301,11 @@ def scale_weights(
     z2_out: list | None = None,
 ) -> NDArray:
     """The Student-t readings' scales lambda_k (module docstring): the EM fixed point under
-    the trend model, E[(y_k - l_k)^2] over its smoothed levels and their variances, averaged
-    over its cells by their posterior;
-    ``sigma`` the readings' noise scale, ``lvar`` the wear spread per step (None: 0), ``nu``
-    the degrees of freedom; ``z2_out`` (a list) gets the squared standardised residuals
-    E[(y_k - l_k)^2] / sigma^2 of the fixed point (``learn_nu``)."""
+    the trend model's most probable cell (its smoothed levels and their variances), of the
+    larger objective from two starts (below); ``sigma`` the readings' noise scale, ``lvar``
+    the wear spread per step (None: 0), ``nu`` the degrees of freedom; ``z2_out`` (a list)
+    gets the squared standardised residuals E[(y_k - l_k)^2] / sigma^2 of the fixed point
+    (``learn_nu``)."""
     u = np.ascontiguousarray(u, float)
     y = np.ascontiguousarray(y, float)
     s2 = sigma * sigma
@@ -313,11 +315,26 @@ def scale_weights(
     g, q = cell_grid(float(u[-1]))
     p0 = np.array([sd0[0] ** 2, 0.0, sd0[1] ** 2])
     lv = np.zeros(len(u)) if lvar is None else np.ascontiguousarray(lvar, float)
-    for _ in range(iters):
-        le, _, _, lev, lvr = _kalman(u, y, s2 / lam, lv, np.asarray(m0, float), p0, g, q, True)
-        c = int(np.argmax(le))
-        r2 = (y - lev[c]) ** 2 + lvr[c]
-        lam = (nu + 1.0) / (nu + r2 / s2)
+    m0 = np.asarray(m0, float)
+
+    def em(lam):
+        for _ in range(iters):
+            le, _, _, lev, lvr, inn = _kalman(u, y, s2 / lam, lv, m0, p0, g, q, True)
+            c = int(np.argmax(le))
+            r2 = (y - lev[c]) ** 2 + lvr[c]
+            lam = (nu + 1.0) / (nu + r2 / s2)
+        le = _kalman(u, y, s2 / lam, lv, m0, p0, g, q, False)[0]
+        # the EM's objective: the evidence at the scales times their Gamma(nu/2, nu/2) prior
+        obj = float(le.max()) + float(np.sum((nu / 2 - 1) * np.log(lam) - nu / 2 * lam))
+        return lam, r2, obj, inn[c]
+
+    # two starts, the EM's fixed point of the larger objective: every reading trusted
+    # (lambda = 1), and each reading judged by what the readings before it predicted (its
+    # filter innovation): a jump the last readings cannot yet confirm or refute is then
+    # either followed or discounted, whichever the evidence prefers
+    lam_a, r2_a, obj_a, inn = em(np.ones(len(y)))
+    lam_b, r2_b, obj_b, _ = em((nu + 1.0) / (nu + inn))
+    lam, r2 = (lam_a, r2_a) if obj_a >= obj_b else (lam_b, r2_b)
     if z2_out is not None:
         z2_out.extend((r2 / s2).tolist())
     return lam
