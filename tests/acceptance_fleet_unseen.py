@@ -194,12 +194,13 @@ def oracle_units(seed: int, units: int, flights: int, thr: float) -> list:
     return out
 
 
-def score(work: Path) -> dict:
+def score(work: Path, robust_trend: bool = False) -> dict:
     """``fleet-sim --evaluate``'s metrics on the store and truth in ``work``, with the healthy
-    laws' (none, transient) largest crossing probability each."""
+    laws' (none, transient) largest crossing probability each (``robust_trend``: the RUL's
+    opt-in trend model and Student-t readings)."""
     from tests.acceptance_fleet import score as acc_score
 
-    ev = acc_score(work)
+    ev = acc_score(work, robust_trend)
     tr = json.loads((work / "truth.json").read_text())
     law = {u["actuator"]: u["law"] for u in tr["units"]}
     ev["healthy_max_p_by_law"] = {
@@ -221,6 +222,8 @@ def main_cli() -> int:
     g.add_argument("--build-only", action="store_true", help="build, do not score")
     g.add_argument("--score-only", action="store_true", help="score the store kept in --work")
     g.add_argument("--oracle", action="store_true", help="the oracle's scores (no logs)")
+    ap.add_argument("--robust-trend", action="store_true",
+                    help="the RUL's opt-in trend model and Student-t readings")  # fmt: skip
     a = ap.parse_args()
     import contextlib
     import io
@@ -243,7 +246,7 @@ def main_cli() -> int:
             build(a.seed, a.units, a.flights, work)
         if a.build_only:
             return 0
-        ev = score(work)
+        ev = score(work, a.robust_trend)
     keys = ("alpha_lambda_pct", "interval_coverage_pct", "interval_coverage_all_pct",
             "interval_width_median_flights", "kendall_tau", "kendall_tau_min",
             "kendall_tau_mid", "healthy_max_p_horizon", "healthy_max_p_by_law",

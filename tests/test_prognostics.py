@@ -107,12 +107,8 @@ def _hist(law: str, n: int = 40, sigma: float = 0.02, seed: int = 3):
 def test_fit_selects_the_generating_model(law):
     t, y = _hist(law)
     fit = fit_history(t, y)
-    # the trend model (a local linear trend, decision record 0031) nests the linear and the
-    # exponential model (no diffusion): its share on their paths is theirs
-    nests = law in ("linear", "exponential")
-    nested = fit.p_model["trend"] if nests else 0.0
-    assert fit.best() == law or (nests and fit.best() == "trend")
-    assert fit.p_model[law] + nested > 0.8
+    assert fit.best() == law
+    assert fit.p_model[law] > 0.8
 
 
 def test_fit_recovers_parameters():
@@ -174,12 +170,11 @@ def test_fleet_prior_learns_model_mix_and_rates():
         hist.append((t, 1 + 0.02 * np.random.default_rng(10 + i).standard_normal(30)))
     pr = learn_fleet_prior(hist)
     assert pr.units == 9
-    # expected counts: each unit's posterior over the models, + 1 (Dirichlet) of 9 + 8 (the
-    # family's seven and the trend); the linear units share some of theirs with the curved
-    # models and the trend, which also fit a straight path
+    # expected counts: each unit's posterior over the models, + 1 (Dirichlet) of 9 + 7; the
+    # linear units share some of theirs with the curved models that also fit a straight path
     assert max(pr.p_model, key=pr.p_model.__getitem__) == "linear"
-    assert 4.5 / 17 < pr.p_model["linear"] <= 7 / 17
-    assert pr.p_model["none"] == pytest.approx(4 / 17, abs=0.01)
+    assert 4.5 / 16 < pr.p_model["linear"] <= 7 / 16
+    assert pr.p_model["none"] == pytest.approx(4 / 16, abs=0.01)
     assert sum(pr.p_model.values()) == pytest.approx(1.0)
     assert pr.t_scale == pytest.approx(60.0)  # the median span; weights per unit of t / t_scale
     assert pr.weights["linear"].mean[1] / pr.t_scale == pytest.approx(0.065, rel=0.1)

@@ -1,5 +1,8 @@
-"""Issue 55: the Student-t readings (decision record 0030) and the trend model (0031).
+"""Issue 55: the Student-t readings (decision record 0030) and the trend model (0031), an
+opt-in (``RulConfig.robust_trend``, ``rul --robust-trend``; 0032: off by default).
 
+- off, the fleet prior, the fit and the RUL are main's: the family's seven models alone, the
+  prior's dict without the trend's keys; on, the trend model joins the average;
 - a healthy unit whose leak reads high for one flight and clears keeps a small crossing
   probability from the flight it clears on, the transient reading discounted;
 - a unit whose wear rate doubles every few flights after a flat running-in is forecast on
@@ -15,8 +18,16 @@ import math
 import numpy as np
 import pytest
 
-from service.prognostics.degradation import ModelPrior, _fit_model, fit_history, learn_fleet_prior
-from service.prognostics.rul import History, RulConfig, rul_of_history
+from service.prognostics.degradation import (
+    FleetPrior,
+    ModelPrior,
+    _fit_model,
+    fit_history,
+    learn_fleet_prior,
+    robust_trend_prior,
+)
+from service.prognostics.paths import MODELS
+from service.prognostics.rul import History, RulConfig, fleet_prior, rul_of_history
 from service.prognostics.trend import fit_trend, scale_weights
 
 THR = 11.0
@@ -62,8 +73,8 @@ def test_a_transient_that_clears_keeps_a_healthy_unit_healthy():
     Student-t scale (the degrees of freedom are the fleet's: nearly Gaussian for this fleet
     without outliers, so the scale is not small: ``test_scales_discount_an_outlier...``)."""
     rng = np.random.default_rng(5)
-    prior = learn_fleet_prior(_fleet(rng, [_runaway(rng) for _ in range(10)]))
-    cfg = RulConfig(threshold_ratio=THR)
+    prior = learn_fleet_prior(_fleet(rng, [_runaway(rng) for _ in range(10)]), robust_trend_prior())
+    cfg = RulConfig(threshold_ratio=THR, robust_trend=True)
     rng = np.random.default_rng(2)
     worst = 0.0
     for _ in range(8):
@@ -85,8 +96,8 @@ def test_a_rate_that_doubles_after_a_flat_running_in_is_forecast_on_its_rise():
     alone extrapolates the latest rate: 0 and 0 of 20)."""
     rng = np.random.default_rng(5)
     units = [_runaway(rng) for _ in range(10)]
-    prior = learn_fleet_prior(_fleet(rng, units))
-    cfg = RulConfig(threshold_ratio=THR)
+    prior = learn_fleet_prior(_fleet(rng, units), robust_trend_prior())
+    cfg = RulConfig(threshold_ratio=THR, robust_trend=True)
     inside = cover = 0
     for i, r in enumerate(units):
         e = _eol(r)
@@ -101,6 +112,36 @@ def test_a_rate_that_doubles_after_a_flat_running_in_is_forecast_on_its_rise():
             cover += out["lo_flights"] <= true <= hi
     assert cover >= 18, cover
     assert inside >= 13, inside
+
+
+def test_the_switch_off_is_the_family_alone_and_on_adds_the_trend():
+    """Off (the default): the prior's models and dict keys and a fit's models are the family's
+    seven, no trend, no Student-t scales; on: the trend model holds a share of the average, the
+    readings have scales and the prior's dict names the switch and its learned fields; a RUL
+    asked with the switch on under a prior learned without it is refused."""
+    rng = np.random.default_rng(5)
+    fleet = _fleet(rng, [_runaway(rng) for _ in range(3)])
+    off = learn_fleet_prior(fleet)
+    assert set(off.p_model) == set(MODELS) and not off.robust_trend
+    assert set(off.as_dict()) == set(FleetPrior().as_dict())
+    assert not {"robust_trend", "nu", "p_trend_g"} & set(off.as_dict())
+    t, y = fleet[-1]
+    f_off = fit_history(t, y, off)
+    assert set(f_off.p_model) == set(MODELS) and f_off.trend is None and f_off.lam is None
+    on = learn_fleet_prior(fleet, robust_trend_prior())
+    assert set(on.p_model) == {*MODELS, "trend"} and on.as_dict()["robust_trend"] is True
+    assert len(on.as_dict()["p_trend_g"]) == 6
+    f_on = fit_history(t, y, on)
+    assert f_on.p_model["trend"] > 0.01 and f_on.lam is not None
+    h = History("R/a", t, y, 1.0, t - 1.0, None)
+    assert rul_of_history(h, off, RulConfig(threshold_ratio=THR))["p_model"].keys() == set(MODELS)
+    assert (
+        "trend"
+        in rul_of_history(h, on, RulConfig(threshold_ratio=THR, robust_trend=True))["p_model"]
+    )
+    with pytest.raises(ValueError, match="robust_trend"):
+        rul_of_history(h, off, RulConfig(threshold_ratio=THR, robust_trend=True))
+    assert fleet_prior([h], robust_trend=True).robust_trend
 
 
 def test_trend_evidence_is_the_linear_models_without_diffusion():

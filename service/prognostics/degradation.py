@@ -62,6 +62,7 @@ from service.prognostics.trend import (
 __all__ = [
     "MODELS",
     "ALL_MODELS",
+    "robust_trend_prior",
     "ModelPrior",
     "FleetPrior",
     "Fit",
@@ -77,7 +78,10 @@ __all__ = [
 
 ALL_MODELS: tuple[str, ...] = (*MODELS, "trend")
 """The parametric family and the trend model (``trend``: a local linear trend whose rate
-diffuses, decision record 0031)."""
+diffuses, decision record 0031), the models of a prior with ``robust_trend`` on."""
+
+TREND_P0 = 0.1
+"""The trend model's prior probability before the fleet (``robust_trend_prior``)."""
 
 
 @dataclass(frozen=True)
@@ -115,7 +119,6 @@ class FleetPrior:
             "power": 0.1,
             "knee": 0.1,
             "quadratic": 0.1,
-            "trend": 0.1,
         }  # fmt: skip
     )
     weights: dict[str, ModelPrior] = field(default_factory=_default_priors)
@@ -140,6 +143,10 @@ class FleetPrior:
     """Degrees of freedom of the readings' Student-t noise, learned from the fleet."""
     nu_ll: tuple[float, ...] | None = None
     """The fleet's log likelihood of nu per residual on ``trend.NU_GRID`` (``unit_nu``)."""
+    robust_trend: bool = False
+    """Opt-in (decision records 0030-0032; ``robust_trend_prior``): the Student-t readings and
+    the trend model beside the family. Off (the default): the family under Gaussian noise
+    alone, and none of the four fields above is used."""
 
     def as_dict(self) -> dict:
         """Plain dict (JSON)."""
@@ -157,11 +164,26 @@ class FleetPrior:
             "kappa": self.kappa,
             "p_axis": dict(self.p_axis),
             "usage_ref": dict(self.usage_ref),
+        } | (self._robust_dict() if self.robust_trend else {})
+
+    def _robust_dict(self) -> dict:
+        return {
+            "robust_trend": True,
             "p_trend_g": None if self.p_trend_g is None else list(self.p_trend_g),
             "p_trend_q": None if self.p_trend_q is None else list(self.p_trend_q),
             "nu": self.nu,
             "nu_ll": None if self.nu_ll is None else list(self.nu_ll),
         }
+
+
+def robust_trend_prior(base: FleetPrior | None = None) -> FleetPrior:
+    """``base`` (default: the vague ``FleetPrior()``) with the opt-in Student-t readings and
+    trend model on (``FleetPrior.robust_trend``): the trend model's prior probability
+    ``TREND_P0`` beside the family's."""
+    base = base or FleetPrior()
+    if base.robust_trend:
+        return base
+    return replace(base, robust_trend=True, p_model={**base.p_model, "trend": TREND_P0})
 
 
 @dataclass
@@ -289,18 +311,10 @@ def fit_history(
     n_d = max(len(y) - 3, 0) if math.isfinite(s_u) else 0
     s2 = (k0 * prior.sigma**2 + n_d * (s_u**2 if n_d else 0.0)) / (k0 + n_d)
     sigma = max(math.sqrt(s2), 1e-4)
-    # Student-t readings: their scales by EM under the trend model (``trend.scale_weights``)
-    lw = prior.weights["linear"]
-    m0, sd0 = np.asarray(lw.mean, float), np.asarray(lw.sd, float)
-    z2: list[float] = []
-    lam = scale_weights(t, y, sigma, m0, sd0, nu=prior.nu, z2_out=z2)
-    if z2_out is not None:
-        z2_out.extend(z2)
-    nu_u = unit_nu(np.asarray(z2), prior.nu_ll, k0)  # the unit's own tails, the fleet's prior
-    if nu_u is not None and nu_u != prior.nu:
-        lam = scale_weights(t, y, sigma, m0, sd0, nu=nu_u)
+    lam = _student_t_scales(t, y, sigma, prior, z2_out) if prior.robust_trend else None
     fit = _posterior(t, y, sigma, prior, t_now, scale, lam=lam)
-    rho = _lag1(np.sqrt(lam) * (y - fit.mean_path(t * scale)))
+    r = y - fit.mean_path(t * scale)
+    rho = _lag1(r if lam is None else np.sqrt(lam) * r)
     if rho > 0:
         fit = _posterior(t, y, sigma * math.sqrt((1 + rho) / (1 - rho)), prior, t_now, scale,
                          lam=lam)  # fmt: skip
@@ -323,6 +337,22 @@ def fit_history(
     return fit
 
 
+def _student_t_scales(t, y, sigma, prior: FleetPrior, z2_out: list | None) -> NDArray:
+    """The readings' Student-t scales (``robust_trend`` on, decision record 0030): by EM
+    under the trend model (``trend.scale_weights``) at the fleet's nu, then at the unit's own
+    (``unit_nu``: its residuals' tails, the fleet's curve as its prior)."""
+    lw = prior.weights["linear"]
+    m0, sd0 = np.asarray(lw.mean, float), np.asarray(lw.sd, float)
+    z2: list[float] = []
+    lam = scale_weights(t, y, sigma, m0, sd0, nu=prior.nu, z2_out=z2)
+    if z2_out is not None:
+        z2_out.extend(z2)
+    nu_u = unit_nu(np.asarray(z2), prior.nu_ll, prior.sigma_strength)
+    if nu_u is not None and nu_u != prior.nu:
+        lam = scale_weights(t, y, sigma, m0, sd0, nu=nu_u)
+    return lam
+
+
 def _refit_with_wear_spread(t, y, sigma, prior, t_now, scale, fit: Fit, s2m: float) -> Fit:
     """The posterior again under the noise model the RUL's spread uses: measurement noise
     sigma_m^2 plus the wear's own spread accumulated along the path, Cov(y_i, y_j) =
@@ -337,10 +367,15 @@ def _refit_with_wear_spread(t, y, sigma, prior, t_now, scale, fit: Fit, s2m: flo
     if v[-1] <= 0:
         return fit
     idx = np.arange(len(t))
-    # the readings' scales of the first fit (``fit_history``): estimated again about this
-    # path, whose wear spread comes from the first fit's increments, a transient's jump would
+    if fit.lam is None:  # Gaussian readings (``robust_trend`` off)
+        cov = max(s2m, 1e-6) * np.eye(len(t)) + v[np.minimum.outer(idx, idx)]
+        out = _posterior(t, y, sigma, prior, t_now, scale, np.linalg.cholesky(cov))
+        out.q2, out.cv2, out.dt = fit.q2, fit.cv2, fit.dt
+        return out
+    # the readings' scales of the first fit (``fit_history``), not estimated again about this
+    # path: its wear spread comes from the first fit's increments, a transient's jump would
     # be read as wear spread and kept
-    lam = fit.lam if fit.lam is not None else np.ones(len(t))
+    lam = fit.lam
     rvar = max(s2m, 1e-6) / lam
     cov = np.diag(rvar) + v[np.minimum.outer(idx, idx)]
     out = _posterior(t, y, sigma, prior, t_now, scale, np.linalg.cholesky(cov), lam=lam,
@@ -419,7 +454,8 @@ def _posterior(t, y, sigma, prior, t_now, scale, chol=None, lam=None, noise=None
         post[m] = np.exp(le - mx) / np.exp(le - mx).sum()
         tot.append(z + math.log(prior.p_model[m]))
     tf = None
-    if prior.p_model.get("trend", 0.0) > 0 and len(t) >= 5 and t[0] > 0:
+    models = ALL_MODELS if prior.robust_trend else MODELS
+    if prior.robust_trend and prior.p_model.get("trend", 0.0) > 0 and len(t) >= 5 and t[0] > 0:
         lam1 = np.ones(len(t)) if lam is None else lam
         rvar, lvar = noise if noise is not None else (sigma * sigma / lam1, None)
         lw = prior.weights["linear"]
@@ -427,12 +463,12 @@ def _posterior(t, y, sigma, prior, t_now, scale, chol=None, lam=None, noise=None
                        prior.p_trend_g, prior.p_trend_q)  # fmt: skip
         logz["trend"] = tf.log_evidence
         tot.append(tf.log_evidence + math.log(prior.p_model["trend"]))
-    else:
+    elif prior.robust_trend:
         logz["trend"] = -math.inf
     mx = max(tot)
     norm = sum(math.exp(v - mx) for v in tot)
     p_model = {}
-    for m in ALL_MODELS:
+    for m in models:
         if logz[m] == -math.inf:
             p_model[m] = 0.0
         else:
@@ -541,7 +577,7 @@ def learn_fleet_prior(
     spans = [s for s in spans if s > 0]
     if base.t_scale is None and spans:
         base = replace(base, t_scale=float(np.median(spans)))
-    counts = dict.fromkeys(ALL_MODELS, 1.0)
+    counts = dict.fromkeys(ALL_MODELS if base.robust_trend else MODELS, 1.0)
     z2s: list[float] = []
     tg = np.ones(len(G_SPAN))  # Dirichlet(1) counts of the trend's cells over the units
     tq = np.ones(len(Q_DEV))
@@ -587,8 +623,13 @@ def learn_fleet_prior(
         c2, n_c = usage_spread(t, y, f, s2m_f if s2m_f is not None else 0.0)
         if n_c and f.best() != "none":
             cv2s.append(c2)
-    tot = sum(v for m, v in counts.items() if m in base.p_model)
-    nu_f, nu_ll = learn_nu(np.asarray(z2s))
+    tot = sum(counts.values())
+    robust = {}
+    if base.robust_trend:  # the trend's cells, the readings' tails (decision records 0030-1)
+        nu_f, nu_ll = learn_nu(np.asarray(z2s))
+        robust = dict(p_trend_g=tuple(float(v) for v in tg / tg.sum()),
+                      p_trend_q=tuple(float(v) for v in tq / tq.sum()), nu=nu_f, nu_ll=nu_ll,
+                      robust_trend=True)  # fmt: skip
     weights = {}
     for m in MODELS:
         b = base.weights[m]
@@ -603,7 +644,7 @@ def learn_fleet_prior(
             weights[m] = b
     sigma = float(np.median(sig)) if sig else base.sigma
     return FleetPrior(
-        p_model={m: counts[m] / tot for m in ALL_MODELS if m in base.p_model},
+        p_model={m: counts[m] / tot for m in counts},
         weights=weights,
         sigma=max(sigma, 1e-3),
         sigma_strength=base.sigma_strength,
@@ -612,10 +653,7 @@ def learn_fleet_prior(
         q2_rel=float(np.median(q2s)) if q2s else base.q2_rel,
         cv2=float(np.median(cv2s)) if cv2s else base.cv2,
         sigma_m2=s2m_f if s2m_f is not None else base.sigma_m2,
-        p_trend_g=tuple(float(v) for v in tg / tg.sum()),
-        p_trend_q=tuple(float(v) for v in tq / tq.sum()),
-        nu=nu_f,
-        nu_ll=nu_ll,
+        **robust,
         kappa=hindcast(histories, replace(base, units=used), min_points=2 * min_points),
     )
 

@@ -80,7 +80,8 @@ class FleetSimConfig:
     drawn from a few seconds to several times it), the calibration flight's [s], the fleet
     threshold (C_Lk ratio; None = ``threshold.leak_threshold``), evaluation cadence, horizon
     (flights), worker processes, the monitor's process model, where the logs go (None: a
-    temporary folder)."""
+    temporary folder), and the RUL's opt-in Student-t readings and trend model
+    (``RulConfig.robust_trend``)."""
 
     actuators: int = 6
     flights: int = 20
@@ -98,6 +99,7 @@ class FleetSimConfig:
     workers: int = 0  # 0: min(2, cpu count)
     model: str = DEFAULT_MODEL
     log_dir: str | None = None
+    robust_trend: bool = False
 
     def threshold(self) -> float:
         """The fleet threshold in use."""
@@ -472,7 +474,7 @@ def evaluate(
     rcfg = RulConfig(
         threshold_ratio=cfg.threshold(), horizon_h=cfg.horizon_h,
         horizon_flights=cfg.horizon_flights, warn_p=cfg.warn_p, n_samples=cfg.n_samples,
-        min_periods=cfg.min_history,
+        min_periods=cfg.min_history, robust_trend=cfg.robust_trend,
     )  # fmt: skip
     predict = predict or rul_of_history
     hist = {}
@@ -497,7 +499,8 @@ def evaluate(
             continue
         if prior is None or step % max(1, cfg.prior_every // max(1, cfg.eval_every)) == 0:
             heads_k = hist_heads(hist, k)
-            prior = learn([h.observed() for h in heads_k]) if learn else fleet_prior(heads_k)
+            prior = (learn([h.observed() for h in heads_k]) if learn
+                     else fleet_prior(heads_k, robust_trend=cfg.robust_trend))  # fmt: skip
         row_p, row_t, row_u = [], [], []
         for a, h in heads.items():
             res = predict(h, prior, rcfg)
