@@ -142,6 +142,9 @@ def test_the_switch_off_is_the_family_alone_and_on_adds_the_trend():
     with pytest.raises(ValueError, match="robust_trend"):
         rul_of_history(h, off, RulConfig(threshold_ratio=THR, robust_trend=True))
     assert fleet_prior([h], robust_trend=True).robust_trend
+    from service.prognostics.trend import NU
+
+    assert FleetPrior().nu == NU  # the default before a fleet, kept apart from numba's import
 
 
 def test_trend_evidence_is_the_linear_models_without_diffusion():

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,16 +49,12 @@ from service.prognostics.paths import (
     eta_grid,
     slope,
 )
-from service.prognostics.trend import (
-    G_SPAN,
-    NU,
-    Q_DEV,
-    TrendFit,
-    fit_trend,
-    learn_nu,
-    scale_weights,
-    unit_nu,
-)
+
+if TYPE_CHECKING:
+    from service.prognostics.trend import TrendFit
+
+# ``trend`` (numba) is imported where the opt-in switch is on (``FleetPrior.robust_trend``):
+# with it off, fitting imports nothing more than before
 
 __all__ = [
     "MODELS",
@@ -139,8 +136,9 @@ class FleetPrior:
     fleet's evidence (None: uniform)."""
     p_trend_q: tuple[float, ...] | None = None
     """The trend model's prior over its rate diffusions (``trend.Q_DEV``), learned likewise."""
-    nu: float = NU
-    """Degrees of freedom of the readings' Student-t noise, learned from the fleet."""
+    nu: float = 4.0
+    """Degrees of freedom of the readings' Student-t noise, learned from the fleet (before it:
+    ``trend.NU``)."""
     nu_ll: tuple[float, ...] | None = None
     """The fleet's log likelihood of nu per residual on ``trend.NU_GRID`` (``unit_nu``)."""
     robust_trend: bool = False
@@ -341,6 +339,8 @@ def _student_t_scales(t, y, sigma, prior: FleetPrior, z2_out: list | None) -> ND
     """The readings' Student-t scales (``robust_trend`` on, decision record 0030): by EM
     under the trend model (``trend.scale_weights``) at the fleet's nu, then at the unit's own
     (``unit_nu``: its residuals' tails, the fleet's curve as its prior)."""
+    from service.prognostics.trend import scale_weights, unit_nu
+
     lw = prior.weights["linear"]
     m0, sd0 = np.asarray(lw.mean, float), np.asarray(lw.sd, float)
     z2: list[float] = []
@@ -456,6 +456,8 @@ def _posterior(t, y, sigma, prior, t_now, scale, chol=None, lam=None, noise=None
     tf = None
     models = ALL_MODELS if prior.robust_trend else MODELS
     if prior.robust_trend and prior.p_model.get("trend", 0.0) > 0 and len(t) >= 5 and t[0] > 0:
+        from service.prognostics.trend import fit_trend
+
         lam1 = np.ones(len(t)) if lam is None else lam
         rvar, lvar = noise if noise is not None else (sigma * sigma / lam1, None)
         lw = prior.weights["linear"]
@@ -537,10 +539,11 @@ def sample_crossing(
             eta = float(fit.grids[m][g])
             uc = crossing(m, w, eta, threshold, fit.t_now / fit.t_scale)
             tc = uc * fit.t_scale
-            sl = slope(m, w, eta, uc) / fit.t_scale
         if fit.q2 > 0:
             # first passage of the path plus a random walk of diffusion q2 (inverse-Gaussian
             # spread about the crossing, to first order): dt = q W(tc - t_now) / slope(tc)
+            if m != "trend":  # the trend's slope at its crossing comes with it
+                sl = slope(m, w, eta, uc) / fit.t_scale
             ahead = np.isfinite(tc) & (tc > fit.t_now) & (sl > 0)
             z = rng.standard_normal(len(tc))
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -579,8 +582,11 @@ def learn_fleet_prior(
         base = replace(base, t_scale=float(np.median(spans)))
     counts = dict.fromkeys(ALL_MODELS if base.robust_trend else MODELS, 1.0)
     z2s: list[float] = []
-    tg = np.ones(len(G_SPAN))  # Dirichlet(1) counts of the trend's cells over the units
-    tq = np.ones(len(Q_DEV))
+    tg = tq = np.ones(0)  # Dirichlet(1) counts of the trend's cells over the units
+    if base.robust_trend:
+        from service.prognostics.trend import G_SPAN, Q_DEV
+
+        tg, tq = np.ones(len(G_SPAN)), np.ones(len(Q_DEV))
     ws: dict[str, list[NDArray]] = {m: [] for m in MODELS}
     sig = []
     q2s: list[float] = []
@@ -610,7 +616,7 @@ def learn_fleet_prior(
         for m, pm in f.p_model.items():  # the unit's posterior over the models, not its choice
             counts[m] += pm
         if f.trend is not None:  # the unit's evidence over the trend's cells
-            wc = f.trend.w.reshape(len(G_SPAN), len(Q_DEV))
+            wc = f.trend.w.reshape(len(tg), len(tq))
             tg += wc.sum(axis=1)
             tq += wc.sum(axis=0)
         if best in ws:
@@ -626,6 +632,8 @@ def learn_fleet_prior(
     tot = sum(counts.values())
     robust = {}
     if base.robust_trend:  # the trend's cells, the readings' tails (decision records 0030-1)
+        from service.prognostics.trend import learn_nu
+
         nu_f, nu_ll = learn_nu(np.asarray(z2s))
         robust = dict(p_trend_g=tuple(float(v) for v in tg / tg.sum()),
                       p_trend_q=tuple(float(v) for v in tq / tq.sum()), nu=nu_f, nu_ll=nu_ll,
