@@ -41,11 +41,12 @@ COMMANDS: tuple[str, ...] = (
     "replay",
     "demo",
     "warmup",
+    "import",
 )
 
 
 def _module_name(name: str) -> str:
-    return f"service.cli.commands.{name.replace('-', '_')}"
+    return f"service.cli.commands.{name.replace('-', '_')}" + ("_" if name == "import" else "")
 
 
 def _load(name: str):

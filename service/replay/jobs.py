@@ -8,8 +8,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from service.log import rotated_files
-from service.replay.input import LogError, StoreWriteError, check_mcap
+from service.replay.input import LogError, StoreWriteError
 
 __all__ = ["replay_parallel"]
 
@@ -17,7 +16,7 @@ __all__ = ["replay_parallel"]
 def _groups(logs: list[Path]) -> list[list[Path]]:
     """``logs`` split into groups that share no actuator (by the logs' meas topics), each in
     the given order (a file that is not a readable log: a group of its own)."""
-    from service.log.flightrec import log_units
+    from service.log.logfile import LogSet
 
     parent: dict[str, str] = {}
 
@@ -31,8 +30,9 @@ def _groups(logs: list[Path]) -> list[list[Path]]:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                check_mcap(rotated_files(p)[0])
-                units = log_units(rotated_files(p)[0])
+                with LogSet(p) as ls:  # each file opened once
+                    ls.files[0].check()
+                    units = [f"{a}/{b}" for a, b in ls.files[0].units]
         except Exception:  # not a log: it fails in its worker, alone
             units = [f"?{p}"]
         units = units or ["?"]  # a log without a unit: one group for all of them

@@ -14,7 +14,7 @@ import math
 import sys
 from typing import Any
 
-from service.edge.fleet import alarm_count, finite_or_none, rank_fleet
+from service.edge.fleet import alarm_count, finite_or_none, has_rul, rank_fleet
 from service.store import StoreError
 from service.store.cli import add_store_argument, open_store_arg
 
@@ -63,7 +63,8 @@ def format_fleet(ranked: list[dict[str, Any]]) -> str:
     (flights, or operating hours: ``fl``, ``h``), and its usage per operating hour over the
     periods that carry it (jack travel, load-weighted travel; docs/prognostics.md, "Usage")."""
     head = (
-        f"{'#':>4} {'actuator':<22} {'comm':<4} {'periods':>7} {'life':>8} {'C_Lk/base':>9} "
+        f"{'#':>4} {'actuator':<22} {'comm':<4} {'cond':<6} {'periods':>7} {'life':>8} "
+        f"{'C_Lk/base':>9} "
         f"{'trend':>20} {'P_SR min MPa':>12} {'RUL median [90%] unit':>30} "
         f"{'P(hor)':>6} {'alarms':>6} {'travel m/h':>10} {'|F|trav kJ/h':>12}"
     )
@@ -90,7 +91,8 @@ def format_fleet(ranked: list[dict[str, Any]]) -> str:
             rul = "-"
         lines.append(
             f"{r['rank']:>4} {r['actuator']:<22} {'yes' if r['commissioned'] else 'NO':<4} "
-            f"{r['periods']:>7} {life_s:>8} {_f(last.get('c_lk_ratio'), '.3f'):>9} "
+            f"{'FAILED' if r.get('condition') == 'failed' else '-':<6} "
+            f"{r['periods']:>7} {life_s:>8} {_f(r.get('last_ratio'), '.3f'):>9} "
             f"{trend:>20} {_f(last.get('p_sr_min'), '.2f', 1e-6):>12} {rul:>30} "
             f"{_f(iv and iv['p_horizon'], '.2f'):>6} {alarm_count(r):>6} "
             f"{_f(use.get('travel_m_per_h'), '.2f'):>10} "
@@ -118,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"no actuators in {store.where}")
         return 0
     uncomm = sum(1 for r in rows if not r["commissioned"])
-    with_rul = sum(1 for r in rows if r.get("rul"))
+    with_rul = sum(1 for r in rows if has_rul(r.get("rul")))
     print(
         f"{len(rows)} actuators in {store.where}: {uncomm} not commissioned, "
         f"{with_rul} with a RUL (run `servowatch rul` to update)"

@@ -31,13 +31,6 @@ class _JsonFormatter(logging.Formatter):
         return json.dumps(d)
 
 
-#: control characters (and Unicode line breaks) -> their escapes, for plain log lines
-_CONTROLS = {
-    **{c: f"\\x{c:02x}" for c in (*range(0x20), 0x7F, *range(0x80, 0xA0))},
-    0x0A: "\\n", 0x0D: "\\r", 0x09: "\\t", 0x2028: "\\u2028", 0x2029: "\\u2029",
-}  # fmt: skip
-
-
 class PlainFormatter(logging.Formatter):
     """One line per record: the message's control characters escaped, so a quoted value (a
     key with a newline) cannot forge a line; a traceback follows as usual."""
@@ -47,7 +40,9 @@ class PlainFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         msg = record.getMessage()
-        esc = msg.translate(_CONTROLS)
+        from service.log.escape import CONTROLS
+
+        esc = msg.translate(CONTROLS)
         if esc != msg:
             record = logging.makeLogRecord({**record.__dict__, "msg": esc, "args": None})
         return super().format(record)
