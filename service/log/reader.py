@@ -30,6 +30,7 @@ from mcap.records import Channel, Chunk, Footer, Schema
 from mcap.writer import MCAP0_MAGIC
 
 from service.compat.mcap import SkipIndexStreamReader
+from service.log.retention import lock_shared
 
 try:
     import zstandard
@@ -196,6 +197,7 @@ def iter_stream(
 
     try:
         with open(path, "rb") as fh:
+            lock_shared(fh)  # held while read: a retention sweep leaves the file alone
             reader = SkipIndexStreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
             records = reader.records
             while True:

@@ -39,6 +39,7 @@ from mcap.writer import CompressionType
 
 from service.compat.mcap import BlockWriter
 from service.jsonutil import flat
+from service.log.retention import lock_shared
 from service.log.rows import RowLayout, row_layout
 
 try:
@@ -172,6 +173,7 @@ class McapLogger:
         p = self._next_path()
         p.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(p, "wb")  # noqa: SIM115 - closed in _finish_current
+        lock_shared(self._fh)  # a retention sweep (of any process) never deletes it
         self._writer = BlockWriter(
             self._fh,
             chunk_size=self.chunk_size,
