@@ -111,6 +111,10 @@ class Channels(dict):
         sc = self.schemas.get(ch.schema_id)
         if sc is None:
             return _SKIP
+        if sc.name == "servowatch.Event" and sc.encoding == "protobuf":
+            from service.log.events import EventCodec
+
+            return EventCodec()
         key = (sc.name, sc.data)
         lay = self._layouts.get(key, _SKIP)
         if lay is _SKIP:
@@ -124,7 +128,11 @@ class Channels(dict):
 
 
 def row_dict(lay: Any, data: bytes) -> dict[str, Any]:
-    """A protobuf row as the dict :func:`read_log` yields (NaN as None, integers as int)."""
+    """A protobuf row as the dict :func:`read_log` yields (NaN as None, integers as int; an
+    event as ``service.log.events.decode_event`` gives it)."""
+    as_dict = getattr(lay, "as_dict", None)
+    if as_dict is not None:
+        return as_dict(data)
     return {
         k: (None if v != v else v) for k, v in zip(lay.names, lay.decode_one(data), strict=True)
     }
