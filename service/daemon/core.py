@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
 import time
 from pathlib import Path
@@ -45,10 +46,16 @@ from service.config import ServiceConfig
 from service.daemon.intake import ClockCheck, Intake
 from service.daemon.member import GroupMember
 from service.daemon.monitoring import MonitorStage
-from service.daemon.outputs import Outputs, default_log_path, open_logger, store_target
+from service.daemon.outputs import (
+    Outputs,
+    default_log_path,
+    open_logger,
+    open_retention,
+    store_target,
+)
 from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.status import snapshot
-from service.daemon.systemd import sd_notify, watchdog_interval
+from service.daemon.systemd import notify_ready, sd_notify, watchdog_interval
 from service.monitor import Baseline
 
 __all__ = ["Daemon", "default_log_path", "EXIT_LOG_FAILURE", "store_target"]
@@ -113,6 +120,7 @@ class Daemon:
         store_url = store_target(config.store)
         baseline = Baseline.load(config.baseline) if config.baseline and bank is None else None
         self.monitor = MonitorStage(config.monitor, baseline, store_url=store_url, bank=bank)
+        retention = None if logger is not None else open_retention(config, log_path)
         if logger is None:
             b = self.monitor.bank
             meta = {"source": "daemon", "station": self.station, "shard": self.shard,
@@ -122,7 +130,7 @@ class Daemon:
         self.log_path = Path(log_path) if log_path is not None else None
         self.outputs = Outputs(
             config, logger, counters=self.monitor.counters_of_row, store_url=store_url,
-            bad_log=bad_log,
+            bad_log=bad_log, retention=retention,
         )  # fmt: skip
         pc = config.prognostics
         if self.outputs.store is not None and pc.auto_commission_s is not None:
@@ -142,6 +150,10 @@ class Daemon:
         self._last_silence_check = 0.0
         self._wd_interval = watchdog_interval()
         self._wd_last = 0.0
+        self.sweep_s = config.log.sweep_s
+        self._last_sweep = -math.inf
+        self._swept_paths = 0
+        self._sweep_lock = threading.Lock()
 
     # -- the pipeline ---------------------------------------------------------------------
     def submit(self, key: str, payload: bytes, t_recv: float | None = None) -> bool:
@@ -196,6 +208,16 @@ class Daemon:
         """Group units no member monitors (``GroupMember.check_unmonitored``)."""
         return self.member.check_unmonitored(now, self.config.silence_s, self.intake, self.outputs)
 
+    def maybe_sweep(self, now: float) -> list:
+        """A retention sweep of the logs every ``[log] sweep_s`` and after each rotation
+        (``Outputs.sweep_logs``); returns what it deleted."""
+        with self._sweep_lock:  # the worker's, and a caller's (tests)
+            n = len(self.outputs.logger.paths)
+            if now - self._last_sweep < self.sweep_s and n == self._swept_paths:
+                return []
+            self._last_sweep, self._swept_paths = now, n
+            return self.outputs.sweep_logs()
+
     def _run_worker(self) -> None:
         while True:
             stopping = self._stop.is_set()
@@ -214,6 +236,7 @@ class Daemon:
                     if self.check_silence(now) or changed:
                         self.outputs.logger.commit()
                     self.outputs.check_feed()
+                    self.maybe_sweep(now)
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now
                     with self._notify_lock:  # never a WATCHDOG after STOPPING
@@ -332,14 +355,10 @@ class Daemon:
             target=self._run_worker, name="servowatch-worker", daemon=True
         )
         self._worker.start()
-        sd_notify("READY=1")
-        log.info(
-            "daemon %s/%s started on %s, logging to %s",
-            self.station,
-            self.shard,
-            self.key_expr,
-            self.log_path,
-        )
+        self.maybe_sweep(time.monotonic())  # the files of earlier runs, before READY
+        notify_ready()  # once compiled, loaded, subscribed and serving status
+        log.info("daemon %s/%s started on %s", self.station, self.shard, self.key_expr)
+        self.outputs.announce_log()  # the file written, by its own name (rotated or not)
 
     def stop(self, timeout: float = 30.0) -> dict[str, Any]:
         """Stop the inflow, process what is queued, finish the log. Idempotent.
