@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed-stamp
 # numba caches its compiled kernels next to the sources; a kernel that inlines code from
 # another module is not recompiled when only that module changes, so clear and rebuild
 # the caches whenever a kernel source changes.
-KERNEL_SRC := $(wildcard models/*.py service/monitor/*.py service/compat/*.py) service/ukf.py service/wire_kernels.py $(wildcard service/log/codec*.py)
+KERNEL_SRC := $(wildcard models/*.py service/monitor/*.py service/compat/*.py) service/wire/kernels.py $(wildcard service/log/codec*.py)
 KERNELS := $(VENV)/.kernels-stamp
 # the tests and benchmarks use every kernel (the simplified valves' bench, the WH monitor too)
 KERNELS_ALL := $(VENV)/.kernels-all-stamp

@@ -1,4 +1,4 @@
-"""Measurement message codecs: JSON vs the compact binary form (service.messages).
+"""Measurement message codecs: JSON vs the compact binary form (service.wire.messages).
 
 For each format and batch size (samples per message) it measures, per sample: encode,
 decode+validate (to MeasSample objects and to plain dicts), the pydantic schema validation for
@@ -24,7 +24,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from service.messages import (  # noqa: E402
+from service.wire.messages import (  # noqa: E402
     MeasSample,
     decode_meas,
     decode_meas_arrays,
@@ -68,7 +68,7 @@ def _time(fn, n_samples: int, min_s: float = 0.2, repeat: int = 5) -> float:
 _PUBLISHER = """
 import sys, time, zenoh
 sys.path.insert(0, {root!r})
-from service.messages import encode_meas
+from service.wire.messages import encode_meas
 from service.zenoh_util import make_config
 acts, secs, fmt, per = {acts}, {secs}, {fmt!r}, {per}
 s = zenoh.open(make_config("client", connect=[{ep!r}]))

@@ -36,10 +36,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from evaluation.scenarios import SCENARIOS, SCENARIOS_WH, bundled_scenario  # noqa: E402
 from evaluation.suite import parse_overrides  # noqa: E402
 from models import eha_reduced as er  # noqa: E402
-from service.calibration import measured_run  # noqa: E402
 from service.monitor import Baseline, Monitor, MonitorBank, MonitorConfig  # noqa: E402
-from service.scenarios import load_scenario  # noqa: E402
-from service.ukf import ukf_step_batch  # noqa: E402
+from service.monitor.calibration import measured_run  # noqa: E402
+from service.monitor.ukf import ukf_step_batch  # noqa: E402
+from service.sim.scenarios import load_scenario  # noqa: E402
 
 CLOCKS = {"wall": time.perf_counter, "cpu": time.thread_time}
 _clock = CLOCKS["wall"]  # the speed runs' clock (``--clock``)
@@ -49,7 +49,7 @@ _CLOCK_NAME = {time.perf_counter: "wall time", time.thread_time: "thread CPU tim
 # -- accuracy ------------------------------------------------------------------------------
 def _one(args) -> dict:
     model, overrides, name, channels, duration, *leak = args
-    from service.commands.estimate import evaluate
+    from service.cli.commands.estimate import evaluate
 
     sc = bundled_scenario(name, duration, leak[0] if leak else None)
     r = evaluate(sc, MonitorConfig(model=model, channels=channels, **overrides))
@@ -142,7 +142,7 @@ def speed_arrays(samples: list[dict], n_act: int, per_call: int = 10, model: str
     """MonitorBank.update_arrays (the daemon's path: samples decoded straight into arrays,
     ``per_call`` consecutive samples of every actuator per call, as a 10-sample message per
     actuator and tick), per actuator and sample."""
-    from service.messages import CHANNELS
+    from service.wire.messages import CHANNELS
 
     bank = MonitorBank(MonitorConfig(model=model))
     rows = [bank.index_of(f"act{k:03d}") for k in range(n_act)]

@@ -36,10 +36,10 @@ EXE = str(Path(sys.executable).with_name("servowatch"))
 def make_logs(folder: Path, units: int, flights: int, log_s: float) -> list[dict]:
     """The logs (a few distinct leak levels per unit, cycled) and each unit's baseline."""
     from models.scenario import Profile
-    from service.calibration import calibrate, measured_run
-    from service.flightrec import FlightRecord, write_flight_log
-    from service.model_choice import DEFAULT_MODEL
-    from service.scenarios import load_scenario
+    from service.log.flightrec import FlightRecord, write_flight_log
+    from service.monitor.calibration import calibrate, measured_run
+    from service.monitor.model_choice import DEFAULT_MODEL
+    from service.sim.scenarios import load_scenario
 
     base = load_scenario("healthy_noise")
     out = []

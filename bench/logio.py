@@ -39,9 +39,9 @@ import zstandard
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from service.log import McapLogger, read_blocks  # noqa: E402
+from service.log.proclog import MEAS_LOG_FIELDS  # noqa: E402
 from service.log.rows import row_layout  # noqa: E402
 from service.monitor import EST_KEYS  # noqa: E402
-from service.proclog import MEAS_LOG_FIELDS  # noqa: E402
 
 MEAS = "/fleet/AC001/elevator_L/meas"
 EST = "/fleet/AC001/elevator_L/est"

@@ -45,7 +45,7 @@ from models.params import simplified_params  # noqa: E402
 from models.reference import reference_solution  # noqa: E402
 from models.scenario import Profile, Scenario  # noqa: E402
 from models.valve_laws import LAW_NAMES, p12  # noqa: E402
-from service.scenarios import load_scenario  # noqa: E402
+from service.sim.scenarios import load_scenario  # noqa: E402
 
 TARGET_SIMPLIFIED_RTF = 1000.0
 TARGET_HF_RTF = 20.0

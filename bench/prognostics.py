@@ -28,8 +28,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from service.prognostics.fleetsim import FleetSimConfig, evaluate, run_fleet_sim  # noqa: E402
 from service.prognostics.rul import RulConfig, fleet_prior, history_of, rul_of_history  # noqa: E402
+from service.replay.fleetsim import FleetSimConfig, evaluate, run_fleet_sim  # noqa: E402
 from service.store.records import Period  # noqa: E402
 
 PHI = 0.0

@@ -1,5 +1,5 @@
 """The publish encode of est, res and health: JSON dicts (the code before decision 0018)
-vs the protobuf rows (``service.messages.encode_outputs``), per published output.
+vs the protobuf rows (``service.wire.messages.encode_outputs``), per published output.
 
 One bank update as the daemon makes it at 1 kHz with 10-sample messages (20 actuators x 10
 samples: 200 output rows, 20 of them published at ``publish_every`` = 10). Per published
@@ -34,11 +34,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 from codec import _time as best_us_per_sample  # noqa: E402  (bench/codec.py, beside this)
 
-from service import messages as m  # noqa: E402
-from service.calibration import measured_run  # noqa: E402
-from service.fanout import FanOut  # noqa: E402
+from service.daemon.fanout import FanOut  # noqa: E402
 from service.monitor import MonitorBank  # noqa: E402
-from service.scenarios import load_scenario  # noqa: E402
+from service.monitor.calibration import measured_run  # noqa: E402
+from service.sim.scenarios import load_scenario  # noqa: E402
+from service.wire import messages as m  # noqa: E402
 
 ACTUATORS, PER_MSG, PUBLISH_EVERY = 20, 10, 10
 

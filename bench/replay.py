@@ -32,11 +32,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from models.eha import simulate  # noqa: E402
 from service.log import McapLogger, read_blocks, read_log  # noqa: E402
-from service.messages import CHANNELS, mcap_topic  # noqa: E402
+from service.log.proclog import MEAS_LOG_FIELDS  # noqa: E402
 from service.monitor import Baseline, MonitorBank, MonitorConfig  # noqa: E402
-from service.proclog import MEAS_LOG_FIELDS  # noqa: E402
 from service.replay import replay  # noqa: E402
-from service.scenarios import load_scenario  # noqa: E402
+from service.sim.scenarios import load_scenario  # noqa: E402
+from service.wire.messages import CHANNELS, mcap_topic  # noqa: E402
 
 
 def write_live_log(path: Path, seconds: float) -> tuple[int, float]:

@@ -125,7 +125,7 @@ def _payloads(base: list[dict], n_actuators: int, spm: int, rate: float, t_start
     payload), ...])], one entry per due time, in time order."""
     import numpy as np
 
-    from service import messages as m
+    from service.wire import messages as m
 
     n = len(base)
     rec = np.zeros(n, [("seq", "<i8"), ("t", "<f8"), ("mask", "u1"), ("v", "<f8", (7,))])
@@ -153,9 +153,9 @@ def _generator(args: argparse.Namespace) -> int:
 
     import zenoh
 
-    from service import messages as m
-    from service.actuator import VirtualActuator
-    from service.scenarios import load_scenario
+    from service.sim.actuator import VirtualActuator
+    from service.sim.scenarios import load_scenario
+    from service.wire import messages as m
     from service.zenoh_util import make_config
 
     n_per = int(round(args.duration * args.rate))
@@ -839,11 +839,11 @@ def scrape_cpu_ms(units: tuple[int, ...]) -> list[tuple[int, float]]:
 
     from prometheus_client.exposition import generate_latest
 
-    from service import messages as m
-    from service.actuator import VirtualActuator
     from service.config import MetricsSettings, ServiceConfig
     from service.daemon import Daemon
-    from service.scenarios import load_scenario
+    from service.sim.actuator import VirtualActuator
+    from service.sim.scenarios import load_scenario
+    from service.wire import messages as m
 
     base = VirtualActuator(load_scenario("demo"), rate_hz=1000.0).produce(20)
     out = []

@@ -29,12 +29,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from service.calibration import bank_rows, meas_channels, measured_run  # noqa: E402
 from service.monitor import Baseline, MonitorBank, MonitorConfig  # noqa: E402
+from service.monitor.calibration import bank_rows, meas_channels, measured_run  # noqa: E402
 from service.monitor.usage import usage_rows  # noqa: E402
 from service.monitor.usage_config import N_USAGE, UsageConfig, new_state  # noqa: E402
 from service.prognostics.indicators import periods_of_rows  # noqa: E402
-from service.scenarios import load_scenario  # noqa: E402
+from service.sim.scenarios import load_scenario  # noqa: E402
 
 SCENARIOS = ("healthy_noise", "est_large_steps", "est_load_reversal", "leak_step",
              "scenarios/suite/s10_load_reversal_moving.toml", "scenarios/suite/s18_square_wave.toml")  # fmt: skip

@@ -30,7 +30,7 @@ from models import eha_reduced_wh as erw  # noqa: E402
 from models.eha import simulate  # noqa: E402
 from models.metrics import nrmse_pct  # noqa: E402
 from service.monitor import Baseline  # noqa: E402
-from service.scenarios import load_scenario  # noqa: E402
+from service.sim.scenarios import load_scenario  # noqa: E402
 
 H = 1e-3  # the monitor's sample step [s]
 SIGNALS = ("x_j", "v_j", "p12", "x_s")

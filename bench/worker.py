@@ -56,11 +56,11 @@ def _threads_cpu(prefix: str) -> float:
 
 def _run(args: argparse.Namespace) -> dict:
     """One row, in this process (the checkout on sys.path first)."""
-    from service import messages as m
-    from service.actuator import VirtualActuator
     from service.config import ServiceConfig
     from service.daemon import Daemon
-    from service.scenarios import load_scenario
+    from service.sim.actuator import VirtualActuator
+    from service.sim.scenarios import load_scenario
+    from service.wire import messages as m
 
     rate, spm = 1000.0, 10
     n_per = int(args.seconds * rate)

@@ -9,7 +9,7 @@ of the duty-cycle suite (docs/evaluation.md, "An information bound on the suite'
     .venv/bin/python -m evaluation.bound --seeds 1-7 --workers 2 --drop i,x_s
 
 The suite's truth is the HF bench with white Gaussian sensor noise added to its outputs
-(``service.calibration.measured_run``: the ECU acts on the true signals, the noise is the
+(``service.monitor.calibration.measured_run``: the ECU acts on the true signals, the noise is the
 transducers'; ``--drop i,x_s`` leaves out the current and the spool, which follow that
 noise-free loop). Two leak profiles are then two noiseless output sets y0, y1, and with the
 noise's sigma per channel the detectability of their difference is

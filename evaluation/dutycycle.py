@@ -5,7 +5,7 @@ validated scenarios on the same off-nominal plant:
 
 - ``calibration``: a healthy segment (hold near mid stroke, position sines as
   ``scenarios/healthy_noise.toml``, under an opposing then an aiding load) from which the monitor's baseline is identified
-  (``service.calibration.calibrate``) before the plant is judged;
+  (``service.monitor.calibration.calibrate``) before the plant is judged;
 - ``test``: the duty cycle: position steps and ramps up to +-80 % of the half stroke, sines,
   stepped-frequency chirps (phase-continuous sine bursts) and holds; a load that steps, ramps
   and oscillates within and across segments; supply drops and recoveries; a leak as a step, a

@@ -10,7 +10,7 @@ A hold: the HF valve (``models.hf_valve.hf_static_pressures``) at the spool posi
 with the jack still, its static P12 carries the load (P12 = F_R / A) at supply P_SR and
 leak C_Lk. The C_Lk each law reads there, with its default baseline (or ``--baseline``):
 
-* WH: both chamber balances of the four-land law, ``service.calibration.hold_reading``;
+* WH: both chamber balances of the four-land law, ``service.monitor.calibration.hold_reading``;
 * a C-type law: the C_Lk at which the law, at v_J = 0 and the same x_S and P_SR, gives the
   measured P12 (the laws are monotone in C_Lk; solved by bracketing).
 
@@ -18,7 +18,7 @@ Printed as the reading's error in % of the true C_Lk. This is the static part of
 monitor's error; the filter's reading adds the dynamics (friction, chamber transients).
 
 ``--calibrated-seeds N`` adds N columns ``s1`` .. ``sN``: WH calibrated (``servowatch
-calibrate``, ``service.calibration.calibrate``) on the bundled healthy run with sensor-noise
+calibrate``, ``service.monitor.calibration.calibrate``) on the bundled healthy run with sensor-noise
 seed 1..N, so the table shows how far one run's calibration moves the law from the datasheet
 values (docs/estimation.md, "WH's default baseline: the datasheet values").
 """
@@ -33,8 +33,8 @@ from scipy.optimize import brentq
 from models.eha_reduced import p12_state
 from models.hf_valve import hf_static_hold
 from models.params import EHAParams
-from service.calibration import hold_reading
 from service.monitor import Baseline
+from service.monitor.calibration import hold_reading
 from service.monitor.config import MONITOR_MODELS
 
 
@@ -73,8 +73,8 @@ def table(
 
 def calibrated_wh(seed: int) -> Baseline:
     """WH calibrated on ``healthy_noise`` with sensor-noise seed ``seed``."""
-    from service.calibration import calibrate, measured_run
-    from service.scenarios import load_scenario
+    from service.monitor.calibration import calibrate, measured_run
+    from service.sim.scenarios import load_scenario
 
     sc = load_scenario("healthy_noise")
     sc = sc.model_copy(update={"sensors": sc.sensors.model_copy(update={"seed": seed})})

@@ -29,10 +29,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-from service.calibration import measured_run
-from service.messages import CHANNELS
 from service.monitor import MonitorBank, MonitorConfig, MonitorFleet
-from service.scenarios import load_scenario
+from service.monitor.calibration import measured_run
+from service.sim.scenarios import load_scenario
+from service.wire.messages import CHANNELS
 
 SCENARIOS = ("leak_step", "supply_drop", "combined", "healthy_noise")
 BLOCKS = (1, 2, 3, 64, 250, 17, 500, 5)  # cycled: block sizes of the interleaved stream

@@ -164,7 +164,7 @@ def score_oracle(
 
     # Kendall's tau of the scored units' order at each checkpoint (``fleet-sim``'s, over the
     # units that reach their end of life), and from mid-life (the coverage's checkpoints)
-    from service.prognostics.fleetsim import kendall_tau, mid_life_taus
+    from service.replay.fleetsim import kendall_tau, mid_life_taus
 
     cks = [ckpt[k] for k in sorted(ckpt)]
     taus = [x for row in cks
@@ -213,7 +213,7 @@ def _fleetsim_ratio(law: str, w: dict) -> Callable[[np.ndarray], np.ndarray]:
 
 def fleetsim_units(truth: dict) -> list[OracleUnit]:
     """The oracle's view of a ``fleet-sim --truth`` file's units."""
-    from service.prognostics.fleetsim import FleetSimConfig, draw_units
+    from service.replay.fleetsim import FleetSimConfig, draw_units
 
     units = truth["units"]
     n_sched = len(units[0]["flight_hours"])
@@ -252,7 +252,7 @@ def drawn_fleet_truth(
     flown up to the flight that reaches the threshold, as ``simulate_unit`` does."""
     from dataclasses import asdict
 
-    from service.prognostics.fleetsim import FleetSimConfig, draw_units
+    from service.replay.fleetsim import FleetSimConfig, draw_units
 
     cfg = FleetSimConfig(actuators=actuators, flights=flights, seed=seed, threshold_ratio=thr)
     units = []

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from service.scenarios import load_scenario
+from service.sim.scenarios import load_scenario
 
 SCENARIOS = ("healthy_noise", "leak_ramp", "leak_step", "supply_drop", "combined")
 # outside the C-types' domain (docs/models.md section 4; full channel set only)

@@ -81,8 +81,8 @@ def plant_scenario(name: str, plant: dict[str, float], leak: float | None = None
 def plant_baselines(models, overrides: dict, plant: dict[str, float]) -> dict:
     """Each model's baseline for the plant: the bundled default without ``plant``, else
     ``calibrate`` on healthy_noise with it."""
-    from service.calibration import calibrate, measured_run
     from service.monitor import Baseline, MonitorConfig
+    from service.monitor.calibration import calibrate, measured_run
 
     if not plant:
         return {m: Baseline.default(m) for m in models}
@@ -97,7 +97,7 @@ def run_pair(args) -> dict:
     ``plant``) with sensor seed ``seed``, through the monitor on each of ``models`` with its
     baseline: {model: figures}."""
     models, overrides, plant, baselines, row, name, leak, seed = args
-    from service.commands.estimate import evaluate
+    from service.cli.commands.estimate import evaluate
     from service.monitor import MonitorConfig
 
     sc = plant_scenario(name, plant, leak)

@@ -12,8 +12,8 @@
 Per scenario: the HF bench with the scenario's seeded sensor noise is the truth; the monitor
 (``service.monitor.MonitorBank``, full channel set, the WH process model unless ``--model``,
 with its defaults; ``--set FIELD=VALUE`` overrides a setting) runs with the baseline calibrated on
-the healthy segment (``service.calibration.calibrate``) and, unless ``--fixed-noise``, the
-sensor noise identified there (``service.calibration.identify_noise``). Figures (targets of
+the healthy segment (``service.monitor.calibration.calibrate``) and, unless ``--fixed-noise``, the
+sensor noise identified there (``service.monitor.calibration.identify_noise``). Figures (targets of
 issue 10 in brackets):
 
 - ``inc%``: C_Lk increase error once settled, mean estimate over the last second against the
@@ -114,8 +114,8 @@ def monitor_run(
     ``datasheet_baseline`` (a diagnostic): no calibration, the model's datasheet values
     (``Baseline.nominal``; exact for WH on a plant without tolerances,
     ``evaluation.dutycycle.nominal_plant``); the sensor noise is still identified."""
-    from service.calibration import calibrate, identify_noise, meas_channels, measured_run
     from service.monitor import Baseline, MonitorBank, MonitorConfig
+    from service.monitor.calibration import calibrate, identify_noise, meas_channels, measured_run
 
     _, meas_c = measured_run(dc.calibration, with_supply_sensor=supply_sensor)
     cfg = MonitorConfig(model=model, **(overrides or {}))
@@ -181,7 +181,7 @@ def run_one(
 ) -> dict:
     """Calibrate on the healthy segment, run the monitor on the test scenario, score it
     (``plant_friction``: see ``monitor_run``)."""
-    from service.commands.estimate import count_false_alarms, nis_in_band_pct
+    from service.cli.commands.estimate import count_false_alarms, nis_in_band_pct
     from service.monitor import EST_KEYS, RES_KEYS
 
     w0 = time.perf_counter()

@@ -59,7 +59,7 @@ MEAS_NAMES: tuple[str, ...] = ("x_s", "x_j", "p1", "p2", "p_sr")
 
 class ReducedParams(NamedTuple):
     """Parameters of the simplified EHA model (SI). ``x_ss``/``g_pq`` are *effective* values
-    (calibrated against the plant, see ``service.calibration``)."""
+    (calibrated against the plant, see ``service.monitor.calibration``)."""
 
     law: str = "C5"
     g_pq: float = 7.4e11  # effective G_PQ at the rated supply [Pa s/m^3]

@@ -2,7 +2,7 @@
 
 A scenario is data: a position command, an external load, a supply pressure, an optional
 leakage-degradation profile applied to the plant, parameter overrides, sensor noise, the
-duration and the integration step. Loading from TOML lives in ``service.scenarios``.
+duration and the integration step. Loading from TOML lives in ``service.sim.scenarios``.
 """
 
 from __future__ import annotations

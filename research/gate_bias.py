@@ -46,8 +46,8 @@ def main(argv: list[str] | None = None) -> int:
     if a.noise_seeds < 1:
         ap.error("--noise-seeds: at least 1")
 
-    from service.calibration import bank_rows, calibrate, identify_noise, measured_run
     from service.monitor import EST_KEYS, MonitorConfig
+    from service.monitor.calibration import bank_rows, calibrate, identify_noise, measured_run
 
     c_col = EST_KEYS.index("c_lk")
     dc = duty_cycle(a.seed, a.index)

@@ -1,5 +1,5 @@
 """Building already-validated ``MeasSample`` objects: pydantic's public ``model_construct``
-against the hand-written construction in ``service.messages`` (which writes pydantic's
+against the hand-written construction in ``service.wire.messages`` (which writes pydantic's
 instance slots itself), side by side in one run.
 
     .venv/bin/python research/pydantic_construct.py [--rounds 15] [--n 20000] [--json]
@@ -7,7 +7,7 @@ instance slots itself), side by side in one run.
 Rows, microseconds per object (median over ``--rounds`` interleaved rounds of ``--n``
 objects each; ratio = median of the per-round ratios to the first row):
 
-* ``hand``: ``service.messages._make``, through ``service.compat.pydantic.construct_unchecked``
+* ``hand``: ``service.wire.messages._make``, through ``service.compat.pydantic.construct_unchecked``
   (object.__new__ and pydantic's four instance slots written by hand);
 * ``hand inline``: the same slot writes inlined in one function (the code before the
   fence), which shows the cost of the extra call;
@@ -29,8 +29,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from service import messages as msg  # noqa: E402
-from service.messages import CHANNELS, MeasSample, decode_meas, encode_meas  # noqa: E402
+from service.wire import messages as msg  # noqa: E402
+from service.wire.messages import CHANNELS, MeasSample, decode_meas, encode_meas  # noqa: E402
 
 
 def _rows(n: int) -> list[tuple[int, float, list[float | None]]]:

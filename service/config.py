@@ -295,7 +295,7 @@ class GroupSettings(BaseModel):
 
 
 class FoxgloveSettings(BaseModel):
-    """The live Foxglove WebSocket server (``service.foxglove_feed``, docs/dashboard.md):
+    """The live Foxglove WebSocket server (``service.edge.foxglove_feed``, docs/dashboard.md):
     loopback unless ``allow_remote`` (docs/security.md, "HTTP")."""
 
     model_config = ConfigDict(extra="forbid")
@@ -336,7 +336,7 @@ class FoxgloveSettings(BaseModel):
 
     @model_validator(mode="after")
     def _loopback(self) -> FoxgloveSettings:
-        from service.listen import check_listen
+        from service.edge.listen import check_listen
 
         check_listen(
             self.listen, allow_remote=self.allow_remote, flag="listen",
@@ -346,13 +346,13 @@ class FoxgloveSettings(BaseModel):
 
     def host_port(self) -> tuple[str, int]:
         """(host, port) of ``listen``."""
-        from service.listen import check_listen
+        from service.edge.listen import check_listen
 
         return check_listen(self.listen, allow_remote=self.allow_remote)
 
     def guard_limits(self):
-        """The ``service.foxglove_guard.GuardLimits`` of these settings."""
-        from service.foxglove_guard import GuardLimits
+        """The ``service.edge.foxglove_guard.GuardLimits`` of these settings."""
+        from service.edge.foxglove_guard import GuardLimits
 
         return GuardLimits(
             max_connections=self.max_connections, allowed_origins=tuple(self.allowed_origins),
@@ -362,7 +362,7 @@ class FoxgloveSettings(BaseModel):
 
 
 class MetricsSettings(BaseModel):
-    """The daemon's OpenMetrics endpoint (``service.metrics``, docs/dashboard.md,
+    """The daemon's OpenMetrics endpoint (``service.edge.metrics``, docs/dashboard.md,
     "Prometheus"): loopback unless ``allow_remote`` (docs/security.md, "HTTP")."""
 
     model_config = ConfigDict(extra="forbid")
@@ -374,7 +374,7 @@ class MetricsSettings(BaseModel):
 
     @model_validator(mode="after")
     def _loopback(self) -> MetricsSettings:
-        from service.listen import check_listen
+        from service.edge.listen import check_listen
 
         check_listen(
             self.listen, allow_remote=self.allow_remote, flag="listen",
@@ -384,7 +384,7 @@ class MetricsSettings(BaseModel):
 
     def host_port(self) -> tuple[str, int]:
         """(host, port) of ``listen``."""
-        from service.listen import check_listen
+        from service.edge.listen import check_listen
 
         return check_listen(self.listen, allow_remote=self.allow_remote)
 

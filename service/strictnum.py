@@ -3,7 +3,7 @@ model, before the model validates it (pydantic's lax mode reads ``true`` as 1 an
 
 ``bool_in_number(Model, data)`` walks the raw data (a TOML table) along the model's fields,
 nested models, lists and tables included, and returns the first offending field's location;
-the loaders (``service.config.load_config``, ``service.scenarios.load_scenario``) refuse it
+the loaders (``service.config.load_config``, ``service.sim.scenarios.load_scenario``) refuse it
 naming the file and the field. Strings (environment overrides) are left to the model.
 """
 

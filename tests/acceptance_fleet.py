@@ -143,9 +143,9 @@ def write_logs(units: list[dict], flights: int, thr: float, folder: Path, seed: 
     """One log per unit and flight (flight record, a few seconds of the HF bench); a unit stops
     after the flight that reaches the threshold. Sets each unit's ``flown`` and ``ratio``."""
     from models.scenario import Profile
-    from service.calibration import measured_run
-    from service.flightrec import FlightRecord, write_flight_log
-    from service.scenarios import load_scenario
+    from service.log.flightrec import FlightRecord, write_flight_log
+    from service.monitor.calibration import measured_run
+    from service.sim.scenarios import load_scenario
 
     base = load_scenario("healthy_noise")
     for u in units:
@@ -210,7 +210,7 @@ def _plain(v):
 
 def score(work: Path) -> dict:
     """The metrics of ``fleet-sim --evaluate`` on the store and truth kept in ``work``."""
-    from service.prognostics.fleetsim import FleetSimConfig, evaluate_store
+    from service.replay.fleetsim import FleetSimConfig, evaluate_store
     from service.store import open_store
 
     tr = json.loads((work / "truth.json").read_text())

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from models.scenario import Scenario, SensorNoise
-from service.actuator import FaultRefused, FaultState, VirtualActuator
-from service.messages import FaultCommand
-from service.scenarios import load_scenario
+from service.sim.actuator import FaultRefused, FaultState, VirtualActuator
+from service.sim.scenarios import load_scenario
+from service.wire.messages import FaultCommand
 
 C0 = 2e-13  # nominal leakage [m^3/s/Pa]
 P0 = 20e6  # nominal supply [Pa]

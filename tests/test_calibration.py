@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from models.params import EHAParams
-from service.calibration import calibrate, identify_baseline, measured_run, run_monitor
 from service.cli import main
 from service.monitor import Baseline, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import calibrate, identify_baseline, measured_run, run_monitor
+from service.sim.scenarios import load_scenario
 
 P = EHAParams()
 
@@ -98,8 +98,8 @@ def test_cli_calibrate_errors(tmp_path, capsys):
 def test_bank_rows_are_the_per_sample_monitors_numbers():
     """calibrate() runs the monitor through one update_arrays call: the same estimates, bit
     for bit, as Monitor.update sample by sample (run_monitor)."""
-    from service.calibration import bank_rows
     from service.monitor import EST_KEYS, MonitorConfig
+    from service.monitor.calibration import bank_rows
 
     _, meas = measured_run(load_scenario("healthy_noise").model_copy(update={"duration_s": 1.0}))
     outs, _ = run_monitor(meas)

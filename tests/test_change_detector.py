@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from service.calibration import meas_channels, measured_run
 from service.monitor import Baseline, MonitorBank, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import meas_channels, measured_run
+from service.sim.scenarios import load_scenario
 
 S_C_LK = 6
 SAMPLE = {"t": 0.0, "x_cmd": 0.0, "i": 0.0, "x_s": 0.0, "x_j": 0.0, "p1": 12e6, "p2": 9e6}

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from service.cli import COMMANDS, _join_negative_values, build_parser
+from service.cli.dispatch import COMMANDS, _join_negative_values, build_parser
 
 
 def test_every_command_module_is_present():

@@ -11,7 +11,7 @@ import sys
 import pytest
 
 from evaluation.restart import servowatch_exe
-from service.cli import COMMANDS, _load, help_of
+from service.cli.dispatch import COMMANDS, _load, help_of
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:

@@ -23,7 +23,7 @@ from test_store import make_period
 
 import service
 from service.cli import main
-from service.cliutil import EXIT_IO, EXIT_USAGE, refuse_output_is_input
+from service.cli.util import EXIT_IO, EXIT_USAGE, refuse_output_is_input
 from service.store import open_store
 from service.store.health import READ_TIMEOUT_S
 from service.store.schema import MIGRATIONS, RECOMPUTE_TRENDS
@@ -52,8 +52,8 @@ def _cli(*argv: str, cwd: Path | None = None, prefix: list[str] | None = None, t
 @pytest.fixture(scope="module")
 def healthy_meas(tmp_path_factory):
     """The measured arrays of a 1.5 s healthy bench run (HF, seeded sensor noise)."""
-    from service.calibration import measured_run
-    from service.scenarios import load_scenario
+    from service.monitor.calibration import measured_run
+    from service.sim.scenarios import load_scenario
 
     sc = tmp_path_factory.mktemp("sc") / "h.toml"
     sc.write_text(
@@ -104,7 +104,7 @@ def small_store(tmp_path) -> Path:
 
 def _bench_log(path: Path) -> Path:
     from service.log import McapLogger
-    from service.messages import mcap_topic
+    from service.wire.messages import mcap_topic
 
     with McapLogger(path, background_flush=False) as lg:
         for k in range(300):
@@ -404,7 +404,7 @@ def test_fleet_does_not_wait_for_a_writer_longer_than_the_timeout(small_store):
 
 
 def test_bundled_scenarios_do_not_depend_on_the_working_directory(tmp_path, monkeypatch):
-    from service.scenarios import SCENARIO_DIR, load_scenario, resolve_scenario
+    from service.sim.scenarios import SCENARIO_DIR, load_scenario, resolve_scenario
 
     (tmp_path / "demo").mkdir()  # a folder named like the demo's scenario
     (tmp_path / "healthy_noise").write_text("not a scenario")  # fleet-sim's
@@ -420,7 +420,7 @@ def test_bundled_scenarios_do_not_depend_on_the_working_directory(tmp_path, monk
 
 def test_booleans_in_numeric_fields_are_refused_naming_file_and_field(tmp_path, capsys):
     from service.config import ConfigError, load_config
-    from service.scenarios import ScenarioError, load_scenario
+    from service.sim.scenarios import ScenarioError, load_scenario
 
     cases = {
         "rotate_bytes = true\n": "rotate_bytes",

@@ -73,7 +73,7 @@ def _borrow_many(ws):
 
 
 def test_borrowed_all_on_a_workspace_tuple() -> None:
-    from service.ukf import workspace
+    from service.monitor.ukf import workspace
 
     ws = workspace(8, 5)
     for k, a in enumerate(ws):
@@ -113,7 +113,7 @@ def test_nrt_option_is_accepted() -> None:
 
 def test_has_cached_code_sees_the_cache_index(tmp_path, monkeypatch) -> None:
     """A fresh ``cache=True`` function has no cached code until its first call compiles it;
-    then it has (the index ``service.warmup`` reads to announce a compile)."""
+    then it has (the index ``service.cli.warmup`` reads to announce a compile)."""
     import sys
 
     src = tmp_path / "_cached_kernel.py"

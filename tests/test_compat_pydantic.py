@@ -9,7 +9,7 @@ import pickle
 from pydantic import BaseModel
 
 from service.compat.pydantic import INSTANCE_SLOTS, construct_unchecked
-from service.messages import CHANNELS, MeasSample, decode_meas, encode_meas
+from service.wire.messages import CHANNELS, MeasSample, decode_meas, encode_meas
 
 VALUES = {"seq": 7, "t": 1.25, **dict.fromkeys(CHANNELS, None), "x_j": 0.01, "p1": 1.1e7}
 

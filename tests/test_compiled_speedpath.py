@@ -11,7 +11,7 @@ import pytest
 from models import compiled as kern
 from models.eha import VALVE_MODELS, EHAStepper, initial_state, n_substeps, simulate
 from models.params import DEFAULT_PARAMS
-from service.scenarios import load_scenario
+from service.sim.scenarios import load_scenario
 
 RTOL = 1e-9
 # absolute floors where a signal crosses zero: 1e-9 of its range on paper_bench

@@ -162,7 +162,7 @@ def test_tls_errors_name_the_field(tmp_path: Path):
 def test_tls_flags_override(tmp_path: Path):
     import argparse
 
-    from service.cliargs import add_tls_arguments, tls_overrides
+    from service.cli.args import add_tls_arguments, tls_overrides
 
     f = _pem(tmp_path, "ca", "cert", "key")
     ap = argparse.ArgumentParser()

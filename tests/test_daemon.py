@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service import messages as m
 from service.config import ServiceConfig
 from service.daemon import Daemon, RateLimitedLog, percentiles, sd_notify, watchdog_interval
 from service.log import McapLogger
 from service.monitor import AlarmEvent, MonitorBank, RowEvents
+from service.wire import messages as m
 
 ROOT = Path(__file__).resolve().parents[1]
 

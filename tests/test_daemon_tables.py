@@ -10,7 +10,7 @@ import logging
 
 from test_daemon import make, sample
 
-from service import messages as m
+from service.wire import messages as m
 
 REAL = "fleet/AC002/rudder/meas"
 
@@ -55,7 +55,7 @@ def test_silent_units_leave_the_table_and_free_their_slots():
 
 
 def test_a_key_with_a_newline_is_refused_and_cannot_forge_a_plain_log_line():
-    from service.commands.run import setup_logging
+    from service.cli.commands.run import setup_logging
 
     setup_logging("INFO", structured=False)  # --plain-logs
     buf = io.StringIO()

@@ -14,10 +14,10 @@ import time
 import numpy as np
 import pytest
 
-from service import messages as m
 from service.config import ServiceConfig, load_config
 from service.daemon import Daemon
 from service.monitor import Baseline, MonitorBank, MonitorConfig
+from service.wire import messages as m
 
 AC, ACT = "ACWH1", "aileron_R"
 KEY = f"fleet/{AC}/{ACT}/meas"
@@ -45,8 +45,8 @@ class NullLogger:
 @pytest.fixture(scope="module")
 def healthy():
     """3 s of the healthy HF bench with its sensor noise at 1 kHz, as meas samples."""
-    from service.calibration import measured_run
-    from service.scenarios import load_scenario
+    from service.monitor.calibration import measured_run
+    from service.sim.scenarios import load_scenario
 
     sc = load_scenario("healthy_noise").model_copy(update={"duration_s": 3.0})
     _, meas = measured_run(sc)
@@ -95,7 +95,7 @@ def test_run_from_toml_on_the_wh_model_over_zenoh(tmp_path, healthy):
     within 10 % of the WH baseline's over the last second and the WH monitor's own (not the
     C5 one's) to 1e-9."""
     zenoh = pytest.importorskip("zenoh")
-    from service.commands.status import format_status
+    from service.cli.commands.status import format_status
     from service.log import read_log
     from service.zenoh_util import free_port, loopback, make_config
 

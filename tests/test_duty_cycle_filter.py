@@ -11,9 +11,9 @@ import pytest
 
 from evaluation.dutycycle import duty_cycle
 from models import eha_reduced_wh as erw
-from service.calibration import bank_rows, calibrate, identify_noise, measured_run
 from service.monitor import EST_KEYS, Baseline, MonitorBank, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import bank_rows, calibrate, identify_noise, measured_run
+from service.sim.scenarios import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 C_LK = EST_KEYS.index("c_lk")
@@ -106,7 +106,7 @@ def test_adaptive_process_noise_removes_the_reinitialisations_of_load_reversals(
     base = Baseline.default("WH")
     bank_off = MonitorBank(MonitorConfig(model="WH", adapt_nis=0), base)
     bank_on = MonitorBank(cfg_on, base)
-    from service.calibration import meas_channels
+    from service.monitor.calibration import meas_channels
 
     ch, t = meas_channels(meas), np.asarray(meas["t"])
     r_off = bank_off.update_arrays(np.zeros(len(t), np.int64) + bank_off.index_of("a"), t, ch)

@@ -9,8 +9,8 @@ import pytest
 from evaluation.dutycycle import duty_cycle, ecu_noisy_x_j
 from models.eha import simulate
 from models.scenario import Event, Profile, Scenario, SensorNoise
-from service.actuator import VirtualActuator
-from service.calibration import measured_run
+from service.monitor.calibration import measured_run
+from service.sim.actuator import VirtualActuator
 
 
 def _scenario(**sensors) -> Scenario:

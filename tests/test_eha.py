@@ -12,7 +12,7 @@ from models.metrics import nrmse_pct
 from models.params import DEFAULT_PARAMS
 from models.reference import reference_solution
 from models.scenario import Event, Periodic, Profile, Scenario
-from service.scenarios import load_scenario
+from service.sim.scenarios import load_scenario
 
 P = DEFAULT_PARAMS
 

@@ -29,7 +29,7 @@ NOWHERE = "192.0.2.1"  # TEST-NET-1 (RFC 5737): no host has it, nothing can bind
 
 
 def _router_args(*argv: str) -> argparse.Namespace:
-    from service.commands import router
+    from service.cli.commands import router
 
     p = argparse.ArgumentParser()
     router.add_arguments(p)
@@ -55,7 +55,7 @@ def _cli(*argv: str, env: dict | None = None, timeout: float = 60) -> subprocess
 )  # fmt: skip
 def test_router_config_endpoints_are_checked(argv):
     """In-process (nothing is opened): the final config's endpoints are refused."""
-    from service.commands.router import _config
+    from service.cli.commands.router import _config
 
     with pytest.raises(EndpointError, match="refused"):
         _config(_router_args(*argv))
@@ -63,7 +63,7 @@ def test_router_config_endpoints_are_checked(argv):
 
 def test_router_config_without_listen_is_not_every_interface(tmp_path):
     """A config naming no listen endpoint would get Zenoh's default, tcp/[::]:7447."""
-    from service.commands.router import _config
+    from service.cli.commands.router import _config
 
     cfg = tmp_path / "r.json5"
     cfg.write_text('{ mode: "router", scouting: { multicast: { enabled: false } } }')
@@ -72,7 +72,7 @@ def test_router_config_without_listen_is_not_every_interface(tmp_path):
 
 
 def test_router_remote_tls_listen_with_allow_remote_passes_the_check():
-    from service.commands.router import _config
+    from service.cli.commands.router import _config
 
     _, listen = _config(
         _router_args("--config", str(SECURE / "router.json5"), "--listen", "tls/0.0.0.0:7447",
@@ -150,7 +150,7 @@ def test_certificate_validity_tells_not_yet_valid_from_expired(tmp_path):
 
 @pytest.mark.skipif(__import__("shutil").which("openssl") is None, reason="needs openssl")
 def test_daemon_warns_when_its_certificate_is_another_identity(tmp_path, caplog):
-    from service.commands.run import _check_identity
+    from service.cli.commands.run import _check_identity
     from service.zenoh_util import certificate_cn
 
     subprocess.run(["bash", str(ROOT / "deploy" / "pki" / "make-certs.sh"), str(tmp_path),

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from service.commands.fleet import format_fleet, life_and_trend, rank_fleet
+from service.cli.commands.fleet import format_fleet
+from service.edge.fleet import life_and_trend, rank_fleet
 
 
 def _row(name: str, rul: dict | None, slope_per_h: float | None, op_s: float) -> dict:

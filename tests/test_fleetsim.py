@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from service.cli import main
-from service.prognostics.fleetsim import WEAR_LAWS, FleetSimConfig, draw_units
+from service.replay.fleetsim import WEAR_LAWS, FleetSimConfig, draw_units
 from service.store import open_store
 
 
@@ -119,7 +119,7 @@ def test_fleet_sim_end_to_end(tmp_path, capsys):
 def test_mid_life_tau_counts_each_unit_from_its_mid_life():
     """Kendall's tau from mid-life: at each checkpoint only the units past their own
     mid-life (first prediction + half the rest of life) count, three or more of them."""
-    from service.prognostics.fleetsim import mid_life_taus
+    from service.replay.fleetsim import mid_life_taus
 
     t_first = {"a": 8.0, "b": 8.0, "c": 8.0, "d": 8.0}
     eol = {"a": 12.0, "b": 16.0, "c": 20.0, "d": 40.0}  # mid-lives 10, 12, 14, 24

@@ -1,4 +1,4 @@
-"""The live Foxglove view (service.foxglove_feed): schemas and bytes of the MCAP log, only
+"""The live Foxglove view (service.edge.foxglove_feed): schemas and bytes of the MCAP log, only
 subscribed topics encoded, a bounded queue, loopback by default; end to end, a WebSocket
 client written from the protocol's specification (tests/_foxglove_ws.py) against
 ``servowatch run --foxglove`` with router, daemon and virtual actuator in their own processes.
@@ -18,13 +18,13 @@ import numpy as np
 import pytest
 from _foxglove_ws import FoxgloveClient, MessageData
 
-from service import messages as m
-from service.foxglove_feed import LEAVES, FoxgloveFeed, encode_rows, topic_schemas
+from service.edge.foxglove_feed import LEAVES, FoxgloveFeed, encode_rows, topic_schemas
 from service.log import McapLogger
+from service.log.proclog import MEAS_LOG_FIELDS
 from service.log.rows import RowLayout
 from service.monitor import EST_KEYS
 from service.monitor.outputs import AlarmEvent
-from service.proclog import MEAS_LOG_FIELDS
+from service.wire import messages as m
 
 AC, ACT = "AC001", "elevator_L"
 TOPIC = {leaf: m.mcap_topic(AC, ACT, leaf) for leaf in LEAVES}
@@ -159,7 +159,7 @@ def test_every_sends_one_row_in_n_per_topic_and_every_event():
 
 
 def test_non_loopback_refused_without_the_allow_flag(tmp_path):
-    from service.commands.run import foxglove_override
+    from service.cli.commands.run import foxglove_override
     from service.config import ServiceConfig
 
     cfg = ServiceConfig()
@@ -203,7 +203,7 @@ def _stuck_client(port: int) -> FoxgloveClient:
 
 @pytest.mark.slow
 def test_daemon_serves_foxglove_live(net, tmp_path):
-    from service.commands.inject import send_fault
+    from service.cli.commands.inject import send_fault
     from service.zenoh_util import free_port
 
     log = tmp_path / "live.mcap"
@@ -316,7 +316,7 @@ def test_replay_serves_foxglove_paced(tmp_path):
     import re
 
     from models.eha import simulate
-    from service.scenarios import load_scenario
+    from service.sim.scenarios import load_scenario
 
     n, speed = 3000, 1.0
     r = simulate(load_scenario("leak_step"), "HF", out_every=10)  # 1 kHz samples

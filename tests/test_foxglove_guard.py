@@ -1,5 +1,5 @@
 """The live Foxglove feed under the fleet page's rules (issue 43, item 1): the guard of
-``service.foxglove_guard`` in front of the SDK's server refuses a foreign ``Host``, a
+``service.edge.foxglove_guard`` in front of the SDK's server refuses a foreign ``Host``, a
 cross-origin ``Origin`` and connections beyond the cap before the upgrade; cuts an unfinished
 or oversized client message; drops a client that does not read; bounds and reports its memory
 and its listener. Raw sockets on loopback, against a real ``FoxgloveFeed``."""
@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from _foxglove_ws import OFFER, FoxgloveClient, client_frame
 
-from service import messages as m
-from service.foxglove_feed import LEAVES, FoxgloveFeed
-from service.foxglove_guard import FrameCheck, GuardLimits
+from service.edge.foxglove_feed import LEAVES, FoxgloveFeed
+from service.edge.foxglove_guard import FrameCheck, GuardLimits
 from service.monitor import EST_KEYS
+from service.wire import messages as m
 
 AC, ACT = "AC001", "elevator_L"
 TOPIC = {leaf: m.mcap_topic(AC, ACT, leaf) for leaf in LEAVES}

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from service.calibration import bank_rows, measured_run
 from service.monitor import EST_KEYS, Baseline, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import bank_rows, measured_run
+from service.sim.scenarios import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 C_LK = EST_KEYS.index("c_lk")

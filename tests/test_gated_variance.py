@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from evaluation.dutycycle import duty_cycle
-from service.calibration import bank_rows, measured_run
 from service.monitor import EST_KEYS, Baseline, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import bank_rows, measured_run
+from service.sim.scenarios import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 C_LK, C_LK_SIGMA = EST_KEYS.index("c_lk"), EST_KEYS.index("c_lk_sigma")

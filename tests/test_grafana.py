@@ -9,7 +9,7 @@ import json
 import re
 from pathlib import Path
 
-from service.metrics import collect_status
+from service.edge.metrics import collect_status
 from tests.test_metrics import full_status
 
 ROOT = Path(__file__).resolve().parents[1]

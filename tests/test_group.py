@@ -185,7 +185,7 @@ def test_daemon_releases_and_takes_back_a_unit_afresh():
     when it comes back it starts afresh, with no false gap."""
     from test_daemon import make, sample
 
-    from service import messages as m
+    from service.wire import messages as m
 
     d, lg, _ = make(group={"name": "g", "takeover_s": 5.0})
     g = d.member.group
@@ -308,7 +308,7 @@ def test_no_unmonitored_while_outputs_flow_or_the_unit_is_silent():
 def test_fleet_page_live_view_shows_unmonitored_units():
     """``web.live.slim``: a unit a member reports unmonitored is marked, with its owner, even
     when no daemon lists it among its actuators; the daemon strip lists it too."""
-    from service.web.live import slim
+    from service.edge.web.live import slim
 
     g = {"unmonitored": {"AC001/flap": {"owner": "ground1/9", "since": 1.0}}}
     daemons = {

@@ -12,14 +12,14 @@ from evaluation.dutycycle import CAL_HOLD_END_S, CAL_HOLD_SWAP_S, CAL_SINE_END_S
 from models.eha_reduced_wh import land_flows
 from models.hf_valve import hf_static_hold
 from models.params import EHAParams
-from service.calibration import (
+from service.monitor import Baseline, MonitorConfig
+from service.monitor.calibration import (
     calibrate,
     hold_reading,
     hold_windows,
     identify_noise,
     measured_run,
 )
-from service.monitor import Baseline, MonitorConfig
 
 
 def test_hold_windows_by_hand():
@@ -100,7 +100,7 @@ def test_hold_fit_reads_nominal_at_the_plants_holds(seed, index):
 def test_no_holds_no_fit():
     """The bundled healthy run (small sines, never still) has no hold: the baseline is the
     passes' one, whether or not the hold fit is asked for."""
-    from service.scenarios import load_scenario
+    from service.sim.scenarios import load_scenario
 
     _, meas = measured_run(load_scenario("healthy_noise").model_copy(update={"duration_s": 3.0}))
     cfg = MonitorConfig(model="WH")
@@ -113,7 +113,7 @@ def test_a_fit_far_from_the_passes_baseline_is_not_taken():
     """Holds whose spool positions are 40 um off what the baseline law expects (a spool
     sensor offset, say) would need x_0 moved by 40 % of x_SS: the fit is refused and the
     passes' baseline kept; the same holds as measured are fitted."""
-    from service.calibration import hold_fit
+    from service.monitor.calibration import hold_fit
 
     dc = duty_cycle(3, 17)
     _, meas = measured_run(dc.calibration)

@@ -1,4 +1,5 @@
-"""The package layout: no import cycle among the modules of ``service/`` and ``models/``, and no
+"""The package layout: no import cycle among the modules of ``service/`` and ``models/``, no
+import that runs up the layers (``LAYERS``), at most 8 loose modules in ``service/``, and no
 module there over 800 lines.
 
 The import graph is built from the source with ``ast``: every ``import`` and ``from ... import``
@@ -15,6 +16,25 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("service", "models")
 MAX_LINES = 800
+MAX_LOOSE = 8
+
+#: The layers, lowest first (docs/design.md, "Layout"). A module may import its own unit (the
+#: longest prefix listed here that names it) and any unit of a LOWER layer; not a unit of its
+#: own layer (siblings stay independent) and never one above.
+LAYERS: tuple[tuple[str, ...], ...] = (
+    ("models",),
+    ("service.compat", "service.jsonutil", "service.strictnum", "service.progress",
+     "service.plots", "service.zenoh_util"),
+    ("service.log", "service.store"),
+    ("service.monitor",),
+    ("service.wire",),
+    ("service.prognostics", "service.sim"),
+    ("service.edge",),
+    ("service.config",),
+    ("service.daemon",),
+    ("service.replay",),
+    ("service.cli",),
+)  # fmt: skip
 
 
 def _modules() -> dict[str, Path]:
@@ -133,7 +153,7 @@ def test_the_cycle_finder_finds_cycles():
 def test_the_graph_sees_type_checking_and_function_imports():
     g = import_graph()
     assert "service.daemon.intake" in g["service.daemon.core"]
-    assert "service.config" in g["service.cliargs"]  # under TYPE_CHECKING, and in a function
+    assert "service.config" in g["service.cli.args"]  # under TYPE_CHECKING, and in a function
     assert "service.store.writer" in g["service.daemon.outputs"]  # in __init__ only
     assert len(g) > 50 and sum(map(len, g.values())) > 100
 
@@ -141,6 +161,55 @@ def test_the_graph_sees_type_checking_and_function_imports():
 def test_no_import_cycle_in_service_and_models():
     cycles = find_cycles(import_graph())
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def unit_of(module: str) -> tuple[int, str]:
+    """(layer index, unit) of a module: the longest prefix of ``LAYERS`` that names it."""
+    best = None
+    for k, units in enumerate(LAYERS):
+        for u in units:
+            if (module == u or module.startswith(u + ".")) and (
+                best is None or len(u) > len(best[1])
+            ):
+                best = (k, u)
+    if best is None:
+        raise AssertionError(f"{module} is in no layer of LAYERS: add it")
+    return best
+
+
+def upward(graph: dict[str, set[str]]) -> list[str]:
+    """Every import of a unit that is not below the importer's, as ``a -> b``."""
+    out = []
+    for a, deps in sorted(graph.items()):
+        if a in ("service", "models"):
+            continue
+        la, ua = unit_of(a)
+        for b in sorted(deps):
+            lb, ub = unit_of(b)
+            if ub != ua and lb >= la:
+                out.append(f"{a} -> {b} (layer {la} -> {lb})")
+    return out
+
+
+def test_the_layer_check_finds_upward_imports():
+    g = {"service.log.reader": {"service.store"}, "service.cli.dispatch": {"service.log"},
+         "service.edge.web.view": {"service.cli.commands.fleet"}}  # fmt: skip
+    assert upward(g) == [
+        "service.edge.web.view -> service.cli.commands.fleet (layer 6 -> 10)",
+        "service.log.reader -> service.store (layer 2 -> 2)",
+    ]
+    assert unit_of("service.wire.kernels") == (4, "service.wire")
+    assert unit_of("service.edge.web.live") == (6, "service.edge")
+
+
+def test_no_import_runs_up_the_layers():
+    bad = upward(import_graph())
+    assert not bad, "imports up the layers (or across one):\n" + "\n".join(bad)
+
+
+def test_at_most_8_loose_modules_in_service():
+    loose = sorted(p.stem for p in (ROOT / "service").glob("*.py") if p.stem != "__init__")
+    assert len(loose) <= MAX_LOOSE, loose
 
 
 def test_no_module_over_800_lines():

@@ -34,8 +34,8 @@ SLOTS = [(0, 0), (0, 10), (1, 0), (2, 0), (2, 10), (3, 0), (5, 0), (6, 0)]
 @pytest.fixture(scope="module")
 def meas():
     """3 s of the healthy HF bench with the scenario's sensor noise, 1 kHz."""
-    from service.calibration import measured_run
-    from service.scenarios import load_scenario
+    from service.monitor.calibration import measured_run
+    from service.sim.scenarios import load_scenario
 
     sc = load_scenario("healthy_noise").model_copy(update={"duration_s": 3.0})
     return measured_run(sc)[1]
@@ -200,7 +200,7 @@ def test_corrupt_chunk_is_skipped_and_the_repaired_log_supersedes(tmp_path, meas
 
 
 def test_every_bad_file_is_named_and_the_good_ones_go_in(tmp_path, meas, capsys):
-    from service.flightrec import FLIGHT_RECORD
+    from service.log.flightrec import FLIGHT_RECORD
 
     folder = tmp_path / "batch"
     folder.mkdir()

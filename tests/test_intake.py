@@ -7,10 +7,10 @@ import logging
 import numpy as np
 import pytest
 
-from service import messages as m
 from service.config import ServiceConfig
 from service.daemon import RateLimitedLog
 from service.daemon.intake import ActuatorState, ClockCheck, accept
+from service.wire import messages as m
 from tests.test_daemon import KEY, make, sample
 
 T0 = 1.7e9  # a Unix-time sample clock

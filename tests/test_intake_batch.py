@@ -1,4 +1,4 @@
-"""The intake's compiled batch (``Intake.take`` with ``service.wire_kernels.intake_batch``)
+"""The intake's compiled batch (``Intake.take`` with ``service.wire.kernels.intake_batch``)
 applies the clock and sequence rules exactly as ``intake.accept`` does message by message:
 same accepted samples, counters, stream state (bit for bit), events in the same order."""
 
@@ -13,10 +13,10 @@ import time
 import numpy as np
 import pytest
 
-from service import messages as m
 from service.daemon import RateLimitedLog
 from service.daemon.block import Event, Part
 from service.daemon.intake import ClockCheck, Intake
+from service.wire import messages as m
 
 T0 = 1.7e9  # a Unix-time sample clock
 KEYS = [f"fleet/AC{a:03d}/act{a}/meas" for a in range(3)]

@@ -12,9 +12,9 @@ import pytest
 from models.eha_reduced_wh import K_WH_C_LAND, N_PRM_WH, land_flows, param_vector
 from models.hf_valve import hf_static_pressures
 from models.params import EHAParams
-from service.calibration import calibrate, identify_baseline, measured_run
 from service.monitor import Baseline, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import calibrate, identify_baseline, measured_run
+from service.sim.scenarios import load_scenario
 
 P = EHAParams()
 
@@ -114,7 +114,7 @@ def test_calibration_names_a_clearance_leak_above_the_null_coefficient():
     sc = load_scenario("healthy_noise").model_copy(update={"duration_s": 2.0})
     sim, _ = measured_run(sc)
     truth = {"t": sim.t, "x_s": sim.x_s, "x_j": sim.x_j, "p1": sim.p1, "p2": sim.p2}
-    import service.calibration as cal
+    import service.monitor.calibration as cal
 
     big = Baseline.nominal("WH").model_copy(update={"c_land": 1e-11})
     orig = cal.Baseline.nominal

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.calibration import bank_rows, measured_run
 from service.monitor import EST_KEYS, HEALTH_KEYS, Baseline, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import bank_rows, measured_run
+from service.sim.scenarios import load_scenario
 
 C_LK_SIGMA = EST_KEYS.index("c_lk_sigma")
 LR, ALARM = HEALTH_KEYS.index("leak_ratio"), HEALTH_KEYS.index("alarm_leak")

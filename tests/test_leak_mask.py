@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pytest
 
-from service.calibration import measured_run, run_monitor
 from service.monitor import AlarmConfig, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import measured_run, run_monitor
+from service.sim.scenarios import load_scenario
 
 T_DROP = 1.5  # supply_drop: P_SR 20 -> 14 MPa (0.7 rated) at 1.5 s
 

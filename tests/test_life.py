@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from service.cli import main
-from service.flightrec import FlightRecord, flight_records, write_flight_log
+from service.log.flightrec import FlightRecord, flight_records, write_flight_log
 from service.prognostics.life import FlightStamper
 from service.replay import expand_logs, log_order, replay, replay_many
 from service.store import open_store
@@ -23,8 +23,8 @@ DAY = 86400.0
 @pytest.fixture(scope="module")
 def meas():
     """One healthy 3 s log's measured signals (HF bench, the scenario's sensor noise)."""
-    from service.calibration import measured_run
-    from service.scenarios import load_scenario
+    from service.monitor.calibration import measured_run
+    from service.sim.scenarios import load_scenario
 
     sc = load_scenario("healthy_noise").model_copy(update={"duration_s": 3.0})
     return measured_run(sc)[1]

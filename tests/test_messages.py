@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from service.messages import (
+from service.wire.messages import (
     CHANNELS,
     KEY_FAULT,
     KEY_MEAS,
@@ -265,7 +265,7 @@ def test_encode_refuses_what_it_cannot_pack():
 
 def _arrays_equal_dicts(payload: bytes) -> None:
     """decode_meas_arrays and decode_meas_dicts agree: same error field, or same values."""
-    from service.messages import CHANNELS, decode_meas_arrays, decode_meas_dicts
+    from service.wire.messages import CHANNELS, decode_meas_arrays, decode_meas_dicts
 
     try:
         rows = decode_meas_dicts(payload)

@@ -1,4 +1,4 @@
-"""The daemon's OpenMetrics endpoint (``service.metrics``): the values are the status
+"""The daemon's OpenMetrics endpoint (``service.edge.metrics``): the values are the status
 snapshot's, read at scrape time; the fleet page's loopback and Host rules; ``[metrics]`` and
 ``--metrics`` validated; series bounded by the units."""
 
@@ -14,7 +14,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from service.config import ConfigError, MetricsSettings, ServiceConfig, load_config
 from service.daemon import Daemon
-from service.metrics import METRICS, collect_status
+from service.edge.metrics import METRICS, collect_status
 from service.store import open_store
 from tests.test_status_text import KEY, NAME, _feed, _flights_rul, _leak_run
 
@@ -242,12 +242,12 @@ def test_the_feeds_viewers_come_from_its_guard():
 
 def test_a_trickling_request_is_cut_at_the_request_deadline():
     """The endpoint gives a request ``request_s`` in total however slowly it trickles in (the
-    fleet page's rule, service.httpguard): a client sending a header byte now and then does not
+    fleet page's rule, service.edge.httpguard): a client sending a header byte now and then does not
     hold its connection and thread for ever."""
     import socket
     import time
 
-    from service.metrics import MetricsServer
+    from service.edge.metrics import MetricsServer
 
     srv = MetricsServer(lambda: {"station": "s", "shard": "0"}, port=0)
     srv._srv.RequestHandlerClass.request_s = 1.0

@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from service.calibration import measured_run, run_monitor
 from service.monitor import (
     AlarmConfig,
     Baseline,
@@ -16,7 +15,8 @@ from service.monitor import (
     MonitorConfig,
     MonitorOutput,
 )
-from service.scenarios import load_scenario
+from service.monitor.calibration import measured_run, run_monitor
+from service.sim.scenarios import load_scenario
 
 _RUNS: dict[tuple[str, float], tuple] = {}
 

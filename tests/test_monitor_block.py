@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from service.calibration import measured_run
 from service.monitor import AlarmConfig, Monitor, MonitorBank, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import measured_run
+from service.sim.scenarios import load_scenario
 
 KEYS = ("t", "x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr")
 _MEAS: dict = {}
@@ -167,7 +167,7 @@ def test_empty_block():
 
 def _as_arrays(bank: MonitorBank, part):
     """(ks, t, channels) of ``update_arrays`` for dict samples (None, NaN, text -> NaN)."""
-    from service.messages import CHANNELS
+    from service.wire.messages import CHANNELS
 
     def num(v):
         return v if isinstance(v, int | float) and not isinstance(v, bool) else math.nan

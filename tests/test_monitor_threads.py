@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.calibration import measured_run
-from service.messages import CHANNELS
 from service.monitor import MonitorBank, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import measured_run
+from service.sim.scenarios import load_scenario
+from service.wire.messages import CHANNELS
 
 
 def _stream(n_act: int = 5):

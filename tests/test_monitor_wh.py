@@ -13,10 +13,10 @@ import pytest
 from _c_type import c_type_config
 
 from models import eha_reduced_wh as erw
-from service.calibration import measured_run, run_monitor
 from service.monitor import Baseline, MonitorBank, MonitorConfig
-from service.scenarios import load_scenario
-from service.ukf import BatchUKF, process_covariance, ukf_step_batch
+from service.monitor.calibration import measured_run, run_monitor
+from service.monitor.ukf import BatchUKF, process_covariance, ukf_step_batch
+from service.sim.scenarios import load_scenario
 
 BASE = Baseline.default("WH")
 RP = BASE.reduced_params()

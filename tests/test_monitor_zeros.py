@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.calibration import measured_run
-from service.messages import CHANNELS
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, MonitorBank, MonitorConfig
-from service.scenarios import load_scenario
+from service.monitor.calibration import measured_run
+from service.sim.scenarios import load_scenario
+from service.wire.messages import CHANNELS
 
 N_PRE, N_ZERO, N_BACK = 1000, 5000, 2000
 CHUNK = 10  # samples per update_arrays call (a 10-sample message per actuator and tick)

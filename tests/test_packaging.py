@@ -23,15 +23,15 @@ def test_every_package_directory_is_installed():
         for top in ("models", "service", "evaluation")
         for p in (ROOT / top).rglob("__init__.py")
     }
-    assert "service.web" in on_disk and "service.store" in on_disk and "evaluation" in on_disk
+    assert "service.edge.web" in on_disk and "service.store" in on_disk and "evaluation" in on_disk
     assert on_disk <= found, sorted(on_disk - found)
     # benchmarks, one-off investigations and tests are scripts, not packages
     assert not any(p.split(".")[0] in ("tests", "bench", "research") for p in found)
 
 
 def test_the_page_files_are_package_data():
-    globs = _setuptools()["package-data"]["service.web"]
-    static = ROOT / "service" / "web" / "static"
+    globs = _setuptools()["package-data"]["service.edge.web"]
+    static = ROOT / "service" / "edge" / "web" / "static"
     files = [p.relative_to(static.parent).as_posix() for p in static.iterdir() if p.is_file()]
     assert {"static/index.html", "static/fleet.js", "static/fleet.css"} <= set(files)
     for f in files:

@@ -1,5 +1,5 @@
 """The est, res and health the daemon and the replay publish on Zenoh: protobuf rows of the
-log's fields (service.messages.output_layout), the same numbers as the log, readable with the
+log's fields (service.wire.messages.output_layout), the same numbers as the log, readable with the
 stock protobuf library, printed by ``servowatch listen``."""
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ import pytest
 
 from models.eha import simulate
 from service.cli import main
-from service.fanout import FanOut
+from service.daemon.fanout import FanOut
 from service.log import McapLogger
-from service.messages import CHANNELS, MessageError, mcap_topic
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS, MonitorBank
 from service.replay import replay
-from service.scenarios import load_scenario
+from service.sim.scenarios import load_scenario
+from service.wire.messages import CHANNELS, MessageError, mcap_topic
 
 N = 400
 ROOT = Path(__file__).resolve().parents[1]
@@ -61,7 +61,7 @@ class _Session:
 
 
 def _decode(leaf: str, payload: bytes, encoding: str | None = None) -> dict:
-    from service.messages import decode_output
+    from service.wire.messages import decode_output
 
     return decode_output(leaf, payload, encoding)
 
@@ -173,7 +173,7 @@ def test_published_rows_are_the_logged_rows_and_stock_protobuf_reads_them(meas, 
 def test_decode_output_formats_and_refusals():
     """Protobuf and the JSON of older daemons are both read; a malformed message is a
     MessageError naming its field, never another exception."""
-    from service.messages import (
+    from service.wire.messages import (
         decode_output,
         encode_outputs,
         output_encoding,
@@ -233,7 +233,7 @@ def test_listen_prints_outputs_old_json_too_and_counts_malformed(meas, tmp_path)
     traceback)."""
     import zenoh
 
-    from service.messages import encode_outputs, output_encoding, output_layout
+    from service.wire.messages import encode_outputs, output_encoding, output_layout
     from service.zenoh_util import free_port, loopback, make_config
 
     sess = _Session()

@@ -14,10 +14,10 @@ import zenoh
 from models.eha import simulate
 from service.cli import main
 from service.log import McapLogger, TruncatedLogWarning, read_log
-from service.messages import decode_output, mcap_topic
 from service.monitor import Monitor, MonitorConfig
 from service.replay import INPUT_KEYS, read_metadata, replay
-from service.scenarios import load_scenario
+from service.sim.scenarios import load_scenario
+from service.wire.messages import decode_output, mcap_topic
 from service.zenoh_util import BoundedQueue, free_port, loopback, make_config, wait_until
 
 N = 400  # samples per actuator (0.4 s at 1 kHz): enough for the filter, quick to run

@@ -23,9 +23,9 @@ def test_router_kill_and_restart_loses_no_cached_sample(tmp_path, link):
 
 _PUBLISHER = """
 import sys, time, zenoh
-from service import messages as m
-from service.actuator import VirtualActuator
-from service.scenarios import load_scenario
+from service.wire import messages as m
+from service.sim.actuator import VirtualActuator
+from service.sim.scenarios import load_scenario
 from service.zenoh_util import make_config
 va = VirtualActuator(load_scenario("demo"), rate_hz=1000.0, t_origin=time.time())
 samples = va.produce(3000)

@@ -11,8 +11,8 @@ from models import eha_reduced as er
 from models.eha import simulate
 from models.params import EHAParams
 from models.scenario import Event, Profile, Scenario, SensorNoise
-from service.calibration import identify_noise, measured_run, noise_sigma
 from service.monitor import Baseline, MonitorBank, MonitorConfig
+from service.monitor.calibration import identify_noise, measured_run, noise_sigma
 
 P = EHAParams()
 
@@ -123,8 +123,8 @@ def test_overload_leaves_the_null_bias_alone():
     """est_overload saturates the current for 1.2 s (back-driven to the end stop, then the
     return): i_b ran to 140 uA (true 0) before it was held past the underlap, and C_Lk read
     1.3x nominal for half a second after the return (docs/estimation.md)."""
-    from service.commands.estimate import evaluate
-    from service.scenarios import load_scenario
+    from service.cli.commands.estimate import evaluate
+    from service.sim.scenarios import load_scenario
 
     r = evaluate(load_scenario("est_overload"), MonitorConfig(model="WH"), keep_outputs=True)
     outs = [o for o in r["_outs"] if o is not None]
@@ -163,7 +163,7 @@ def test_hydraulic_null_from_two_loads():
     """Lands S->1 and 2->R 5 um wider than 1->R and S->2: the flows balance at
     x_S = (u2 - u1) / 2 = -5 um (physics.md section 3); a matched valve at 0; a run at one
     load does not fit it (x_0 = 0)."""
-    from service.calibration import identify_baseline
+    from service.monitor.calibration import identify_baseline
 
     b = identify_baseline(_two_load_run(u1=105e-6, u4=105e-6, u2=95e-6, u3=95e-6))
     assert b.x_0 == pytest.approx(-5e-6, rel=0.2)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from models.scenario import Event, Periodic, Profile, Scenario
-from service.scenarios import ScenarioError, load_scenario
+from service.sim.scenarios import ScenarioError, load_scenario
 
 
 def test_paper_bench_sequence_matches_physics_md_section_5():
@@ -85,7 +85,7 @@ def test_unreadable_toml_and_missing_file(tmp_path):
 
 
 def test_every_bundled_scenario_validates():
-    from service.scenarios import SCENARIO_DIR
+    from service.sim.scenarios import SCENARIO_DIR
 
     files = sorted(SCENARIO_DIR.glob("*.toml"))
     assert files

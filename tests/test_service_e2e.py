@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from service import messages as m
-from service.commands.inject import send_fault
+from service.cli.commands.inject import send_fault
+from service.wire import messages as m
 from service.zenoh_util import free_port, loopback, make_config
 
 pytestmark = pytest.mark.slow

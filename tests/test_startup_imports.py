@@ -26,7 +26,7 @@ HEAVY = (
     "service.monitor.bank",
     "service.monitor.kernels",
     "service.monitor.fleet",
-    "service.ukf",
+    "service.monitor.ukf",
     "models.compiled",
     "models.eha_reduced",
     "models.eha_reduced_wh",

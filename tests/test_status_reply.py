@@ -7,8 +7,9 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 
-from service.commands.status import format_status, query_status
-from service.web.live import slim
+from service.cli.commands.status import format_status
+from service.edge.status import query_status
+from service.edge.web.live import slim
 
 GOOD = {
     "station": "ground1", "shard": "0", "state": "ok", "model": "WH", "pid": 7, "uptime_s": 3.0,
@@ -116,8 +117,8 @@ def test_a_reply_claiming_another_daemons_name_is_told_apart():
 def test_a_real_daemons_status_is_well_formed():
     from test_daemon import KEY, make, sample
 
-    from service import messages as m
-    from service.status_reply import check_reply
+    from service.edge.status import check_reply
+    from service.wire import messages as m
 
     d, _, _ = make()
     d.submit(KEY, m.encode_meas([sample(k) for k in range(5)]))

@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 
 from models.scenario import Profile
-from service.calibration import measured_run
-from service.commands.status import format_rul, format_status
+from service.cli.commands.status import format_rul, format_status
 from service.config import PrognosticsSettings, ServiceConfig
 from service.daemon import Daemon
-from service.messages import encode_meas
 from service.monitor import EST_KEYS
-from service.prognostics.fleetsim import C_LK_NOMINAL
+from service.monitor.calibration import measured_run
 from service.prognostics.rul import History, rul_of_history
-from service.scenarios import load_scenario
+from service.replay.fleetsim import C_LK_NOMINAL
+from service.sim.scenarios import load_scenario
 from service.store import open_store
+from service.wire.messages import encode_meas
 from tests._c_type import c_type_config
 
 CH = ("x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr")

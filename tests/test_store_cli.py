@@ -8,7 +8,7 @@ import pytest
 from test_store import make_period
 
 from service.cli import main
-from service.scenarios import load_scenario
+from service.sim.scenarios import load_scenario
 from service.store import AlarmEvent, open_store
 
 

@@ -10,16 +10,16 @@ import numpy as np
 import pytest
 
 from models.scenario import Profile
-from service.calibration import calibrate, measured_run
 from service.config import PrognosticsSettings, ServiceConfig
 from service.daemon import Daemon
 from service.log import McapLogger
-from service.messages import mcap_topic
 from service.monitor import MonitorBank, MonitorFleet
-from service.prognostics.fleetsim import C_LK_NOMINAL
+from service.monitor.calibration import calibrate, measured_run
 from service.replay import replay
-from service.scenarios import load_scenario
+from service.replay.fleetsim import C_LK_NOMINAL
+from service.sim.scenarios import load_scenario
 from service.store import open_store
+from service.wire.messages import mcap_topic
 
 CH = ("x_cmd", "i", "x_s", "x_j", "p1", "p2", "p_sr")
 ODD = "AC1/odd"  # the off-nominal unit
@@ -134,7 +134,7 @@ class _Pub:
         self.key, self.sink, self.encoding = key, sink, encoding
 
     def put(self, payload: bytes) -> None:
-        from service.messages import decode_output
+        from service.wire.messages import decode_output
 
         self.sink.append((self.key, decode_output(self.key.rsplit("/", 1)[1], payload)))
 
@@ -151,7 +151,7 @@ class _Session:
 
 
 def _payloads(meas: dict, n0: int, n1: int, per: int = 50) -> list[bytes]:
-    from service.messages import encode_meas
+    from service.wire.messages import encode_meas
 
     out = []
     for a in range(n0, n1, per):
@@ -196,7 +196,7 @@ def test_daemon_commissioned_flags_periods_and_flush_on_stop(odd, tmp_path):
         assert {p.source for p in s.periods(ODD)} == {"live:ground1/0"}
     assert final["actuators"]["fleet/AC1/odd/meas"]["periods"] == 3
     assert final["store"]["written"] == 6 and final["store"]["failure"] is None
-    from service.commands.status import format_status
+    from service.cli.commands.status import format_status
 
     text = format_status({"monitor/ground1/0/status": final})
     assert "AC1/odd" in text and "baseline v1" in text and "3 periods, RUL -" in text

@@ -12,7 +12,7 @@ from scipy.linalg import expm
 
 from models import eha_reduced as er
 from service.monitor import Baseline
-from service.ukf import BatchUKF, merwe_weights, nearest_spd, ukf_step_batch
+from service.monitor.ukf import BatchUKF, merwe_weights, nearest_spd, ukf_step_batch
 
 # -- a small nonlinear problem for the filterpy comparison ---------------------------------
 DT = 0.05
@@ -381,7 +381,7 @@ def test_g_pq_square_root_law_matches_numpy():
 
 
 def test_sigma_points_helper_matches_batch_ukf():
-    from service.ukf import _sigma_points
+    from service.monitor.ukf import _sigma_points
 
     rng = np.random.default_rng(11)
     for n in (3, 8):

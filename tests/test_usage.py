@@ -137,8 +137,8 @@ def test_periods_split_the_usage_and_rows_without_usage_read_nan():
 
 
 def _scenario_run(seed: int = 5, duration_s: float = 3.0):
-    from service.calibration import measured_run
-    from service.scenarios import load_scenario
+    from service.monitor.calibration import measured_run
+    from service.sim.scenarios import load_scenario
 
     base = load_scenario("healthy_noise")
     sc = base.model_copy(
@@ -171,8 +171,8 @@ def test_block_and_round_paths_give_the_same_usage():
 @pytest.mark.slow
 def test_usage_against_the_hf_bench_truth():
     """Travel and load-weighted travel within 2 % of the HF bench's truth, reversals exact."""
-    from service.calibration import bank_rows
     from service.monitor import Baseline, MonitorConfig
+    from service.monitor.calibration import bank_rows
     from service.prognostics.indicators import periods_of_rows
 
     sim, meas = _scenario_run(duration_s=3.0)
@@ -250,7 +250,7 @@ def test_replay_store_writes_usage_end_to_end(tmp_path):
     a second replay adds nothing."""
     from service.cli import main
     from service.log import McapLogger
-    from service.messages import mcap_topic
+    from service.wire.messages import mcap_topic
 
     sim, meas = _scenario_run(duration_s=3.0, seed=8)
     log = tmp_path / "AC1-ail_L-f000.mcap"
@@ -294,7 +294,7 @@ def test_fleet_text_json_and_the_unit_view_show_usage(store_url, capsys):
     import json
 
     from service.cli import main
-    from service.web.view import fleet_view, unit_view
+    from service.edge.web.view import fleet_view, unit_view
 
     with open_store(store_url) as s:
         # two flights of two 90 s periods, one flight with usage but no pressures, one old
@@ -329,7 +329,7 @@ def test_the_daemon_writes_usage_with_its_periods(tmp_path):
     samples in one block would give over the same periods (both cut 1 s windows)."""
     from service.config import PrognosticsSettings, ServiceConfig
     from service.daemon import Daemon
-    from service.messages import encode_meas
+    from service.wire.messages import encode_meas
 
     sim, meas = _scenario_run(duration_s=2.5, seed=9)
     store = tmp_path / "d.sqlite"

@@ -36,7 +36,7 @@ def test_a_cold_compile_is_announced_then_cached(tmp_path):
 
 
 def test_ensure_is_silent_when_cached():
-    from service.warmup import ensure, is_cached
+    from service.cli.warmup import ensure, is_cached
 
     if not is_cached("log"):
         pytest.skip("the log kernels are not compiled here (run `servowatch warmup`)")
@@ -62,10 +62,12 @@ def test_a_parallel_cold_warmup_compiles_each_kernel_once(tmp_path):
     assert r.returncode == 0, r.stderr
     rows = json.loads(r.stdout)["kernels"]
     names = [k["kernel"] for k in rows]
-    for k in ("service.ukf.ukf_one", "service.ukf.ukf_one_wh",
+    for k in ("service.monitor.ukf.ukf_one", "service.monitor.ukf.ukf_one_wh",
               "service.monitor.kernels.step_one", "service.log.codec_read._objects"):  # fmt: skip
         assert names.count(k) == 1, (k, names)
-    assert all(k["signatures"] == 1 for k in rows if k["kernel"].startswith("service.ukf.ukf_"))
+    assert all(
+        k["signatures"] == 1 for k in rows if k["kernel"].startswith("service.monitor.ukf.ukf_")
+    )
     again = _warmup(tmp_path, "--group", "monitor", "--group", "log", "--jobs", "2")
     assert again.returncode == 0 and "compiling" not in again.stderr, again.stderr
 
@@ -76,8 +78,8 @@ def test_the_log_paths_run_on_the_signatures_the_warmup_compiles():
     one on its first run (it did: 3 s into the first demo, 13 s in its plot)."""
     from numba.core import event
 
+    from service.cli.warmup import GROUPS, _listener
     from service.log.codec import json_records, parse_objects, scan_records
-    from service.warmup import GROUPS, _listener
 
     GROUPS["log"]()  # compiled, or loaded from the cache
     compiled: list[str] = []

@@ -15,8 +15,8 @@ import pytest
 from webfleet import CRITICAL, OK, RANKED, WATCH, fill_store, web_process
 
 from service.cli import main
-from service.web.server import SECURITY_HEADERS, check_listen
-from service.web.view import unit_status
+from service.edge.web.server import SECURITY_HEADERS, check_listen
+from service.edge.web.view import unit_status
 
 
 def _get(url: str) -> tuple[int, dict, dict]:
@@ -268,7 +268,7 @@ def _page_thread(store: str, **kw):
     """The page's server in a thread of this process (``make_server``), and its URL."""
     import threading
 
-    from service.web.server import make_server
+    from service.edge.web.server import make_server
 
     srv = make_server(store, "127.0.0.1", 0, **kw)
     threading.Thread(target=srv.serve_forever, daemon=True).start()
@@ -339,7 +339,7 @@ def test_listen_backlog_fits_the_expected_clients(filled):
     import select
     import socket
 
-    from service.web.server import make_server
+    from service.edge.web.server import make_server
 
     srv = make_server(filled, "127.0.0.1", 0)  # bound and listening, not serving
     socks = []

@@ -189,7 +189,7 @@ _WIDTH_JS = """(() => {
 def test_page_fits_1280_px_without_a_horizontal_scroll(tmp_path, unit):
     """At 1280 x 900 CSS px, the table with every column (the live one too) and, opened, a
     unit's chart lie inside the window: nothing to scroll sideways."""
-    from service.web.browser import evaluate
+    from service.edge.web.browser import evaluate
 
     db = str(tmp_path / "h.sqlite")
     fill_store(db)

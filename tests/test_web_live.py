@@ -13,7 +13,7 @@ import urllib.request
 import pytest
 from webfleet import render, require_chromium, web_process
 
-from service.web.live import slim
+from service.edge.web.live import slim
 from tests.test_service_e2e import AC, ACT, RATE
 from tests.test_store_e2e import _act, _start
 

@@ -21,7 +21,7 @@ from models.wh_valve import (
     wh_static_p12,
     wh_static_pressures,
 )
-from service.scenarios import load_scenario
+from service.sim.scenarios import load_scenario
 
 P = DEFAULT_PARAMS
 WP = wh_params(P)

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from models import eha_reduced_wh as erw
-from service.calibration import measured_run
-from service.commands.estimate import evaluate
+from service.cli.commands.estimate import evaluate
 from service.monitor import Baseline, MonitorBank, MonitorConfig
-from service.scenarios import load_scenario
-from service.ukf import BatchUKF, process_covariance, ukf_step_batch
+from service.monitor.calibration import measured_run
+from service.monitor.ukf import BatchUKF, process_covariance, ukf_step_batch
+from service.sim.scenarios import load_scenario
 
 BASE = Baseline.default("WH")
 RP = BASE.reduced_params()

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from service.cli import main
-from service.commands.compare import NRMSE_SIGNALS, SIMPLIFIED, SUITE_DIR, suite_files
-from service.scenarios import load_scenario
+from service.cli.commands.compare import NRMSE_SIGNALS, SIMPLIFIED, SUITE_DIR, suite_files
+from service.sim.scenarios import load_scenario
 
 C_TYPES = ("C1", "C3", "C5")
 

@@ -9,7 +9,7 @@ import threading
 import pytest
 import zenoh
 
-from service.messages import MeasSample, decode_meas, encode_meas
+from service.wire.messages import MeasSample, decode_meas, encode_meas
 from service.zenoh_util import (
     BoundedQueue,
     EndpointError,

@@ -17,8 +17,8 @@ from html.parser import HTMLParser
 
 from test_store import make_period
 
+from service.edge.web.browser import dump_dom, find_chromium
 from service.store import AlarmEvent, open_store
-from service.web.browser import dump_dom, find_chromium
 
 CRITICAL = "AC001/elevator_L"  # RUL warning: ranked first
 WATCH = "AC001/aileron_R"  # alarms, a long RUL

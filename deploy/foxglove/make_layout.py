@@ -6,7 +6,7 @@
 Panels (docs/dashboard.md, "Live in Foxglove"): C_Lk with its baseline and its alarm levels,
 P_SR, the innovations (residuals) of the pressures and of the positions, NIS with its
 two-sided 95 % chi-square band, the alarm states and the last alarm events. The topics and
-fields are the MCAP log's (service.foxglove_feed), so the layout opens a log and a live
+fields are the MCAP log's (service.edge.foxglove_feed), so the layout opens a log and a live
 daemon alike. Two user scripts derive what the messages do not carry: the baseline C_Lk
 (C_Lk / leak_ratio) with the alarm levels (leak_raise, leak_clear of MonitorConfig), and the
 NIS band of each row's degrees of freedom (scipy's chi2, tabulated here).
@@ -76,8 +76,8 @@ def build(aircraft: str, actuator: str) -> dict:
     """The layout as a dict (Foxglove's layout JSON)."""
     import foxglove.layouts as fl
 
-    from service import messages as m
     from service.monitor import MonitorConfig
+    from service.wire import messages as m
 
     t = {leaf: m.mcap_topic(aircraft, actuator, leaf) for leaf in
          ("est", "residual", "health", "events")}  # fmt: skip

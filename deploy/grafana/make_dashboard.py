@@ -7,7 +7,7 @@ units, every unit's leak ratio, supply ratio and RUL), one unit's ratios (chosen
 ``aircraft`` and ``actuator`` variables: leak ratio with the alarm levels, supply ratio, NIS
 in band, C_Lk with its 1-sigma, alarm states, RUL), and the daemons' health (sample rate,
 dropped, bad and missing samples, queue, latency percentiles, log, store, group, Foxglove).
-Every query names metrics of ``service.metrics.METRICS`` (tests/test_grafana.py). The alarm
+Every query names metrics of ``service.edge.metrics.METRICS`` (tests/test_grafana.py). The alarm
 levels drawn are the defaults of ``[monitor.alarms]`` (``leak_raise``, ``leak_clear``).
 """
 

@@ -5,11 +5,11 @@
   LLVM struct proxy) that nulls the ``meminfo`` and ``parent`` members of array structs, so
   numba's reference counting skips them. Numba increfs/decrefs every array a function holds
   with atomic operations and its pruning pass leaves most of them in a function the size of
-  the UKF step: about a third of ``service.ukf.ukf_one`` and a fifth of the monitor's block
+  the UKF step: about a third of ``service.monitor.ukf.ukf_one`` and a fifth of the monitor's block
   loop (``service.monitor.kernels``).
 * ``has_cached_code``: whether a dispatcher's on-disk cache index (``numba.core.caching``:
   ``Dispatcher._cache._cache_file._load_index``) holds a fresh entry, i.e. whether its first
-  call loads compiled code instead of compiling (``service.warmup`` announces a compile).
+  call loads compiled code instead of compiling (``service.cli.warmup`` announces a compile).
 * ``NO_NRT``: the private ``_nrt`` target option (``numba.core.cpu.CPUTargetOptions``), which
   compiles a kernel without the runtime's reference counting at all; for kernels that
   allocate nothing (``service.log.codec``). Empty when the option is gone (the kernels still

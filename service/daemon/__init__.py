@@ -3,9 +3,11 @@
 stage), ``outputs`` (log, fan-out, store, live feed), one ``block.Block`` per tick between
 them; ``member`` and ``group`` (monitor groups), ``commission`` (auto-commissioning),
 ``status`` (the snapshot), ``systemd`` (sd_notify, watchdog), ``ratelimit``; ``core`` (the
-:class:`Daemon`: Zenoh entities, the worker, start/stop). The output fan-out is
-``service.fanout`` (shared with the replay); the command-line helpers are
-``service.cliargs``."""
+:class:`Daemon`: Zenoh entities, the worker, start/stop). ``fanout``: the output
+fan-out, shared with the replay.
+May import every layer below it (config, edge, sim, prognostics, wire, monitor, log, store);
+never replay or cli.
+"""
 
 from service.daemon.core import EXIT_LOG_FAILURE, Daemon, default_log_path
 from service.daemon.intake import MAX_ACTUATORS, ActuatorState

@@ -14,7 +14,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from service import messages as m
+from service.wire import messages as m
 
 __all__ = ["Block", "Event", "Part"]
 

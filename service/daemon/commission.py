@@ -4,7 +4,7 @@ An actuator without a baseline in the store is watched from its first sample. It
 samples are kept for ``duration_s`` of sample time. The stretch counts as healthy-looking
 when no alarm flag is raised in any output row and at least ``min_in_band`` of the rows have
 their NIS inside the two-sided 95 % chi-square band; an alarm restarts the collection. A
-healthy-looking stretch is calibrated (``service.calibration.calibrate``) in a background
+healthy-looking stretch is calibrated (``service.monitor.calibration.calibrate``) in a background
 thread, recorded as the actuator's baseline version 1 (source ``auto-commissioning``) and
 the actuator is moved to it from its next sample. The risk: a unit that is already degraded
 becomes its own baseline (docs/prognostics.md, "Auto-commissioning").
@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from service import messages as m
 from service.monitor import HEALTH_KEYS, RES_KEYS, Baseline, MonitorFleet
 from service.prognostics.indicators import nis_band
+from service.wire import messages as m
 
 __all__ = ["Commissioner"]
 
@@ -111,7 +111,7 @@ class Commissioner:
         self.rejected[key] = self.rejected.get(key, 0) + 1
 
     def _calibrate(self, key: str, c: _Collect) -> None:
-        from service.calibration import calibrate
+        from service.monitor.calibration import calibrate
         from service.store import open_store
 
         name = "/".join(m.parse_meas_key(key))

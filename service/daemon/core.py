@@ -13,7 +13,7 @@ block type (``service.daemon.block.Block``, one worker tick) passing between the
   ``MonitorBank.update_arrays`` call (each actuator on its latest baseline from the store,
   or the default), auto-commissioning;
 * ``outputs.Outputs``: every accepted sample logged, the output rows through
-  ``service.fanout.FanOut`` (the replay's fan-out too): est, residual and health logged
+  ``service.daemon.fanout.FanOut`` (the replay's fan-out too): est, residual and health logged
   every ``log_every``-th output and at every alarm event, events logged, est/res/health
   published every ``publish_every``-th output per actuator; closed operating periods to the
   health store (``service.store.StoreWriter``, a thread of its own); with ``[foxglove]`` the
@@ -41,7 +41,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-from service import messages as m
 from service.config import ServiceConfig
 from service.daemon.intake import ClockCheck, Intake
 from service.daemon.member import GroupMember
@@ -57,6 +56,7 @@ from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.status import snapshot
 from service.daemon.systemd import notify_ready, sd_notify, watchdog_interval
 from service.monitor import Baseline
+from service.wire import messages as m
 
 __all__ = ["Daemon", "default_log_path", "EXIT_LOG_FAILURE", "store_target"]
 
@@ -111,7 +111,7 @@ class Daemon:
             )
         self.metrics = None  # the OpenMetrics endpoint, bound first: a port in use fails here
         if config.metrics is not None:
-            from service.metrics import MetricsServer
+            from service.edge.metrics import MetricsServer
 
             host, port = config.metrics.host_port()
             self.metrics = MetricsServer(

@@ -47,7 +47,7 @@ from collections import deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from service import messages as m
+from service.wire import messages as m
 
 __all__ = ["owner_of", "group_token", "GROUP_TOKENS", "OUTPUTS_KEY", "MonitorGroup"]
 

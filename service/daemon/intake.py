@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from service import messages as m
 from service.daemon.block import Block, Event, Part
 from service.daemon.ratelimit import RateLimitedLog
+from service.wire import messages as m
 
 __all__ = [
     "ActuatorState", "ClockCheck", "Intake", "MAX_ACTUATORS", "MAX_PER_AIRCRAFT", "EXPIRE_S",
@@ -467,7 +467,7 @@ class Intake:
         """Drain up to ``max_batch`` messages: decode, check, accept. None if none queued.
 
         The binary messages are decoded at once, and the plain ones (every sample accepted,
-        no event) accepted by compiled code (``service.wire_kernels.intake_batch``); the rest
+        no event) accepted by compiled code (``service.wire.kernels.intake_batch``); the rest
         go through :func:`accept` in arrival order, on the same stream state."""
         q = self._queue
         if not q:

@@ -15,11 +15,11 @@ from typing import Any
 
 import numpy as np
 
-from service import messages as m
 from service.daemon.block import Block
 from service.daemon.commission import Commissioner
 from service.daemon.status import percentiles
 from service.monitor import Baseline, MonitorBank, MonitorConfig, MonitorFleet
+from service.wire import messages as m
 
 __all__ = ["LATENCY_BUCKETS_S", "MonitorStage"]
 

@@ -4,7 +4,7 @@ daemon-side events (silent, resumed, restart, released, group events).
 
 :meth:`Outputs.write` takes a tick's :class:`~service.daemon.block.Block` after the monitor
 stage: it logs the block's events and accepted measurements in arrival order, then hands the
-output rows to ``service.fanout.FanOut`` (the replay's fan-out too) and commits the log.
+output rows to ``service.daemon.fanout.FanOut`` (the replay's fan-out too) and commits the log.
 
 A failure of the MCAP log (disk full, the log process gone) is kept as ``log_failure``: the
 status shows it and reports the service ``degraded``, systemd gets a STATUS line, and
@@ -21,16 +21,16 @@ from typing import Any
 
 import numpy as np
 
-from service import messages as m
 from service.config import ServiceConfig
 from service.daemon.block import Block, Part
+from service.daemon.fanout import FanOut
 from service.daemon.intake import MAX_ACTUATORS, ActuatorState
 from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.systemd import sd_notify
-from service.fanout import FanOut
 from service.jsonutil import flat
-from service.proclog import MEAS_LOG_FIELDS, ProcessLogger
+from service.log.proclog import MEAS_LOG_FIELDS, ProcessLogger
 from service.prognostics import PeriodConfig
+from service.wire import messages as m
 
 __all__ = ["Outputs", "default_log_path", "open_logger", "open_retention", "store_target"]
 
@@ -150,7 +150,7 @@ class Outputs:
         self.foxglove = None  # FoxgloveFeed
         self._feed_state = "ok"  # its guard's listener, as last reported
         if config.foxglove is not None:
-            from service.foxglove_feed import FoxgloveFeed
+            from service.edge.foxglove_feed import FoxgloveFeed
 
             fc = config.foxglove
             host, port = fc.host_port()
@@ -358,7 +358,7 @@ class Outputs:
         add = getattr(self.logger, "add_metadata", None)
         if add is None:
             return
-        from service.flightrec import FLIGHT_RECORD, FlightRecord
+        from service.log.flightrec import FLIGHT_RECORD, FlightRecord
 
         seen = self._flights_logged
         for p in periods:

@@ -3,6 +3,8 @@
 ``config`` (MonitorConfig, Baseline, noise and alarm settings), ``outputs`` (the output
 row layout EST_KEYS / RES_KEYS / HEALTH_KEYS and the output types), ``bank`` (MonitorBank,
 Monitor) and ``kernels`` (the compiled per-sample loops). See docs/estimation.md.
+Also ``ukf``, ``usage``, ``calibration`` and ``model_choice``. May import models, compat, log,
+store and the loose utilities; never the wire, Zenoh or the daemon.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from models import eha_reduced as er
-from service.messages import CHANNELS as WIRE
+from models.channels import SENSORS as WIRE
 from service.monitor.config import (
     MONITOR_MODELS,
     Baseline,
@@ -91,8 +91,8 @@ from service.monitor.outputs import (
     StepBlock,
     empty_rows,
 )
+from service.monitor.ukf import BatchUKF, workspace
 from service.monitor.usage import BankUsage
-from service.ukf import BatchUKF, workspace
 
 __all__ = ["MonitorBank", "Monitor"]
 
@@ -112,7 +112,7 @@ def _stepped(n: int, nx: int, cnt: NDArray) -> Stepped:
 
 
 _PARAMS = slice(S_F_R, S_I_B + 1)  # the random-walk parameter states f_r, p_sr, c_lk, i_b
-# columns of update_arrays' channels (the wire order, service.messages.CHANNELS)
+# columns of update_arrays' channels (the wire order, service.wire.messages.CHANNELS)
 _WIRE_X_CMD, _WIRE_I, _WIRE_Z = WIRE.index("x_cmd"), WIRE.index("i"), WIRE.index(MEAS_CHANNELS[0])
 assert WIRE[_WIRE_Z : _WIRE_Z + N_CHANNELS] == MEAS_CHANNELS
 
@@ -335,7 +335,7 @@ class MonitorBank:
     def update_arrays(self, ks: NDArray, t: NDArray, channels: NDArray) -> BankRows:
         """``update_rows`` for samples already in arrays (no dicts): actuator rows ``ks`` (n,)
         from ``index_of``, sample times ``t`` (n,) [s] and ``channels`` (n, 7) in the wire
-        order of ``service.messages.CHANNELS`` (x_cmd, i, x_s, x_j, p1, p2, p_sr; SI), NaN
+        order of ``service.wire.messages.CHANNELS`` (x_cmd, i, x_s, x_j, p1, p2, p_sr; SI), NaN
         where a channel is absent. Same numbers as ``update_rows`` on the equivalent dicts
         (with None for the NaNs); ``BankRows.index`` refers to positions in these arrays."""
         sb = self.step_arrays(ks, t, channels)

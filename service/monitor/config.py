@@ -1,7 +1,7 @@
 """Monitor settings and the calibrated baseline: pydantic models, validated and frozen.
 
 ``MonitorConfig`` holds the filter's noise settings, alarm thresholds and limits; ``Baseline``
-the nominal parameters of the simplified model (``service.calibration`` identifies them;
+the nominal parameters of the simplified model (``service.monitor.calibration`` identifies them;
 ``Baseline.default`` is the calibration on the bundled healthy run).
 """
 
@@ -16,12 +16,14 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from models.params import EHAParams
 from models.valve_laws import LAW_NAMES
-from service.model_choice import DEFAULT_MODEL, MONITOR_MODELS
+from service.monitor.model_choice import DEFAULT_MODEL, MONITOR_MODELS
 
 if TYPE_CHECKING:  # the reduced model compiles (numba): imported where it is used
     from models import eha_reduced as er
 
-assert (*LAW_NAMES, "WH") == MONITOR_MODELS, "service.model_choice lists the monitor's models"
+assert (*LAW_NAMES, "WH") == MONITOR_MODELS, (
+    "service.monitor.model_choice lists the monitor's models"
+)
 
 __all__ = [
     "MONITOR_MODELS",
@@ -284,7 +286,7 @@ class MonitorConfig(_Cfg):
 
 
 class Baseline(_Cfg):
-    """Calibrated nominal parameters of the simplified model (see ``service.calibration``).
+    """Calibrated nominal parameters of the simplified model (see ``service.monitor.calibration``).
 
     ``x_ss``/``g_pq`` are effective values that absorb the C-type/HF mismatch near null
     (physics.md section 3: only 1/G_PQ + C_Lk is identifiable at null, so C_Lk stays at its

@@ -45,7 +45,7 @@ from service.monitor.outputs import (
     RES_NIS_DOF,
     RES_OL,
 )
-from service.ukf import ukf_one, ukf_one_wh
+from service.monitor.ukf import ukf_one, ukf_one_wh
 
 # filter state columns (X, P, OL rows)
 S_X_S, S_V_S, S_X_J, S_V_J, S_F_R, S_P_SR, S_C_LK, S_I_B = (
@@ -197,7 +197,7 @@ class ModelRows(NamedTuple):
 
 
 class Sigma(NamedTuple):
-    """Unscented-transform weights (``service.ukf.merwe_weights``) and the spread c."""
+    """Unscented-transform weights (``service.monitor.ukf.merwe_weights``) and the spread c."""
 
     Wm: NDArray
     Wc: NDArray
@@ -244,7 +244,7 @@ class Rows(NamedTuple):
     fire: NDArray
 
 
-UKF_FAILED = 2  # status of service.ukf.ukf_one: no positive definite factor
+UKF_FAILED = 2  # status of service.monitor.ukf.ukf_one: no positive definite factor
 # codes of step_one / block_steps
 STEP_OK = 0  # stepped
 STEP_BROKEN = 1  # non-finite or not positive definite: re-initialise
@@ -256,7 +256,7 @@ STEP_INIT = 3  # first sample or gap: (re-)initialise from this sample, not step
 @njit(cache=True, inline="always")
 def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, w, prm, y, ws, n, again):
     """One UKF step on the bank's process model: WH (n = 10) or a C-type law (n = 8);
-    ``again``: the last step redone with process noise q (``service.ukf.ukf_one``)."""
+    ``again``: the last step redone with process noise q (``service.monitor.ukf.ukf_one``)."""
     Wm, Wc, c = w.Wm, w.Wc, w.c
     redo = bool(again)  # a run-time flag, not a literal: one compiled step for both uses
     if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
@@ -596,7 +596,7 @@ def block_steps(j0, emit0, sm, bs, mr, w, max_gap, expect, ws, so):
     broke/diverged. The caller re-initialises and resumes with (j, emit0=True), which takes
     sample j's snapshot without stepping it. so.acc[j]: sample j has an output row;
     so.cnt[k]: skipped_time, missing_channel, accepted (stepped samples only)."""
-    # every array through borrowed_all (see service.ukf): numba would otherwise
+    # every array through borrowed_all (see service.monitor.ukf): numba would otherwise
     # reference-count the arrays with atomic operations at every sample
     sm, bs, mr, so = borrowed_all(sm), borrowed_all(bs), borrowed_all(mr), borrowed_all(so)
     wm, wc = borrowed_all((w.Wm, w.Wc))

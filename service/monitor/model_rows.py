@@ -130,7 +130,7 @@ def c_type_vectors(config: MonitorConfig, baseline: Baseline) -> ModelVectors:
 def wh_vectors(config: MonitorConfig, baseline: Baseline) -> ModelVectors:
     """WH's vectors (``models.eha_reduced_wh``: the C-type states plus the chamber states
     p~1, p~2). The chamber columns of q hold the differential and the common mode's random
-    walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (``service.ukf``)."""
+    walks, (p~1 - p~2)/sqrt 2 and (p~1 + p~2)/sqrt 2 (``service.monitor.ukf``)."""
     rp = baseline.reduced_params()
     pn, c, u = config.process, config, _FILTER_UNITS
     extra = {

@@ -3,7 +3,7 @@
 
 A period's calendar start ``start_unix`` [Unix s] is, in this order:
 
-1. from the log's ``servowatch.flight`` record of the unit (``service.flightrec``):
+1. from the log's ``servowatch.flight`` record of the unit (``service.log.flightrec``):
    ``start_unix + (start_t - t0)``;
 2. from the caller (``replay --start-unix``), the same way from the log's first sample;
 3. the sample time itself when it is a Unix time (``start_t`` >= ``UNIX_MIN``, as live
@@ -25,7 +25,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
-from service.flightrec import FlightRecord
+from service.log.flightrec import FlightRecord
 from service.store.lifeorder import next_flight
 from service.store.records import Period
 

@@ -2,6 +2,7 @@
 
 ``open_store(url_or_path)`` opens a SQLite file (default, embedded, WAL) or a PostgreSQL
 database (``postgresql://...``). See docs/store.md.
+May import models, compat and the loose utilities only.
 """
 
 from __future__ import annotations

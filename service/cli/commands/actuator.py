@@ -1,0 +1,107 @@
+"""``servowatch actuator``: a virtual actuator publishing its sensors on Zenoh."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+
+from service.cli.util import emit_json, fail
+
+NAME = "actuator"
+HELP = "Run a virtual actuator (HF bench paced by the wall clock) publishing on Zenoh."
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from service.cli.args import add_zenoh_arguments
+
+    p.add_argument("--scenario", default="demo", help="scenario TOML file or bundled name")
+    p.add_argument("--aircraft", default="AC001")
+    p.add_argument("--actuator", default="elevator_L")
+    p.add_argument("--rate", type=float, default=1000.0, help="sample rate [Hz] (default 1000)")
+    p.add_argument(
+        "--samples-per-msg", type=int, default=10, help="samples per Zenoh message (default 10)"
+    )
+    p.add_argument(
+        "--format",
+        choices=("bin", "json"),
+        default=None,
+        help="wire format (default: service.wire.messages.DEFAULT_FORMAT)",
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="stop after this much simulated time [s] (default: run until killed)",
+    )
+    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default: scenario)")
+    p.add_argument(
+        "--cache-s",
+        type=float,
+        default=10.0,
+        help="seconds of messages the publisher's cache holds for recovery (default 10)",
+    )
+    p.add_argument("--json", action="store_true", help="print a JSON summary at the end")
+    add_zenoh_arguments(p)
+
+
+def run(args: argparse.Namespace) -> int:
+
+    from service.cli.args import open_zenoh_session, zenoh_config
+    from service.sim.actuator import VirtualActuator
+    from service.sim.scenarios import ScenarioError, load_scenario
+    from service.wire import messages as msgs
+
+    logging.basicConfig(
+        level=logging.INFO,
+        stream=sys.stderr,
+        format="%(asctime)s %(levelname)s %(name)s %(message)s",
+    )
+    try:
+        msgs.key(msgs.KEY_MEAS, aircraft=args.aircraft, actuator=args.actuator)
+        scenario = load_scenario(args.scenario)
+    except (ScenarioError, msgs.MessageError, ValueError) as e:
+        return fail(str(e))
+    cfg = zenoh_config(args)
+    if not args.rate > 0 or args.samples_per_msg < 1:
+        return fail("--rate must be > 0 and --samples-per-msg >= 1")
+    if not 0 < args.cache_s <= 3600:
+        return fail(f"--cache-s: must be in (0, 3600] s, got {args.cache_s}")
+    from service.cli.warmup import ensure
+
+    ensure("models")  # before publishing: a first run compiles (and says so)
+    va = VirtualActuator(scenario, rate_hz=args.rate, t_origin=time.time(), seed=args.seed)
+    stop = threading.Event()
+
+    def _stop(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    with open_zenoh_session(cfg) as session:
+        logging.getLogger("servowatch.actuator").info(
+            "actuator %s/%s publishing %s at %g Hz",
+            args.aircraft,
+            args.actuator,
+            msgs.KEY_MEAS.format(aircraft=args.aircraft, actuator=args.actuator),
+            args.rate,
+        )
+        counters = va.serve(
+            session,
+            args.aircraft,
+            args.actuator,
+            stop=stop,
+            duration_s=args.duration,
+            samples_per_msg=args.samples_per_msg,
+            fmt=args.format,
+            cache_s=args.cache_s,
+        )
+    counters["seq_next"] = va.seq
+    if args.json:
+        emit_json(counters)
+    else:
+        print(f"actuator {args.aircraft}/{args.actuator}: {counters}", file=sys.stderr)
+    return 0

@@ -1,0 +1,133 @@
+"""``servowatch listen``: print the est, res and health outputs the daemons publish."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import threading
+import time
+from typing import Any
+
+from service.cli.util import emit_json, fail
+
+NAME = "listen"
+HELP = (
+    "Print the outputs (est, res, health) the monitoring daemons publish on Zenoh: the "
+    "protobuf rows, and the JSON of older daemons; malformed ones are counted."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from service.cli.args import add_zenoh_arguments
+
+    p.add_argument(
+        "--unit", default="*/*", help="AIRCRAFT/ACTUATOR to listen to (Zenoh wildcards: */*)"
+    )
+    p.add_argument(
+        "--leaf", action="append", choices=("est", "res", "health"),
+        help="output to listen to (repeatable; default: all three)",
+    )  # fmt: skip
+    p.add_argument("--count", type=int, default=0, help="stop after N outputs (0: no limit)")
+    p.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (0: none)")
+    p.add_argument(
+        "--json", action="store_true",
+        help="print one JSON object at the end (counts and each key's last output) instead "
+        "of a line per output",
+    )  # fmt: skip
+    p.add_argument(
+        "--write-schema", metavar="FILE",
+        help="write the outputs' FileDescriptorSet (protobuf schema) to FILE and exit",
+    )  # fmt: skip
+    add_zenoh_arguments(p)
+
+
+class OutputListener:
+    """Decodes published outputs (``service.wire.messages.decode_output``), counting them per
+    key and the malformed ones (a bad message is counted and logged on stderr, never an
+    exception in Zenoh's thread); ``echo`` prints a line ``KEY {json}`` per output."""
+
+    def __init__(self, echo: bool = True, count: int = 0, out: Any = None) -> None:
+        self.echo, self.count = echo, count
+        self.out = out if out is not None else sys.stdout
+        self.received = 0
+        self.malformed = 0
+        self.last: dict[str, dict[str, Any]] = {}
+        self.done = threading.Event()
+        self._lock = threading.Lock()
+
+    def on_sample(self, key: str, payload: bytes, encoding: str | None) -> None:
+        from service.wire.messages import (
+            OUTPUT_LEAVES,
+            MessageError,
+            decode_output,
+            parse_fleet_key,
+        )
+
+        try:
+            leaf = parse_fleet_key(key)[2]
+            if leaf not in OUTPUT_LEAVES:
+                raise MessageError(f"not one of {OUTPUT_LEAVES}", "leaf")
+            d = decode_output(leaf, payload, encoding)
+        except Exception as e:  # MessageError; anything else is a bad message too
+            with self._lock:
+                self.malformed += 1
+                n = self.malformed
+            if n <= 10 or math.log10(n).is_integer():
+                print(f"listen: malformed output on {key} ({n} so far): {e}", file=sys.stderr)
+            return
+        with self._lock:
+            self.received += 1
+            self.last[key] = d
+            if self.echo:
+                print(key, json.dumps(d), file=self.out, flush=True)
+            if self.count and self.received >= self.count:
+                self.done.set()
+
+    def summary(self) -> dict[str, Any]:
+        with self._lock:
+            return {"received": self.received, "malformed": self.malformed,
+                    "outputs": dict(sorted(self.last.items()))}  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> int:
+    from service.cli.args import open_zenoh_session, zenoh_config
+    from service.wire.messages import output_schema
+
+    if args.write_schema:
+        try:
+            with open(args.write_schema, "wb") as f:
+                f.write(output_schema())
+        except OSError as e:
+            return fail(f"--write-schema {args.write_schema}: {e.strerror or e}", 5)
+        return 0
+    if args.count < 0 or not (args.duration >= 0 and math.isfinite(args.duration)):
+        return fail("--count and --duration must be >= 0")
+    unit = args.unit.strip("/")
+    if unit.count("/") != 1:
+        return fail(f"--unit: expected AIRCRAFT/ACTUATOR, got {args.unit!r}")
+    session = open_zenoh_session(zenoh_config(args))
+    lis = OutputListener(echo=not args.json, count=args.count)
+
+    def cb(s) -> None:
+        lis.on_sample(str(s.key_expr), s.payload.to_bytes(), str(s.encoding))
+
+    leaves = args.leaf or ["est", "res", "health"]
+    with session:
+        subs = [session.declare_subscriber(f"fleet/{unit}/{leaf}", cb) for leaf in leaves]
+        t_end = time.monotonic() + args.duration if args.duration else math.inf
+        try:
+            while not lis.done.wait(min(0.2, max(0.0, t_end - time.monotonic()))):
+                if time.monotonic() >= t_end:
+                    break
+        except KeyboardInterrupt:
+            pass
+        for sub in subs:
+            sub.undeclare()
+    sm = lis.summary()
+    if args.json:
+        emit_json(sm)
+    else:
+        print(f"listen: {sm['received']} outputs, {sm['malformed']} malformed", file=sys.stderr)
+    return 0

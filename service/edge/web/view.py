@@ -1,0 +1,168 @@
+"""The JSON the fleet page reads, from the health store: the ranked fleet with a status per
+unit, and one unit's indicator history. No HTTP here (``service.edge.web.server`` serves it)."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from service.edge.fleet import finite_or_none as _finite
+from service.edge.fleet import rank_fleet
+from service.jsonutil import jsonable
+from service.prognostics.rul import history_of
+from service.store import HealthStore
+from service.store.records import Period, check_actuator
+
+__all__ = [
+    "STATUSES",
+    "unit_status",
+    "fleet_view",
+    "unit_view",
+    "usage_per_flight",
+    "UnknownActuatorError",
+]
+
+#: page status of a unit, most urgent first
+STATUSES: tuple[str, ...] = ("critical", "watch", "ok", "uncommissioned")
+
+
+class UnknownActuatorError(KeyError):
+    """The store has no actuator of that name."""
+
+
+def unit_status(row: dict[str, Any]) -> tuple[str, str]:
+    """(status, reason) of one ranked fleet row (``rank_fleet``).
+
+    - ``uncommissioned``: no baseline yet, so no indicator means anything;
+    - ``critical``: the stored RUL warns (probability of crossing the failure threshold within
+      the planning horizon at least ``RulConfig.warn_p``);
+    - ``watch``: alarms recorded, or the C_Lk-ratio trend is rising;
+    - ``ok``: none of these.
+    """
+    if not row.get("commissioned"):
+        return "uncommissioned", "no baseline: run `servowatch calibrate --actuator`"
+    rul = row.get("rul") or {}
+    if rul.get("warning"):
+        p = _finite(rul.get("p_horizon"))
+        flights = rul.get("axis") == "flights"
+        hor = _finite(rul.get("horizon") if flights else rul.get("horizon_h"))
+        if p is not None and hor is not None:
+            unit = "flights" if flights else "h"
+            return "critical", f"P(threshold within {hor:.0f} {unit}) = {p:.2f}"
+        return "critical", "RUL warning"
+    alarms = max(int(row.get("alarms") or 0), int(row.get("alarm_events") or 0))
+    if alarms:
+        return "watch", f"{alarms} alarm{'s' if alarms != 1 else ''} recorded"
+    trend = row.get("trend") or {}
+    if trend.get("label") == "rising":
+        return "watch", "C_Lk ratio rising"
+    return "ok", ""
+
+
+def fleet_view(store: HealthStore, now_s: float | None = None) -> dict[str, Any]:
+    """The page's fleet JSON: every unit ranked by urgency (``rank_fleet``, the order of
+    ``servowatch fleet``), each with ``status``/``status_reason``, and counts per status."""
+    ranked = rank_fleet(store.fleet_summary())
+    counts = dict.fromkeys(STATUSES, 0)
+    for r in ranked:
+        r["status"], r["status_reason"] = unit_status(r)
+        counts[r["status"]] += 1
+    horizons = [_finite((r.get("rul") or {}).get("horizon_h")) for r in ranked]
+    horizons = [h for h in horizons if h is not None]
+    # the bars' axis: the unit most RULs are in (flights when the histories count them)
+    units = [(r.get("rul_interval") or {}).get("unit") for r in ranked if r.get("rul")]
+    unit = "flights" if units and units.count("flights") * 2 >= len(units) else "h"
+    hz = [_finite((r.get("rul") or {}).get("horizon" if unit == "flights" else "horizon_h"))
+          for r in ranked]  # fmt: skip
+    hz = [h for h in hz if h is not None]
+    return jsonable(
+        {
+            "store": store.where,
+            "generated_s": time.time() if now_s is None else now_s,
+            "actuators": len(ranked),
+            "counts": counts,
+            "with_rul": sum(
+                1 for r in ranked if (r.get("rul_interval") or {}).get("median_h") is not None
+            ),
+            "horizon_h": max(horizons) if horizons else None,
+            "horizon": max(hz) if hz else None,
+            "horizon_unit": unit,
+            "fleet": ranked,
+        }
+    )
+
+
+def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
+    """One unit's history for the page: per period (by start time) the cumulative operating
+    hours at its end ``t_h`` (the RUL's time axis, ``history_of``), the C_Lk ratio and its
+    1-sigma (NaN -> null where unobservable), the lowest supply pressure [Pa] and the alarm
+    count, the usage (travel, load-weighted travel, reversals; null where unknown); its alarm
+    events, baseline versions, stored RUL and mean usage per flight (``usage_per_flight``)."""
+    check_actuator(actuator)
+    if not store.has_actuator(actuator):
+        raise UnknownActuatorError(actuator)
+    periods = sorted(store.periods(actuator), key=lambda p: p.start_t)
+    hist = history_of(actuator, periods)
+    rows = []
+    for p, t_h, y in zip(periods, hist.t_h, hist.y, strict=True):
+        base = p.c_lk_mean / p.c_lk_ratio if p.c_lk_ratio else math.nan
+        sig = p.c_lk_sigma / base if math.isfinite(base) and base > 0 else math.nan
+        rows.append(
+            {
+                "start_t": p.start_t,
+                "end_t": p.end_t,
+                "t_h": float(t_h),
+                "flight": p.flight,
+                "c_lk_ratio": _finite(float(y)),
+                "c_lk_ratio_sigma": _finite(sig) if math.isfinite(float(y)) else None,
+                "p_sr_min": _finite(p.p_sr_min),
+                "alarms": p.alarms,
+                "source": p.source,
+                "usage_travel_m": _finite(p.usage_travel_m),
+                "usage_load_travel_j": _finite(p.usage_load_travel_j),
+                "usage_reversals": _finite(p.usage_reversals),
+            }
+        )
+    return jsonable(
+        {
+            "actuator": actuator,
+            "periods": rows,
+            "alarms": [
+                {"t": e.t, "kind": e.kind, "value": e.value, "source": e.source}
+                for e in store.alarms(actuator)
+            ],
+            "baselines": [
+                {"version": b.version, "created_s": b.created_s, "source": b.source}
+                for b in store.baselines(actuator)
+            ],
+            "rul": store.rul(actuator),
+            "usage": usage_per_flight(periods),
+        }
+    )
+
+
+def usage_per_flight(periods: list[Period]) -> dict[str, Any]:
+    """Mean usage per flight over the flights whose every period carries usage (periods
+    without a flight number are left out): ``flights`` counted, ``travel_m``,
+    ``load_travel_j`` (over the flights with a load figure) and ``reversals`` per flight,
+    None where no flight counts."""
+    by: dict[int, list[Period]] = {}
+    for p in periods:
+        if p.flight is not None:
+            by.setdefault(p.flight, []).append(p)
+    ok = [ps for ps in by.values() if all(math.isfinite(p.usage_travel_m) for p in ps)]
+    load = [ps for ps in ok if all(math.isfinite(p.usage_load_travel_j) for p in ps)]
+
+    def mean(groups: list[list[Period]], field: str) -> float | None:
+        if not groups:
+            return None
+        return sum(getattr(p, field) for ps in groups for p in ps) / len(groups)
+
+    return {
+        "flights": len(ok),
+        "travel_m": mean(ok, "usage_travel_m"),
+        "reversals": mean(ok, "usage_reversals"),
+        "load_flights": len(load),
+        "load_travel_j": mean(load, "usage_load_travel_j"),
+    }
