@@ -22,11 +22,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from service import messages as m  # noqa: E402
-from service.actuator import VirtualActuator  # noqa: E402
 from service.config import ServiceConfig  # noqa: E402
 from service.daemon import Daemon  # noqa: E402
-from service.scenarios import load_scenario  # noqa: E402
+from service.sim.actuator import VirtualActuator  # noqa: E402
+from service.sim.scenarios import load_scenario  # noqa: E402
+from service.wire import messages as m  # noqa: E402
 
 KEY = "fleet/AC001/elevator_L/meas"
 

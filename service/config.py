@@ -398,7 +398,11 @@ class ServiceConfig(BaseModel):
     shard: str = Field("0", pattern=r"^[A-Za-z0-9_.\-]+$", description="shard of the fleet")
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
     key_expr: str = Field("fleet/**/meas", min_length=1, description="measurements to watch")
-    log_dir: Path = Field(Path("logs"), description="directory of the MCAP logs")
+    log_dir: Path = Field(
+        Path("servowatch-data/logs"),
+        description="directory of the MCAP logs (beside the default store "
+        "servowatch-data/health.sqlite)",
+    )
     log: LogSettings = Field(default_factory=LogSettings)
     log_name: str = Field("servowatch", min_length=1, description="MCAP file name prefix")
     rotate_bytes: int | None = Field(256 * 2**20, gt=0, description="rotate after this size")

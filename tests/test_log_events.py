@@ -17,7 +17,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from service.log import McapLogger, read_blocks, read_log
 from service.log.events import decode_event, encode_event, event_schema
-from service.proclog import MEAS_LOG_FIELDS
+from service.log.proclog import MEAS_LOG_FIELDS
 
 ROOT = Path(__file__).resolve().parents[1]
 LEAK = {"t": 1796378000.5, "kind": "leak", "state": "raised", "value": 3.93}

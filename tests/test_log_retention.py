@@ -139,9 +139,9 @@ def test_no_limit_deletes_nothing(tmp_path):
 
 
 def _meas_payloads(seconds: float, rate: float = 1000.0, per: int = 50) -> list[bytes]:
-    from service import messages as m
-    from service.actuator import VirtualActuator
-    from service.scenarios import load_scenario
+    from service.sim.actuator import VirtualActuator
+    from service.sim.scenarios import load_scenario
+    from service.wire import messages as m
 
     va = VirtualActuator(load_scenario("demo"), rate_hz=rate, t_origin=time.time() - 60, seed=3)
     samples = va.produce(int(seconds * rate))
@@ -203,3 +203,53 @@ def test_the_daemon_keeps_its_logs_within_keep_bytes_and_the_store_its_periods(
     with open_store(store_url) as s:  # deleted logs delete no history
         ps = s.periods("AC001/elevator_L")
         assert len(ps) >= 7 and sum(p.samples for p in ps) == final["samples"]
+
+
+ROOT = Path(__file__).resolve().parents[1]
+SHIPPED = ["deploy/loopback/servowatch.toml", "deploy/secure/monitor.toml",
+           "deploy/two-stations/station-a.toml", "deploy/two-stations/station-b.toml"]  # fmt: skip
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_every_shipped_daemon_config_sets_a_retention(name):
+    import tomllib
+
+    from service.log.settings import LogSettings
+
+    data = tomllib.loads((ROOT / name).read_text())
+    lg = LogSettings.model_validate(data["log"])
+    assert lg.keep_bytes is not None and lg.keep_days is not None
+    assert "keep_bytes" in data["log"] and "keep_days" in data["log"]
+
+
+def test_without_a_config_the_logs_go_beside_the_default_store():
+    from service.config import ServiceConfig
+    from service.store import DEFAULT_STORE
+
+    cfg = ServiceConfig()
+    assert cfg.log_dir == Path(DEFAULT_STORE).parent / "logs" == Path("servowatch-data/logs")
+    assert cfg.log.keep_bytes == 50 * 2**30 and cfg.log.keep_days == 30
+
+
+def test_status_text_shows_the_log_its_retention_and_the_store():
+    from service.cli.commands.status import format_log, format_rul, format_unit
+
+    st = {
+        "log": ["/d/servowatch-ground1-0-20261204T095217Z-0003-20261204T125217Z.mcap"],
+        "log_retention": {"keep_bytes": 50 * 2**30, "keep_days": 30.0, "kept_files": 1,
+                          "kept_bytes": 3 * 2**20, "deleted_files": 2, "deleted_bytes": 5 * 2**30,
+                          "last_deleted": [{"path": "/d/a.mcap", "end": "2026-12-04T10:52:19.000Z"}]},
+        "store": {"where": "servowatch-data/health.sqlite"},
+    }  # fmt: skip
+    assert format_log(st) == [
+        "  log /d/servowatch-ground1-0-20261204T095217Z-0003-20261204T125217Z.mcap; keeps "
+        "50 GiB and 30 d: 1 file (3 MiB) kept, 2 files (5 GiB) deleted, the last /d/a.mcap "
+        "(ended 2026-12-04T10:52:19.000Z)",
+        "  store servowatch-data/health.sqlite",
+    ]
+    one = format_unit({"aircraft": "A", "actuator": "b", "periods": 1})[2]
+    assert "1 period," in one and "1 periods" not in one
+    rul = {"median_flights": 1.2, "lo_flights": 1, "hi_flights": 3, "periods": 5,
+           "axis": "flights", "median_days": None}  # fmt: skip
+    assert format_rul(rul) == "RUL 1 flight [1-3]"
+    assert format_rul({**rul, "median_flights": 2.0}) == "RUL 2 flights [1-3]"

@@ -217,7 +217,11 @@ class Retention:
         return True
 
     def status(self) -> dict[str, Any]:
-        """The policy, what is kept, and what was deleted (counts and the last files)."""
+        """The policy, what is kept now (a directory listing), and what was deleted (counts
+        and the last files)."""
+        with contextlib.suppress(OSError):
+            left = self.files()
+            self.kept_files, self.kept_bytes = len(left), sum(f[1] for f in left)
         return {
             "keep_bytes": self.keep_bytes,
             "keep_days": self.keep_days,

@@ -440,6 +440,20 @@ def replay(
     files = rotated_files(log_path)
     if not files:
         raise FileNotFoundError(f"{log_path}: no such log (nor a rotation set {log_path.stem}-*)")
+    from service.log.retention import hold
+
+    with hold(files):  # no file of the set is deleted by a daemon's retention meanwhile
+        return _replay_held(
+            files, log_path, store, out, publish, speed, monitor_config, baseline, progress,
+            log_every, publish_every, period_config, flight, start_unix, flight_gap_s, live,
+        )  # fmt: skip
+
+
+def _replay_held(
+    files, log_path, store, out, publish, speed, monitor_config, baseline, progress, log_every,
+    publish_every, period_config, flight, start_unix, flight_gap_s, live,
+) -> ReplaySummary:  # fmt: skip
+    """:func:`replay` on the files ``files`` of ``log_path``, held against retention."""
     for f in files:
         check_mcap(f)
     meta = read_metadata(files[0])
