@@ -81,3 +81,56 @@ def test_no_notify_socket_no_thread():
     with extending_start("x", env={}) as ext:
         assert ext is None
     assert not notify_ready({})
+
+
+@pytest.mark.slow
+def test_servowatch_run_extends_its_start_then_is_ready_once_it_answers(net, tmp_path):
+    """``servowatch run`` under the notify protocol (as systemd starts it): the first
+    datagrams extend the start timeout, READY=1 comes after them, once the daemon answers its
+    status queryable, and no extension follows READY."""
+    notes = Notes(tmp_path / "notify")
+    try:
+        d = net.start("run", "--log", str(tmp_path / "r.mcap"), "--no-rotate",
+                      env={"NOTIFY_SOCKET": notes.path})  # fmt: skip
+        deadline = time.monotonic() + 120
+        while "READY=1" not in notes.texts and time.monotonic() < deadline:
+            time.sleep(0.05)
+        t_ready = next(t for t, x in notes.got if x == "READY=1")
+        assert net.status(timeout=2.0) is not None  # it answers once READY
+        time.sleep(0.5)
+        d.terminate()
+        d.communicate(timeout=30)
+    finally:
+        notes.close()
+    texts = notes.texts
+    k = texts.index("READY=1")
+    assert k >= 1 and all(
+        x.startswith("EXTEND_TIMEOUT_USEC=30000000\nSTATUS=starting") for x in texts[:k]
+    )
+    assert not any(x.startswith("EXTEND") for x in texts[k + 1 :])
+    assert texts[-1] == "STOPPING=1" and t_ready > notes.got[0][0]
+
+
+def test_the_compile_estimate_says_what_it_assumes():
+    from service.cli.warmup import ESTIMATE_S, estimate_text
+
+    idle = estimate_text(["monitor", "log"], jobs=2, load=0.0)
+    cpu = ESTIMATE_S["monitor"] + ESTIMATE_S["log"]
+    assert idle.startswith(f"first run, about {cpu / 2:.0f} s if 2 cores are idle: {cpu:.0f} s "
+                           "of CPU measured on a 2-core VM")  # fmt: skip
+    assert "load average" not in idle
+    busy = estimate_text(["monitor", "log"], jobs=2, load=13.0)
+    assert "more now: load average 13.0" in busy
+    assert "if 1 core is idle" in estimate_text(["log"], jobs=1, load=0.0)
+
+
+def test_a_kernel_is_announced_once_across_the_parts(tmp_path):
+    """Two parts (processes) that compile the same kernel, or one kernel compiled for two
+    signatures, print its line once (issue 54: one kernel's line printed twice)."""
+    from service.cli.warmup import _SeenKernels
+
+    a, b = _SeenKernels(str(tmp_path)), _SeenKernels(str(tmp_path))
+    assert a.first("service.monitor.kernels.bank_step")
+    assert not a.first("service.monitor.kernels.bank_step")  # a second signature
+    assert not b.first("service.monitor.kernels.bank_step")  # another part's process
+    assert b.first("service.log.codec_read._scan")

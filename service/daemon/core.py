@@ -54,7 +54,7 @@ from service.daemon.outputs import (
 )
 from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.status import snapshot
-from service.daemon.systemd import notify_ready, sd_notify, watchdog_interval
+from service.daemon.systemd import extending_start, notify_ready, sd_notify, watchdog_interval
 from service.monitor import Baseline
 from service.wire import messages as m
 
@@ -311,9 +311,10 @@ class Daemon:
         it holds the GIL for seconds, during which Zenoh's callbacks could not queue samples
         (a unit would look silent) nor answer status (a daemon answers once it can
         monitor)."""
-        warm = self.monitor.warm_up()
-        self.intake.warm_up()
-        self.outputs.fanout.warm_up()
+        with extending_start("starting: loading the kernels"):  # systemd: the start goes on
+            warm = self.monitor.warm_up()
+            self.intake.warm_up()
+            self.outputs.fanout.warm_up()
         if warm > 0.05:
             log.info("monitor warm-up (JIT) took %.2f s", warm)
         if session is not None:

@@ -183,10 +183,12 @@ def run(args: argparse.Namespace) -> int:
     setup_logging(cfg.log_level, not args.plain_logs)
     _check_identity(cfg)
     from service.cli.warmup import ensure, monitor_group
+    from service.daemon.systemd import extending_start
 
-    ensure(
-        monitor_group(cfg.monitor.model), "log"
-    )  # before the session: a first run compiles (and says so)
+    # before the session: a first run compiles (and says so), telling systemd meanwhile that
+    # the start goes on (EXTEND_TIMEOUT_USEC; READY=1 comes once the daemon has started)
+    with extending_start("starting: compiling the kernels (a first run takes minutes)"):
+        ensure(monitor_group(cfg.monitor.model), "log")
     stop = threading.Event()
 
     def _stop(signum, frame):
