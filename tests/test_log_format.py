@@ -10,6 +10,8 @@ import logging
 import re
 import socket
 import struct
+import subprocess
+import sys
 
 import pytest
 
@@ -138,3 +140,27 @@ def test_the_actuator_logs_as_the_daemon_does(net):
     final = err.strip().splitlines()[-1]
     assert final.startswith("actuator AC001/elevator_L: ") and "{" not in final, final
     assert "samples in" in final
+
+
+def test_listen_count_prints_exactly_n_outputs_with_readable_times():
+    """``listen --count 6`` printed 153 lines (issue 54): the outputs that arrive after the
+    N-th, before the subscribers go, are not printed."""
+    from service.cli.commands.listen import OutputListener
+
+    out = io.StringIO()
+    lis = OutputListener(count=6, out=out)
+    for k in range(20):  # a burst: more arrive than asked for
+        lis.on_sample("fleet/AC1/x/health", json.dumps({"t": 1796378000.5 + k,
+                      "leak_ratio": 1.0}).encode(), None)  # fmt: skip
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 6 and lis.done.is_set() and lis.summary()["received"] == 6
+    assert lines[0].startswith("2026-12-04T09:53:20.500Z fleet/AC1/x/health {")
+    assert json.loads(lines[5].split(" ", 2)[2])["t"] == 1796378005.5
+
+
+def test_version():
+    from importlib.metadata import version
+
+    r = subprocess.run([sys.executable, "-m", "service.cli", "--version"], capture_output=True,
+                       text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 0 and r.stdout.strip() == f"servowatch {version('servowatch')}"

@@ -43,10 +43,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(p)
 
 
+def output_line(key: str, d: dict[str, Any]) -> str:
+    """One output as a line: its sample time in RFC 3339 (``t``, a Unix time; a simulated
+    time stays in seconds), the key, then the fields as JSON."""
+    from service.log.retention import rfc3339
+
+    t = d.get("t")
+    if isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t):
+        when = rfc3339(t) if t > 1e8 else f"t={t:g}s"
+    else:
+        when = "-"
+    return f"{when} {key} {json.dumps(d)}"
+
+
 class OutputListener:
     """Decodes published outputs (``service.wire.messages.decode_output``), counting them per
     key and the malformed ones (a bad message is counted and logged on stderr, never an
-    exception in Zenoh's thread); ``echo`` prints a line ``KEY {json}`` per output."""
+    exception in Zenoh's thread); ``echo`` prints a line ``TIME KEY {json}`` per output
+    (:func:`output_line`), ``count`` of them at most."""
 
     def __init__(self, echo: bool = True, count: int = 0, out: Any = None) -> None:
         self.echo, self.count = echo, count
@@ -78,10 +92,12 @@ class OutputListener:
                 print(f"listen: malformed output on {key} ({n} so far): {e}", file=sys.stderr)
             return
         with self._lock:
+            if self.count and self.received >= self.count:
+                return  # --count N: exactly N, whatever arrives before the subscribers go
             self.received += 1
             self.last[key] = d
             if self.echo:
-                print(key, json.dumps(d), file=self.out, flush=True)
+                print(output_line(key, d), file=self.out, flush=True)
             if self.count and self.received >= self.count:
                 self.done.set()
 
