@@ -139,3 +139,20 @@ def test_the_docs_snippets_read_every_topic_and_a_growing_log(tmp_path, monkeypa
     out = capsys.readouterr().out.splitlines()
     assert "3.9 1 (C_Lk over the baseline's)" in out
     assert f"{LEAK['t']} leak raised 3.93" in out
+
+
+def test_layout_writes_the_foxglove_layout_of_any_unit(tmp_path, monkeypatch, capsys):
+    """``servowatch layout --unit AC/ACT``: the shipped layout with the unit's topics (the
+    shipped file is AC001/elevator_L's, made by the same code)."""
+    from service.cli import main
+    from service.edge.foxglove_layout import layout_json
+
+    shipped = (ROOT / "deploy" / "foxglove" / "servowatch-layout.json").read_text()
+    assert layout_json("AC001", "elevator_L") == shipped
+    monkeypatch.chdir(tmp_path)
+    assert main(["layout", "--unit", "AC002/aileron_R"]) == 0
+    text = (tmp_path / "servowatch-layout-AC002-aileron_R.json").read_text()
+    assert text == shipped.replace("AC001/elevator_L", "AC002/aileron_R")
+    assert "/fleet/AC002/aileron_R/events" in text and "AC001" not in text
+    assert main(["layout", "--unit", "AC002"]) == 2
+    assert "--unit: expected AIRCRAFT/ACTUATOR" in capsys.readouterr().err

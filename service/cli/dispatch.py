@@ -41,6 +41,7 @@ COMMANDS: tuple[str, ...] = (
     "replay",
     "demo",
     "warmup",
+    "layout",
 )
 
 
