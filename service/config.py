@@ -36,6 +36,7 @@ from pydantic_settings.exceptions import SettingsError
 from service.compat.pydantic_settings import MappingEnvSource
 from service.log.settings import LogSettings
 from service.monitor import MonitorConfig
+from service.paths import DEFAULT_LOG_DIR
 from service.strictnum import bool_in_number
 from service.zenoh_util import EndpointError, check_endpoint, diagnose_link, make_config
 
@@ -399,7 +400,7 @@ class ServiceConfig(BaseModel):
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
     key_expr: str = Field("fleet/**/meas", min_length=1, description="measurements to watch")
     log_dir: Path = Field(
-        Path("servowatch-data/logs"),
+        DEFAULT_LOG_DIR,
         description="directory of the MCAP logs (beside the default store "
         "servowatch-data/health.sqlite)",
     )

@@ -7,8 +7,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 __all__ = ["LogSettings", "DEFAULT_KEEP_BYTES", "DEFAULT_KEEP_DAYS"]
 
-#: the default limits: 50 GiB of one daemon's logs, 30 days (docs/messages.md, "Volume and
-#: retention": one actuator at log_every = 1 writes about 1.5 GB an hour)
+#: the default limits: 50 GiB of one daemon's logs, 30 days (one actuator at log_every = 1
+#: writes about 1.6 GB an hour: docs/messages.md, "Volume and retention")
 DEFAULT_KEEP_BYTES = 50 * 2**30
 DEFAULT_KEEP_DAYS = 30.0
 
