@@ -164,3 +164,21 @@ def test_version():
     r = subprocess.run([sys.executable, "-m", "service.cli", "--version"], capture_output=True,
                        text=True, timeout=60)  # fmt: skip
     assert r.returncode == 0 and r.stdout.strip() == f"servowatch {version('servowatch')}"
+
+
+def test_replays_summary_shows_calendar_times_not_epoch_floats(capsys):
+    from types import SimpleNamespace
+
+    from service.cli.commands.replay import _print_summary
+
+    s = SimpleNamespace(
+        speed=None, log="x.mcap", samples=10, actuators=["AC1/x"], duration_s=1.0, wall_s=0.1,
+        final={"AC1/x": {"t": 1796378000.5361416, "est": {"c_lk": 1e-12}, "health": {}}},
+        alarms=[{"t": 1796378000.25, "actuator": "AC1/x", "kind": "leak", "state": "raised",
+                 "value": 3.93}], time={}, corrupt_chunks=0, source=None, out=None,
+        warnings=[],
+    )  # fmt: skip
+    _print_summary(s)
+    out = capsys.readouterr().out
+    assert "1796378000" not in out and "AC1/x at 2026-12-04T09:53:20.536Z" in out
+    assert "2026-12-04T09:53:20.250Z: AC1/x leak raised (3.93)" in out

@@ -287,7 +287,7 @@ def test_listen_prints_outputs_old_json_too_and_counts_malformed(meas, tmp_path)
     lines = [ln.split(" ", 2) for ln in out.splitlines()]  # time, key, fields
     assert len(lines) == len(want) + 1  # --count N: exactly N lines
     got = [(key, json.loads(d)) for _when, key, d in lines]
-    assert all(w == f"t={d['t']:g}s" for (w, _k, _d), (_, d) in zip(lines, got, strict=True))
+    assert all(w == f"t={d['t']:.3f}s" for (w, _k, _d), (_, d) in zip(lines, got, strict=True))
     by_key: dict[str, list] = {}
     for key, d in got:
         by_key.setdefault(key, []).append(d)

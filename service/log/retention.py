@@ -30,7 +30,15 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["Deleted", "Retention", "hold", "lock_shared", "pattern_of", "rfc3339"]
+__all__ = [
+    "Deleted",
+    "Retention",
+    "hold",
+    "lock_shared",
+    "pattern_of",
+    "readable_time",
+    "rfc3339",
+]
 
 log = logging.getLogger("servowatch.log")
 
@@ -40,6 +48,19 @@ DAY_S = 86400.0
 def rfc3339(t: float) -> str:
     """``t`` [Unix s] as RFC 3339 UTC with milliseconds, e.g. ``2026-12-04T13:28:03.123Z``."""
     return datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def readable_time(t: object, digits: int = 3) -> str:
+    """A sample time for people: RFC 3339 for a calendar (Unix) time, ``t=12.500 s`` for a
+    simulated one (seconds since its start), ``-`` for none."""
+    if (
+        isinstance(t, bool)
+        or not isinstance(t, int | float)
+        or t != t
+        or t in (float("inf"), float("-inf"))
+    ):
+        return "-"
+    return rfc3339(float(t)) if t > 1e8 else f"t={t:.{digits}f} s"
 
 
 def lock_shared(fh: IO[bytes]) -> None:

@@ -46,14 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def output_line(key: str, d: dict[str, Any]) -> str:
     """One output as a line: its sample time in RFC 3339 (``t``, a Unix time; a simulated
     time stays in seconds), the key, then the fields as JSON."""
-    from service.log.retention import rfc3339
+    from service.log.retention import readable_time
 
-    t = d.get("t")
-    if isinstance(t, int | float) and not isinstance(t, bool) and math.isfinite(t):
-        when = rfc3339(t) if t > 1e8 else f"t={t:g}s"
-    else:
-        when = "-"
-    return f"{when} {key} {json.dumps(d)}"
+    return f"{readable_time(d.get('t')).replace(' ', '')} {key} {json.dumps(d)}"
 
 
 class OutputListener:
