@@ -311,8 +311,12 @@ class FanOut:
                     ev(tg.prefix + "events", te, d)
                 else:
                     lg.log(tg.prefix + "events", te, fd)
-            if lv is not None:
-                lv.log(tg.prefix + "events", te, fd)
+            if lv is not None:  # the live feed: the log's bytes
+                lev = getattr(lv, "log_event", None)
+                if lev is not None:
+                    lev(tg.prefix + "events", te, d)
+                else:
+                    lv.log(tg.prefix + "events", te, fd)
             em.events.append(d)
 
     def _publish(

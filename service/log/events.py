@@ -35,6 +35,7 @@ __all__ = [
     "EVENT_MESSAGE",
     "EVENT_FIELDS",
     "EventCodec",
+    "EventLayout",
     "decode_event",
     "encode_event",
     "event_schema",
@@ -78,6 +79,17 @@ def event_schema() -> bytes:
         + _len_field(12, b"proto3")
     )
     return _len_field(1, file)
+
+
+class EventLayout:
+    """What a channel of events is, as a ``RowLayout`` is for rows: ``message`` (the full
+    message name) and ``schema`` (its FileDescriptorSet); the live feed advertises it."""
+
+    message = EVENT_MESSAGE
+
+    @property
+    def schema(self) -> bytes:
+        return event_schema()
 
 
 def _number(v: Any) -> float | None:
