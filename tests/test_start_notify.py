@@ -134,3 +134,26 @@ def test_a_kernel_is_announced_once_across_the_parts(tmp_path):
     assert not a.first("service.monitor.kernels.bank_step")  # a second signature
     assert not b.first("service.monitor.kernels.bank_step")  # another part's process
     assert b.first("service.log.codec_read._scan")
+
+
+def test_the_unit_and_the_image_warm_up_before_the_start():
+    """deploy/servowatch.service compiles in ExecStartPre, lets it extend the start
+    (NotifyAccess=exec), keeps the kernels in a cache it may write under ProtectSystem=strict;
+    the Containerfile compiles at build, as the run user, into the cache the image uses."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    unit = (root / "deploy" / "servowatch.service").read_text()
+    kv = dict(re.findall(r"^(\w+)=(.*)$", unit, re.M))
+    assert kv["ExecStartPre"].endswith("servowatch warmup")
+    assert kv["NotifyAccess"] == "exec" and kv["Type"] == "notify"
+    cache = re.search(r"^Environment=NUMBA_CACHE_DIR=(\S+)$", unit, re.M).group(1)
+    assert cache.startswith(f"/var/cache/{kv['CacheDirectory']}/")
+    assert f"/var/cache/{kv['CacheDirectory']}" in kv["ReadWritePaths"].split()
+    assert "LogsDirectory" not in kv  # nothing wrote there
+    image = (root / "deploy" / "Containerfile").read_text()
+    env = re.search(r"^ENV NUMBA_CACHE_DIR=(\S+)$", image, re.M)
+    warm = image.index("servowatch warmup")
+    assert env and image.index(env.group(0)) < warm
+    assert image.rindex("USER servowatch", 0, warm) > image.rfind("USER root", 0, warm)
