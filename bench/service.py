@@ -46,6 +46,14 @@ with it and a scraper in this process (``GET /metrics`` every second: 15 times P
 default rate), alternating run by run. Also reported: the scrape's own time (median, max).
 
     .venv/bin/python bench/service.py --metrics-cost --actuators 10 --duration 10 --repeat 3
+
+``--metrics-load N``: scrapers cannot starve the monitor (issue 50): the health latency
+(receipt of a sample to its health output, p99) of the same load without the endpoint's
+scrapers, then with N scrapers in a process of their own, each a ``GET /metrics`` loop
+without pause (answers 200 or, beyond the endpoint's cap, 503), alternating run by run. The
+target: the p99 with 50 scrapers against 100 units within 2x of its value without them.
+
+    .venv/bin/python bench/service.py --metrics-load 50 --actuators 100 --rate 100 --duration 10 --repeat 2
 """
 
 from __future__ import annotations
@@ -355,10 +363,12 @@ def run_one(
     model: str | None = None,
     tree: str | None = None,
     scrape_s: float | None = None,
+    scrapers: int = 0,
 ) -> dict:
     """One benchmark run; returns the row of the table. ``viewer``: None (no Foxglove
     server), "layout" (a viewer of one actuator's layout topics) or "all" (of every
-    channel). ``scrape_s``: serve ``--metrics`` and scrape it every ``scrape_s`` seconds."""
+    channel). ``scrape_s``: serve ``--metrics`` and scrape it every ``scrape_s`` seconds;
+    ``scrapers``: serve it and run that many scrapers without pause (``_scrapers``)."""
     import zenoh
 
     from service.log import read_log
@@ -399,7 +409,7 @@ def run_one(
                 *(["--foxglove", str(fx_port), "--foxglove-every", str(every)] if viewer else []),
                 *(["--model", model] if model else []),
                 *(["--tree", tree] if tree else []),
-                *(["--metrics", str(m_port)] if scrape_s else []),
+                *(["--metrics", str(m_port)] if scrape_s or scrapers else []),
             ],
             stdout=subprocess.PIPE,
             text=True,
@@ -409,6 +419,12 @@ def run_one(
             view = _Viewer(fx_port, viewer)
         if scrape_s:
             scraper = _Scraper(m_port, scrape_s)
+        if scrapers:
+            scraper = subprocess.Popen(
+                [py, me, "_scrapers", "--metrics", str(m_port), "--scrapers", str(scrapers)],
+                stdout=subprocess.PIPE, text=True,
+            )  # fmt: skip
+            time.sleep(1.0)
         time.sleep(0.5)
         cpu_router0 = time.process_time()
         g = subprocess.run(
@@ -445,6 +461,12 @@ def run_one(
         router.close()
         if view is not None:
             view.close()
+        scraped = {}
+        if isinstance(scraper, subprocess.Popen):
+            scraper.terminate()
+            out_s, _ = scraper.communicate(timeout=30)
+            scraped = json.loads(out_s.strip().splitlines()[-1]) if out_s.strip() else {}
+            scraper = None
         if scraper is not None:
             scraper.close()
     logged = sum(1 for topic, _t, _m in read_log(log) if topic.endswith("/meas"))
@@ -501,6 +523,8 @@ def run_one(
         "scrapes": 0 if scraper is None else len(scraper.times),
         "scrape_ms": [] if scraper is None else [1e3 * x for x in scraper.times],
         "scrape_errors": 0 if scraper is None else scraper.errors,
+        "scrapers": scrapers,
+        "scraped": scraped,
         "keeps_up": st["dropped"] == 0
         and st["drain_s"] < 1.0
         and st["samples"] == gen["sent_samples"]
@@ -564,6 +588,87 @@ class _Viewer:
         self._stop.set()
         self._t.join(5)
         self.c.close()
+
+
+def _scrapers(args: argparse.Namespace) -> int:
+    """``GET /metrics`` of port ``--metrics`` in ``--scrapers`` threads, each without pause,
+    until SIGTERM; prints the answers counted by status."""
+    import signal
+    import threading
+    import urllib.error
+    import urllib.request
+
+    url = f"http://127.0.0.1:{args.metrics}/metrics"
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *a: stop.set())
+    counts: dict[str, int] = {}
+    lock = threading.Lock()
+
+    def run() -> None:
+        while not stop.is_set():
+            try:
+                with urllib.request.urlopen(url, timeout=10) as r:
+                    r.read()
+                    k = str(r.status)
+            except urllib.error.HTTPError as e:
+                k = str(e.code)
+            except OSError:
+                k = "error"
+                time.sleep(0.01)
+            with lock:
+                counts[k] = counts.get(k, 0) + 1
+
+    ts = [threading.Thread(target=run, daemon=True) for _ in range(args.scrapers)]
+    for t in ts:
+        t.start()
+    while not stop.wait(0.2):
+        pass
+    with lock:
+        print(json.dumps(counts), flush=True)
+    return 0
+
+
+def _metrics_load(args: argparse.Namespace) -> int:
+    import statistics
+
+    n, mon = args.actuators or 100, args.monitor or "real"
+    rows = []
+    for k in [0, args.metrics_load] * args.repeat:
+        print(f"run: {n} actuators x {args.rate:g} Hz, {args.duration:g} s, monitor {mon}, "
+              f"{k} scrapers ...", file=sys.stderr, flush=True)  # fmt: skip
+        row = run_one(
+            n, args.rate, args.duration, mon, args.spm, args.publish_every, args.drain_cap,
+            args.log_every, False, args.gather, scrapers=k,
+        )  # fmt: skip
+        print("  " + json.dumps(row), file=sys.stderr, flush=True)
+        rows.append(row)
+    print(f"servowatch metrics under load ({os.cpu_count()} CPUs): {n} actuators x "
+          f"{args.rate:g} Hz, {args.duration:g} s, monitor {mon}")  # fmt: skip
+    print(f"{'scrapers':>8} {'runs':>4} {'accepted':>9} {'dropped':>7} "
+          f"{'health p99 ms (each run)':>26} {'median':>7} {'ratio':>6} "
+          f"{'scrapes 200/503/err':>20}")  # fmt: skip
+    med = {}
+    for k in (0, args.metrics_load):
+        v = [r for r in rows if r["scrapers"] == k]
+        med[k] = statistics.median(r["lat_p99_ms"] or math.nan for r in v)
+        each = " ".join(_f(r["lat_p99_ms"]) for r in v)
+        sc = (
+            "-"
+            if not k
+            else "/".join(
+                str(sum(r["scraped"].get(c, 0) for r in v)) for c in ("200", "503", "error")
+            )
+        )
+        ratio = "-" if not k else f"{med[k] / med[0]:.2f}"
+        print(f"{k:>8} {len(v):>4} {min(r['accepted'] for r in v):>9} "
+              f"{max(r['dropped'] for r in v):>7} {each:>26} {med[k]:>7.1f} {ratio:>6} "
+              f"{sc:>20}")  # fmt: skip
+    print("health p99 = receipt of a sample by the daemon -> its health output, 99th percentile "
+          "over the run's last 50 000 outputs; ratio = median p99 with the scrapers / without; "
+          "target <= 2")  # fmt: skip
+    if args.json:
+        print(json.dumps(rows))
+    return 0
 
 
 class _Scraper:
@@ -676,7 +781,9 @@ def print_table(rows: list[dict]) -> None:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("role", nargs="?", default="bench", choices=("bench", "_gen", "_daemon"))
+    p.add_argument(
+        "role", nargs="?", default="bench", choices=("bench", "_gen", "_daemon", "_scrapers")
+    )
     p.add_argument("--connect")
     p.add_argument("--log")
     p.add_argument("--actuators", type=int, default=None)
@@ -698,6 +805,11 @@ def main(argv=None) -> int:
         "second (default 10 actuators, real monitor)",
     )  # fmt: skip
     p.add_argument("--foxglove-every", type=int, default=10, help=argparse.SUPPRESS)
+    p.add_argument("--scrapers", type=int, default=0, help=argparse.SUPPRESS)  # _scrapers
+    p.add_argument(
+        "--metrics-load", type=int, default=0, metavar="N",
+        help="health latency p99 without and with N scrapers of /metrics without pause",
+    )  # fmt: skip
     p.add_argument("--repeat", type=int, default=1, help="--viewer-cost: runs per setting")
     p.add_argument(
         "--viewer-cost", action="store_true",
@@ -713,6 +825,10 @@ def main(argv=None) -> int:
         return _generator(args)
     if args.role == "_daemon":
         return _daemon(args)
+    if args.role == "_scrapers":
+        return _scrapers(args)
+    if args.metrics_load:
+        return _metrics_load(args)
     if args.viewer_cost:
         return _viewer_cost(args)
     if args.metrics_cost:

@@ -36,9 +36,13 @@ from pydantic_settings.exceptions import SettingsError
 from service.compat.pydantic_settings import MappingEnvSource
 from service.log.settings import LogSettings
 from service.monitor import MonitorConfig
+from service.names import NAME_PATTERN
 from service.paths import DEFAULT_LOG_DIR
 from service.strictnum import bool_in_number
 from service.zenoh_util import EndpointError, check_endpoint, diagnose_link, make_config
+
+#: a station, shard or group name: the station's one grammar (service.names)
+_NAME = rf"^{NAME_PATTERN}$"
 
 __all__ = [
     "ConfigError",
@@ -274,7 +278,7 @@ class GroupSettings(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    name: str = Field(..., pattern=r"^[A-Za-z0-9_.\-]+$", description="group name")
+    name: str = Field(..., pattern=_NAME, description="group name")
     join_s: float = Field(
         1.0, gt=0, le=60, description="wait this long for the other members before owning [s]"
     )
@@ -334,6 +338,20 @@ class FoxgloveSettings(BaseModel):
         le=1 << 30,
         description="bytes waiting for a client at most (beyond: the client is dropped)",
     )
+    idle_s: float = Field(
+        60.0, gt=0, le=86400,
+        description="a viewer that sends nothing this long is cut; it is pinged after a "
+        "third of it (a browser answers by itself) [s]",
+    )  # fmt: skip
+    max_per_address: int = Field(
+        0, ge=0, le=4096,
+        description="viewer slots one address holds at most (0: max_connections // 2)",
+    )  # fmt: skip
+    max_pending: int = Field(
+        64, ge=1, le=65536,
+        description="connections in their handshake at once (beyond: the oldest dropped); "
+        "they do not count against max_connections",
+    )  # fmt: skip
 
     @model_validator(mode="after")
     def _loopback(self) -> FoxgloveSettings:
@@ -359,6 +377,8 @@ class FoxgloveSettings(BaseModel):
             max_connections=self.max_connections, allowed_origins=tuple(self.allowed_origins),
             max_message_bytes=self.max_message_bytes, message_s=self.message_s,
             max_backlog_bytes=self.max_backlog_bytes, allow_remote=self.allow_remote,
+            idle_s=self.idle_s, max_per_address=self.max_per_address,
+            max_pending=self.max_pending,
         )  # fmt: skip
 
 
@@ -371,6 +391,15 @@ class MetricsSettings(BaseModel):
     listen: str = Field("127.0.0.1:9464", description="HOST:PORT of the /metrics endpoint")
     allow_remote: bool = Field(
         False, description="allow a non-loopback host (only behind an authenticating TLS proxy)"
+    )
+    max_connections: int = Field(
+        8, ge=1, le=1024, description="connections served at once (beyond: 503, closed)"
+    )
+    idle_s: float = Field(
+        5.0, gt=0, le=300, description="a connection idle this long is closed [s]"
+    )
+    max_per_s: float = Field(
+        10.0, gt=0, le=10000, description="requests served a second at most (beyond: 503)"
     )
 
     @model_validator(mode="after")
@@ -395,8 +424,8 @@ class ServiceConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    station: str = Field("ground1", pattern=r"^[A-Za-z0-9_.\-]+$", description="station name")
-    shard: str = Field("0", pattern=r"^[A-Za-z0-9_.\-]+$", description="shard of the fleet")
+    station: str = Field("ground1", pattern=_NAME, description="station name")
+    shard: str = Field("0", pattern=_NAME, description="shard of the fleet")
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
     key_expr: str = Field("fleet/**/meas", min_length=1, description="measurements to watch")
     log_dir: Path = Field(

@@ -24,7 +24,7 @@ MAX_LOOSE = 8
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("models",),
     ("service.compat", "service.jsonutil", "service.strictnum", "service.progress",
-     "service.plots", "service.zenoh_util", "service.paths"),
+     "service.plots", "service.zenoh_util", "service.names", "service.paths"),
     ("service.log", "service.store"),
     ("service.monitor",),
     ("service.wire",),
@@ -33,6 +33,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("service.config",),
     ("service.daemon",),
     ("service.replay",),
+    ("service.importer",),
     ("service.cli",),
 )  # fmt: skip
 
@@ -195,7 +196,7 @@ def test_the_layer_check_finds_upward_imports():
     g = {"service.log.reader": {"service.store"}, "service.cli.dispatch": {"service.log"},
          "service.edge.web.view": {"service.cli.commands.fleet"}}  # fmt: skip
     assert upward(g) == [
-        "service.edge.web.view -> service.cli.commands.fleet (layer 6 -> 10)",
+        "service.edge.web.view -> service.cli.commands.fleet (layer 6 -> 11)",
         "service.log.reader -> service.store (layer 2 -> 2)",
     ]
     assert unit_of("service.wire.kernels") == (4, "service.wire")

@@ -88,7 +88,7 @@ def test_gap_rule_and_calendar_time():
 def test_replay_records_flight_and_calendar_time(tmp_path, meas):
     store = tmp_path / "h.sqlite"
     with_rec = _log(tmp_path / "a.mcap", meas, flight=12, start_unix=1.7e9 + 3 * DAY)
-    bare = _log(tmp_path / "b.mcap", meas)
+    bare = _log(tmp_path / "b.mcap", meas, t_shift=0.25)  # other samples than a.mcap's
     s = replay(with_rec, store=store)
     assert s.flights == {"AC1/ail_L": [12]}
     s = replay(bare, store=store)  # no record: the gap rule after flight 12
@@ -117,9 +117,11 @@ def test_batch_replay_of_a_folder_in_flight_order(tmp_path, meas, capsys):
     folder.mkdir()
     # written out of order, named so that the name order is not the flight order
     for k in (3, 0, 2, 1):
-        _log(folder / f"z{9 - k}.mcap", meas, flight=k, start_unix=1.7e9 + k * DAY)
+        # each flight its own samples (a log is identified by its samples, not its record)
+        _log(folder / f"z{9 - k}.mcap", meas, flight=k, start_unix=1.7e9 + k * DAY,
+             t_shift=0.001 * k)  # fmt: skip
         _log(folder / f"y{9 - k}.mcap", meas, act="ail_R", flight=k,
-             start_unix=1.7e9 + k * DAY + 60)  # fmt: skip
+             start_unix=1.7e9 + k * DAY + 60, t_shift=0.001 * k)  # fmt: skip
     logs = log_order(expand_logs([folder]))
     assert [flight_records(p)[0].flight for p in logs] == [0, 0, 1, 1, 2, 2, 3, 3]
     assert expand_logs([str(folder / "z*.mcap")]) == sorted(folder.glob("z*.mcap"))

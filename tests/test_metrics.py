@@ -7,6 +7,7 @@ from __future__ import annotations
 import http.client
 import subprocess
 import sys
+import time
 import urllib.request
 
 import pytest
@@ -109,10 +110,12 @@ def test_scrape_is_the_status_snapshot(leaking):
 
 
 def test_scrape_reads_the_status_each_time(leaking):
-    """Nothing is cached: a second scrape after more samples shows them."""
+    """A body is served at most ``max_age_s`` (1 s, issue 50): a scrape after that and more
+    samples shows them."""
     d, port = leaking["daemon"], leaking["port"]
     key2 = "fleet/AC8/rudder/meas"
     _feed(d, _leak_run(1.0, 0.5), key=key2)
+    time.sleep(d.metrics.exposition.max_age_s)
     _, text = _scrape(port)
     got = _samples(text)
     lab = frozenset({("station", "ground1"), ("shard", "0"), ("aircraft", "AC8"),

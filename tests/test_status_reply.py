@@ -22,13 +22,19 @@ GOOD = {
     "group": {"name": "fleet", "members": ["ground1/0"], "joined": True, "unmonitored": {}},
 }  # fmt: skip
 
-#: replies an identity with a monitor certificate can send on its own key
+#: replies an identity with a monitor certificate can send on its own key: unreadable
 MALFORMED = [
     b"[]",
     b'"text"',
     b"{",
     b"\xff\xfe",
     b"[" * 100_000 + b"]" * 100_000,  # deeper than the parser goes
+    json.dumps({k: v for k, v in GOOD.items() if k != "station"}).encode(),
+    json.dumps({**GOOD, "shard": "x" * 129}).encode(),
+]
+
+#: ... and with a bad field or unit: the rest is shown, the bad ones named (issue 50)
+PARTIAL = [
     json.dumps({**GOOD, "actuators": {"x": "y"}}).encode(),
     json.dumps({**GOOD, "actuators": {"x": {"aircraft": "AC001", "actuator": "a"}}}).encode(),
     json.dumps({**GOOD, "latency_ms": "fast"}).encode(),
@@ -37,7 +43,6 @@ MALFORMED = [
     json.dumps({**GOOD, "foxglove": {"listen": 5, "sent": "many"}}).encode(),
     json.dumps({**GOOD, "foxglove": {"listen": "x", "guard": {"buffered_bytes": "lots"}}}).encode(),
     json.dumps({**GOOD, "uptime_s": "long"}).encode(),
-    json.dumps({k: v for k, v in GOOD.items() if k != "station"}).encode(),
     json.dumps(
         {
             **GOOD,
@@ -90,6 +95,22 @@ def test_malformed_replies_are_counted_and_shown_as_such():
         states = {d["key"]: d["state"] for d in live["daemons"]}
         assert states == {"monitor/ground1/0/status": "ok", "monitor/ground1/1/status": "malformed"}
         assert live["units"]["AC001/elevator_L"]["daemon"] == "ground1/0"
+
+
+def test_a_bad_field_or_unit_is_named_and_the_rest_shown():
+    for payload in PARTIAL:
+        own = json.dumps({**json.loads(payload), "shard": "1"}).encode()  # its key's name
+        replies = {"monitor/ground1/0/status": json.dumps(GOOD).encode(),
+                   "monitor/ground1/1/status": own}  # fmt: skip
+        daemons = query_status(_Session(replies))
+        r = daemons["monitor/ground1/1/status"]
+        assert "malformed" not in r and (r.get("bad_fields") or r.get("bad_units")), r
+        text = format_status(daemons)
+        assert "BAD FIELD" in text or "BAD UNIT" in text, text
+        assert "AC001/elevator_L: 10 samples" in text
+        live = slim(daemons, 1.0)
+        states = {d["key"]: d["state"] for d in live["daemons"]}
+        assert states == {"monitor/ground1/0/status": "ok", "monitor/ground1/1/status": "ok"}
 
 
 def test_a_reply_claiming_another_daemons_name_is_told_apart():

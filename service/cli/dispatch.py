@@ -41,12 +41,13 @@ COMMANDS: tuple[str, ...] = (
     "replay",
     "demo",
     "warmup",
+    "import",
     "layout",
 )
 
 
 def _module_name(name: str) -> str:
-    return f"service.cli.commands.{name.replace('-', '_')}"
+    return f"service.cli.commands.{name.replace('-', '_')}" + ("_" if name == "import" else "")
 
 
 def _load(name: str):

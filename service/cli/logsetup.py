@@ -25,6 +25,7 @@ from collections.abc import Mapping
 from typing import IO, Any
 
 from service.jsonutil import jsonable
+from service.log.escape import CONTROLS
 from service.log.retention import rfc3339
 
 __all__ = [
@@ -65,13 +66,6 @@ class JsonFormatter(logging.Formatter):
         return json.dumps(d, allow_nan=False, default=str)
 
 
-#: control characters (and Unicode line breaks) -> their escapes, for plain log lines
-_CONTROLS = {
-    **{c: f"\\x{c:02x}" for c in (*range(0x20), 0x7F, *range(0x80, 0xA0))},
-    0x0A: "\\n", 0x0D: "\\r", 0x09: "\\t", 0x2028: "\\u2028", 0x2029: "\\u2029",
-}  # fmt: skip
-
-
 class PlainFormatter(logging.Formatter):
     """``time LEVEL logger message``, one line per record (the time RFC 3339): the message's
     control characters escaped, so a quoted value (a key with a newline) cannot forge a
@@ -85,7 +79,7 @@ class PlainFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         msg = record.getMessage()
-        esc = msg.translate(_CONTROLS)
+        esc = msg.translate(CONTROLS)
         if esc != msg:
             record = logging.makeLogRecord({**record.__dict__, "msg": esc, "args": None})
         return super().format(record)

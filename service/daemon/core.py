@@ -38,6 +38,7 @@ import logging
 import math
 import threading
 import time
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -114,23 +115,27 @@ class Daemon:
             from service.edge.metrics import MetricsServer
 
             host, port = config.metrics.host_port()
+            m = config.metrics
             self.metrics = MetricsServer(
-                self.status, host, port, allow_remote=config.metrics.allow_remote
-            )
+                self.status, host, port, allow_remote=m.allow_remote,
+                max_connections=m.max_connections, idle_s=m.idle_s, max_per_s=m.max_per_s,
+            )  # fmt: skip
         store_url = store_target(config.store)
         baseline = Baseline.load(config.baseline) if config.baseline and bank is None else None
         self.monitor = MonitorStage(config.monitor, baseline, store_url=store_url, bank=bank)
+        log_id = None  # the id of the log the live periods are written beside
         retention = None if logger is not None else open_retention(config, log_path)
         if logger is None:
             b = self.monitor.bank
+            log_id = uuid.uuid4().hex[:16]
             meta = {"source": "daemon", "station": self.station, "shard": self.shard,
                     "monitor_config": b.config.model_dump_json(),
-                    "baseline": b.baseline.model_dump_json()}  # fmt: skip
+                    "baseline": b.baseline.model_dump_json(), "log_id": log_id}  # fmt: skip
             logger, log_path = open_logger(config, log_path, meta, log_process)
         self.log_path = Path(log_path) if log_path is not None else None
         self.outputs = Outputs(
             config, logger, counters=self.monitor.counters_of_row, store_url=store_url,
-            bad_log=bad_log, retention=retention,
+            bad_log=bad_log, log_id=log_id, retention=retention,
         )  # fmt: skip
         pc = config.prognostics
         if self.outputs.store is not None and pc.auto_commission_s is not None:

@@ -524,7 +524,11 @@ class Intake:
             else:
                 try:
                     a = m.decode_meas_arrays(payload, self.max_bytes)
-                except m.MessageError as e:
+                except (m.MessageError, ValueError, OverflowError) as e:
+                    # a value numpy cannot hold is a bad sample too, never an error that
+                    # loses the rest of the batch (issue 50, item 8)
+                    if not isinstance(e, m.MessageError):
+                        e = m.MessageError(f"{type(e).__name__}: {e}", "samples")
                     reason = reason_of(e)
                     st.count_bad(reason)
                     self.bad_log.warning(

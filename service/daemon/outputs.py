@@ -129,6 +129,7 @@ class Outputs:
         counters: Callable[[int], Any],
         store_url: str | None,
         bad_log: RateLimitedLog,
+        log_id: str | None = None,
         retention: Any = None,
     ) -> None:
         self.logger = logger
@@ -165,7 +166,8 @@ class Outputs:
             publish_every=config.publish_every,
             on_publish_error=self._publish_failed,
             on_periods=None if self.store is None else self._on_periods,
-            source=f"live:{config.station}/{config.shard}",
+            # the log's id: a replay of that log replaces these periods (docs/store.md)
+            source=f"live:{config.station}/{config.shard}" + (f"@{log_id}" if log_id else ""),
             period_config=PeriodConfig(silence_s=pc.period_silence_s, window_s=pc.period_window_s),
             counters=counters,
             live=self.foxglove,
@@ -386,12 +388,11 @@ class Outputs:
                     with open_store(url, read_only=True) as st:
                         if name not in st.actuators():
                             return None
-                        ps = st.periods(name)
+                        ps = st.life(name)  # the unit's life order (every view's)
                 except Exception as e:  # a store the writer cannot read: count from 0
                     log.warning("store: last period of %s: %s", name, e)
                     return None
-                key = lambda p: (p.flight if p.flight is not None else -1, p.start_t)  # noqa: E731
-                return max(ps, key=key, default=None)
+                return ps[-1] if ps else None
 
             self._life = FlightStamper(last, self.flight_gap_s)
         return self._life

@@ -8,7 +8,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
-__all__ = ["finite_or_none", "rul_interval", "alarm_count", "life_and_trend", "rank_fleet"]
+__all__ = [
+    "finite_or_none", "rul_interval", "has_rul", "alarm_count", "life_and_trend", "rank_fleet",
+    "condition_of", "threshold_of",
+]  # fmt: skip
 
 
 def finite_or_none(v: Any) -> float | None:
@@ -34,26 +37,60 @@ def rul_interval(rul: dict[str, Any] | None) -> dict[str, float | None] | None:
     return out
 
 
+def has_rul(rul: dict[str, Any] | None) -> bool:
+    """Whether a stored RUL gives a median on its own axis (the count every view shows)."""
+    iv = rul_interval(rul)
+    return iv is not None and iv["median"] is not None
+
+
+def threshold_of(rul: dict[str, Any] | None) -> float:
+    """The failure threshold (C_Lk ratio) a unit is judged by: its stored RUL's, else the
+    derived default (``RulConfig.threshold``)."""
+    thr = finite_or_none((rul or {}).get("threshold_ratio"))
+    if thr is not None:
+        return thr
+    from service.prognostics.rul import default_threshold_ratio
+
+    return default_threshold_ratio()
+
+
+def condition_of(row: dict[str, Any]) -> tuple[str, str]:
+    """``("failed", reason)`` when a unit's latest observable C_Lk ratio (``last_ratio``, in
+    life order) is at or above its failure threshold (``threshold_of``), else ``("", "")``:
+    the one rule of ``fleet``, the page, ``status`` and the metrics (``rul`` says
+    ``failed`` by the same threshold)."""
+    r = finite_or_none(row.get("last_ratio"))
+    if r is None:
+        return "", ""
+    thr = threshold_of(row.get("rul") if isinstance(row.get("rul"), dict) else None)
+    if r >= thr:
+        return "failed", f"C_Lk ratio {r:.2f} past the failure threshold {thr:.2f}"
+    return "", ""
+
+
 def alarm_count(row: dict[str, Any]) -> int:
     return max(int(row.get("alarms") or 0), int(row.get("alarm_events") or 0))
 
 
 def _ratio(row: dict[str, Any]) -> float | None:
-    last = row.get("last") or {}
-    return finite_or_none(last.get("c_lk_ratio"))
+    return finite_or_none(row.get("last_ratio"))
 
 
 def life_and_trend(row: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any] | None]:
     """Where a unit stands on the life axis its history supports, and its C_Lk-ratio trend
     on that axis: ``({"value", "unit"}, {"value", "unit"} or None)``. A history that counts
-    flights (its RUL's ``axis``) gives the flights so far and the trend per 10 flights (the
-    stored slope per operating hour times the hours per flight); another gives operating
-    hours and the trend per 100 h."""
-    rul = row.get("rul") or {}
+    flights (the summary's ``life_axis``: every period has a flight, as ``rul``'s
+    ``History.axis``) gives the flights so far in life order and the trend per 10 flights
+    (the stored slope per operating hour times the hours per flight); another gives
+    operating hours and the trend per 100 h."""
     slope = finite_or_none((row.get("trend") or {}).get("slope_per_h"))
-    if rul.get("axis") == "flights":
-        hpf = finite_or_none(rul.get("hours_per_flight"))
-        life = {"value": finite_or_none(rul.get("t_now")), "unit": "flights"}
+    last = row.get("last") or {}
+    if row.get("life_axis") == "flights" and last.get("flight") is not None:
+        n = int(row.get("flights") or 0)
+        hpf = float(row.get("op_time_s") or 0.0) / 3600.0 / n if n else None
+        first = row.get("first_flight")
+        now = None if first is None else float(last["flight"] - first + 1)
+        life = {"value": now, "unit": "flights"}
         rate = None if slope is None or hpf is None else {"value": slope * hpf * 10.0,
                                                           "unit": "per 10 flights"}  # fmt: skip
         return life, rate
@@ -74,6 +111,8 @@ def rank_fleet(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     out = []
     for i, r in enumerate(sorted(rows, key=key), 1):
         life, rate = life_and_trend(r)
+        cond, why = condition_of(r)
         out.append({"rank": i, **r, "rul_interval": rul_interval(r.get("rul")), "life": life,
-                    "trend_rate": rate})  # fmt: skip
+                    "trend_rate": rate, "condition": cond or None,
+                    "condition_reason": why or None})  # fmt: skip
     return out

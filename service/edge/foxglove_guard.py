@@ -15,7 +15,16 @@ it), and this guard listens on the feed's address. For each client it:
 * then splices the bytes both ways, reading the client's frame headers (RFC 6455): a
   message (all its fragments) longer than ``max_message_bytes``, or a frame or fragmented
   message unfinished after ``message_s``, cuts the connection, as does a malformed frame;
-* drops a client that does not read once ``max_backlog_bytes`` wait for it.
+* drops a client that does not read once ``max_backlog_bytes`` wait for it;
+* so that no one can lock viewers out (issue 50): a connection still in its handshake
+  counts against ``max_pending`` (the oldest is dropped for a new one), not against the
+  viewers, and has ``head_s``; one address (one user, for a client on this host) holds at
+  most ``max_per_address`` viewer slots;
+  the guard pings a viewer that has been silent for ``idle_s``/3 (a browser answers by
+  itself) and cuts one silent for ``idle_s``.
+
+The SDK's private port is keyed (``tcpkey``, TCP-MD5): the kernel drops every connection
+to it that does not carry the guard's key, so no local process bypasses the guard.
 
 Memory is therefore bounded by ``memory_bound_bytes`` (:meth:`Guard.status`, in ``servowatch
 status``), and the SDK sees at most ``max_connections`` clients. The guard reports its
@@ -41,6 +50,7 @@ from pathlib import Path
 from typing import Any
 
 from service.edge.httpguard import loopback_names
+from service.edge.wsframes import FrameCheck, ServerFrames
 
 __all__ = ["GuardLimits", "Guard", "FrameCheck", "ephemeral_tls", "start_guarded"]
 
@@ -55,6 +65,7 @@ _PROBE_REQUEST = (
     b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
 )
 _CLOSE_FRAME = bytes([0x88, 0x82, 0, 0, 0, 0, 0x03, 0xE8])  # close 1000, a zero mask
+_PING_FRAME = bytes([0x89, 0x00])  # a server's ping, no payload (RFC 6455, 5.5.2)
 
 
 @dataclass(frozen=True)
@@ -67,23 +78,31 @@ class GuardLimits:
     message_s: float = 10.0  # an unfinished frame or message is cut after this [s]
     max_backlog_bytes: int = 1 << 20  # bytes waiting for a client (beyond: dropped) [bytes]
     max_head_bytes: int = 8192  # the HTTP upgrade request [bytes]
-    head_s: float = 5.0  # the upgrade request must be complete within this [s]
+    head_s: float = 3.0  # the upgrade request must be complete within this [s]
     allow_remote: bool = False  # no Host check (a proxy in front sets Host)
+    idle_s: float = 60.0  # a viewer silent this long is cut (pinged after idle_s / 3) [s]
+    max_pending: int = 64  # connections in their handshake at once (beyond: the oldest dropped)
+    max_per_address: int = 0  # viewer slots one address holds at most (0: max_connections // 2)
 
     def __post_init__(self) -> None:
         for name in ("max_connections", "max_message_bytes", "max_backlog_bytes",
-                     "max_head_bytes"):  # fmt: skip
+                     "max_head_bytes", "max_pending"):  # fmt: skip
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"foxglove.{name}: must be >= 1")
-        for name in ("message_s", "head_s"):
+        for name in ("message_s", "head_s", "idle_s"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"foxglove.{name}: must be > 0")
+        if int(self.max_per_address) < 0:
+            raise ValueError("foxglove.max_per_address: must be >= 0")
+        if not self.max_per_address:
+            object.__setattr__(self, "max_per_address", max(1, self.max_connections // 2))
 
     def memory_bound_bytes(self) -> int:
-        """What the guard buffers at most, over all clients [bytes]: per client, the
-        backlog to it and to the SDK (each plus one read), and the request head."""
+        """What the guard buffers at most, over all clients [bytes]: per viewer, the
+        backlog to it and to the SDK (each plus one read), and the request head; per
+        connection in its handshake, the request head."""
         per = 2 * (self.max_backlog_bytes + _READ_CHUNK) + self.max_head_bytes
-        return self.max_connections * per
+        return self.max_connections * per + self.max_pending * self.max_head_bytes
 
 
 def ephemeral_tls() -> tuple[bytes, bytes] | None:
@@ -122,96 +141,6 @@ def _host_name(value: str) -> str:
     return v.rsplit(":", 1)[0] if v.count(":") == 1 else v
 
 
-# ---------------------------------------------------------------------------- frames
-
-
-class FrameCheck:
-    """The client-to-server WebSocket frames of one connection, read for the limits only
-    (RFC 6455, section 5.2): :meth:`feed` returns why the connection must be cut, or None.
-    ``pending_since`` is the time an unfinished frame or fragmented message started."""
-
-    def __init__(self, max_message_bytes: int) -> None:
-        self.max_message = int(max_message_bytes)
-        self._hdr = bytearray()
-        self._skip = 0  # payload bytes of the current frame still to come
-        self._in_msg = False  # a fragmented message is open (its final frame not seen)
-        self._msg_len = 0
-        self.pending_since: float | None = None
-        self.messages = 0
-
-    def _need(self) -> int:
-        h = self._hdr
-        if len(h) < 2:
-            return 2
-        ln = h[1] & 0x7F
-        return 2 + (2 if ln == 126 else 8 if ln == 127 else 0) + (4 if h[1] & 0x80 else 0)
-
-    def _header(self) -> str | None:
-        h = self._hdr
-        fin, rsv, op = h[0] & 0x80, h[0] & 0x70, h[0] & 0x0F
-        ln = h[1] & 0x7F
-        if ln == 126:
-            ln = int.from_bytes(h[2:4], "big")
-        elif ln == 127:
-            ln = int.from_bytes(h[2:10], "big")
-        if not h[1] & 0x80:
-            return "protocol"  # a client's frames are masked (5.3)
-        if rsv:
-            return "protocol"  # no extension is negotiated
-        if op >= 8:  # control frame: ping, pong, close; never fragmented, <= 125 bytes
-            if op > 10 or not fin or ln > 125:
-                return "protocol"
-        elif op in (1, 2):
-            if self._in_msg:
-                return "protocol"
-            self._msg_len, self._in_msg = ln, not fin
-        elif op == 0:
-            if not self._in_msg:
-                return "protocol"
-            self._msg_len += ln
-            self._in_msg = not fin
-        else:
-            return "protocol"
-        if op < 8 and self._msg_len > self.max_message:
-            return "oversize"
-        self._skip = ln
-        return None
-
-    def _frame_done(self) -> None:
-        self._hdr.clear()
-        if not self._in_msg:
-            self.pending_since = None
-            self.messages += 1
-
-    def feed(self, data: bytes, now: float) -> str | None:
-        """Account for ``data`` (``now``: time.monotonic()); a reason to cut, or None."""
-        i, n = 0, len(data)
-        while i < n:
-            if self._skip:
-                k = min(self._skip, n - i)
-                self._skip -= k
-                i += k
-                if not self._skip:
-                    self._frame_done()
-                continue
-            if self.pending_since is None:
-                self.pending_since = now
-            while i < n and len(self._hdr) < self._need():
-                self._hdr.append(data[i])
-                i += 1
-            if len(self._hdr) < self._need():
-                return None
-            why = self._header()
-            if why is not None:
-                return why
-            if not self._skip:
-                self._frame_done()
-        return None
-
-    def overdue(self, now: float, limit_s: float) -> bool:
-        return self.pending_since is not None and now - self.pending_since > limit_s
-
-
 # ---------------------------------------------------------------------------- the splice
 
 
@@ -230,8 +159,11 @@ class _Upstream(asyncio.Protocol):
         if c.transport is None or c.transport.is_closing():
             return
         c.transport.write(data)
+        c.server_frames.feed(data)
         if c.transport.get_write_buffer_size() > c.guard.limits.max_backlog_bytes:
             c.cut("slow_client")
+        elif c.ping_due:
+            c.ping()
 
     def pause_writing(self) -> None:  # the SDK does not keep up with the client: wait
         if self.client.transport is not None:
@@ -257,20 +189,32 @@ class _Client(asyncio.Protocol):
         self.head = bytearray()
         self.t0 = time.monotonic()
         self.frames = FrameCheck(guard.limits.max_message_bytes)
+        self.server_frames = ServerFrames()
         self.upgraded = False
         self.closed = False
         self.peer = "?"
+        self.address = "?"  # the peer's IP address (its slots are capped)
+        self.last_rx = self.t0  # the client's last bytes (time.monotonic())
+        self.last_ping = self.t0
+        self.ping_due = False
 
     # -- asyncio ----------------------------------------------------------------------
     def connection_made(self, transport) -> None:  # type: ignore[override]
         self.transport = transport
         g = self.guard
-        self.peer = str(transport.get_extra_info("peername"))
-        g.clients.add(self)
+        peer = transport.get_extra_info("peername")
+        self.peer = str(peer)
+        self.address = str(peer[0]) if isinstance(peer, tuple) and peer else self.peer
         g.accepted += 1
-        if len(g.clients) > g.limits.max_connections:
-            self.refuse(503, "Service Unavailable", "busy", "too many connections")
-            return
+        if len(g.pending) >= g.limits.max_pending:  # the oldest handshake makes room
+            old = min(g.pending, key=lambda c: c.t0)
+            g.count(g.refused, "pending_full")
+            g.warn("pending_full", "foxglove feed: %d connections in their handshake; "
+                   "dropped the oldest, %s", len(g.pending), old.peer)  # fmt: skip
+            if old.transport is not None:
+                old.transport.abort()
+            old.close()
+        g.pending.add(self)  # counts against the viewers only once upgraded
         # the client's socket keeps what the kernel holds; the guard's buffers are bounded
         transport.set_write_buffer_limits(high=g.limits.max_backlog_bytes)
 
@@ -291,7 +235,9 @@ class _Client(asyncio.Protocol):
                 return
             self._upgrade(bytes(self.head), end + 4)
             return
-        why = self.frames.feed(data, time.monotonic())
+        self.last_rx = now = time.monotonic()
+        self.ping_due = False
+        why = self.frames.feed(data, now)
         if why is not None:
             self.cut(why)
             return
@@ -334,10 +280,16 @@ class _Client(asyncio.Protocol):
 
     def _upgrade(self, head: bytes, end: int) -> None:
         refusal = self._check(head[:end])
+        if refusal is None:
+            refusal = self._slot()
         if refusal is not None:
             self.refuse(*refusal)
             return
+        g = self.guard
+        g.pending.discard(self)
+        g.clients.add(self)
         self.upgraded = True
+        self.last_rx = self.last_ping = time.monotonic()
         rest = head[end:]
         why = self.frames.feed(rest, time.monotonic()) if rest else None
         if why is not None:
@@ -347,13 +299,39 @@ class _Client(asyncio.Protocol):
         self.transport.pause_reading()
         asyncio.ensure_future(self._connect(head))
 
+    def _slot(self) -> tuple[int, str, str, str] | None:
+        """A refusal when no viewer slot is free for this client: all taken (``busy``), or
+        its address (a local client: its user, ``peeruid``) holds ``max_per_address``
+        already."""
+        g, lim = self.guard, self.guard.limits
+        if len(g.clients) >= lim.max_connections:
+            return 503, "Service Unavailable", "busy", "too many connections"
+        if self.transport is not None:  # a local client is counted by its user
+            from service.edge.peeruid import peer_uid
+
+            uid = peer_uid(self.transport.get_extra_info("peername"),
+                           self.transport.get_extra_info("sockname"))  # fmt: skip
+            if uid is not None:
+                self.address = f"uid {uid}"
+        if sum(1 for c in g.clients if c.address == self.address) >= lim.max_per_address:
+            return (503, "Service Unavailable", "per_address",
+                    f"{lim.max_per_address} connections from {self.address} already")  # fmt: skip
+        return None
+
+    def ping(self) -> None:
+        """Ping the client, between two of the SDK's frames (else at the next boundary)."""
+        self.ping_due = True
+        t = self.transport
+        if t is None or t.is_closing() or not self.server_frames.between:
+            return
+        t.write(_PING_FRAME)
+        self.ping_due = False
+        self.last_ping = time.monotonic()
+
     async def _connect(self, head: bytes) -> None:
         g = self.guard
         try:
-            _, up = await g.loop.create_connection(
-                lambda: _Upstream(self), g.upstream[0], g.upstream[1],
-                ssl=g.upstream_ssl, server_hostname="localhost" if g.upstream_ssl else None,
-            )  # fmt: skip
+            _, up = await g.open_upstream(lambda: _Upstream(self))
         except OSError as e:
             g.upstream_failed(e)
             self.refuse(502, "Bad Gateway", "upstream", f"the SDK server: {e}")
@@ -398,6 +376,7 @@ class _Client(asyncio.Protocol):
             return
         self.closed = True
         self.guard.clients.discard(self)
+        self.guard.pending.discard(self)
         if self.transport is not None and not self.transport.is_closing():
             self.transport.close()
         if self.up is not None and self.up.transport is not None:
@@ -433,9 +412,11 @@ class Guard:
         upstream: tuple[str, int],
         limits: GuardLimits | None = None,
         upstream_cert: bytes | None = None,
+        upstream_key: bytes | None = None,
     ) -> None:
         self.host, self.port = host, int(port)
         self.upstream = upstream
+        self.upstream_key = upstream_key  # the SDK port's TCP-MD5 key (tcpkey), if keyed
         self.limits = limits or GuardLimits()
         self.names = loopback_names(host)
         self.upstream_ssl: ssl.SSLContext | None = None
@@ -444,7 +425,8 @@ class Guard:
             ctx.load_verify_locations(cadata=upstream_cert.decode())  # this one certificate
             ctx.check_hostname = False
             self.upstream_ssl = ctx
-        self.clients: set[_Client] = set()
+        self.clients: set[_Client] = set()  # upgraded: the viewers
+        self.pending: set[_Client] = set()  # in their handshake
         self.accepted = 0
         self.refused: dict[str, int] = {}
         self.cut_counts: dict[str, int] = {}
@@ -484,6 +466,24 @@ class Guard:
                 port = rest.rsplit(":", 1)[-1] if rest.count(":") == 1 or "]:" in rest else ""
                 return name in self.names and port == str(self.port)
         return False
+
+    async def open_upstream(self, factory: Any) -> tuple[Any, Any]:
+        """A connection to the SDK's server (keyed and over TLS where set up):
+        ``loop.create_connection``'s (transport, protocol)."""
+        tls = (
+            {"ssl": self.upstream_ssl, "server_hostname": "localhost"} if self.upstream_ssl else {}
+        )
+        if self.upstream_key is None:
+            return await self.loop.create_connection(factory, *self.upstream, **tls)
+        from service.edge.tcpkey import keyed_socket
+
+        sock = keyed_socket(self.upstream_key, self.upstream[0])
+        try:
+            await asyncio.wait_for(self.loop.sock_connect(sock, self.upstream), 5.0)
+        except BaseException as e:
+            sock.close()
+            raise e if isinstance(e, OSError) else OSError(f"connect: {e!r}") from None
+        return await self.loop.create_connection(factory, sock=sock, **tls)
 
     def upstream_failed(self, e: OSError) -> None:
         self._upstream_error = f"{type(e).__name__}: {e}"
@@ -530,7 +530,7 @@ class Guard:
             log.error("foxglove feed: %s", self._dead)
         finally:
             tick.cancel()
-            for c in list(self.clients):
+            for c in [*self.clients, *self.pending]:
                 c.close()
             self._server.close()
             with contextlib.suppress(Exception):
@@ -542,16 +542,21 @@ class Guard:
         while True:
             await asyncio.sleep(_TICK_S)
             now = time.monotonic()
-            for c in list(self.clients):
-                if not c.upgraded and now - c.t0 > lim.head_s:
+            for c in list(self.pending):
+                if now - c.t0 > lim.head_s:
                     self.count(self.refused, "head_timeout")
                     self.warn("head_timeout", "foxglove feed: %s: no request in %.1f s",
                               c.peer, lim.head_s)  # fmt: skip
                     if c.transport is not None:
                         c.transport.abort()
                     c.close()
-                elif c.upgraded and c.frames.overdue(now, lim.message_s):
+            for c in list(self.clients):
+                if c.frames.overdue(now, lim.message_s):
                     c.cut("message_timeout")
+                elif now - c.last_rx > lim.idle_s:
+                    c.cut("idle")
+                elif now - max(c.last_rx, c.last_ping) > lim.idle_s / 3:
+                    c.ping()
             if now - self._upstream_ok_at > _PROBE_S:  # a client's connection is a probe too
                 self._upstream_ok_at = now
                 await self._probe()
@@ -561,13 +566,11 @@ class Guard:
         frame (a bare connection would be logged as an error by the SDK)."""
         w = None
         try:
-            r, w = await asyncio.wait_for(
-                asyncio.open_connection(
-                    *self.upstream, ssl=self.upstream_ssl,
-                    server_hostname="localhost" if self.upstream_ssl else None,
-                ),
-                5.0,
-            )  # fmt: skip
+            r = asyncio.StreamReader(limit=2**16, loop=self.loop)
+            tr, proto = await asyncio.wait_for(
+                self.open_upstream(lambda: asyncio.StreamReaderProtocol(r, loop=self.loop)), 5.0
+            )
+            w = asyncio.StreamWriter(tr, proto, r, self.loop)
             w.write(_PROBE_REQUEST)
             line = await asyncio.wait_for(r.readline(), 5.0)
             if b" 101 " not in line:
@@ -609,7 +612,8 @@ class Guard:
     def _snapshot(self) -> dict[str, Any]:
         return {
             "connections": len(self.clients),
-            "buffered_bytes": sum(c.buffered() for c in list(self.clients)),
+            "pending": len(self.pending),
+            "buffered_bytes": sum(c.buffered() for c in [*self.clients, *self.pending]),
             "refused": dict(self.refused),
             "cut": dict(self.cut_counts),
         }
@@ -629,10 +633,14 @@ class Guard:
             "accepted": self.accepted,
             "accept_errors": self.accept_errors,
             "max_connections": lim.max_connections,
+            "max_per_address": lim.max_per_address,
+            "max_pending": lim.max_pending,
+            "idle_s": lim.idle_s,
             "max_message_bytes": lim.max_message_bytes,
             "max_backlog_bytes": lim.max_backlog_bytes,
             "memory_bound_bytes": lim.memory_bound_bytes(),
             "upstream_tls": self.upstream_ssl is not None,
+            "upstream_private": self.upstream_key is not None,
         }
 
     async def _async_snapshot(self) -> dict[str, Any]:
@@ -650,15 +658,23 @@ def start_guarded(
     foxglove: Any, host: str, port: int, limits: GuardLimits | None, **server_kw: Any
 ) -> tuple[Any, Guard]:
     """The SDK's server (``foxglove.start_server(**server_kw)``) on a private loopback port,
-    behind TLS when ``openssl`` is there, and a :class:`Guard` on ``host:port`` in front."""
+    behind TLS when ``openssl`` is there and keyed (``tcpkey``: only the guard can connect)
+    where the kernel has TCP-MD5, and a :class:`Guard` on ``host:port`` in front."""
+    from service.edge.tcpkey import key_listener, new_key
+
     tls = ephemeral_tls()
     kw = dict(server_kw)
     if tls is not None:
         kw.update(tls_cert=tls[0], tls_key=tls[1])
     server = foxglove.start_server(host="127.0.0.1", port=0, **kw)
+    key: bytes | None = new_key()
+    if not key_listener(int(server.port), key):
+        log.warning("foxglove guard: cannot key the SDK's port (no TCP-MD5 in this kernel); "
+                    "a local process can reach it past the guard")  # fmt: skip
+        key = None
     try:
         guard = Guard(host, port, ("127.0.0.1", int(server.port)), limits,
-                      None if tls is None else tls[0]).start()  # fmt: skip
+                      None if tls is None else tls[0], key).start()  # fmt: skip
     except BaseException:
         server.stop()
         raise

@@ -12,6 +12,13 @@ The server follows the fleet page's rules (docs/security.md, "HTTP"): loopback u
 ``allow_remote``, and unless ``allow_remote`` a request whose Host header is not a loopback
 name of this server is answered 421 (a DNS-rebinding page cannot read it); GET and HEAD
 only. The metric names are listed in :data:`METRICS` (docs/dashboard.md, "Prometheus").
+
+A scrape cannot starve the monitor (issue 50): the exposition is built at most once per
+``max_age_s`` (1 s) by one thread, and every scrape in between is served that body, so any
+number of scrapers cost the daemon one build a second; at most ``max_connections`` (8)
+connections are served at once and ``max_per_s`` (10) a second, one request each (beyond:
+503 and closed, without a thread), and one idle for ``idle_s`` (5 s) is closed. A unit whose names are not of the grammar
+(``service.names``) gets no series.
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import logging
 import math
 import os
 import threading
+import time
 from collections.abc import Callable, Iterator
 from http import HTTPStatus
 from http.server import ThreadingHTTPServer
@@ -36,7 +44,9 @@ from prometheus_client.core import (
 from prometheus_client.exposition import choose_encoder
 from prometheus_client.registry import Collector, CollectorRegistry
 
+from service.edge.fleet import condition_of
 from service.edge.httpguard import GuardedHandler, loopback_names
+from service.names import is_name
 
 __all__ = ["METRICS", "MetricsServer", "StatusCollector", "collect_status"]
 
@@ -111,6 +121,10 @@ METRICS: dict[str, tuple[str, str]] = {
     "unit_rul_median_flights": ("gauge", "stored RUL median [flights] (history counts flights)"),
     "unit_rul_median_days": ("gauge", "stored RUL median [calendar days] where known"),
     "unit_rul_median_hours": ("gauge", "stored RUL median [operating hours] where known"),
+    "unit_failed": (
+        "gauge",
+        "1 when the unit's latest stored C_Lk ratio is past its failure threshold",
+    ),
 }
 
 _ALARM_KINDS = ("leak", "supply")
@@ -216,6 +230,8 @@ def collect_status(st: dict[str, Any]) -> list[Metric]:
         f.add("foxglove_dropped", fx.get("dropped"), d)
     unit = ["aircraft", "actuator"]
     for a in acts.values():
+        if not (is_name(a.get("aircraft")) and is_name(a.get("actuator"))):
+            continue  # a label of the grammar only (bounded, and what every reader accepts)
         u = [*d, str(a.get("aircraft")), str(a.get("actuator"))]
         est, health = a.get("est") or {}, a.get("health") or {}
         f.add("unit_leak_ratio", health.get("leak_ratio"), u, unit)
@@ -238,6 +254,8 @@ def collect_status(st: dict[str, Any]) -> list[Metric]:
         f.add("unit_rul_median_flights", rul.get("median_flights"), u, unit)
         f.add("unit_rul_median_days", rul.get("median_days"), u, unit)
         f.add("unit_rul_median_hours", rul.get("median_h"), u, unit)
+        if "periods" in a or "rul" in a:  # the store's view of the unit (a daemon with one)
+            f.add("unit_failed", condition_of(a)[0] == "failed", u, unit)
     return list(f.f.values())
 
 
@@ -254,11 +272,35 @@ class StatusCollector(Collector):
         return []
 
 
+class _Exposition:
+    """The exposition of ``registry`` per content type, built at most once per
+    ``max_age_s`` by one thread at a time; the others wait for it and take the same body."""
+
+    def __init__(self, registry: CollectorRegistry, max_age_s: float) -> None:
+        self.registry = registry
+        self.max_age_s = float(max_age_s)
+        self._lock = threading.Lock()
+        self._bodies: dict[str, tuple[float, bytes]] = {}  # ctype -> (built at, body)
+        self.builds = 0
+
+    def body(self, encoder: Callable[[CollectorRegistry], bytes], ctype: str) -> bytes:
+        with self._lock:
+            got = self._bodies.get(ctype)
+            now = time.monotonic()
+            if got is not None and now - got[0] < self.max_age_s:
+                return got[1]
+            body = encoder(self.registry)
+            self.builds += 1
+            self._bodies[ctype] = (time.monotonic(), body)
+            return body
+
+
 class _Handler(GuardedHandler):
     server_version = "servowatch-metrics"
     sys_version = ""
     protocol_version = "HTTP/1.1"
     registry: CollectorRegistry
+    exposition: _Exposition
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
         log.debug("%s " + format, self.address_string(), *args)
@@ -271,9 +313,10 @@ class _Handler(GuardedHandler):
         self.send_header("X-Content-Type-Options", "nosniff")
         if code == HTTPStatus.METHOD_NOT_ALLOWED:
             self.send_header("Allow", "GET, HEAD")
-        if self.headers.get("Content-Length") or self.headers.get("Transfer-Encoding"):
-            self.close_connection = True  # a body is never read: never taken as a request
-            self.send_header("Connection", "close")
+        # one request per connection: the rate of requests is the rate of connections,
+        # which the server limits before a thread is made (a body is never read either)
+        self.close_connection = True
+        self.send_header("Connection", "close")
         self.end_headers()
         if not head:
             self.wfile.write(body)
@@ -289,7 +332,7 @@ class _Handler(GuardedHandler):
             return self._send(404, b"not found: the metrics are at /metrics\n", text, head)
         encoder, ctype = choose_encoder(self.headers.get("Accept") or "")
         try:
-            body = encoder(self.registry)
+            body = self.exposition.body(encoder, ctype)
         except Exception as e:  # a status that cannot be read: an error, never a dead server
             log.warning("metrics scrape failed: %s", e)
             return self._send(503, f"status unavailable: {e}\n".encode(), text, head)
@@ -308,8 +351,73 @@ class _Handler(GuardedHandler):
     do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _refuse  # noqa: N815
 
 
+_BUSY_BODY = b"too many connections\n"
+_BUSY = (
+    b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: text/plain\r\n"
+    b"Content-Length: %d\r\nRetry-After: 1\r\nConnection: close\r\n\r\n%s"
+    % (len(_BUSY_BODY), _BUSY_BODY)
+)
+
+
+_REFUSE_S = 0.01  # the listening thread's pause after a refusal [s]
+
+
 class _Server(ThreadingHTTPServer):
+    """A thread per connection (one request each), at most ``max_connections`` at once and
+    ``max_per_s`` a second (a token bucket of as many): one more is answered 503 and closed
+    on the listening thread, without a thread of its own; then that thread pauses
+    ``_REFUSE_S``, so refusals cost the daemon at most 100 a second."""
+
     daemon_threads = True
+    request_queue_size = 128  # the listen backlog (docs/security.md, "HTTP")
+    max_connections = 8
+    max_per_s = 10.0
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        self._count_lock = threading.Lock()
+        self.active = 0
+        self.refused = 0
+        self._tokens = float(self.max_per_s)
+        self._t_tokens = time.monotonic()
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        with self._count_lock:
+            now = time.monotonic()
+            self._tokens = min(
+                self.max_per_s, self._tokens + (now - self._t_tokens) * self.max_per_s
+            )
+            self._t_tokens = now
+            full = self.active >= self.max_connections or self._tokens < 1.0
+            if not full:
+                self.active += 1
+                self._tokens -= 1.0
+            else:
+                self.refused += 1
+        if full:
+            with contextlib.suppress(OSError):
+                request.setblocking(False)
+                request.send(_BUSY)
+            self.shutdown_request(request)
+            # a refusal costs the daemon too: at most 1/_REFUSE_S a second, the others wait
+            # in the kernel's listen queue meanwhile (no thread, no GIL)
+            time.sleep(_REFUSE_S)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._done()
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._done()
+
+    def _done(self) -> None:
+        with self._count_lock:
+            self.active -= 1
 
     def handle_error(self, request: Any, client_address: Any) -> None:
         """A client gone mid-answer (reset, timeout) is logged, not printed to stderr."""
@@ -319,7 +427,10 @@ class _Server(ThreadingHTTPServer):
 class MetricsServer:
     """The endpoint on ``host:port`` (port 0: a free one, ``address`` tells which) over
     ``status()``; bound at construction (an address in use raises OSError), served by
-    :meth:`start` on a daemon thread until :meth:`close`."""
+    :meth:`start` on a daemon thread until :meth:`close`. ``max_age_s``: a built exposition
+    is served this long [s]; ``max_connections`` served at once and ``max_per_s`` a second
+    (one request each); ``idle_s``: a connection without a request is closed after this
+    long [s]."""
 
     def __init__(
         self,
@@ -328,22 +439,32 @@ class MetricsServer:
         port: int = 9464,
         *,
         allow_remote: bool = False,
+        max_age_s: float = 1.0,
+        max_connections: int = 8,
+        idle_s: float = 5.0,
+        max_per_s: float = 10.0,
     ) -> None:
         self.registry = CollectorRegistry(auto_describe=False)
         self.registry.register(StatusCollector(status))
+        self.exposition = _Exposition(self.registry, max_age_s)
         handler = type(
             "MetricsHandler",
             (_Handler,),
             {
                 "registry": self.registry,
+                "exposition": self.exposition,
                 "allowed_hosts": None if allow_remote else loopback_names(host),
+                "timeout": float(idle_s),
             },
         )
-        cls: type[ThreadingHTTPServer] = _Server
+        cls: type[ThreadingHTTPServer] = type(
+            "_Server", (_Server,),
+            {"max_connections": int(max_connections), "max_per_s": float(max_per_s)},
+        )  # fmt: skip
         if ":" in host:
             import socket
 
-            cls = type("_V6", (_Server,), {"address_family": socket.AF_INET6})
+            cls = type("_V6", (cls,), {"address_family": socket.AF_INET6})
         try:
             self._srv = cls((host, port), handler)
         except OSError as e:  # an address in use, a host not on this machine
@@ -355,6 +476,12 @@ class MetricsServer:
         """(host, port) the server listens on."""
         a = self._srv.server_address
         return str(a[0]), int(a[1])
+
+    def stats(self) -> dict[str, Any]:
+        """Connections served now, the cap, those refused, expositions built."""
+        srv = self._srv
+        return {"connections": srv.active, "max_connections": srv.max_connections,
+                "refused": srv.refused, "builds": self.exposition.builds}  # fmt: skip
 
     def start(self) -> MetricsServer:
         """Serve on a daemon thread."""

@@ -17,7 +17,7 @@ import math
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 from mcap.opcode import Opcode
@@ -200,11 +200,12 @@ def _group_blocks(
 
 
 def read_blocks(
-    path: str | Path,
+    path: str | Path | BinaryIO,
     topics: Iterable[str] | None = None,
     *,
     stats: LogReadStats | None = None,
     match: Callable[[str], bool] | None = None,
+    name: str | Path | None = None,
 ) -> Iterator[LogBlock]:
     """The messages of :func:`read_log` as :class:`LogBlock` arrays.
 
@@ -214,9 +215,11 @@ def read_blocks(
     channel. Messages that are not JSON objects are skipped. ``topics``, ``match``, ``stats``
     and the truncation warning as in :func:`read_log`. Flat objects of numbers, null, booleans
     and plain strings are parsed by compiled code (numbers equal to ``float(text)``), anything
-    else by ``json.loads``.
+    else by ``json.loads``. ``path`` may be a binary file open at its start
+    (``service.log.logfile.LogFile``: read on that handle, left open; ``name`` names it).
     """
-    p = Path(path)
+    p = Path(name) if name is not None else (Path(path) if not hasattr(path, "read") else Path("?"))
+    src = path if hasattr(path, "read") else p
     st = stats if stats is not None else LogReadStats()
     want = None if topics is None else set(topics)
     decided: dict[str, bool] = {}
@@ -233,7 +236,7 @@ def read_blocks(
 
     channels = Channels()
     pending: list[tuple[int, str, int, bytes, Any]] = []  # un-chunked messages
-    for item in iter_stream(p, st, channels):
+    for item in iter_stream(src, st, channels):
         if isinstance(item, tuple):
             topic = channels.get(item[0])
             if keep(topic):

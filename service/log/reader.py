@@ -14,6 +14,7 @@ other encodings are skipped.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import struct
@@ -182,6 +183,16 @@ def _iter_chunk(data: bytes) -> Iterator[tuple[int, Any]]:
         pos = body + length
 
 
+@contextlib.contextmanager
+def _opened(path: Any) -> Iterator[Any]:
+    """``path`` opened for reading, or a binary file given open (left open)."""
+    if hasattr(path, "read"):
+        yield path
+        return
+    with open(path, "rb") as fh:
+        yield fh
+
+
 def iter_stream(
     path: Path, stats: LogReadStats, channels: dict[int, str]
 ) -> Iterator[bytes | tuple[int, int, bytes]]:
@@ -204,7 +215,7 @@ def iter_stream(
             return None
 
     try:
-        with open(path, "rb") as fh:
+        with _opened(path) as fh:
             lock_shared(fh)  # held while read: a retention sweep leaves the file alone
             reader = SkipIndexStreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
             records = reader.records

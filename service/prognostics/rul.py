@@ -207,15 +207,12 @@ class History:
                               if self.flight_rates(a) is not None]  # fmt: skip
 
 
-def _life_key(p: Period) -> tuple:
-    return (p.flight if p.flight is not None else -1, p.start_t)
-
-
 def history_of(actuator: str, periods: Sequence[Period]) -> History:
-    """The ``History`` of ``periods`` (put in life order here: flight, then start time). Hours
-    per flight: total operating hours of the periods with a flight number over the number of
-    distinct flights."""
-    ps = sorted(periods, key=_life_key)
+    """The ``History`` of ``periods``, taken in the caller's order: the unit's life order
+    (``HealthStore.life``, the one order every view reads). Hours per flight: total
+    operating hours of the periods with a flight number over the number of distinct
+    flights."""
+    ps = list(periods)
     op = np.array([p.op_time_s for p in ps], float) / 3600.0
     t_h = np.cumsum(op)
     y = np.array([p.c_lk_ratio if p.observable_samples > 0 else math.nan for p in ps], float)
@@ -270,6 +267,13 @@ def rul_of_history(
         "days_per_flight": dpf,
         "last_ratio": float(y[-1]) if len(y) else None,
     }
+    if len(y) and y[-1] >= thr:  # past the failure threshold: failed, whatever the fit
+        out.update(status="failed", p_horizon=1.0, warning=True, **_NONE)
+        for u, f in (("flights", 1.0), ("h", hpf if axis == "flights" else 1.0),
+                     ("days", dpf if axis == "flights" else None)):  # fmt: skip
+            for q in ("median", "lo", "hi"):
+                out[f"{q}_{u}"] = 0.0 if f else None
+        return out
     if len(t) < cfg.min_periods:
         out.update(status="insufficient history", p_horizon=None, warning=False, **_NONE)
         return out
@@ -458,7 +462,7 @@ def compute_rul(
     """RUL of every actuator in ``store`` (or just ``actuator``) under the fleet prior learned
     from all of them; each summary written with ``store.put_rul`` when ``save``."""
     names = store.actuators()
-    hist = {a: history_of(a, store.periods(a)) for a in names}
+    hist = {a: history_of(a, store.life(a)) for a in names}
     prior = fleet_prior(hist.values())
     out = []
     for a in [actuator] if actuator is not None else names:

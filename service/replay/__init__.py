@@ -1,6 +1,7 @@
 """The offline path: logs through the live monitor code into a new log and the health store
-(``core``), its inputs and identities (``input``), parallel jobs (``jobs``) and the fleet
-simulator that drives it (``fleetsim``). May import every layer below it, never cli.
+(``core``), its inputs and identities (``input``), batches on workers (``cluster``: ``--jobs``,
+``--cluster``) and the fleet simulator that drives it (``fleetsim``). May import every layer
+below it, never cli.
 
 ``service.replay`` keeps the names it had as a module (``replay``, ``replay_many``, ...).
 """

@@ -18,15 +18,21 @@ daemon's, best paced).
 With a health store (``store``), each actuator runs on its latest baseline from the store
 (``service.monitor.MonitorFleet``; none: the default, ``commissioned: false``), and the
 fan-out's operating periods and alarm raises are written to the store at the end in one
-transaction (``HealthStore.ingest_log``), named by each unit's identity in the log
-(``unit_source``: its content, not the file's path), so replaying the same log again, or a
-copy of it, adds nothing, and a longer version of it (a log ingested while still written, a
-repaired log) replaces what the shorter one stored. Each period is stamped with its flight
-and calendar time (``service.prognostics.life``: the log's ``servowatch.flight`` record, the
-caller's ``flight``/``start_unix``, or the gap rule, renumbered by the store over the unit's
-whole history so that the flights never depend on the order or split of the ingests).
+transaction (``HealthStore.ingest_log``), named by each unit's stream identity
+(``service.store.identity``: digests of all of its accepted samples, built while the log is
+read and compared there with the unit's stored streams; never the file's name), so replaying
+the same log again, a copy of it, or a log whose samples are stored already adds nothing,
+and a log that holds stored ones (a log ingested while still written, a repaired log, the
+rotation set of stored members, the daemon's own log beside its live periods) replaces
+them. Each period is stamped with its flight and calendar time (``service.prognostics.life``:
+the log's ``servowatch.flight`` record, the caller's ``flight``/``start_unix``, or the gap
+rule, renumbered by the store along the unit's life order so that the flights never depend
+on the order, split or names of the ingests). Each file is opened once
+(``service.log.logfile.LogSet``): its check, metadata, flight records, units and blocks
+are read through that one handle.
 
-``replay_many`` ingests many logs into one store in one process, in life order (``log_order``).
+``replay_many`` ingests many logs into one store in one process, in a reading order (``log_order``;
+the store's flights do not depend on it).
 """
 
 from __future__ import annotations
@@ -53,10 +59,10 @@ from service.log import (
     LogReadStats,
     McapLogger,
     TruncatedLogWarning,
-    read_blocks,
     rotated_files,
 )
 from service.log.flightrec import MAX_FLIGHT
+from service.log.logfile import LogSet
 from service.monitor import (
     EST_KEYS,
     HEALTH_KEYS,
@@ -81,6 +87,7 @@ from service.replay.input import (
     named,
     unit_source,
 )
+from service.store.identity import StreamDigest, stream_source
 from service.wire import messages as m
 
 __all__ = [
@@ -147,35 +154,28 @@ class ReplaySummary:
 
 
 def read_metadata(path: str | Path) -> dict[str, str]:
-    """The ``servowatch`` metadata record of an MCAP file ({} if absent or unreadable).
-
-    McapLogger writes it right after the header, so the scan stops at the first chunk; a
-    file from another writer is looked up through its summary's metadata index.
-    """
-    from mcap.reader import make_reader
-    from mcap.records import Chunk, Metadata
-    from mcap.stream_reader import StreamReader
+    """The ``servowatch`` metadata record of an MCAP file ({} if absent or unreadable)."""
+    from service.log.logfile import LogFile
 
     try:
-        with open(path, "rb") as fh:
-            for rec in StreamReader(fh, emit_chunks=True).records:
-                if isinstance(rec, Metadata) and rec.name == "servowatch":
-                    return dict(rec.metadata)
-                if isinstance(rec, Chunk):
-                    break
-        with open(path, "rb") as fh:
-            for md in make_reader(fh).iter_metadata():
-                if md.name == "servowatch":
-                    return dict(md.metadata)
+        with LogFile(path) as lf:
+            return lf.metadata
     except Exception:
         return {}
-    return {}
 
 
-def _read_files(files: list[Path], stats: LogReadStats) -> Iterator[LogBlock]:
-    for f in files:
+def _read_files(logset: LogSet, stats: LogReadStats) -> Iterator[LogBlock | None]:
+    """The meas blocks of every file of ``logset`` in order; None where a corrupt chunk was
+    skipped (a gap in the samples: the stream identities start a new run there)."""
+    for lf in logset.files:
         st = LogReadStats()
-        yield from read_blocks(f, stats=st, match=_is_meas)
+        seen = 0
+        for blk in lf.blocks(stats=st, match=_is_meas):
+            if st.corrupt != seen:
+                seen = st.corrupt
+                yield None
+            yield blk
+        f = lf.path
         if not st.chunks and not st.messages and not st.footer and not st.corrupt:
             raise LogError(f"{f}: not a usable MCAP log: no complete chunk "
                            f"({st.reason or 'header only'})")  # fmt: skip
@@ -222,17 +222,29 @@ class _Input:
 
 
 def _read_stage(
-    files: list[Path], stats: LogReadStats, summary: ReplaySummary, records: list | tuple = ()
+    logset: LogSet,
+    stats: LogReadStats,
+    summary: ReplaySummary,
+    records: list | tuple = (),
+    digests: dict[str, StreamDigest] | None = None,
+    stored: Callable[[str], dict] | None = None,
 ) -> Iterator[_Input]:
     """Stage 1: the logged meas blocks as accepted samples per actuator (time order), by the
-    daemon's intake time checks (``UnitClock``); each unit's source (``unit_source``, with
-    the log's flight ``records``) at its first accepted sample."""
+    daemon's intake time checks (``UnitClock``); each unit's accepted samples into its
+    stream identity (``digests``: ``service.store.identity.StreamDigest``, compared while it
+    reads with the unit's ``stored`` streams) and, for an older store's records, its
+    first-sample id (``unit_source``) at its first accepted sample."""
     from service.daemon.ratelimit import RateLimitedLog
 
     clocks: dict[str, UnitClock] = {}
     names: dict[str, tuple[str, str] | None] = {}
+    digests = {} if digests is None else digests
     bad_log = RateLimitedLog(log)
-    for blk in _read_files(files, stats):
+    for blk in _read_files(logset, stats):
+        if blk is None:  # a corrupt chunk skipped: a gap in every unit's stream
+            for d in digests.values():
+                d.cut()
+            continue
         if blk.topic not in names:
             names[blk.topic] = _parse_topic(blk.topic)
         at = names[blk.topic]
@@ -243,6 +255,7 @@ def _read_stage(
             clocks[name] = UnitClock(at[0], at[1], bad_log)
             summary.actuators.append(name)
             summary.unit_samples[name] = 0
+            digests[name] = StreamDigest(stored(name) if stored is not None else None)
         t_all, ch_all, seq = block_columns(blk)
         parts = clocks[name].check(t_all, ch_all, seq)
         n_keep = sum(len(k) for k, _ in parts)
@@ -253,6 +266,7 @@ def _read_stage(
             if name not in summary.first_t:
                 summary.first_t[name] = float(t[0])
                 summary.sources[name] = unit_source(name, float(t[0]), ch[0], records)
+            digests[name].add(np.column_stack([t, ch]))
             summary.unit_samples[name] += len(t)
             summary.samples += len(t)
             if summary.t_start is None:
@@ -437,26 +451,19 @@ def replay(
     if log_every < 1 or publish_every < 1:
         raise ValueError("log_every and publish_every must be >= 1")
     log_path = Path(log_path)
-    files = rotated_files(log_path)
-    if not files:
-        raise FileNotFoundError(f"{log_path}: no such log (nor a rotation set {log_path.stem}-*)")
-    from service.log.retention import hold
-
-    with hold(files):  # no file of the set is deleted by a daemon's retention meanwhile
-        return _replay_held(
-            files, log_path, store, out, publish, speed, monitor_config, baseline, progress,
-            log_every, publish_every, period_config, flight, start_unix, flight_gap_s, live,
-        )  # fmt: skip
+    with LogSet(log_path) as logset:  # each file opened once, read through that handle
+        return _replay_set(logset, log_path, speed, out, publish, monitor_config, baseline,
+                           publish_every, log_every, progress, store, period_config, flight,
+                           start_unix, flight_gap_s, live)  # fmt: skip
 
 
-def _replay_held(
-    files, log_path, store, out, publish, speed, monitor_config, baseline, progress, log_every,
-    publish_every, period_config, flight, start_unix, flight_gap_s, live,
-) -> ReplaySummary:  # fmt: skip
-    """:func:`replay` on the files ``files`` of ``log_path``, held against retention."""
-    for f in files:
-        check_mcap(f)
-    meta = read_metadata(files[0])
+def _replay_set(logset, log_path, speed, out, publish, monitor_config, baseline, publish_every,
+                log_every, progress, store, period_config, flight, start_unix, flight_gap_s,
+                live) -> ReplaySummary:  # fmt: skip
+    """``replay`` of an open ``LogSet``."""
+    files = logset.paths
+    logset.check()
+    meta = logset.metadata
     try:
         if monitor_config is None and "monitor_config" in meta:
             monitor_config = MonitorConfig.model_validate_json(meta["monitor_config"])
@@ -488,15 +495,13 @@ def _replay_held(
         hs = store
     life = None
     if hs is not None:
-        from service.log.flightrec import flight_records
-
-        records = [r for f in files for r in flight_records(f)]
+        records = logset.flight_records
         life = (FlightStamper(None, flight_gap_s), records, flight, start_unix, flight_gap_s)
     try:
         if live is not None:
-            for ac, act in log_actuators(files):
+            for ac, act in logset.units:
                 live.add_actuator(ac, act)
-        return _replay(files, log_path, summary, cfg, base, hs, speed, out, publish,
+        return _replay(logset, log_path, summary, cfg, base, hs, speed, out, publish,
                        publish_every, log_every, progress, period_config, life,
                        live)  # fmt: skip
     finally:
@@ -505,30 +510,23 @@ def _replay_held(
 
 
 def log_actuators(files: list[Path]) -> list[tuple[str, str]]:
-    """(aircraft, actuator) of the ``meas`` channels in the summaries of ``files`` (a file
-    without a summary, e.g. truncated, names none)."""
-    from mcap.reader import make_reader
+    """(aircraft, actuator) of the ``meas`` channels of ``files`` (a file without a summary,
+    e.g. truncated, is scanned)."""
+    from service.log.logfile import LogFile
 
     out: list[tuple[str, str]] = []
     for f in files:
-        try:
-            with open(f, "rb") as fh:
-                summ = make_reader(fh).get_summary()
-        except Exception as e:  # truncated: its actuators appear with their first sample
-            log.debug("summary of %s: %s", f, e)
-            continue
-        for ch in (summ.channels if summ is not None else {}).values():
-            at = _parse_topic(ch.topic) if _is_meas(ch.topic) else None
-            if at is not None and at not in out:
-                out.append(at)
+        with LogFile(f) as lf:
+            out.extend(at for at in lf.units if at not in out)
     return out
 
 
-def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publish_every,
+def _replay(logset, log_path, summary, cfg, base, hs, speed, out, publish, publish_every,
             log_every, progress, period_config, life=None, live=None) -> ReplaySummary:  # fmt: skip
     """``replay`` once the log, the configuration and the store (``hs``) are resolved."""
     closed: list = []
     alarms: list = []
+    digests: dict[str, StreamDigest] = {}
     if hs is None:
         bank: MonitorBank | MonitorFleet = MonitorBank(cfg, base)
     else:
@@ -561,7 +559,8 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", TruncatedLogWarning)
         warnings.simplefilter("always", CorruptChunkWarning)
-        inputs = _read_stage(files, stats, summary, life[1] if life is not None else ())
+        inputs = _read_stage(logset, stats, summary, life[1] if life is not None else (),
+                             digests, hs.stream_ids if hs is not None else None)  # fmt: skip
         batches = _monitor_stage(inputs, bank, speed, lambda: summary.t_start or 0.0)
         try:
             fleet = bank if isinstance(bank, MonitorFleet) else None
@@ -574,7 +573,8 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
                 writer.close()
     _check_read(log_path, stats)
     if hs is not None:
-        _store_log(hs, files, log_path, summary, closed, alarms, life)
+        _store_log(hs, logset.files, log_path, summary, closed, alarms, life, digests,
+                   logset.metadata.get("log_id"))  # fmt: skip
     summary.wall_s = time.perf_counter() - wall0
     summary.corrupt_chunks = stats.corrupt
     for w in caught:
@@ -589,7 +589,13 @@ def _replay(files, log_path, summary, cfg, base, hs, speed, out, publish, publis
         summary.duration_s = summary.t_end - summary.t_start
         if summary.wall_s > 0 and summary.samples > 1:
             summary.speed = summary.duration_s / summary.wall_s
-    summary.counters = {n: bank.counters_of(n) for n in summary.actuators}
+    summary.counters = {
+        n: bank.counters_of(n)
+        for n in summary.actuators
+        if n in digests and summary.unit_samples.get(n)
+    }
+    if hs is None:  # without a store: the units' stream identities all the same
+        summary.sources = {a: stream_source(a, d.finish()) for a, d in digests.items()}
     for name, tc in summary.time.items():
         refused = sum(v for k, v in tc.items() if k != "restarts")
         if refused or tc["restarts"]:
@@ -614,21 +620,35 @@ def _check_read(log_path: Path, stats: LogReadStats) -> None:
                        + (f" ({why})" if why else ""))  # fmt: skip
 
 
-def _store_log(hs, files, log_path, summary, closed, alarms, life) -> None:
+def _store_log(hs, files, log_path, summary, closed, alarms, life, digests, log_id=None) -> None:
     """The log's periods and alarms into the store in one transaction
-    (``HealthStore.ingest_log``: a source already stored with as many samples is kept, one
-    with fewer is superseded; gap-rule flights renumbered over each unit's history)."""
+    (``HealthStore.ingest_log``: each unit by its stream identity against the stored ones;
+    gap-rule flights renumbered along each unit's life order). ``log_id``: the daemon's id
+    of the log (its live periods, ``live:...@{log_id}``, are replaced by the log's)."""
     from service.store.lifeorder import LogUnit
 
     st, records, flight, start_unix, gap_s = life
+    order = {a: tuple(float(p.start_t) for p in closed if p.actuator == a)
+             for a in summary.actuators}  # fmt: skip
     closed = st.stamp(closed, records=records, first_t=summary.first_t, flight=flight,
                       start_unix=start_unix)  # fmt: skip
     legacy = legacy_log_source(files)
-    units = [
-        LogUnit(a, summary.sources[a], summary.unit_samples[a], log_path.name,
-                flight is None and not any(r.name == a for r in records), legacy)
-        for a in summary.actuators if a in summary.sources
-    ]  # fmt: skip
+    units = []
+    for a in summary.actuators:
+        if a not in summary.sources:
+            continue
+        d = digests[a]
+        sid = d.finish()
+        src = stream_source(a, sid)
+        units.append(LogUnit(
+            a, src, summary.unit_samples[a], log_path.name,
+            flight is None and not any(r.name == a for r in records),
+            (summary.sources[a], legacy), sid,
+            d.relate(sid),
+            order[a], flight, start_unix, summary.first_t.get(a),
+            f"@{log_id}" if log_id else None,
+        ))  # fmt: skip
+        summary.sources[a] = src
     try:
         res = hs.ingest_log(units, closed, alarms, gap_s)
     except Exception as e:
@@ -641,6 +661,11 @@ def _store_log(hs, files, log_path, summary, closed, alarms, life) -> None:
     summary.periods_new = sum(r["periods_new"] for r in res.values())
     summary.flights = {a: r["flights"] for a, r in res.items() if r["flights"]}
     summary.stored = {a: r["status"] for a, r in res.items()}
+    for a, r in res.items():
+        for note in r.get("notes", ()):
+            text = f"{log_path}: {a}: {note}"
+            summary.warnings.append(text)
+            log.info(text)
 
 
 def expand_logs(items: list[str | Path]) -> list[Path]:
@@ -670,24 +695,12 @@ def expand_logs(items: list[str | Path]) -> list[Path]:
 
 def log_order(paths: list[Path]) -> list[Path]:
     """``paths`` in life order: logs with a flight record by its calendar start, then by its
-    flight number, then the rest by name (digits compared as numbers). The order a batch
-    reads its logs in; the flights stored do not depend on it (``HealthStore.ingest_log``)."""
-    from service.log.flightrec import flight_records
-    from service.store.lifeorder import natural_key
+    flight number, then the rest by name (digits compared as numbers;
+    ``service.replay.cluster.order_key``). The order a batch reads its logs in; the flights stored
+    do not depend on it (``HealthStore.ingest_log``)."""
+    from service.replay.cluster import order_key
 
-    def key(p: Path) -> tuple:
-        try:
-            recs = flight_records(rotated_files(p)[0]) if rotated_files(p) else []
-        except ValueError:  # a malformed record: the file fails when it is replayed
-            recs = []
-        natural = natural_key(str(p))
-        if recs and recs[0].start_unix is not None:
-            return (0, recs[0].start_unix, recs[0].flight, natural)
-        if recs:
-            return (1, 0.0, recs[0].flight, natural)
-        return (2, 0.0, 0, natural)
-
-    return sorted(paths, key=key)
+    return sorted(paths, key=lambda p: order_key(Path(p), str(p)))
 
 
 def replay_many(
@@ -698,6 +711,9 @@ def replay_many(
     flight_gap_s: float = FLIGHT_GAP_S,
     jobs: int = 1,
     tick: Callable[[], None] | None = None,
+    pool: Any | None = None,
+    report: Any | None = None,
+    task_logs: int | None = None,
     **kw: Any,
 ) -> list[ReplaySummary]:
     """Ingest ``logs`` (in the given order: ``log_order``) into ``store`` (one store
@@ -707,17 +723,21 @@ def replay_many(
     None)``; ``tick()`` is called as each log is done (a progress bar). A store that fails
     while a log is written raises ``StoreWriteError`` (the logs before it are stored).
 
-    ``jobs`` > 1 (a store path or URL only): the logs are split into groups that share no
-    actuator (``_groups``), each group in its given order in one of ``jobs`` worker
-    processes, so every actuator's logs still go in order through one monitor; the workers
-    die with the batch (``service.replay.jobs``)."""
+    ``jobs`` > 1 or a ``pool`` (``service.replay.cluster``: ``ProcessPool``, ``DaskPool``;
+    a store path or URL only): the logs (paths or fsspec URLs) are split into groups that
+    share no actuator, each group in life order, one task per group (at most ``task_logs``
+    logs each) on the pool's workers, which replay them with this function and return the
+    periods; this process writes them to the store as the tasks complete
+    (``service.replay.cluster.run_batch``; ``report`` gets each worker's load). ``jobs``: spawned
+    processes that die with the batch."""
     if "flight" in kw:
         raise ValueError("replay_many: flight numbers come from each log (or the gap rule)")
-    if jobs > 1 and isinstance(store, str | Path) and len(logs) > 1:
-        from service.replay.jobs import replay_parallel
+    if (pool is not None or jobs > 1) and isinstance(store, str | Path):
+        from service.replay.cluster import ProcessPool, run_batch
 
-        return replay_parallel(logs, store, on_log, tick, flight_gap_s, jobs, kw, replay_many,
-                               ReplaySummary)  # fmt: skip
+        return run_batch(logs, store, pool if pool is not None else ProcessPool(jobs),
+                         on_log=on_log, tick=tick, flight_gap_s=flight_gap_s, kw=kw,
+                         work=replay_many, report=report, task_logs=task_logs)  # fmt: skip
     hs, own = store, False
     if isinstance(store, str | Path):
         from service.store import open_store

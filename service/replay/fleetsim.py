@@ -413,7 +413,7 @@ def run_fleet_sim(
         clear = MonitorConfig().alarms.leak_clear
         for r in results:
             a = r["truth"]["actuator"]
-            r["periods"] = [p.to_dict() for p in store.periods(a)]
+            r["periods"] = [p.to_dict() for p in store.life(a)]
             ratio = r["truth"]["ratio"]
             flight_of = {p["source"]: p["flight"] for p in r["periods"]}  # one log, one flight
             fa = 0
@@ -655,7 +655,7 @@ def evaluate_store(store, truth: dict, cfg: FleetSimConfig | None = None, **kw) 
             raise ValueError(f"truth: actuator {a!r} is not in the store")
         eol = u["eol_flight"]
         tr = {**u, "eol_flight": math.inf if eol is None else float(eol)}
-        results.append({"truth": tr, "periods": [p.to_dict() for p in store.periods(a)]})
+        results.append({"truth": tr, "periods": [p.to_dict() for p in store.life(a)]})
     if cfg is None:
         cfg = FleetSimConfig(
             actuators=len(units), seed=int(truth.get("seed", 0)),

@@ -1,6 +1,8 @@
 """The replay's input checks (docs/store.md, "What identifies a log" and "What a re-run
-does"): whether a file is an MCAP log at all (``check_mcap``), each unit's identity in a log
-(``unit_source``), and the daemon's intake time checks on logged samples (``UnitClock``).
+does"): whether a file is an MCAP log at all (``check_mcap``, through ``LogFile``), the id
+a store before schema v7 gave a unit of a log (``unit_source``: its first sample; adopted
+when the log is replayed again), and the daemon's intake time checks on logged samples
+(``UnitClock``).
 ``LogError`` names a file that cannot be replayed, ``StoreWriteError`` a store that failed
 while a log was written."""
 
@@ -14,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from service.log import LogBlock
+from service.log.logfile import LogFile, LogFileError
 from service.wire import messages as m
 
 __all__ = [
@@ -28,50 +31,32 @@ __all__ = [
 ]
 
 
-class LogError(ValueError):
-    """A file that cannot be replayed: the message names the file and the cause."""
+LogError = LogFileError
+"""A file that cannot be replayed: the message names the file and the cause
+(``service.log.logfile.LogFileError``)."""
 
 
 def check_mcap(path: Path) -> None:
     """LogError unless ``path`` is a readable file that starts as an MCAP log."""
-    from mcap.writer import MCAP0_MAGIC
-
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(len(MCAP0_MAGIC))
-    except OSError as e:
-        raise LogError(f"{path}: cannot read: {e.strerror or e}") from None
-    if not head:
-        raise LogError(f"{path}: empty file, not an MCAP log")
-    if head != MCAP0_MAGIC:
-        raise LogError(f"{path}: not an MCAP log (no MCAP magic at its start)")
-    from mcap.records import Chunk, Footer, Message
-
-    from service.compat.mcap import SkipIndexStreamReader
-
-    why = "it ends after its header"
-    try:
-        with open(path, "rb") as fh:
-            for rec in SkipIndexStreamReader(
-                fh, emit_chunks=True, record_size_limit=1 << 30
-            ).records:
-                if isinstance(rec, Chunk | Message | Footer):
-                    return
-    except Exception:  # a record cut short (or garbled) before the first chunk
-        why = "it ends inside a record"
-    raise LogError(f"{path}: not a usable MCAP log: no chunk, message or footer ({why})")
+    with LogFile(path) as lf:
+        lf.check()
 
 
-def legacy_log_source(files: list[Path]) -> str:
+def legacy_log_source(files: list[Path] | list[LogFile]) -> str:
     """The identity a store before schema v4 gave a log: ``log:{first file name}:{hash}``,
     the hash over the files' names, sizes and first MiB (its periods are adopted when the log
-    is replayed again)."""
+    is replayed again). ``files``: paths, or the ``LogFile`` handles the replay has open."""
     h = hashlib.sha256()
     for f in files:
+        if isinstance(f, LogFile):
+            h.update(f"{f.path.name}:{f.size};".encode())
+            h.update(f.head(1 << 20))
+            continue
         h.update(f"{f.name}:{f.stat().st_size};".encode())
         with open(f, "rb") as fh:
             h.update(fh.read(1 << 20))
-    return f"log:{files[0].name}:{h.hexdigest()[:16]}"
+    first = files[0].path if isinstance(files[0], LogFile) else files[0]
+    return f"log:{first.name}:{h.hexdigest()[:16]}"
 
 
 def block_columns(blk: LogBlock) -> tuple[NDArray, NDArray, NDArray | None]:
@@ -166,9 +151,10 @@ class UnitClock:
 
 
 def unit_source(name: str, t0: float, ch0: NDArray, records: list | tuple = ()) -> str:
-    """A log's identity for one unit (docs/store.md): ``log:`` and a hash of the unit's name,
-    its first accepted sample (time and channels) and its ``servowatch.flight`` records,
-    whatever the file's name or length."""
+    """The id a store of schema v4 to v6 gave a log's unit (decision record 0010, replaced by
+    0033): ``log:`` and a hash of the unit's name, its first accepted sample (time and
+    channels) and its ``servowatch.flight`` records. Kept to adopt those stored logs when
+    they are replayed again (``ingest._superseded``)."""
     h = hashlib.sha256(name.encode())
     h.update(np.float64(t0).tobytes())
     h.update(np.ascontiguousarray(ch0, np.float64).tobytes())

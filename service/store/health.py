@@ -22,7 +22,7 @@ from typing import Any
 
 from service.store.access import StoreError, engine_error, first_line
 from service.store.backends import _Backend, _Postgres, _SQLite, describe_url
-from service.store.lifeorder import LogUnit
+from service.store.lifeorder import LogUnit, SourceRule, life_keys, life_order
 from service.store.records import (
     PERIOD_FIELDS,
     PERIOD_FLOAT_FIELDS,
@@ -31,8 +31,9 @@ from service.store.records import (
     Period,
     check_actuator,
 )
-from service.store.schema import LATEST_VERSION, MIGRATIONS, RECENT_WINDOW, RECOMPUTE_TRENDS
-from service.store.usage import USAGE_TOTALS, add_usage, usage_totals
+from service.store.schema import LATEST_VERSION, MIGRATIONS, REBUILD_SUMMARIES, RECOMPUTE_TRENDS
+from service.store.summary import reset, summarise, trend_of
+from service.store.usage import USAGE_TOTALS, usage_totals
 
 __all__ = ["HealthStore", "StoreError", "open_store", "trend_of", "describe_url", "READ_TIMEOUT_S"]
 
@@ -60,8 +61,13 @@ _SUMMARY_COLS: tuple[str, ...] = (
     "trend_change",
     "trend_label",
     *USAGE_TOTALS,
+    "last_key",
+    "life_axis",
+    "first_flight",
+    "n_flights",
+    "last_ratio",
 )
-_FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c != "recent")
+_FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c not in ("recent", "last_key"))
 _CHUNK = 500  # parameters per IN (...) list
 #: a read-only command waits at most this long for a writer's lock [s] (docs/cli.md)
 READ_TIMEOUT_S = 5.0
@@ -71,46 +77,12 @@ def _dumps(obj: Any) -> str:
     return json.dumps(obj, separators=(",", ":"), sort_keys=True)
 
 
+def _opt(v: Any, kind: type) -> Any:
+    return None if v is None else kind(v)
+
+
 def _float(v: Any) -> float:
     return math.nan if v is None else float(v)
-
-
-def trend_of(recent: Sequence[Sequence[float]]) -> dict[str, Any]:
-    """Least-squares slope of the C_Lk ratio against operating time over ``recent``
-    ``[[start_t, op_time_s, c_lk_ratio, observable_samples], ...]`` (sorted by start_t).
-
-    Returns ``slope_per_h`` (ratio per operating hour), the number of periods used, the
-    ratio change over the window and a label: ``rising``/``falling`` when the change is
-    above 0.05 and twice its standard error, else ``stable`` (``unknown`` below 3 periods).
-    """
-    xs: list[float] = []
-    ys: list[float] = []
-    cum = 0.0
-    for row in recent:
-        op, ratio, obs = float(row[1]), row[2], row[3]
-        cum += op
-        if ratio is None or obs <= 0 or not math.isfinite(float(ratio)):
-            continue
-        xs.append(cum / 3600.0)
-        ys.append(float(ratio))
-    n = len(xs)
-    out: dict[str, Any] = {"periods": n, "slope_per_h": None, "change": None, "label": "unknown"}
-    if n < 3:
-        return out
-    mx, my = sum(xs) / n, sum(ys) / n
-    sxx = sum((x - mx) ** 2 for x in xs)
-    if sxx <= 0:
-        return out
-    slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True)) / sxx
-    resid = sum((y - my - slope * (x - mx)) ** 2 for x, y in zip(xs, ys, strict=True))
-    se = math.sqrt(resid / (n - 2) / sxx) if n > 2 else math.inf
-    span = xs[-1] - xs[0]
-    change = slope * span
-    label = "stable"
-    if abs(change) > 0.05 and abs(slope) > 2 * se:
-        label = "rising" if slope > 0 else "falling"
-    out.update(slope_per_h=slope, change=change, label=label)
-    return out
 
 
 class HealthStore:
@@ -175,6 +147,9 @@ class HealthStore:
                 for s in stmts:
                     if s == RECOMPUTE_TRENDS:
                         self._recompute_trends()
+                    elif s == REBUILD_SUMMARIES:  # the units that have periods to order
+                        for (a,) in b.execute("SELECT DISTINCT actuator FROM periods").fetchall():
+                            self.rebuild_summary(a, self._lock_summaries([a])[a])
                     else:
                         b.execute(s)
                 b.execute(
@@ -367,6 +342,7 @@ class HealthStore:
             for a in by_act:
                 self._ensure(a)
             summaries = self._lock_summaries(sorted(by_act))
+            rebuild: list[str] = []
             for a, plist in by_act.items():
                 lo = min(p.start_t for p in plist)
                 hi = max(p.start_t for p in plist)
@@ -379,15 +355,28 @@ class HealthStore:
                     ).fetchall()
                 }
                 fresh = [p for p in plist if (p.source, float(p.start_t)) not in have]
-                if fresh:
-                    self._summarise(summaries[a], fresh)
-                    new.extend(fresh)
+                if not fresh:
+                    continue
+                new.extend(fresh)
+                rules = self.rules(a) if summaries[a]["n_periods"] else {}
+                keys = life_keys(fresh, rules)
+                last = summaries[a].get("last_key")
+                after = last is None or min(keys) > tuple(json.loads(last))
+                if after and not any(p.source in rules for p in fresh):
+                    order = sorted(range(len(fresh)), key=keys.__getitem__)
+                    summarise(summaries[a], [fresh[i] for i in order],
+                              [keys[i] for i in order])  # fmt: skip
+                else:  # before the unit's latest period: the row made again in life order
+                    rebuild.append(a)
             if new:
                 b.bulk_insert(
                     "periods", _PERIOD_COLS, [[getattr(p, c) for c in _PERIOD_COLS] for p in new]
                 )
                 for a in {p.actuator for p in new}:
-                    self._write_summary(a, summaries[a])
+                    if a in rebuild:
+                        self.rebuild_summary(a, summaries[a])
+                    else:
+                        self._write_summary(a, summaries[a])
         self._known.update(by_act)
         return len(new)
 
@@ -404,28 +393,64 @@ class HealthStore:
 
         return ingest_log(self, units, periods, alarms, gap_s)
 
-    @staticmethod
-    def _summarise(s: dict[str, Any], fresh: list[Period]) -> None:
-        s["n_periods"] = int(s["n_periods"]) + len(fresh)
-        for k in ("samples", "alarms", "bad_samples", "dropped"):
-            s[k] = int(s[k]) + sum(getattr(p, k) for p in fresh)
-        s["op_time_s"] = float(s["op_time_s"]) + sum(p.op_time_s for p in fresh)
-        first = min(p.start_t for p in fresh)
-        if s["first_start_t"] is None or first < s["first_start_t"]:
-            s["first_start_t"] = first
-        last = max(fresh, key=lambda p: p.start_t)
-        if s["last_start_t"] is None or last.start_t >= s["last_start_t"]:
-            s["last_start_t"] = last.start_t
-            s["last_period"] = _dumps(last.to_dict())
-        recent = json.loads(s["recent"] or "[]")
-        recent.extend([p.start_t, p.op_time_s, p.c_lk_ratio, p.observable_samples] for p in fresh)
-        recent.sort(key=lambda r: r[0])
-        recent = recent[-RECENT_WINDOW:]
-        s["recent"] = _dumps(recent)
-        add_usage(s, fresh)
-        tr = trend_of(recent)
-        s["trend_n"], s["trend_slope_per_h"] = tr["periods"], tr["slope_per_h"]
-        s["trend_change"], s["trend_label"] = tr["change"], tr["label"]
+    def rules(self, actuator: str) -> dict[str, SourceRule]:
+        """The life-order rule of each replayed log of ``actuator`` (``lifeorder``)."""
+        out = {}
+        for src, flights, order in self._b.execute(
+            "SELECT source, flights, sample_order FROM log_sources WHERE actuator = ?",
+            (actuator,),
+        ).fetchall():
+            out[src] = SourceRule(flights == "gap",
+                                  tuple(json.loads(order)) if order else None)  # fmt: skip
+        return out
+
+    def stream_ids(self, actuator: str) -> dict[str, Any]:
+        """``{source: StreamId}`` of the replayed logs of ``actuator`` stored with a stream
+        identity (``service.store.identity``; schema v7)."""
+        from service.store.identity import StreamId
+
+        rows = self._b.execute("SELECT source, identity FROM log_sources WHERE actuator = ? "
+                               "AND identity IS NOT NULL", (actuator,)).fetchall()  # fmt: skip
+        return {src: StreamId.loads(text) for src, text in rows}
+
+    def life(self, actuator: str) -> list[Period]:
+        """The actuator's periods in its **life order** (``lifeorder.life_order``: calendar
+        time, then given flights, then the logs' content identity; a log's periods in its
+        sample order): the one order every view reads."""
+        return life_order(self.periods(actuator), self.rules(actuator))
+
+    def rebuild_summary(self, actuator: str, s: dict[str, Any]) -> None:
+        """Make ``actuator``'s summary row ``s`` (locked by the caller's transaction) afresh
+        from its whole history in life order, and write it."""
+        rules = self.rules(actuator)
+        periods = self.periods(actuator)
+        keys = life_keys(periods, rules)
+        order = sorted(range(len(periods)), key=keys.__getitem__)
+        reset(s)
+        summarise(s, [periods[i] for i in order], [keys[i] for i in order])
+        n, last_t = self._b.execute(
+            "SELECT COUNT(*), MAX(t) FROM alarms WHERE actuator = ?", (actuator,)
+        ).fetchone()
+        s["alarm_events"] = int(n)
+        s["last_alarm_t"] = s["last_alarm_kind"] = None
+        if last_t is not None:
+            r = self._b.execute(
+                "SELECT t, kind FROM alarms WHERE actuator = ? AND t = ? ORDER BY kind DESC",
+                (actuator, last_t),
+            ).fetchone()
+            s["last_alarm_t"], s["last_alarm_kind"] = float(r[0]), r[1]
+        self._write_summary(actuator, s)
+
+    def ingest_logs(
+        self,
+        logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
+        gap_s: float,
+    ) -> list[dict[str, dict[str, Any]]]:
+        """Several replayed logs in one transaction, each unit renumbered once:
+        ``service.store.ingest.ingest_logs`` (the store ``ingest_log`` one by one gives)."""
+        from service.store.ingest import ingest_logs
+
+        return ingest_logs(self, logs, gap_s)
 
     def periods(self, actuator: str) -> list[Period]:
         """The actuator's periods, by start_t."""
@@ -573,6 +598,10 @@ class HealthStore:
                     "rul": None if r[-2] is None else json.loads(r[-2]),
                     "rul_updated_s": None if r[-1] is None else float(r[-1]),
                     "usage": usage_totals(s),
+                    "last_ratio": _opt(s.get("last_ratio"), float),
+                    "life_axis": s.get("life_axis") or "hours",
+                    "first_flight": _opt(s.get("first_flight"), int),
+                    "flights": int(s.get("n_flights") or 0),
                 }
             )
         return out

@@ -1,18 +1,19 @@
 """``HealthStore.ingest_log``: one replayed log into the store in one transaction
-(docs/store.md, "What identifies a log" and "What a re-run does"; decision record 0010)."""
+(docs/store.md, "What identifies a log" and "What a re-run does"; decision records 0033 and
+0034, which replace 0010's first-sample identity and name order)."""
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import replace
 from typing import Any
 
-from service.store.lifeorder import LogUnit, natural_key, number_flights
+from service.store.lifeorder import LogUnit, number_flights
 from service.store.records import PERIOD_FIELDS, AlarmEvent, Period
-from service.store.usage import USAGE_TOTALS
 
-__all__ = ["ingest_log"]
+__all__ = ["ingest_log", "ingest_logs"]
 
 # column order of the periods table as written (as ``health._PERIOD_COLS``)
 _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
@@ -29,14 +30,69 @@ def ingest_log(
 ) -> dict[str, dict[str, Any]]:
     """Store one replayed log in one transaction (docs/store.md, "What identifies a log").
 
-    Per unit of ``units``: a source not stored yet is added; one stored with at least as
-    many samples is kept as it is (``stored``); one stored with fewer samples (a log
-    ingested while it was written, a damaged copy) is replaced by this log's periods and
-    alarms (``superseded``), as are the periods a store before schema v4 holds under
-    ``legacy``. Then every changed unit's gap-rule flights are renumbered over its whole
-    history (``lifeorder.number_flights``) and its summary row rebuilt. Returns per unit
-    ``status`` (``new``, ``superseded``, ``stored``), ``periods_new`` and ``flights``
-    (the final flight numbers of this log's periods of the unit)."""
+    Per unit of ``units``, against the unit's stored logs (their stream identities): the
+    same stream (a copy under any name) or one that holds every sample of it (a longer or
+    repaired version, its rotation set) stores nothing (``stored``; a ``--flight`` or
+    ``--start-unix`` given for it is applied to the stored periods, with a ``note``); else
+    its periods and alarms are added and every stored log whose samples it holds all (a
+    shorter ingest, the members of a rotation set, a damaged copy) is replaced by it
+    (``superseded``, else ``new``), as is the same log stored by an older servowatch under
+    its ``legacy`` ids. A stored log it shares samples with otherwise (a common prefix, then
+    different samples) is kept beside it, with a ``note``. Then every changed unit's
+    gap-rule flights are renumbered along its life order and its summary row rebuilt.
+    Returns per unit ``status``, ``periods_new``, ``flights`` (the final flight numbers of
+    this log's periods of the unit) and ``notes``."""
+    return ingest_logs(hs, [(units, periods, alarms)], gap_s)[0]
+
+
+def ingest_logs(
+    hs: Any,
+    logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
+    gap_s: float,
+) -> list[dict[str, dict[str, Any]]]:
+    """Several replayed logs, each ``(units, periods, alarms)`` as ``ingest_log`` takes
+    them, in one transaction: each log as ``ingest_log`` stores it, in the given order,
+    then each changed unit renumbered and its summary rebuilt once (the renumbering reads
+    the unit's whole history: once per batch, not once per log). The store is the one
+    the logs give one by one (the flights are a function of the stored periods); the
+    ``flights`` returned are the final ones. Returns ``ingest_log``'s dict per log."""
+    b = hs._b
+    acts = sorted({u.actuator for units, _, _ in logs for u in units})
+    stored_as: list[dict[str, dict[str, Any]]] = []
+    changed: set[str] = set()
+    with b.transaction():
+        for a in acts:
+            hs._ensure(a)
+        summaries = hs._lock_summaries(acts)
+        for units, periods, alarms in logs:
+            res = _store_units(hs, units, periods, alarms)
+            changed.update(a for a, r in res.items() if r["changed"])
+            stored_as.append(res)
+        for a in sorted(changed):
+            _renumber(hs, a, summaries[a], gap_s)
+        out: list[dict[str, dict[str, Any]]] = []
+        for res in stored_as:
+            one = {}
+            for a, r in res.items():
+                flights = b.execute("SELECT DISTINCT flight FROM periods WHERE actuator = ? "
+                                    "AND source = ?", (a, r["source"])).fetchall()  # fmt: skip
+                one[a] = {
+                    "status": r["status"],
+                    "periods_new": 0 if r["status"] == "stored" else r["periods_new"],
+                    "flights": sorted({int(f[0]) for f in flights if f[0] is not None}),
+                    "notes": r["notes"],
+                }
+            out.append(one)
+    hs._known.update(acts)
+    return out
+
+
+def _store_units(
+    hs: Any, units: Sequence[LogUnit], periods: Iterable[Period], alarms: Iterable[AlarmEvent]
+) -> dict[str, dict[str, Any]]:
+    """One log's units written (inside the caller's transaction, summaries locked): per
+    unit its ``status``, whether its rows ``changed`` (it must be renumbered), the
+    ``source`` that holds its samples, ``periods_new`` and ``notes``."""
     by_act: dict[str, list[Period]] = defaultdict(list)
     for p in periods:
         by_act[p.actuator].append(p)
@@ -45,96 +101,173 @@ def ingest_log(
         al_by[e.actuator].append(e)
     b = hs._b
     out: dict[str, dict[str, Any]] = {}
-    acts = sorted({u.actuator for u in units})
-    with b.transaction():
-        for a in acts:
-            hs._ensure(a)
-        summaries = hs._lock_summaries(acts)
-        for u in units:
-            a = u.actuator
-            row = b.execute(
-                "SELECT samples, name FROM log_sources WHERE actuator = ? AND source = ?",
-                (a, u.source),
-            ).fetchone()
-            legacy = 0
-            if u.legacy:
-                legacy = int(b.execute(
-                    "SELECT COUNT(*) FROM periods WHERE actuator = ? AND source = ?",
-                    (a, u.legacy),
-                ).fetchone()[0])  # fmt: skip
-            mine = [replace(p, source=u.source) for p in by_act.get(a, [])]
-            if row is not None and int(row[0]) >= u.samples and not legacy:
-                status, changed = "stored", False
-                if natural_key(u.name) < natural_key(row[1]):  # life order of the names
-                    b.execute(
-                        "UPDATE log_sources SET name = ? WHERE actuator = ? AND source = ?",
-                        (u.name, a, u.source),
-                    )
-                    changed = True
-            else:
-                status = "new" if row is None and not legacy else "superseded"
-                changed = True
-                name = u.name if row is None else min(u.name, row[1], key=natural_key)
-                for src in {u.source, u.legacy} - {None}:
-                    b.execute("DELETE FROM periods WHERE actuator = ? AND source = ?",
-                              (a, src))  # fmt: skip
-                    b.execute("DELETE FROM alarms WHERE actuator = ? AND source = ?",
-                              (a, src))  # fmt: skip
-                b.execute("DELETE FROM log_sources WHERE actuator = ? AND source = ?",
-                          (a, u.source))  # fmt: skip
-                b.execute(
-                    "INSERT INTO log_sources (actuator, source, samples, name, flights) "
-                    "VALUES (?, ?, ?, ?, ?)",
-                    (a, u.source, int(u.samples), name, "gap" if u.gap else "log"),
+    for u in units:
+        a = u.actuator
+        stored = {r[0]: (int(r[1]), r[2], r[3]) for r in b.execute(
+            "SELECT source, samples, name, identity FROM log_sources WHERE actuator = ?",
+            (a,)).fetchall()}  # fmt: skip
+        notes: list[str] = []
+        keep = _stored_as(u, stored, notes)
+        mine = [replace(p, source=u.source) for p in by_act.get(a, [])]
+        changed = False
+        if keep is not None:
+            status = "stored"
+            changed = keep == u.source and _apply_given(hs, u, notes)
+        else:
+            gone = _superseded(hs, u, stored, notes)
+            mine, n_live = _replace_live(hs, u, mine, notes)
+            status = "superseded" if gone or n_live else "new"
+            changed = True
+            for src in gone | {u.source}:
+                for t in ("periods", "alarms", "log_sources"):
+                    b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?", (a, src))
+            order = [float(t) for t in u.order] or sorted(float(p.start_t) for p in mine)
+            b.execute(
+                "INSERT INTO log_sources (actuator, source, samples, name, flights, identity, "
+                "sample_order) VALUES (?, ?, ?, ?, ?, ?, ?)",
+                (a, u.source, int(u.samples), u.name, "gap" if u.gap else "log",
+                 None if u.identity is None else u.identity.dumps(),
+                 json.dumps(order)),
+            )  # fmt: skip
+            uniq = {float(p.start_t): p for p in mine}
+            if uniq:
+                b.bulk_insert("periods", _PERIOD_COLS,
+                              [[getattr(p, c) for c in _PERIOD_COLS]
+                               for p in uniq.values()])  # fmt: skip
+            ev = {(float(e.t), e.kind): replace(e, source=u.source)
+                  for e in al_by.get(a, [])}  # fmt: skip
+            if ev:
+                b.bulk_insert(
+                    "alarms",
+                    ("actuator", "t", "kind", "source", "value"),
+                    [[e.actuator, e.t, e.kind, e.source, e.value] for e in ev.values()],
                 )
-                uniq = {float(p.start_t): p for p in mine}
-                if uniq:
-                    b.bulk_insert("periods", _PERIOD_COLS,
-                                  [[getattr(p, c) for c in _PERIOD_COLS]
-                                   for p in uniq.values()])  # fmt: skip
-                ev = {(float(e.t), e.kind): replace(e, source=u.source)
-                      for e in al_by.get(a, [])}  # fmt: skip
-                if ev:
-                    b.bulk_insert(
-                        "alarms",
-                        ("actuator", "t", "kind", "source", "value"),
-                        [[e.actuator, e.t, e.kind, e.source, e.value] for e in ev.values()],
-                    )
-            flights = _renumber(hs, a, summaries[a], gap_s) if changed else None
-            if flights is None:
-                flights = {
-                    float(r[0]): r[1]
-                    for r in b.execute(
-                        "SELECT start_t, flight FROM periods WHERE actuator = ? AND source = ?",
-                        (a, u.source),
-                    ).fetchall()
-                }
-            else:
-                flights = {float(t): f for (t, src), f in flights.items() if src == u.source}
-            out[a] = {
-                "status": status,
-                "periods_new": 0 if status == "stored" else len(mine),
-                "flights": sorted({int(f) for f in flights.values() if f is not None}),
-            }
-    hs._known.update(acts)
+        prev = out.get(a)
+        out[a] = {
+            "status": status,
+            "changed": changed or bool(prev and prev["changed"]),
+            "source": keep if keep is not None else u.source,
+            "periods_new": len(mine),
+            "notes": notes,
+        }
     return out
 
 
-def _renumber(
-    hs: Any, actuator: str, s: dict[str, Any], gap_s: float
-) -> dict[tuple[float, str], int | None]:
-    """Renumber the unit's gap-rule flights over its whole history and rebuild its
-    summary row (inside the caller's transaction); returns every period's flight by
-    ``(start_t, source)``."""
+def _stored_as(u: LogUnit, stored: dict[str, tuple], notes: list[str]) -> str | None:
+    """The stored log that already holds every sample of ``u`` (None: none does)."""
+    if u.source in stored:
+        return u.source
+    for src, (_n, name, ident) in sorted(stored.items()):
+        if ident is None or u.relate is None:
+            continue
+        rel = u.relate(src)
+        if rel is not None and rel.inside:
+            how = "" if rel.exact else " (its first and last block by sample count)"
+            notes.append(f"every sample of it is stored already, from {name}{how}: "
+                         "nothing stored")  # fmt: skip
+            return src
+    return None
+
+
+def _superseded(hs: Any, u: LogUnit, stored: dict[str, tuple], notes: list[str]) -> set[str]:
+    """The stored logs of ``u``'s unit it replaces: those whose samples it holds all, and
+    the same log under an older servowatch's id; notes on the logs it overlaps."""
+    gone: set[str] = set()
+    for src, (n, name, ident) in sorted(stored.items()):
+        if ident is None:  # stored before schema v7: identified by its first sample
+            if src in u.legacy:
+                if n <= u.samples:
+                    gone.add(src)
+                else:
+                    notes.append(
+                        f"{name}, stored by an older servowatch, starts with the same sample "
+                        f"and holds more ({n} against {u.samples}): both kept; if this log is a "
+                        "shorter copy of it, rebuild the store from the logs"
+                    )
+            continue
+        rel = u.relate(src) if u.relate is not None else None
+        if rel is None:
+            continue
+        if rel.holds:
+            gone.add(src)
+        elif rel.shared:
+            notes.append(f"shares {rel.shared} samples with {name} and differs in others: "
+                         "two logs, both kept")  # fmt: skip
+    for old in u.legacy:  # a store before schema v4: no log_sources row
+        if (
+            old not in stored
+            and hs._b.execute(
+                "SELECT 1 FROM periods WHERE actuator = ? AND source = ? LIMIT 1", (u.actuator, old)
+            ).fetchone()
+        ):
+            gone.add(old)
+    return gone
+
+
+def _replace_live(
+    hs: Any, u: LogUnit, mine: list[Period], notes: list[str]
+) -> tuple[list[Period], int]:
+    """The daemon's live periods written beside this log (source ``live:...@{log_id}``)
+    that lie within its samples are replaced by the log's (with their alarms); a log period
+    that overlaps a live one kept (it straddles the log's first or last sample) is left
+    out. Returns the log's periods to store and how many live periods went."""
+    if not u.live or not mine:
+        return mine, 0
     b = hs._b
-    rules = {
-        r[0]: (r[1], r[2] == "gap")
-        for r in b.execute(
-            "SELECT source, name, flights FROM log_sources WHERE actuator = ?", (actuator,)
-        ).fetchall()
-    }
+    lo = min(p.start_t for p in mine)
+    hi = max(p.end_t for p in mine)
+    rows = b.execute("SELECT source, start_t, end_t FROM periods WHERE actuator = ? AND "
+                     "source LIKE ?", (u.actuator, "live:%")).fetchall()  # fmt: skip
+    rows = [(s, float(a), float(e)) for s, a, e in rows if s.endswith(u.live)]
+    gone = [(s, a) for s, a, e in rows if a >= lo and e <= hi]
+    kept = [(a, e) for s, a, e in rows if not (a >= lo and e <= hi)]
+    for s, a in gone:
+        b.execute("DELETE FROM periods WHERE actuator = ? AND source = ? AND start_t = ?",
+                  (u.actuator, s, a))  # fmt: skip
+    for s in {s for s, _ in gone}:
+        b.execute("DELETE FROM alarms WHERE actuator = ? AND source = ? AND t >= ? AND t <= ?",
+                  (u.actuator, s, lo, hi))  # fmt: skip
+    out = [p for p in mine if not any(p.start_t < e and p.end_t > a for a, e in kept)]
+    if gone:
+        notes.append(f"replaces {len(gone)} live period(s) the daemon stored beside this log")
+    return out, len(gone)
+
+
+def _apply_given(hs: Any, u: LogUnit, notes: list[str]) -> bool:
+    """A ``--flight``/``--start-unix`` given for a log stored already: applied to its
+    stored periods (then no longer renumbered by the gap rule). True if anything changed."""
+    if u.flight is None and u.start_unix is None:
+        return False
+    b = hs._b
+    rows = b.execute("SELECT start_t, flight, start_unix FROM periods WHERE actuator = ? "
+                     "AND source = ?", (u.actuator, u.source)).fetchall()  # fmt: skip
+    t0 = u.first_t if u.first_t is not None else min((float(r[0]) for r in rows), default=0.0)
+    upd = []
+    for t, fl, su in rows:
+        nfl = int(u.flight) if u.flight is not None else fl
+        nsu = u.start_unix + (float(t) - t0) if u.start_unix is not None else su
+        if nfl != fl or nsu != su:
+            upd.append((nfl, nsu, u.actuator, t, u.source))
+    if not upd:
+        return False
+    b.executemany("UPDATE periods SET flight = ?, start_unix = ? WHERE actuator = ? "
+                  "AND start_t = ? AND source = ?", upd)  # fmt: skip
+    if u.flight is not None:
+        b.execute("UPDATE log_sources SET flights = 'log' WHERE actuator = ? AND source = ?",
+                  (u.actuator, u.source))  # fmt: skip
+    given = " and ".join(x for x in (
+        f"flight {u.flight}" if u.flight is not None else "",
+        f"start {u.start_unix:.0f} (Unix s)" if u.start_unix is not None else "") if x)  # fmt: skip
+    notes.append(f"stored already: {given} applied to its {len(rows)} stored period(s)")
+    return True
+
+
+def _renumber(hs: Any, actuator: str, s: dict[str, Any], gap_s: float) -> None:
+    """Renumber the unit's gap-rule flights along its life order and rebuild its summary
+    row (inside the caller's transaction)."""
+    b = hs._b
     old = hs.periods(actuator)
-    now = number_flights(old, rules, gap_s)
+    now = number_flights(old, hs.rules(actuator), gap_s)
     was = {(float(p.start_t), p.source): p.flight for p in old}
     upd = [
         (p.flight, actuator, p.start_t, p.source)
@@ -146,26 +279,4 @@ def _renumber(
             "UPDATE periods SET flight = ? WHERE actuator = ? AND start_t = ? AND source = ?",
             upd,
         )
-    by_t = sorted(now, key=lambda p: (p.start_t, p.source))
-    for k in ("n_periods", "samples", "alarms", "bad_samples", "dropped"):
-        s[k] = 0
-    s["op_time_s"] = 0.0
-    for k in USAGE_TOTALS:  # rebuilt with the rest from every period (migration 5)
-        s[k] = 0
-    s["first_start_t"] = s["last_start_t"] = s["last_period"] = None
-    s["recent"] = "[]"
-    if by_t:
-        hs._summarise(s, by_t)
-    n, last_t, last_kind = b.execute(
-        "SELECT COUNT(*), MAX(t), NULL FROM alarms WHERE actuator = ?", (actuator,)
-    ).fetchone()
-    s["alarm_events"] = int(n)
-    s["last_alarm_t"] = s["last_alarm_kind"] = None
-    if last_t is not None:
-        r = b.execute(
-            "SELECT t, kind FROM alarms WHERE actuator = ? AND t = ? ORDER BY kind DESC",
-            (actuator, last_t),
-        ).fetchone()
-        s["last_alarm_t"], s["last_alarm_kind"] = float(r[0]), r[1]
-    hs._write_summary(actuator, s)
-    return {(float(p.start_t), p.source): p.flight for p in now}
+    hs.rebuild_summary(actuator, s)

@@ -8,9 +8,10 @@ monitor. All are frozen dataclasses; they validate their identity fields on cons
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
+
+from service.names import MAX_NAME_CHARS, is_unit
 
 __all__ = [
     "ActuatorKey",
@@ -26,15 +27,14 @@ __all__ = [
 
 ActuatorKey = str  # "AC001/elevator_L": aircraft / actuator
 
-_ACTUATOR_RE = re.compile(r"^[A-Za-z0-9_.\-]+/[A-Za-z0-9_.\-]+$")
-
 
 def check_actuator(actuator: object, field_name: str = "actuator") -> str:
-    """Return ``actuator`` if it reads ``AIRCRAFT/ACTUATOR`` (letters, digits, ``_.-``)."""
-    if not isinstance(actuator, str) or not _ACTUATOR_RE.match(actuator):
+    """Return ``actuator`` if it reads ``AIRCRAFT/ACTUATOR``, two names of the station's
+    grammar (``service.names``: letters, digits, ``_.-``, at most 128 each)."""
+    if not is_unit(actuator):
         raise ValueError(
-            f"{field_name}: expected 'AIRCRAFT/ACTUATOR' (letters, digits, '_', '.', '-'), "
-            f"got {actuator!r}"
+            f"{field_name}: expected 'AIRCRAFT/ACTUATOR' (letters, digits, '_', '.', '-', at "
+            f"most {MAX_NAME_CHARS} each), got {str(actuator)[:300]!r}"
         )
     return actuator
 

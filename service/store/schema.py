@@ -7,13 +7,15 @@ in ``schema_migrations``. The DDL is portable: SQLite and PostgreSQL both take t
 
 from __future__ import annotations
 
-__all__ = ["MIGRATIONS", "LATEST_VERSION", "RECENT_WINDOW", "RECOMPUTE_TRENDS"]
+__all__ = ["MIGRATIONS", "LATEST_VERSION", "RECENT_WINDOW", "RECOMPUTE_TRENDS", "REBUILD_SUMMARIES"]
 
 # periods kept in each actuator's summary row for the trend (the fleet query reads only these)
 RECENT_WINDOW = 32
 
 # data step of a migration: recompute every summary row's trend from its ``recent`` window
 RECOMPUTE_TRENDS = "-- recompute trends"
+# data step: rebuild every summary row along its unit's life order (``lifeorder.life_order``)
+REBUILD_SUMMARIES = "-- rebuild summaries"
 
 _V1: tuple[str, ...] = (
     """CREATE TABLE actuators (
@@ -132,6 +134,24 @@ _V5: tuple[str, ...] = (
     "ALTER TABLE summary ADD COLUMN usage_load_travel_j DOUBLE PRECISION NOT NULL DEFAULT 0",
 )
 
+# a log's identity from all of its samples and one life order (decision records 0033 and
+# 0034; docs/store.md, "What identifies a log"): per replayed log and unit its stream
+# identity (``service.store.identity.StreamId`` as JSON; NULL: stored before, identified by its
+# first sample, adopted when the log is replayed again) and its periods' start_t in the log's
+# sample order; per summary row where the unit stands in that order (the key of its last
+# period), its life axis, first flight and flight count, and its latest observable C_Lk ratio.
+# The data step rebuilds every summary row along the life order.
+_V7: tuple[str, ...] = (
+    "ALTER TABLE log_sources ADD COLUMN identity TEXT",
+    "ALTER TABLE log_sources ADD COLUMN sample_order TEXT",
+    "ALTER TABLE summary ADD COLUMN last_key TEXT",
+    "ALTER TABLE summary ADD COLUMN life_axis TEXT NOT NULL DEFAULT 'hours'",
+    "ALTER TABLE summary ADD COLUMN first_flight BIGINT",
+    "ALTER TABLE summary ADD COLUMN n_flights BIGINT NOT NULL DEFAULT 0",
+    "ALTER TABLE summary ADD COLUMN last_ratio DOUBLE PRECISION",
+    REBUILD_SUMMARIES,
+)
+
 # (version, description, statements): append only; never edit a released migration. A
 # statement is SQL, or RECOMPUTE_TRENDS (a data step run by the store in the same transaction)
 MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
@@ -144,6 +164,7 @@ MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
         "usage per period (travel, load-weighted travel, reversals, time under load and at pressure)",
         _V5,
     ),
+    (7, "stream identity of replayed logs, one life order in the summary", _V7),
 )
 
 LATEST_VERSION = MIGRATIONS[-1][0]

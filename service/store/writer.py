@@ -47,9 +47,11 @@ class StoreWriter:
             self._q.put((list(periods), list(alarms)))
 
     def info(self, actuator: str) -> dict[str, Any]:
-        """Cached ``{"periods": n, "rul": dict | None}`` of ``actuator`` ("AC/ACT")."""
+        """Cached ``{"periods": n, "rul": dict | None, "last_ratio": float | None}`` of
+        ``actuator`` ("AC/ACT"): its stored periods, RUL and latest observable C_Lk ratio in
+        life order (the fleet view's, ``fleet_summary``)."""
         d = self._info.get(actuator)
-        return dict(d) if d else {"periods": 0, "rul": None}
+        return dict(d) if d else {"periods": 0, "rul": None, "last_ratio": None}
 
     @property
     def pending(self) -> int:
@@ -63,7 +65,8 @@ class StoreWriter:
 
     def _load(self, store: Any) -> None:
         self._info = {
-            r["actuator"]: {"periods": r["periods"], "rul": r["rul"]} for r in store.fleet_summary()
+            r["actuator"]: {"periods": r["periods"], "rul": r["rul"], "last_ratio": r["last_ratio"]}
+            for r in store.fleet_summary()
         }
 
     def _run(self) -> None:

@@ -22,7 +22,6 @@ from __future__ import annotations
 import functools
 import json
 import math
-import re
 import struct
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal, NamedTuple
@@ -31,6 +30,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from service.compat.pydantic import construct_unchecked
+from service.names import name_problem
 from service.wire.format import (  # the wire's constants (measured channels: SI, wire order)
     BATCH_ACCEPTED,
     BATCH_DECODED,
@@ -100,7 +100,8 @@ _KIND_MEAS = ord("M")
 _HEADER = struct.Struct("<2sBBI")
 _REC = struct.Struct("<qdB" + "d" * len(CHANNELS))  # REC_BYTES
 _ALLOWED_JSON_KEYS = frozenset(("seq", "t", *CHANNELS))
-_NAME_RE = re.compile(r"^[A-Za-z0-9_.\-]+$")
+#: the largest sequence number (int64: the binary format's field, the arrays' dtype)
+SEQ_MAX = 2**63 - 1
 
 
 class MessageError(ValueError):
@@ -123,7 +124,7 @@ class MeasSample(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False, strict=False)
 
-    seq: int = Field(ge=0, description="sample counter of the publisher")
+    seq: int = Field(ge=0, le=SEQ_MAX, description="sample counter of the publisher")
     t: float = Field(description="sample time [s]")
     x_cmd: float | None = Field(None, description="position command [m]")
     i: float | None = Field(None, description="servovalve current [A]")
@@ -339,6 +340,8 @@ def _json_rows(payload: bytes) -> list[tuple[int, float, list[float | None]]]:
             raise MessageError(f"must be an integer, got {seq!r}", f"{where}seq")
         if seq < 0:
             raise MessageError(f"must be >= 0, got {seq}", f"{where}seq")
+        if seq > SEQ_MAX:  # the binary format's int64, the arrays' dtype (issue 50)
+            raise MessageError(f"must be <= {SEQ_MAX}, got {str(seq)[:40]}", f"{where}seq")
         t = _num(s.get("t"), f"{where}t", optional=False)
         vals = [_num(s.get(c), f"{where}{c}", optional=True) for c in CHANNELS]
         if rows:
@@ -617,8 +620,9 @@ def decode_output(
 
 
 def _check_name(v: str, field: str) -> str:
-    if not isinstance(v, str) or not _NAME_RE.match(v):
-        raise MessageError(f"invalid name {v!r} (letters, digits, _ . - only)", field)
+    why = name_problem(v)  # the station's one grammar (service.names)
+    if why is not None:
+        raise MessageError(why, field)
     return v
 
 

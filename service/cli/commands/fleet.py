@@ -14,7 +14,7 @@ import math
 import sys
 from typing import Any
 
-from service.edge.fleet import alarm_count, finite_or_none, rank_fleet
+from service.edge.fleet import alarm_count, finite_or_none, has_rul, rank_fleet
 from service.store import StoreError
 from service.store.cli import add_store_argument, open_store_arg
 
@@ -92,7 +92,8 @@ def _cells(r: dict[str, Any]) -> dict[str, str]:
     return {
         "rank": str(r["rank"]), "actuator": r["actuator"],
         "comm": "yes" if r["commissioned"] else "NO", "periods": str(r["periods"]),
-        "life": life_s, "ratio": _f(last.get("c_lk_ratio"), ".3f"),
+        "cond": "FAILED" if r.get("condition") == "failed" else "-",
+        "life": life_s, "ratio": _f(r.get("last_ratio"), ".3f"),
         "trend": trend, "trend_wide": f"{label} {trend}" if rate is not None else "-",
         "p_sr": _f(last.get("p_sr_min"), ".2f", 1e-6), "rul": rul,
         "p_hor": _f(iv and iv["p_horizon"], ".2f"), "alarms": str(alarm_count(r)),
@@ -102,12 +103,12 @@ def _cells(r: dict[str, Any]) -> dict[str, str]:
 
 
 #: (cell, header, width, align) of the default table (within 100 columns) and of --wide
-NARROW = (("rank", "#", 3, ">"), ("actuator", "actuator", 20, "<"), ("comm", "comm", 4, "<"),
-          ("life", "life", 8, ">"), ("ratio", "C_Lk/base", 9, ">"),
+NARROW = (("rank", "#", 3, ">"), ("actuator", "actuator", 18, "<"), ("comm", "comm", 4, "<"),
+          ("cond", "cond", 6, "<"), ("life", "life", 8, ">"), ("ratio", "C_Lk/base", 9, ">"),
           ("trend", "trend", 11, ">"), ("rul", "RUL median [90%]", 26, ">"),
           ("alarms", "alarms", 6, ">"))  # fmt: skip
 WIDE = (("rank", "#", 4, ">"), ("actuator", "actuator", 22, "<"), ("comm", "comm", 4, "<"),
-        ("periods", "periods", 7, ">"), ("life", "life", 8, ">"),
+        ("cond", "cond", 6, "<"), ("periods", "periods", 7, ">"), ("life", "life", 8, ">"),
         ("ratio", "C_Lk/base", 9, ">"), ("trend_wide", "trend", 20, ">"),
         ("p_sr", "P_SR min MPa", 12, ">"), ("rul", "RUL median [90%]", 30, ">"),
         ("p_hor", "P(horizon)", 10, ">"), ("alarms", "alarms", 6, ">"),
@@ -160,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"no actuators in {store.where}")
         return 0
     uncomm = sum(1 for r in rows if not r["commissioned"])
-    with_rul = sum(1 for r in rows if r.get("rul"))
+    with_rul = sum(1 for r in rows if has_rul(r.get("rul")))
     print(
         f"{len(rows)} actuator{'' if len(rows) == 1 else 's'} in {store.where}: {uncomm} not "
         f"commissioned, {with_rul} with a RUL (run `servowatch rul` to update)"

@@ -8,6 +8,7 @@ import math
 import sys
 import threading
 import time
+from collections import OrderedDict
 from typing import Any
 
 from service.cli.util import emit_json, fail
@@ -43,6 +44,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(p)
 
 
+#: keys whose last output ``listen`` remembers at most (the least recently seen go first)
+MAX_KEYS = 4096
+
+
 def output_line(key: str, d: dict[str, Any]) -> str:
     """One output as a line: its sample time in RFC 3339 (``t``, a Unix time; a simulated
     time stays in seconds), the key, then the fields as JSON."""
@@ -55,14 +60,20 @@ class OutputListener:
     """Decodes published outputs (``service.wire.messages.decode_output``), counting them per
     key and the malformed ones (a bad message is counted and logged on stderr, never an
     exception in Zenoh's thread); ``echo`` prints a line ``TIME KEY {json}`` per output
-    (:func:`output_line`), ``count`` of them at most."""
+    (:func:`output_line`), ``count`` of them at most. The last output of at most
+    ``max_keys`` keys is kept (least recently seen evicted, counted in ``evicted``): a
+    publisher of many keys cannot grow it without bound."""
 
-    def __init__(self, echo: bool = True, count: int = 0, out: Any = None) -> None:
+    def __init__(
+        self, echo: bool = True, count: int = 0, out: Any = None, max_keys: int = MAX_KEYS
+    ) -> None:
         self.echo, self.count = echo, count
         self.out = out if out is not None else sys.stdout
         self.received = 0
         self.malformed = 0
-        self.last: dict[str, dict[str, Any]] = {}
+        self.evicted = 0
+        self.max_keys = max(1, int(max_keys))
+        self.last: OrderedDict[str, dict[str, Any]] = OrderedDict()
         self.done = threading.Event()
         self._lock = threading.Lock()
 
@@ -84,13 +95,20 @@ class OutputListener:
                 self.malformed += 1
                 n = self.malformed
             if n <= 10 or math.log10(n).is_integer():
-                print(f"listen: malformed output on {key} ({n} so far): {e}", file=sys.stderr)
+                from service.log.escape import escape_controls
+
+                print(f"listen: malformed output on {escape_controls(key, 200)} ({n} so far): "
+                      f"{escape_controls(e, 300)}", file=sys.stderr)  # fmt: skip
             return
         with self._lock:
             if self.count and self.received >= self.count:
                 return  # --count N: exactly N, whatever arrives before the subscribers go
             self.received += 1
             self.last[key] = d
+            self.last.move_to_end(key)
+            while len(self.last) > self.max_keys:
+                self.last.popitem(last=False)
+                self.evicted += 1
             if self.echo:
                 print(output_line(key, d), file=self.out, flush=True)
             if self.count and self.received >= self.count:
@@ -99,7 +117,7 @@ class OutputListener:
     def summary(self) -> dict[str, Any]:
         with self._lock:
             return {"received": self.received, "malformed": self.malformed,
-                    "outputs": dict(sorted(self.last.items()))}  # fmt: skip
+                    "evicted": self.evicted, "outputs": dict(sorted(self.last.items()))}  # fmt: skip
 
 
 def run(args: argparse.Namespace) -> int:

@@ -3,7 +3,9 @@
 One log: the replay's summary (as before). Several logs (files, folders, glob patterns) go
 into ``--store`` in one process, in life order (``service.replay.log_order``), with a progress
 bar on stderr; each period is stamped with its flight (``--flight``, the log's flight record
-or the gap rule, ``--flight-gap-s``) and calendar time (docs/prognostics.md).
+or the gap rule, ``--flight-gap-s``) and calendar time (docs/prognostics.md). ``--jobs N``
+and ``--cluster`` (a Dask scheduler, or ``local:N``) run the batch's groups of logs on
+workers, and this process writes the store (docs/cluster.md).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ HELP = "replay an MCAP log through the monitor (as fast as possible or paced)"
 
 EXIT_FAILED_LOGS = 1  # a batch: some logs failed (named in `failed`), the others are stored
 EXIT_BAD_LOG = 2  # one log: not an MCAP log, unreadable, malformed metadata or flight record
+EXIT_CLUSTER = 3  # --cluster: no Dask scheduler reachable (nothing written)
 EXIT_STORE = 5  # the store (or --out) failed while being written: disk full, server gone
 
 
@@ -41,7 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "log", nargs="+",
         help="MCAP log(s) of `servowatch run`, an acquisition or the demo: files, folders "
-        "(their *.mcap), glob patterns or a rotation set's base name; several need --store",
+        "(their *.mcap), glob patterns or a rotation set's base name, or fsspec URLs "
+        "(file://, s3://, ...: a file, folder or pattern); several need --store",
     )  # fmt: skip
     p.add_argument(
         "--flight", type=int, default=None, metavar="N",
@@ -89,6 +93,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--jobs", type=int, default=None, metavar="N",
         help="several logs: worker processes, each taking whole actuators "
         "(default 1)",
+    )  # fmt: skip
+    p.add_argument(
+        "--cluster", default=None, metavar="tcp://HOST:PORT|local:N",
+        help="several logs: run them on the workers of a Dask scheduler at this address, or "
+        "on N worker processes of this machine (local:N); the workers must read the logs, "
+        "this process writes the store (docs/cluster.md)",
+    )  # fmt: skip
+    p.add_argument(
+        "--task-logs", type=int, default=None, metavar="K",
+        help="with --jobs or --cluster: at most K logs per task (default: a whole group of "
+        "logs sharing actuators)",
     )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
 
@@ -141,8 +156,10 @@ def run(args: argparse.Namespace) -> int:
     from service.log import rotated_files
     from service.prognostics.life import FLIGHT_GAP_S
     from service.replay import expand_logs
+    from service.replay.cluster import expand_urls, is_url
 
-    if len(args.log) == 1 and not any(c in args.log[0] for c in "*?[") \
+    urls = any(is_url(x) for x in args.log)
+    if len(args.log) == 1 and not urls and not any(c in args.log[0] for c in "*?[") \
             and not Path(args.log[0]).is_dir():  # fmt: skip
         if not rotated_files(args.log[0]):
             return fail(f"{args.log[0]}: no such log (nor a rotation set "
@@ -150,7 +167,8 @@ def run(args: argparse.Namespace) -> int:
         logs = [Path(args.log[0])]
     else:
         try:
-            logs = expand_logs(args.log)
+            logs = [u for x in args.log
+                    for u in (expand_urls(x) if is_url(x) else expand_logs([x]))]  # fmt: skip
         except FileNotFoundError as e:
             return fail(str(e))
     from service.log.flightrec import MAX_FLIGHT
@@ -195,10 +213,49 @@ def run(args: argparse.Namespace) -> int:
         pr = cfg.prognostics
         pc = PeriodConfig(silence_s=pr.period_silence_s, window_s=pr.period_window_s)
     from service.cli.util import check_outputs
+    from service.replay.cluster import local_path
 
-    inputs = [("LOG", f) for lg in logs for f in (rotated_files(lg) or [lg])]
+    inputs = [("LOG", f) for lg in logs if (lp := local_path(lg)) is not None
+              for f in (rotated_files(lp) or [lp])]  # fmt: skip
     inputs += [("--config", args.config), ("baseline", cfg.baseline if cfg is not None else None)]
     check_outputs([("--out", args.out), ("--store", store)], inputs)  # before any write
+    if args.jobs is None:
+        args.jobs = 1
+    if args.jobs < 1:
+        return fail("--jobs must be >= 1")
+    if args.task_logs is not None and args.task_logs < 1:
+        return fail("--task-logs must be >= 1")
+    pooled = len(logs) > 1 or urls
+    if args.cluster and args.jobs > 1:
+        return fail("--jobs and --cluster: give one (local:N is N processes of this machine)")
+    if args.cluster:
+        from service.replay.cluster import check_cluster
+
+        try:
+            check_cluster(args.cluster)
+        except ValueError as e:
+            return fail(str(e))
+    pool = None
+    if pooled and args.cluster:
+        from service.replay.cluster import ClusterError, DaskPool
+
+        try:
+            pool = DaskPool(args.cluster)  # before the store: unreachable, nothing written
+        except ClusterError as e:
+            return fail(str(e), EXIT_CLUSTER)
+    try:
+        return _run_checked(args, logs, cfg, monitor_config, baseline, store, pc, gap, pool,
+                            pooled)  # fmt: skip
+    finally:
+        if pool is not None:
+            pool.close()
+
+
+def _run_checked(args, logs, cfg, monitor_config, baseline, store, pc, gap, pool,
+                 pooled) -> int:  # fmt: skip
+    """``run`` once the arguments are checked and the cluster (``pool``) connected."""
+    from pathlib import Path
+
     if store is not None:
         from service.store import StoreError, open_store
 
@@ -206,16 +263,12 @@ def run(args: argparse.Namespace) -> int:
             open_store(store).close()  # fail fast, naming --store
         except StoreError as e:
             return fail(f"--store: {e}")
-    if args.jobs is None:
-        args.jobs = 1
-    if args.jobs < 1:
-        return fail("--jobs must be >= 1")
-    if len(logs) > 1:
+    if pooled:
         if store is None:
-            return fail("several logs go into a store: give --store")
+            return fail("several logs, or logs by URL, go into a store: give --store")
         if args.out or args.publish or args.speed is not _UNSET or args.foxglove is not None:
-            return fail("--out, --publish, --speed and --foxglove take one log")
-        return _run_many(args, logs, store, monitor_config, baseline, pc, gap)
+            return fail("--out, --publish, --speed and --foxglove take one local log")
+        return _run_many(args, logs, store, monitor_config, baseline, pc, gap, pool)
     if args.speed is _UNSET:
         args.speed = 1.0 if args.foxglove is not None else None
     live = None
@@ -300,14 +353,21 @@ def _run(args, logs, cfg, monitor_config, baseline, store, pc, gap, live) -> int
     return 0
 
 
-def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
-    """Several logs into ``store`` in one process (module docstring)."""
+def _run_many(args, logs, store, monitor_config, baseline, pc, gap, pool=None) -> int:
+    """Several logs into ``store``: in this process, or on ``--jobs`` processes or the
+    ``--cluster``'s workers (``pool``, connected) with this process writing the store."""
     import time
+    from dataclasses import asdict
 
     from service.replay import StoreWriteError, log_order, replay_many
+    from service.replay.cluster import BatchReport, ProcessPool, is_url
 
     w0 = time.perf_counter()
-    logs = log_order(logs)
+    if not any(is_url(p) for p in logs):
+        logs = log_order(logs)  # else ordered where the logs are read (on the workers)
+    report = BatchReport()
+    if pool is None and (args.jobs > 1 or any(is_url(p) for p in logs)):
+        pool = ProcessPool(args.jobs)
     from tqdm import tqdm
 
     bar = tqdm(total=len(logs), desc="replay", unit="log", file=sys.stderr,
@@ -341,8 +401,8 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
 
     try:
         replay_many(logs, store, on_log=on_log, flight_gap_s=gap, monitor_config=monitor_config,
-                    baseline=baseline, period_config=pc, jobs=args.jobs,
-                    tick=lambda: bar.update(1))  # fmt: skip
+                    baseline=baseline, period_config=pc, pool=pool, report=report,
+                    task_logs=args.task_logs, tick=lambda: bar.update(1))  # fmt: skip
     except StoreWriteError as e:
         bar.close()
         return fail(f"{e}; stored so far: {len(done)} of {len(logs)} logs (each whole); run "
@@ -353,6 +413,9 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
     out = {"logs": len(logs), "failed": failed, **totals, "time_checks": checks, "wall_s": wall,
            "actuators": {a: {"flights": len(f), "first": min(f), "last": max(f)}
                          for a, f in sorted(units.items())}}  # fmt: skip
+    if pool is not None:
+        out["pool"] = report.pool
+        out["workers"] = {w: asdict(d) for w, d in sorted(report.workers.items())}
     if args.json:
         emit_json(out)
     else:
@@ -368,6 +431,11 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap) -> int:
             print(f"  time checks {c['log']} {c['actuator']}: {counts}")
         if totals["corrupt_chunks"]:
             print(f"  corrupt chunks skipped: {totals['corrupt_chunks']}")
+        if pool is not None:
+            print(f"  on {report.pool}:")
+            for w, d in sorted(report.workers.items()):
+                print(f"    {w}: {d.tasks} task(s), {d.logs} log(s) ({d.failed} failed), "
+                      f"{d.samples} samples, busy {d.busy_s:.1f} s")  # fmt: skip
         for f in failed:
             print(f"  failed: {f['error']}")
     return EXIT_FAILED_LOGS if failed else 0

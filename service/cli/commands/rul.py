@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
             saved = "the RUL was stored" if not args.no_save else "nothing was stored"
             with writing("--png", args.png, so_far=saved):
                 png = str(
-                    plot_rul_fan(history_of(target, store.periods(target)), prior, cfg, args.png)
+                    plot_rul_fan(history_of(target, store.life(target)), prior, cfg, args.png)
                 )
     wall = time.perf_counter() - t0
     if args.json:
@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
             f"{_fmt(r.get(f'median_{u}'))} [{_fmt(r.get(f'lo_{u}'))}, {_fmt(r.get(f'hi_{u}'))}] {u}"
         )
         print(
-            f"{r['actuator']:<24}{_fmt(r['last_ratio'], '.2f'):>7}{r.get('model', '-'):>13}"
+            f"{r['actuator']:<24}{_fmt(r['last_ratio'], '.2f'):>7}{r.get('model') or r.get('status', '-'):>13}"
             f"{iv:>28}{_fmt(r.get('median_days')):>8}{_fmt(r['p_horizon'], '.2f'):>7}"
         )
     if png:

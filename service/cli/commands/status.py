@@ -6,7 +6,7 @@ import argparse
 import math
 
 from service.cli.util import emit_json
-from service.edge.fleet import rul_interval
+from service.edge.fleet import condition_of, rul_interval
 from service.edge.status import query_status
 
 NAME = "status"
@@ -22,7 +22,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _fmt(v, spec: str = ".3g") -> str:
-    return "-" if v is None else format(v, spec)
+    """A number as ``spec``, ``-`` for anything else (None, a string, NaN: a reply is
+    input, every field is checked where it is printed)."""
+    n = _num(v)
+    return "-" if n is None else format(n, spec)
+
+
+def _s(v, limit: int = 200) -> str:
+    """A reply's value shown on the terminal: its control characters escaped (a reply
+    cannot move the cursor, clear the screen or forge a line), cut to ``limit``."""
+    from service.log.escape import escape_controls
+
+    return "-" if v is None else escape_controls(v, limit)
+
+
+def _int(v) -> str:
+    """A counter, ``-`` when it is not a number."""
+    n = _num(v)
+    return "-" if n is None else f"{n:.0f}"
+
+
+def _strs(v) -> list[str]:
+    """The strings of a list field (anything else left out), escaped."""
+    return [_s(x, 80) for x in v if isinstance(x, str)] if isinstance(v, list) else []
+
+
+def _dict(v) -> dict:
+    return v if isinstance(v, dict) else {}
 
 
 def _num(v) -> float | None:
@@ -42,10 +68,13 @@ def format_rul(rul: dict | None) -> str:
     that counts flights: flights, its 90 % interval and calendar days where known), ``RUL
     120 h [30-400]`` (operating hours), ``RUL - (insufficient history)``, ``RUL none
     predicted``, or ``RUL -`` without one."""
-    iv = rul_interval(rul if isinstance(rul, dict) else None)
+    try:
+        iv = rul_interval(rul if isinstance(rul, dict) else None)
+    except (TypeError, ValueError, KeyError):  # a reply's RUL of the wrong shape
+        return "RUL ?"
     if iv is None:
         return "RUL -"
-    med = iv["median"]
+    med = _num(iv["median"])
     if med is None:
         why = rul.get("status")
         if why == "insufficient history":
@@ -53,7 +82,7 @@ def format_rul(rul: dict | None) -> str:
         return "RUL none predicted" if rul.get("periods") else "RUL -"
     unit = ("flight" if round(med) == 1 else "flights") if iv["unit"] == "flights" else "h"
     text = f"RUL {med:.0f} {unit} [{_fmt(iv['lo'], '.0f')}-{_fmt(iv['hi'], '.0f')}]"
-    if iv["unit"] == "flights" and iv["median_days"] is not None:
+    if iv["unit"] == "flights" and _num(iv["median_days"]) is not None:
         text += f" ~{iv['median_days']:.0f} d"
     return text
 
@@ -63,12 +92,12 @@ def format_unit(a: dict) -> list[str]:
     adds or reorders estimate fields changes nothing here): counters; C_Lk with its
     1-sigma [m^3/(s Pa)], the leak and supply ratios over the baseline, the NIS in band;
     then silence, active alarms, commissioning and baseline version, periods and RUL."""
-    est = a.get("est") if isinstance(a.get("est"), dict) else {}
-    health = a.get("health") if isinstance(a.get("health"), dict) else {}
+    est, health = _dict(a.get("est")), _dict(a.get("health"))
     c_lk, c_sig = _num(est.get("c_lk")), _num(est.get("c_lk_sigma"))
     head = (
-        f"  {a.get('aircraft')}/{a.get('actuator')}: {a.get('samples')} samples, "
-        f"dropped {a.get('dropped')}, gaps {a.get('gaps')}, bad {a.get('bad_total', 0)}"
+        f"  {_s(a.get('aircraft'))}/{_s(a.get('actuator'))}: {_int(a.get('samples'))} samples, "
+        f"dropped {_int(a.get('dropped'))}, gaps {_int(a.get('gaps'))}, "
+        f"bad {_int(a.get('bad_total', 0))}"
     )
     ind = (
         f"    C_Lk {_fmt(c_lk)} +- {_fmt(c_sig, '.2g')} m^3/(s Pa), "
@@ -82,16 +111,20 @@ def format_unit(a: dict) -> list[str]:
     alarms = [x for x in a.get("alarms") or [] if isinstance(x, dict)]
     if alarms:
         flags.append(
-            "ALARM " + ", ".join(f"{x.get('kind')} ({_fmt(_num(x.get('value')))})" for x in alarms)
+            "ALARM "
+            + ", ".join(f"{_s(x.get('kind'), 40)} ({_fmt(x.get('value'))})" for x in alarms)
         )
     else:
         flags.append("no alarm")
     if a.get("commissioned") is False:
         flags.append("NOT COMMISSIONED (default baseline)")
     elif a.get("commissioned"):
-        flags.append(f"commissioned, baseline v{a.get('baseline_version')}")
+        flags.append(f"commissioned, baseline v{_int(a.get('baseline_version'))}")
     if "periods" in a:
-        flags.append(f"{plural(a['periods'], 'period')}, {format_rul(a.get('rul'))}")
+        flags.append(f"{plural(_num(a['periods']), 'period')}, {format_rul(a.get('rul'))}")
+        cond, why = condition_of(a)
+        if cond == "failed":
+            flags.append(f"FAILED: {why}")
     return [head, ind, "    " + "; ".join(flags)]
 
 
@@ -108,9 +141,11 @@ def _size(n) -> str:
 
 
 def plural(n, one: str, many: str | None = None) -> str:
-    """``1 period``, ``3 periods``, ``- periods`` (``many``: the plural when not ``one + s``)."""
-    word = one if n == 1 else (many or one + "s")
-    return f"{'-' if n is None else n} {word}"
+    """``1 period``, ``3 periods``, ``- periods`` (``many``: the plural when not ``one + s``;
+    ``n`` a count, anything else shown as ``-``)."""
+    v = _num(n)
+    word = one if v == 1 else (many or one + "s")
+    return f"{'-' if v is None else f'{v:.0f}'} {word}"
 
 
 def format_log(st: dict) -> list[str]:
@@ -120,7 +155,7 @@ def format_log(st: dict) -> list[str]:
     paths = st.get("log") if isinstance(st.get("log"), list) else []
     ret = st.get("log_retention") if isinstance(st.get("log_retention"), dict) else None
     if paths:
-        text = f"  log {paths[-1]}"
+        text = f"  log {_s(paths[-1], 300)}"
         if ret is not None:
             lim = [
                 f"{_size(ret.get('keep_bytes'))}" if ret.get("keep_bytes") else None,
@@ -134,67 +169,82 @@ def format_log(st: dict) -> list[str]:
             )  # fmt: skip
             last = ret.get("last_deleted") or []
             if last and isinstance(last[-1], dict):
-                text += f", the last {last[-1].get('path')} (ended {last[-1].get('end')})"
+                text += (f", the last {_s(last[-1].get('path'), 300)} "
+                         f"(ended {_s(last[-1].get('end'), 40)})")  # fmt: skip
         out.append(text)
     store = st.get("store")
-    out.append(f"  store {store.get('where')}" if isinstance(store, dict) else "  store: none")
+    out.append(f"  store {_s(store.get('where'), 300)}" if isinstance(store, dict) else
+               "  store: none")  # fmt: skip
     return out
 
 
 def format_status(daemons: dict) -> str:
-    """Human-readable table of the daemons' status."""
+    """Human-readable table of the daemons' status: every field checked as it is printed
+    (``-`` for one that is not what it should be), every string escaped, the fields and
+    units the reply check left out named (``BAD FIELD``, ``BAD UNIT``)."""
     lines = []
     for key, st in sorted(daemons.items()):
         if not isinstance(st, dict) or "malformed" in st or "error" in st:
             why = st.get("malformed") or st.get("error") if isinstance(st, dict) else st
-            lines.append(f"{key!r}: MALFORMED reply ({why}), ignored")
+            lines.append(f"{_s(repr(key))}: MALFORMED reply ({_s(why)}), ignored")
             continue
         if "name_mismatch" in st:  # the key's name is the replier's (its certificate's)
             lines.append(
-                f"{key}: NAME MISMATCH: the reply claims {st['name_mismatch']!r}; "
+                f"{_s(key)}: NAME MISMATCH: the reply claims {_s(repr(st['name_mismatch']))}; "
                 "its units are not believed"
             )
             continue
-        lat = st.get("latency_ms") or {}
+        lat = _dict(st.get("latency_ms"))
         lines.append(
-            f"{key}: pid {st.get('pid')} up {_fmt(st.get('uptime_s'), '.0f')} s, "
-            f"model {st.get('model') or '-'}, "
-            f"{st.get('samples')} samples, {st.get('dropped')} dropped, {st.get('bad')} bad, "
+            f"{_s(key)}: pid {_int(st.get('pid'))} up {_fmt(st.get('uptime_s'), '.0f')} s, "
+            f"model {_s(st.get('model') or '-', 40)}, "
+            f"{_int(st.get('samples'))} samples, {_int(st.get('dropped'))} dropped, "
+            f"{_int(st.get('bad'))} bad, "
             f"latency p50 {_fmt(lat.get('p50'))} ms p99 {_fmt(lat.get('p99'))} ms"
         )
+        for f in st.get("bad_fields") or ():
+            lines.append(f"  BAD FIELD {_s(f, 80)}: wrong type, not shown")
+        for name, why in _dict(st.get("bad_units")).items():
+            lines.append(f"  BAD UNIT {_s(repr(name), 100)}: {_s(why)}, not shown")
+        more = (_num(st.get("bad_units_total")) or 0) - len(_dict(st.get("bad_units")))
+        if more > 0:
+            lines.append(f"  ... and {more:.0f} more bad units")
         if st.get("log_failure"):
-            lines.append(f"  DEGRADED: the MCAP log failed: {st['log_failure']}")
+            lines.append(f"  DEGRADED: the MCAP log failed: {_s(st['log_failure'])}")
         lines.extend(format_log(st))
-        g = st.get("group")
+        g = _dict(st.get("group"))
         if g:
             lines.append(
-                f"  group {g.get('name')}: members {', '.join(g.get('members') or [])}"
-                f"{'' if g.get('joined') else ' (joining)'}; {g.get('takeovers')} units taken "
-                f"over, {g.get('released')} released, {g.get('held_units')} held"
+                f"  group {_s(g.get('name'), 80)}: members {', '.join(_strs(g.get('members')))}"
+                f"{'' if g.get('joined') else ' (joining)'}; {_int(g.get('takeovers'))} units "
+                f"taken over, {_int(g.get('released'))} released, {_int(g.get('held_units'))} held"
             )
-            for unit, u in sorted((g.get("unmonitored") or {}).items()):
+            for unit, u in sorted(_dict(g.get("unmonitored")).items()):
                 lines.append(
-                    f"  UNMONITORED {unit}: no member's health output for more than "
-                    f"{_fmt(g.get('unmonitored_s'), 'g')} s (owner: {u.get('owner') or '-'})"
+                    f"  UNMONITORED {_s(unit, 260)}: no member's health output for more than "
+                    f"{_fmt(g.get('unmonitored_s'), 'g')} s (owner: "
+                    f"{_s(_dict(u).get('owner') or '-', 80)})"
                 )
-        fx = st.get("foxglove")
+        fx = _dict(st.get("foxglove"))
         if fx:
-            gd = fx.get("guard") or {}
+            gd = _dict(fx.get("guard"))
             mem = (
-                f", {gd.get('connections')}/{gd.get('max_connections')} viewers, "
-                f"{_fmt((gd.get('buffered_bytes') or 0) / 2**20, '.1f')} of "
-                f"{_fmt((gd.get('memory_bound_bytes') or 0) / 2**20, '.0f')} MiB buffered"
+                f", {_int(gd.get('connections'))}/{_int(gd.get('max_connections'))} viewers, "
+                f"{_fmt((_num(gd.get('buffered_bytes')) or 0) / 2**20, '.1f')} of "
+                f"{_fmt((_num(gd.get('memory_bound_bytes')) or 0) / 2**20, '.0f')} MiB buffered"
                 if gd
                 else ""
             )
             lines.append(
-                f"  foxglove ws://{fx.get('listen')}: {fx.get('subscribed_topics')} topics subscribed, "
-                f"{fx.get('sent')} sent, {fx.get('dropped')} dropped{mem}"
+                f"  foxglove ws://{_s(fx.get('listen'), 80)}: {_int(fx.get('subscribed_topics'))} "
+                f"topics subscribed, {_int(fx.get('sent'))} sent, {_int(fx.get('dropped'))} "
+                f"dropped{mem}"
             )
         if st.get("feed_failure"):
-            lines.append(f"  DEGRADED: {st['feed_failure']}")
-        for _name, a in sorted(st.get("actuators", {}).items()):
-            lines.extend(format_unit(a))
+            lines.append(f"  DEGRADED: {_s(st['feed_failure'])}")
+        for _name, a in sorted(_dict(st.get("actuators")).items()):
+            if isinstance(a, dict):
+                lines.extend(format_unit(a))
     return "\n".join(lines) if lines else "no daemon answered"
 
 

@@ -51,6 +51,9 @@ def slim(daemons: dict[str, dict[str, Any]], queried_s: float) -> dict[str, Any]
                 "log_failure": st.get("log_failure"),
                 "silent": list(st.get("silent") or []),
                 "unmonitored": sorted((st.get("group") or {}).get("unmonitored") or {}),
+                # what the reply check left out (service.edge.status): named, not shown
+                "bad_fields": list(st.get("bad_fields") or []),
+                "bad_units": sorted(st.get("bad_units") or {}),
             }
         )
         for a in acts.values():

@@ -8,7 +8,7 @@ import time
 from typing import Any
 
 from service.edge.fleet import finite_or_none as _finite
-from service.edge.fleet import rank_fleet
+from service.edge.fleet import has_rul, rank_fleet
 from service.jsonutil import jsonable
 from service.prognostics.rul import history_of
 from service.store import HealthStore
@@ -40,8 +40,10 @@ def unit_status(row: dict[str, Any]) -> tuple[str, str]:
     - ``watch``: alarms recorded, or the C_Lk-ratio trend is rising;
     - ``ok``: none of these.
     """
-    if not row.get("commissioned"):
+    if not row.get("commissioned") and not row.get("condition"):
         return "uncommissioned", "no baseline: run `servowatch calibrate --actuator`"
+    if row.get("condition") == "failed":
+        return "critical", row.get("condition_reason") or "past the failure threshold"
     rul = row.get("rul") or {}
     if rul.get("warning"):
         p = _finite(rul.get("p_horizon"))
@@ -82,9 +84,7 @@ def fleet_view(store: HealthStore, now_s: float | None = None) -> dict[str, Any]
             "generated_s": time.time() if now_s is None else now_s,
             "actuators": len(ranked),
             "counts": counts,
-            "with_rul": sum(
-                1 for r in ranked if (r.get("rul_interval") or {}).get("median_h") is not None
-            ),
+            "with_rul": sum(1 for r in ranked if has_rul(r.get("rul"))),
             "horizon_h": max(horizons) if horizons else None,
             "horizon": max(hz) if hz else None,
             "horizon_unit": unit,
@@ -102,7 +102,7 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
     check_actuator(actuator)
     if not store.has_actuator(actuator):
         raise UnknownActuatorError(actuator)
-    periods = sorted(store.periods(actuator), key=lambda p: p.start_t)
+    periods = store.life(actuator)  # the unit's life order, as every view
     hist = history_of(actuator, periods)
     rows = []
     for p, t_h, y in zip(periods, hist.t_h, hist.y, strict=True):

@@ -147,7 +147,8 @@ function renderTable() {
     const st = el("td", { class: "status", title: u.status_reason || "" });
     st.appendChild(el("span", { class: "badge " + u.status }, STATUS_LABEL[u.status] || u.status));
     tr.appendChild(st);
-    tr.appendChild(el("td", { class: "ratio" }, fmt(last.c_lk_ratio, 3)));
+    // the latest observable C_Lk ratio in the unit's life order (the fleet view's, rul's)
+    tr.appendChild(el("td", { class: "ratio" }, fmt(u.last_ratio, 3)));
     tr.appendChild(el("td", { class: "trend " + (tr_.label || "") },
       slope === null ? "-" : `${tr_.label || ""} ${slope >= 0 ? "+" : ""}${slope.toFixed(2)} ${rate.unit}`.trim()));
     tr.appendChild(el("td", { class: "psr" }, fmt(last.p_sr_min, 2, 1e-6)));
@@ -215,6 +216,13 @@ function renderDaemons() {
     if (d.log_failure) c.appendChild(el("div", { class: "rising" }, `log failed: ${d.log_failure}`));
     if (d.unmonitored && d.unmonitored.length) {
       c.appendChild(el("div", { class: "rising" }, `unmonitored: ${d.unmonitored.join(", ")}`));
+    }
+    // what the reply check left out (service/edge/status.py): named, the rest shown
+    if (d.bad_units && d.bad_units.length) {
+      c.appendChild(el("div", { class: "rising" }, `bad units (not shown): ${d.bad_units.join(", ")}`));
+    }
+    if (d.bad_fields && d.bad_fields.length) {
+      c.appendChild(el("div", { class: "rising" }, `bad fields (not shown): ${d.bad_fields.join(", ")}`));
     }
     list.appendChild(c);
   }
