@@ -37,6 +37,11 @@ issue 10 in brackets):
   (``service.prognostics.indicators``: the median of the estimates whose own sigma is under
   ``obs_sigma_ratio`` x baseline; ``indicator_increase``); "-" where no estimate there is
   that sure, and the indicator abstains.
+- ``pool%`` (no target; JSON and recap only): the same for the pooled C_Lk the period
+  records beside the indicator (``c_lk_pooled``: the pool of its last row within the
+  observability limit ``pooled_limit``; ``pooled_increase``; decisions/0025), None where
+  no row passes. Each leak member's JSON row also has ``ind_pool%`` and ``ind_pool_sd``:
+  the last row's pooled reading error [%] and its sigma / baseline.
 """
 
 from __future__ import annotations
@@ -56,6 +61,18 @@ TARGETS = {"inc%": 10.0, "psr%": 5.0, "delay": 1.0, "false": 0, "nis%": 90.0, "r
 IND_WINDOW_S = 2.0  # the generator keeps the last 2.5 s free of leak and supply changes
 
 
+def _window_period(t, est, health, c_lk_base, window_s, pooled=None):
+    """The last ``window_s`` of the rows as one operating period (``periods_of_rows``, its
+    default observability rules, no settling time)."""
+    from service.prognostics.indicators import PeriodConfig, periods_of_rows
+
+    w = t >= t[-1] - window_s
+    cfg = PeriodConfig(settle_s=0.0, window_s=float("inf"))
+    (period,) = periods_of_rows("suite/member", c_lk_base, "suite", t[w], est[w], health[w],
+                                config=cfg, pooled=None if pooled is None else pooled[w])  # fmt: skip
+    return period
+
+
 def indicator_increase(
     t: np.ndarray,
     est: np.ndarray,
@@ -68,15 +85,28 @@ def indicator_increase(
     observability threshold, no settling time) over the last ``window_s`` of the rows taken as
     one operating period, against the true increase ``inc_true`` [m^3/s/Pa]; None where the
     indicator has no observable estimate there."""
-    from service.prognostics.indicators import PeriodConfig, periods_of_rows
-
-    w = t >= t[-1] - window_s
-    cfg = PeriodConfig(settle_s=0.0, window_s=float("inf"))
-    (period,) = periods_of_rows("suite/member", c_lk_base, "suite", t[w], est[w], health[w],
-                                config=cfg)  # fmt: skip
+    period = _window_period(t, est, health, c_lk_base, window_s)
     if not np.isfinite(period.c_lk_mean):
         return None
     return 100.0 * ((period.c_lk_mean - c_lk_base) - inc_true) / inc_true
+
+
+def pooled_increase(
+    t: np.ndarray,
+    est: np.ndarray,
+    health: np.ndarray,
+    pooled: np.ndarray,
+    c_lk_base: float,
+    inc_true: float,
+    window_s: float = IND_WINDOW_S,
+) -> float | None:
+    """As ``indicator_increase`` for the pooled C_Lk the period records beside the indicator
+    (``c_lk_pooled`` from ``pooled``, ``BankRows.pooled``; decisions/0025); None where no row
+    of the window passes ``pooled_limit``."""
+    period = _window_period(t, est, health, c_lk_base, window_s, pooled)
+    if not np.isfinite(period.c_lk_pooled):
+        return None
+    return 100.0 * ((period.c_lk_pooled - c_lk_base) - inc_true) / inc_true
 
 
 def indicator_window(
@@ -208,10 +238,14 @@ def run_one(
     if dc.leak_shape is not None:
         out["inc%"] = 100.0 * ((c_mean - base.c_lk) - inc_true) / inc_true
         out["ind%"] = indicator_increase(t, rows.est, rows.health, base.c_lk, inc_true)
+        out["pool%"] = pooled_increase(t, rows.est, rows.health, rows.pooled, base.c_lk,
+                                       inc_true)  # fmt: skip
         out.update(indicator_window(t, est["c_lk"], est["c_lk_sigma"], base.c_lk))
+        out["ind_pool_sd"] = float(rows.pooled[-1, 1] / base.c_lk)
+        out["ind_pool%"] = float(100.0 * ((rows.pooled[-1, 0] - base.c_lk) - inc_true) / inc_true)
         out["bias%"] = None
     else:
-        out["inc%"] = out["ind%"] = None
+        out["inc%"] = out["ind%"] = out["pool%"] = None
         out["bias%"] = 100.0 * (c_mean - base.c_lk) / base.c_lk
     worst = None
     ends = [c[1] for c in dc.supply_changes]
@@ -431,6 +465,7 @@ def recap(by_seed: dict[int, list[dict]]) -> dict:
             per_figure[fig] = per_figure.get(fig, 0) + 1
     leaks = [r for rows in by_seed.values() for r in rows if r.get("inc%") is not None]
     read = [r["ind%"] for r in leaks if r.get("ind%") is not None]
+    pool = [r["pool%"] for r in leaks if r.get("pool%") is not None]
     return {
         "members": sum(len(rows) for rows in by_seed.values()),
         "missing": len(failing),
@@ -442,6 +477,10 @@ def recap(by_seed: dict[int, list[dict]]) -> dict:
             "inc_misses": sum(abs(r["inc%"]) > TARGETS["inc%"] for r in leaks),
             "read": len(read),
             "read_misses": sum(abs(v) > TARGETS["inc%"] for v in read),
+        },
+        "pooled": {  # recorded beside the indicator (decisions/0025)
+            "read": len(pool),
+            "read_misses": sum(abs(v) > TARGETS["inc%"] for v in pool),
         },
     }
 
@@ -458,6 +497,12 @@ def print_recap(r: dict) -> None:
         f"{ind['inc_misses']}; the health indicator of the last {IND_WINDOW_S:g} s reads "
         f"{ind['read']} of them (abstains on {ind['leaks'] - ind['read']}), "
         f"{ind['read_misses']} off by more than 10 %"
+    )
+    pool = r["pooled"]
+    print(
+        f"the pooled C_Lk recorded beside it (decisions/0025) reads {pool['read']} of them "
+        f"(abstains on {ind['leaks'] - pool['read']}), {pool['read_misses']} off by more "
+        "than 10 %"
     )
 
 

@@ -1,7 +1,7 @@
 """The station's names: one grammar for every aircraft, actuator, station, shard and group
 name, whoever reads it (the intake's key check, the status reply's check, the metrics'
 labels, the store, the configuration). A name is 1 to :data:`MAX_NAME_CHARS` letters,
-digits, ``_``, ``.`` and ``-`` (docs/security.md, "The unit table is bounded per source").
+digits, ``_``, ``.`` and ``-`` (docs/security.md, "Against an insider": the unit table is bounded per source).
 
 The bound matters as much as the alphabet: a name the intake admits reaches every reader,
 so each of them must accept every name the intake admits (issue 50: a 129-character actuator

@@ -176,8 +176,9 @@ def write_logs(units: list[dict], flights: int, thr: float, folder: Path, seed: 
         u["flown"] = len(u["ratio"])
 
 
-def run(seed: int, units: int, flights: int, work: Path) -> dict:
-    """Generate, ingest through the CLI, evaluate; the metrics of ``fleet-sim --evaluate``."""
+def run(seed: int, units: int, flights: int, work: Path, robust_trend: bool = False) -> dict:
+    """Generate, ingest through the CLI, evaluate; the metrics of ``fleet-sim --evaluate``
+    (``robust_trend``: the RUL's opt-in trend model and Student-t readings)."""
     from service.cli import main
     from service.prognostics.rul import default_threshold_ratio
 
@@ -201,22 +202,23 @@ def run(seed: int, units: int, flights: int, work: Path) -> dict:
         "units": [{k: v for k, v in u.items() if k != "ratio_schedule"} for u in truth],
     }
     (work / "truth.json").write_text(json.dumps(tr, default=_plain) + "\n")
-    return score(work)
+    return score(work, robust_trend)
 
 
 def _plain(v):
     return v.item() if hasattr(v, "item") else str(v)
 
 
-def score(work: Path) -> dict:
-    """The metrics of ``fleet-sim --evaluate`` on the store and truth kept in ``work``."""
+def score(work: Path, robust_trend: bool = False) -> dict:
+    """The metrics of ``fleet-sim --evaluate`` on the store and truth kept in ``work``
+    (``robust_trend``: the RUL's opt-in trend model and Student-t readings)."""
     from service.replay.fleetsim import FleetSimConfig, evaluate_store
     from service.store import open_store
 
     tr = json.loads((work / "truth.json").read_text())
     units, flights, seed = len(tr["units"]), tr["flights"], tr["seed"]
     cfg = FleetSimConfig(actuators=units, flights=flights, seed=seed,
-                         threshold_ratio=tr["threshold_ratio"])  # fmt: skip
+                         threshold_ratio=tr["threshold_ratio"], robust_trend=robust_trend)  # fmt: skip
     with open_store(work / "acceptance.sqlite") as st:
         ev = evaluate_store(st, tr, cfg)
     ev["fleet"] = {"seed": seed, "units": units, "flights": flights,
@@ -232,6 +234,8 @@ def main_cli() -> int:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--work", default=None, metavar="DIR", help="keep logs, store and truth")
     ap.add_argument("--score-only", action="store_true", help="score the store kept in --work")
+    ap.add_argument("--robust-trend", action="store_true",
+                    help="the RUL's opt-in trend model and Student-t readings")  # fmt: skip
     a = ap.parse_args()
     import contextlib
     import io
@@ -244,7 +248,8 @@ def main_cli() -> int:
     ):
         work = Path(a.work) if a.work else Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
-        ev = score(work) if a.score_only else run(a.seed, a.units, a.flights, work)
+        ev = (score(work, a.robust_trend) if a.score_only
+              else run(a.seed, a.units, a.flights, work, a.robust_trend))  # fmt: skip
     keys = ("alpha_lambda_pct", "interval_coverage_pct", "interval_coverage_all_pct",
             "interval_width_median_flights",
             "kendall_tau", "kendall_tau_min", "kendall_tau_mid", "healthy_max_p_horizon",

@@ -80,6 +80,11 @@ def test_scrape_is_the_status_snapshot(leaking):
     assert v("servowatch_unit_supply_ratio") == pytest.approx(a["health"]["supply_ratio"], 1e-3)
     assert v("servowatch_unit_c_lk") == pytest.approx(a["est"]["c_lk"], rel=1e-3)
     assert v("servowatch_unit_nis_in_band_ratio") == pytest.approx(a["nis_in_band"], abs=0.02)
+    # the pooled C_Lk (issue 51, shown beside the indicator): the open period's, near 4x nominal
+    pooled = a["c_lk_pooled"]
+    assert v("servowatch_unit_c_lk_pooled") == pytest.approx(pooled["value"], rel=1e-3)
+    assert v("servowatch_unit_c_lk_pooled_sigma") == pytest.approx(pooled["sigma"], rel=1e-3)
+    assert 3.5 < pooled["value"] / 2e-13 < 4.5 and pooled["sigma"] < 0.5 * a["est"]["c_lk_sigma"]
     assert v("servowatch_unit_alarm", unit | {("kind", "leak")}) == 1.0
     assert v("servowatch_unit_alarm", unit | {("kind", "supply")}) == 0.0
     assert v("servowatch_unit_commissioned") == 1.0
@@ -222,6 +227,7 @@ def full_status() -> dict:
             "aircraft": "A", "actuator": "b", "samples": 1, "dropped": 0, "gaps": 0,
             "bad_total": 0, "silent": False, "est": {"c_lk": 2e-13, "c_lk_sigma": 1e-14},
             "health": {"leak_ratio": 1.0, "supply_ratio": 1.0}, "nis_in_band": 0.95,
+            "c_lk_pooled": {"value": 3e-13, "sigma": 1e-14},
             "alarms": [], "commissioned": True, "baseline_version": 2,
             "rul": {"median_flights": 10.0, "median_days": 5.0, "median_h": 20.0},
         }},

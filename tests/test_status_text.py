@@ -96,10 +96,13 @@ def test_status_text_names_the_operators_fields(tmp_path, leak_meas, model):
     assert f"{a['samples']} samples" in head and a["samples"] == len(leak_meas["t"])
     m = re.fullmatch(
         r"\s+C_Lk (\S+) \+- (\S+) m\^3/\(s Pa\), leak ratio (\S+), supply ratio (\S+), "
-        r"NIS in band (\d+) %",
+        r"NIS in band (\d+) %, pooled (\S+) \+- (\S+)",
         ind,
     )
     assert m, ind
+    assert float(m[6]) == pytest.approx(a["c_lk_pooled"]["value"], rel=1e-2)
+    assert float(m[7]) == pytest.approx(a["c_lk_pooled"]["sigma"], rel=1e-1)
+    assert float(m[7]) < 0.5 * est["c_lk_sigma"]  # the pool keeps what the walk forgets
     assert float(m[1]) == pytest.approx(est["c_lk"], rel=1e-2)
     assert float(m[2]) == pytest.approx(est["c_lk_sigma"], rel=1e-1)
     assert float(m[3]) == pytest.approx(health["leak_ratio"], rel=1e-2)
@@ -137,3 +140,14 @@ def test_unit_text_survives_missing_fields():
                               "alarms": []}}}  # fmt: skip
     text = format_status({"monitor/x/0/status": st})
     assert "C_Lk - +- - m^3/(s Pa), leak ratio -, supply ratio -, NIS in band -" in text
+    assert "pooled" not in text  # an older daemon: no pooled C_Lk in its status
+
+
+def test_unit_text_shows_the_pooled_c_lk_or_its_abstention():
+    unit = {"aircraft": "A", "actuator": "b", "samples": 9, "dropped": 0, "gaps": 0,
+            "bad_total": 0, "est": {}, "health": {}, "alarms": []}  # fmt: skip
+    read = format_status({"m": {"actuators": {"k": {**unit, "c_lk_pooled": {
+        "value": 4.1e-13, "sigma": 1.2e-14}}}}})  # fmt: skip
+    assert "pooled 4.1e-13 +- 1.2e-14" in read
+    none = format_status({"m": {"actuators": {"k": {**unit, "c_lk_pooled": None}}}})
+    assert "pooled abstains" in none

@@ -16,7 +16,7 @@ from service.monitor.usage import usage_rows
 from service.monitor.usage_config import N_USAGE, UsageConfig, new_state
 from service.prognostics.indicators import PeriodAccumulator, PeriodConfig
 from service.store import Period, open_store
-from service.store.records import USAGE_FIELDS
+from service.store.records import LATER_FIELDS, USAGE_FIELDS
 from service.store.schema import LATEST_VERSION, MIGRATIONS
 from service.store.usage import USAGE_TOTALS
 
@@ -207,7 +207,7 @@ def test_migration_5_keeps_an_old_store_and_reads_null_usage(store_url, monkeypa
         m.setattr(health, "MIGRATIONS", tuple(v3))
         m.setattr(health, "LATEST_VERSION", 3)
         m.setattr(health, "_PERIOD_COLS", tuple(c for c in health._PERIOD_COLS
-                                                if c not in USAGE_FIELDS))  # fmt: skip
+                                                if c not in LATER_FIELDS))  # fmt: skip
         later = (
             *USAGE_TOTALS,
             "last_key",

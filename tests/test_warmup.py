@@ -35,6 +35,21 @@ def test_a_cold_compile_is_announced_then_cached(tmp_path):
     assert "compiling" not in again.stderr and "compiled kernels ready" in again.stderr
 
 
+@pytest.mark.slow
+def test_the_trend_group_compiles_the_rul_trend_kernel_on_its_own(tmp_path):
+    """``rul --robust-trend``'s kernel (issue 55, opt-in): its own group, not a default one;
+    announced and compiled cold, then cached."""
+    from service.cli.warmup import DEFAULT_GROUPS
+
+    assert "trend" not in DEFAULT_GROUPS
+    r = _warmup(tmp_path, "--group", "trend")
+    assert r.returncode == 0, r.stderr
+    assert "compiling the RUL's trend model kernel" in r.stderr, r.stderr
+    assert "compiled service.prognostics.trend._kalman" in r.stderr, r.stderr
+    again = _warmup(tmp_path, "--group", "trend")
+    assert again.returncode == 0 and "compiling" not in again.stderr, again.stderr
+
+
 def test_ensure_is_silent_when_cached():
     from service.cli.warmup import ensure, is_cached
 

@@ -106,6 +106,20 @@ def _ukf_step(model: str) -> None:
          np.zeros(m), workspace(n, m), False)  # fmt: skip
 
 
+def _trend() -> None:
+    """The RUL's opt-in trend model (``rul --robust-trend``): its Kalman filter and smoother,
+    called as the Student-t scales' EM and the fit call it."""
+    import numpy as np
+
+    from service.prognostics.trend import fit_trend, scale_weights
+
+    u = np.linspace(0.05, 1.0, 8)
+    y = 1.0 + 2.0 * u
+    m0, sd0 = np.array([1.0, 0.0]), np.array([0.3, 8.0])
+    scale_weights(u, y, 0.03, m0, sd0)
+    fit_trend(u, y, np.full(8, 1e-3), None, m0, sd0)
+
+
 def _log() -> None:
     """The MCAP log's reader (chunk scan, JSON messages): replay, and the older logs."""
     from service.log import codec as logcodec
@@ -118,9 +132,11 @@ GROUPS: dict[str, Callable[[], None]] = {
     "monitor": _monitor,
     "log": _log,
     "valves": _valves,
+    "trend": _trend,
 }
 # what `servowatch warmup` compiles by default: what the demo, the daemon, the replay and the
 # virtual actuator need; the other groups compile on their first use (announced) or --all
+# (trend: the RUL's opt-in trend model, about 2 CPU s, on the first `rul --robust-trend`)
 DEFAULT_GROUPS = ("models", "monitor", "log")
 
 # A cold warm-up runs in parts, each in a process of its own, on as many cores as there are
@@ -135,12 +151,14 @@ PARTS: dict[str, tuple[Callable[[], None], tuple[str, ...], float]] = {
     "log": (_log, (), 20.0),
     "valves": (_valves, (), 15.0),
     "models": (_models, (), 5.0),
+    "trend": (_trend, (), 2.0),
 }
 GROUP_PARTS = {
     "models": ("models",),
     "monitor": ("ukf_wh", "ukf_c", "monitor"),
     "log": ("log",),
     "valves": ("valves",),
+    "trend": ("trend",),
 }
 
 WHAT = {
@@ -148,11 +166,12 @@ WHAT = {
     "valves": "the simplified valve models' bench kernels",
     "monitor": "the monitor kernels",
     "log": "the MCAP log kernels",
+    "trend": "the RUL's trend model kernel",
 }
 # CPU seconds of each group's first compile on this project's 2-core VM, with the start-up
 # of its processes (`time servowatch warmup --group G` from a cold cache); a compiling
 # command prints their sum over the cores it uses (at most 2: the parts wait for each other)
-ESTIMATE_S = {"models": 10.0, "monitor": 60.0, "log": 25.0, "valves": 20.0}
+ESTIMATE_S = {"models": 10.0, "monitor": 60.0, "log": 25.0, "valves": 20.0, "trend": 5.0}
 
 
 # the kernels each group's warm-up calls from Python (numba's cache of these tells whether
@@ -166,6 +185,10 @@ def _entries(group: str) -> list:
         from models import compiled
 
         return list(compiled._LOOPS[1:])
+    if group == "trend":
+        from service.prognostics import trend
+
+        return [trend._kalman]
     if group == "monitor":
         from models import compiled
         from service.monitor import kernels, usage

@@ -71,6 +71,7 @@ class _Target:
     info_row: tuple[int, int] = (m.COMMISSIONED_UNKNOWN, 0)
     acc: PeriodAccumulator | None = None
     nis_in_band: float | None = None  # of its last closed period
+    pooled: tuple[float, float] | None = None  # the pooled C_Lk of its last closed period
 
 
 def _LEAVES(rows: BankRows) -> tuple[tuple[str, tuple[str, ...], np.ndarray], ...]:
@@ -197,6 +198,17 @@ class FanOut:
         v = tg.acc.nis_in_band()
         return v if v is not None else tg.nis_in_band
 
+    def pooled_of(self, row: int | None) -> dict[str, float] | None:
+        """The pooled C_Lk of bank row ``row`` (shown beside the indicator, decisions/0025):
+        the last within its observability limit and its sigma [m^3/s/Pa]
+        (``PeriodAccumulator.pooled_reading``) over its open period, else its last closed
+        one's; None without periods or while it abstains."""
+        tg = self._targets.get(row) if row is not None else None
+        if tg is None or tg.acc is None:
+            return None
+        v = tg.acc.pooled_reading() or tg.pooled
+        return None if v is None else {"value": v[0], "sigma": v[1]}
+
     def outputs_of(self, row: int) -> int:
         """Outputs of bank row ``row`` so far."""
         return self._targets[row].outputs
@@ -255,13 +267,18 @@ class FanOut:
                 g = order[a:b]
                 cnt = self.counters(row) if self.counters is not None else None
                 u = None if rows.usage is None else rows.usage[g]
+                pl = None if rows.pooled is None else rows.pooled[g]
                 closed = tg.acc.add_rows(
-                    rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt, usage=u
-                )
+                    rows.t[g], rows.est[g], rows.health[g], rows.res[g], counters=cnt, usage=u,
+                    pooled=pl,
+                )  # fmt: skip
                 self._deliver(closed, [tg.acc])
                 if closed:
                     v = closed[-1].nis_in_band
                     tg.nis_in_band = v if math.isfinite(v) else None
+                    c = closed[-1]
+                    if math.isfinite(c.c_lk_pooled):
+                        tg.pooled = (c.c_lk_pooled, c.c_lk_pooled_sigma)
             if n_log is not None and n_log[gi]:
                 if many is not None:
                     logged_at.append(tg.prefix)

@@ -414,9 +414,11 @@ class Outputs:
 
     def unit_status(self, name: str, row: int | None = None) -> dict[str, Any]:
         """Stored periods and the last RUL of actuator ``name`` (none without a store) and
-        the NIS in band of bank row ``row`` (``FanOut.nis_in_band_of``)."""
+        the NIS in band and the pooled C_Lk of bank row ``row``
+        (``FanOut.nis_in_band_of``, ``FanOut.pooled_of``)."""
         out = self.store.info(name) if self.store is not None else {}
         out["nis_in_band"] = self.fanout.nis_in_band_of(row)
+        out["c_lk_pooled"] = self.fanout.pooled_of(row)
         return out
 
     def status(self) -> dict[str, Any]:

@@ -106,6 +106,12 @@ METRICS: dict[str, tuple[str, str]] = {
     "unit_supply_ratio": ("gauge", "supply pressure P_SR over its rated value"),
     "unit_c_lk": ("gauge", "estimated internal leakage coefficient C_Lk [m^3/(s Pa)]"),
     "unit_c_lk_sigma": ("gauge", "1-sigma of C_Lk [m^3/(s Pa)]"),
+    "unit_c_lk_pooled": (
+        "gauge",
+        "the pooled C_Lk within its observability limit (shown beside the indicator, "
+        "not driving it) [m^3/(s Pa)]",
+    ),
+    "unit_c_lk_pooled_sigma": ("gauge", "1-sigma of the pooled C_Lk [m^3/(s Pa)]"),
     "unit_nis_in_band_ratio": (
         "gauge",
         "fraction of the outputs of the open operating period whose NIS lies in its 95 % band",
@@ -239,6 +245,9 @@ def collect_status(st: dict[str, Any]) -> list[Metric]:
         f.add("unit_c_lk", est.get("c_lk"), u, unit)
         f.add("unit_c_lk_sigma", est.get("c_lk_sigma"), u, unit)
         f.add("unit_nis_in_band_ratio", a.get("nis_in_band"), u, unit)
+        pooled = a.get("c_lk_pooled") or {}
+        f.add("unit_c_lk_pooled", pooled.get("value"), u, unit)
+        f.add("unit_c_lk_pooled_sigma", pooled.get("sigma"), u, unit)
         active = {str(x.get("kind")) for x in a.get("alarms") or () if isinstance(x, dict)}
         for kind in _ALARM_KINDS:
             f.add("unit_alarm", kind in active, [*u, kind], [*unit, "kind"])

@@ -110,6 +110,7 @@ _UNIT: dict[str, Callable[[Any], bool]] = {
         isinstance(v, dict) and _num(v.get("median_h")) and _str(v.get("status"))
         and _num(v.get("median")) and _num(v.get("median_flights"))
         and _num(v.get("median_days")) and _num(v.get("periods"))),
+    "c_lk_pooled": lambda v: v is None or _dict_of(_num)(v),
 }  # fmt: skip
 
 #: what every unit entry of a daemon's status has (the readers index these)

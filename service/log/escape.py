@@ -1,5 +1,5 @@
 """Control characters of untrusted text, escaped before it reaches a terminal or a log line
-(docs/security.md, "Log lines escape what they quote"): C0 and C1 controls, DEL, the Unicode
+(docs/security.md, "Against an insider": log lines escape what they quote): C0 and C1 controls, DEL, the Unicode
 line and paragraph separators and the bidirectional overrides become ``\\xNN``/``\\uNNNN``,
 so a quoted value can neither forge a line nor move the cursor, clear the screen or reorder
 what follows it."""

@@ -47,6 +47,7 @@ from service.monitor.kernels import (
     N_CARRY,
     N_CHANNELS,
     N_PENDING,
+    POOL_CARRY,
     PREP_COUNTERS,
     S_C_LK,
     S_F_R,
@@ -108,7 +109,7 @@ def _stepped(n: int, nx: int, cnt: NDArray) -> Stepped:
     """The outputs of ``block_steps`` for n samples of an nx-state filter (counters ``cnt``)."""
     return Stepped(np.zeros((n, N_CHANNELS)), np.zeros(n), np.zeros(n), np.zeros(n, np.bool_),
                    np.empty((n, nx)), np.empty((n, nx)), np.empty((n, nx)), np.empty(n),
-                   np.empty(n), cnt)  # fmt: skip
+                   np.empty(n), np.empty((n, 2)), cnt)  # fmt: skip
 
 
 _PARAMS = slice(S_F_R, S_I_B + 1)  # the random-walk parameter states f_r, p_sr, c_lk, i_b
@@ -331,6 +332,7 @@ class MonitorBank:
         self.alarm[k] = False
         self.pending[k] = np.nan
         self.nis_avg[k] = 0.0
+        self.carry[k, POOL_CARRY] = 0.0  # the pooled C_Lk was learnt on the former baseline
 
     def update_arrays(self, ks: NDArray, t: NDArray, channels: NDArray) -> BankRows:
         """``update_rows`` for samples already in arrays (no dicts): actuator rows ``ks`` (n,)
@@ -395,8 +397,8 @@ class MonitorBank:
         evs = [e for p in parts for e in p[5]]
         # t, est, res, health and usage (None where the bank makes no usage rates)
         cat = [None if parts[0][c] is None else np.concatenate([p[c] for p in parts])[order]
-               for c in (1, 2, 3, 4, 6)]  # fmt: skip
-        return BankRows(idx[order], *cat[:4], RowEvents.of([evs[j] for j in order]), cat[4])
+               for c in (1, 2, 3, 4, 6, 7)]  # fmt: skip
+        return BankRows(idx[order], *cat[:4], RowEvents.of([evs[j] for j in order]), *cat[4:])
 
     # -- block path ----------------------------------------------------------------------
     def _parse_block(self, samples: Sequence[tuple[str, Mapping]]):
@@ -550,7 +552,9 @@ class MonitorBank:
         res = np.zeros((n, len(RES_KEYS)))
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
-        block_rows(sb.sm, sb.so, self.mr, self.alarm, self.pending, Rows(est, res, health, fire))
+        pool = np.zeros((n, 2))
+        block_rows(sb.sm, sb.so, self.mr, self.alarm, self.pending,
+                   Rows(est, res, health, fire, pool))  # fmt: skip
         extra = sb.extra
         sel = np.flatnonzero(sb.acc)
         at: dict[int, list[AlarmEvent]] = {}
@@ -569,7 +573,7 @@ class MonitorBank:
                 self.events_log[int(ks[j])].extend(ev)
         usage = self.usage.rates(ks, sb.acc, True, sb.so.SX, self.mr, sb.sm.z, sb.sm.mask, sel)
         return BankRows(sel, t[sel], est[sel], res[sel], health[sel], RowEvents(len(sel), at),
-                        usage)  # fmt: skip
+                        usage, pool[sel])  # fmt: skip
 
     def _run_rounds(self, samples, out) -> None:
         seen: dict[str, int] = {}
@@ -738,9 +742,10 @@ class MonitorBank:
         res = np.zeros((n, len(RES_KEYS)))
         health = np.zeros((n, len(HEALTH_KEYS)))
         fire = np.zeros((n, len(ALARM_KINDS)), np.int64)
+        pool = np.zeros((n, 2))
         sm = Samples(np.asarray(ks, np.int64), t, z, mask, np.ones(n, np.bool_), t, t)
         pd = np.diagonal(self.P, axis1=1, axis2=2).copy()
-        output_rows(self.bs, pd, self.mr, sm, y, nis, Rows(est, res, health, fire))
+        output_rows(self.bs, pd, self.mr, sm, y, nis, Rows(est, res, health, fire, pool))
         usage = self.usage.rates(sm.ks, sm.cand, False, self.x, self.mr, z, mask)
         for j, a in zip(*np.nonzero(fire), strict=True):
             state = "raised" if fire[j, a] == FIRE_RAISED else "cleared"
@@ -752,7 +757,7 @@ class MonitorBank:
         for j in np.flatnonzero([bool(e) for e in evs]):
             self.events_log[int(ks[j])].extend(evs[j])
         if self._rows is not None:  # update_rows: keep the arrays
-            self._rows.append((slots, t, est, res, health, evs, usage))
+            self._rows.append((slots, t, est, res, health, evs, usage, pool))
             return
         est_l, res_l, h_l, t_l = est.tolist(), res.tolist(), health.tolist(), t.tolist()
         for j, slot in enumerate(slots):

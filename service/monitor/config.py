@@ -231,6 +231,27 @@ class MonitorConfig(_Cfg):
         description="... on a detection, C_Lk's 1-sigma grows by this share of the "
         "baseline C_Lk (in quadrature)",
     )
+    c_lk_pool_h: float = Field(
+        6.9,
+        ge=0,
+        description="the pooled C_Lk (everything learnt since the last detected change) has "
+        "its own change test: the threshold of its Page CUSUM, a log-likelihood ratio "
+        "(6.9 = ln 1000: Wald's bound puts a false restart at 1e-3; 0 = off; "
+        "docs/estimation.md, the pooled C_Lk)",
+    )
+    c_lk_pool_tol: float = Field(
+        0.1,
+        gt=0,
+        description="... its design shift: this share of the increase the pool reads, "
+        "|pooled / baseline - 1|, at least c_lk_pool_d_min (0.1: the 10 % target)",
+    )
+    c_lk_pool_d_min: float = Field(
+        0.5,
+        gt=0,
+        description="... the smallest increase it scales with, as a share of baseline C_Lk "
+        "(0.5: the leak alarm's band, leak_raise - leak_clear); the pooled reading's "
+        "observability limit uses the same two (service.prognostics.indicators)",
+    )
     p_sr_max_ratio: float = Field(
         1.05,
         ge=1,

@@ -105,6 +105,9 @@ CST_FIELDS: tuple[str, ...] = (
     "gate_flow_s",  # ... within this long after |v_J| last exceeded gate_flow_v_fast [s] (0: always)
     "gate_flow_v_fast",  # ... (filter units)
     "leak_z",  # leak alarm raised only while C_Lk / baseline - leak_z sigma >= leak_clear (0: off)
+    "pool_h",  # the pooled C_Lk's own change test: threshold of its Page CUSUM (0: off)
+    "pool_tol",  # ... its design shift: pool_tol x max(|pooled - baseline|, pool_d_min)
+    "pool_d_min",  # ... (filter units)
 )
 (
     C_H_MAX,
@@ -145,14 +148,22 @@ CST_FIELDS: tuple[str, ...] = (
     C_GATE_FLOW_S,
     C_GATE_FLOW_V_FAST,
     C_LEAK_Z,
+    C_POOL_H,
+    C_POOL_TOL,
+    C_POOL_D_MIN,
 ) = range(len(CST_FIELDS))
 
 # the bank's carry array (n_act, N_CARRY): the last current [A] (held when a sample has
 # neither current nor command), the C_Lk change detector's CUSUMs (+, -) and its number of
 # detections since the actuator was added, the low-passed measured P1 - P2 [Pa] of the
-# C_Lk gate, and when the estimated |v_J| last exceeded gate_flow_v_fast [s]
-CARRY_I, CARRY_GP, CARRY_GM, CARRY_N, CARRY_P12, CARRY_T_FAST = range(6)
-N_CARRY = 6
+# C_Lk gate, and when the estimated |v_J| last exceeded gate_flow_v_fast [s]; then the pooled
+# C_Lk (docs/estimation.md, "The pooled C_Lk"; filter units): its information and
+# information-weighted sum since the last detected change, its own CUSUMs (+, -) and its
+# number of detections
+(CARRY_I, CARRY_GP, CARRY_GM, CARRY_N, CARRY_P12, CARRY_T_FAST, CARRY_PI, CARRY_PS,
+ CARRY_HP, CARRY_HM, CARRY_PN) = range(11)  # fmt: skip
+N_CARRY = 11
+POOL_CARRY = slice(CARRY_PI, CARRY_PN)  # the pool's columns (restarted together)
 
 # the bank's pending array (n_act, N_PENDING): per alarm, since when its change is due (NaN:
 # none); then the supply tracker of the leak alarm's mask: the lagged supply ratio, the time
@@ -232,16 +243,19 @@ class Stepped(NamedTuple):
     SOL: NDArray
     STI: NDArray
     SNA: NDArray
+    SPL: NDArray  # the pool's information and sum (n, 2)
     cnt: NDArray
 
 
 class Rows(NamedTuple):
-    """Output rows: est, res, health (``service.monitor.outputs``) and fire (FIRE_*)."""
+    """Output rows: est, res, health (``service.monitor.outputs``), fire (FIRE_*) and pool (the
+    pooled C_Lk and its 1-sigma [m^3/s/Pa], ``BankRows.pooled``)."""
 
     est: NDArray
     res: NDArray
     health: NDArray
     fire: NDArray
+    pool: NDArray
 
 
 UKF_FAILED = 2  # status of service.monitor.ukf.ukf_one: no positive definite factor
@@ -262,6 +276,46 @@ def _ukf(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, w, prm, y, ws, n, again):
     if n == N_STATES_WH:  # the WH process model (models.eha_reduced_wh)
         return ukf_one_wh(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws, redo)
     return ukf_one(x, P, z, mask, i_f, dt, n_sub, q, R, sc, zs, Wm, Wc, c, prm, y, ws, redo)
+
+
+@njit(cache=True, inline="always")
+def pool_add(cr, d_i, d_s, c_walk, c0, cst_k):
+    """One learnt sample into the pooled C_Lk of carry row ``cr`` (docs/estimation.md, "The
+    pooled C_Lk"): its information d_i = 1/P+ - 1/P- and d_s = m+/P+ - m-/P- (the walk
+    filter's C_Lk update read as a measurement z = d_s / d_i of variance 1 / d_i), added to
+    the pool's information I and sum S (pooled C_Lk = S / I, sigma 1 / sqrt(I)). First the
+    pool's own change test: a two-sided adaptive Page CUSUM of the log-likelihood ratio of a
+    shift delta, increment delta (d_s - (S / I) d_i) - delta^2 d_i / 2, where delta is the
+    walk filter's prior ``c_walk`` (the recent information) less the pool, at least
+    pool_tol x max(|S / I - c0|, pool_d_min) each way. Past pool_h the pool starts again
+    from this sample. Returns True on a detection."""
+    h = cst_k[C_POOL_H]
+    if h > 0.0 and cr[CARRY_PI] > 0.0:
+        m = cr[CARRY_PS] / cr[CARRY_PI]
+        d_lo = cst_k[C_POOL_TOL] * max(abs(m - c0), cst_k[C_POOL_D_MIN])
+        d_p = max(c_walk - m, d_lo)
+        d_m = max(m - c_walk, d_lo)
+        e = d_s - m * d_i
+        hp = max(0.0, cr[CARRY_HP] + d_p * e - 0.5 * d_p * d_p * d_i)
+        hm = max(0.0, cr[CARRY_HM] - d_m * e - 0.5 * d_m * d_m * d_i)
+        if hp > h or hm > h:
+            cr[CARRY_PI] = d_i
+            cr[CARRY_PS] = d_s
+            cr[CARRY_HP] = cr[CARRY_HM] = 0.0
+            cr[CARRY_PN] += 1.0
+            return True
+        cr[CARRY_HP] = hp
+        cr[CARRY_HM] = hm
+    cr[CARRY_PI] += d_i
+    cr[CARRY_PS] += d_s
+    return False
+
+
+@njit(cache=True, inline="always")
+def pool_restart(cr):
+    """Empties the pooled C_Lk of carry row ``cr`` (a change the walk's detector read)."""
+    for r in range(CARRY_PI, CARRY_PN):
+        cr[r] = 0.0
 
 
 @njit(cache=True)  # called, not inlined: one compile for its two callers
@@ -355,22 +409,32 @@ def step_one(j, k, sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp):
         if cst_k[C_GATE_VAR_MAX] > 0.0:
             v_held = max(p_prior, min(v_held, cst_k[C_GATE_VAR_MAX]))
         PP[k, S_C_LK, S_C_LK] = v_held
-    elif cst_k[C_CUSUM_H] > 0.0:
-        # C_Lk change detector (docs/estimation.md, "C_Lk change detector (WH)"): the update
-        # standardised by its model variance (prior - posterior) is N(0, 1) and white while
-        # C_Lk holds still; a two-sided CUSUM of it past cusum_h reads a change, and the
-        # variance added lets the filter follow it at once
-        v_upd = p_prior + q_k[S_C_LK] * dt - PP[k, S_C_LK, S_C_LK]
-        if v_upd > 0.0:
-            u = (X[k, S_C_LK] - c_prior) / math.sqrt(v_upd)
-            gp = max(0.0, CARRY[k, CARRY_GP] + u - cst_k[C_CUSUM_NU])
-            gm = max(0.0, CARRY[k, CARRY_GM] - u - cst_k[C_CUSUM_NU])
-            if gp > cst_k[C_CUSUM_H] or gm > cst_k[C_CUSUM_H]:
-                PP[k, S_C_LK, S_C_LK] += cst_k[C_CUSUM_KICK]
-                CARRY[k, CARRY_N] += 1.0
-                gp = gm = 0.0
-            CARRY[k, CARRY_GP] = gp
-            CARRY[k, CARRY_GM] = gm
+    else:
+        # the pooled C_Lk keeps what this update learnt (pool_add)
+        p_minus = p_prior + q_k[S_C_LK] * dt
+        p_plus = PP[k, S_C_LK, S_C_LK]
+        if 0.0 < p_plus < p_minus:
+            pool_add(CARRY[k], 1.0 / p_plus - 1.0 / p_minus,
+                     X[k, S_C_LK] / p_plus - c_prior / p_minus, c_prior,
+                     cst_k[C_C_LK0] / sc_k[S_C_LK], cst_k)  # fmt: skip
+        if cst_k[C_CUSUM_H] > 0.0:
+            # C_Lk change detector (docs/estimation.md, "C_Lk change detector (WH)"): the
+            # update standardised by its model variance (prior - posterior) is N(0, 1) and
+            # white while C_Lk holds still; a two-sided CUSUM of it past cusum_h reads a
+            # change, the variance added lets the filter follow it at once, and the pooled
+            # C_Lk starts again
+            v_upd = p_minus - p_plus
+            if v_upd > 0.0:
+                u = (X[k, S_C_LK] - c_prior) / math.sqrt(v_upd)
+                gp = max(0.0, CARRY[k, CARRY_GP] + u - cst_k[C_CUSUM_NU])
+                gm = max(0.0, CARRY[k, CARRY_GM] - u - cst_k[C_CUSUM_NU])
+                if gp > cst_k[C_CUSUM_H] or gm > cst_k[C_CUSUM_H]:
+                    PP[k, S_C_LK, S_C_LK] += cst_k[C_CUSUM_KICK]
+                    CARRY[k, CARRY_N] += 1.0
+                    pool_restart(CARRY[k])
+                    gp = gm = 0.0
+                CARRY[k, CARRY_GP] = gp
+                CARRY[k, CARRY_GM] = gm
     if hold_ib:  # the same for i_b
         X[k, S_I_B] = b_prior
         PP[k, S_I_B, S_I_B] = pb_prior + q_k[S_I_B] * dt
@@ -407,7 +471,8 @@ def step_one(j, k, sm, bs, mr, w, ws, y, nis, nis_avg, coef, tmp):
 
 
 @njit(cache=True)  # called, not inlined: one compile for its two callers
-def row_one(j, kk, k, X, PD, OL, T_INIT, NIS_AVG, mr, sm, y, nis, ALARM, PENDING, ro, xs, zo):
+def row_one(j, kk, k, X, PD, OL, T_INIT, NIS_AVG, pl_i, pl_s, mr, sm, y, nis, ALARM, PENDING, ro,
+            xs, zo):  # fmt: skip
     """Flat output row j of actuator k (est: (state, sigma) pairs, P12, C_Lk increase; res:
     innovations, NIS, dof, open-loop residuals = measured minus parallel model; health: leak
     and supply ratios, alarm states, NIS average) and the alarms with hysteresis, persistence,
@@ -436,6 +501,14 @@ def row_one(j, kk, k, X, PD, OL, T_INIT, NIS_AVG, mr, sm, y, nis, ALARM, PENDING
         measure_nb(xs, prm_k, zo)
     est[j, EST_P12] = zo[Z_P1] - zo[Z_P2]
     est[j, EST_C_LK_INCREASE] = xs[S_C_LK] - c_lk0
+    # the pooled C_Lk (pool_add; pl_i, pl_s its information and sum): without pooled
+    # information, the filter's own estimate
+    if pl_i > 0.0:
+        ro.pool[j, 0] = max(pl_s / pl_i, 0.0) * sc_k[S_C_LK]
+        ro.pool[j, 1] = sc_k[S_C_LK] / math.sqrt(pl_i)
+    else:
+        ro.pool[j, 0] = xs[S_C_LK]
+        ro.pool[j, 1] = est[j, EST_C_LK_SIGMA]
     if wh:
         measure_wh_nb(OL[kk], prm_k, zo)
     else:
@@ -535,8 +608,8 @@ def output_rows(bs, PD, mr, sm, y, nis, ro):
     zo = np.empty(sm.z.shape[1])
     for j in range(sm.ks.shape[0]):
         k = sm.ks[j]
-        row_one(j, k, k, bs.X, PD, bs.OL, bs.T_INIT, bs.NIS_AVG, mr, sm, y, nis, bs.ALARM,
-                bs.PENDING, ro, xs, zo)  # fmt: skip
+        row_one(j, k, k, bs.X, PD, bs.OL, bs.T_INIT, bs.NIS_AVG, bs.CARRY[k, CARRY_PI],
+                bs.CARRY[k, CARRY_PS], mr, sm, y, nis, bs.ALARM, bs.PENDING, ro, xs, zo)  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
@@ -634,6 +707,8 @@ def block_steps(j0, emit0, sm, bs, mr, w, max_gap, expect, ws, so):
             so.SOL[j, r] = OL[k, r]
         so.STI[j] = bs.T_INIT[k]
         so.SNA[j] = bs.NIS_AVG[k]
+        so.SPL[j, 0] = bs.CARRY[k, CARRY_PI]
+        so.SPL[j, 1] = bs.CARRY[k, CARRY_PS]
     return ks.shape[0], STEP_OK
 
 
@@ -647,5 +722,5 @@ def block_rows(sm, so, mr, ALARM, PENDING, ro):
     zo = np.empty(sm.z.shape[1])
     for j in range(sm.ks.shape[0]):
         if so.acc[j]:
-            row_one(j, j, sm.ks[j], so.SX, so.SPD, so.SOL, so.STI, so.SNA, mr, sm, so.y, so.nis,
-                    ALARM, PENDING, ro, xs, zo)  # fmt: skip
+            row_one(j, j, sm.ks[j], so.SX, so.SPD, so.SOL, so.STI, so.SNA, so.SPL[j, 0],
+                    so.SPL[j, 1], mr, sm, so.y, so.nis, ALARM, PENDING, ro, xs, zo)  # fmt: skip

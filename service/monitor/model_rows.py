@@ -115,6 +115,9 @@ def _vectors(c: MonitorConfig, b: Baseline, names, extra, prm, h_max) -> ModelVe
         gate_v_flow=c.c_lk_gate_flow * b.c_lk / b.area / scale[S_V_J],
         gate_flow_s=c.c_lk_gate_flow_s,
         gate_flow_v_fast=c.c_lk_gate_flow_v_fast / scale[S_V_J],
+        pool_h=c.c_lk_pool_h,
+        pool_tol=c.c_lk_pool_tol,
+        pool_d_min=c.c_lk_pool_d_min * b.c_lk / scale[S_C_LK],
     )
     R = np.diag((r / zscale) ** 2)
     return ModelVectors(tuple(names), rp, scale, zscale, (q / scale) ** 2, R, prm, cst, p0)

@@ -171,6 +171,10 @@ class BankRows:
     # (R, len(service.monitor.usage.USAGE_KEYS)): the usage rates of each row (what wears the
     # seals and the spool; not logged, not published); None from a source that has none
     usage: NDArray | None = None
+    # (R, 2): the pooled C_Lk of each row and its 1-sigma [m^3/s/Pa] (everything learnt since
+    # the last detected change; docs/estimation.md, "The pooled C_Lk"; not logged, not
+    # published: a replay makes it again); None from a source that has none
+    pooled: NDArray | None = None
     _lists: tuple | None = field(default=None, init=False, repr=False, compare=False)
     _n_out: int = field(default=0, init=False, repr=False, compare=False)
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,8 +50,16 @@ from service.prognostics.paths import (
     slope,
 )
 
+if TYPE_CHECKING:
+    from service.prognostics.trend import TrendFit
+
+# ``trend`` (numba) is imported where the opt-in switch is on (``FleetPrior.robust_trend``):
+# with it off, fitting imports nothing more than before
+
 __all__ = [
     "MODELS",
+    "ALL_MODELS",
+    "robust_trend_prior",
     "ModelPrior",
     "FleetPrior",
     "Fit",
@@ -62,6 +71,14 @@ __all__ = [
     "BETA_GRID",
     "BETA_SPAN",
 ]
+
+
+ALL_MODELS: tuple[str, ...] = (*MODELS, "trend")
+"""The parametric family and the trend model (``trend``: a local linear trend whose rate
+diffuses, decision record 0031), the models of a prior with ``robust_trend`` on."""
+
+TREND_P0 = 0.1
+"""The trend model's prior probability before the fleet (``robust_trend_prior``)."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +131,20 @@ class FleetPrior:
     """Prior probability of each life axis (``rul.USAGE_AXES``), learned from the fleet."""
     usage_ref: dict[str, float] = field(default_factory=dict)
     """The fleet's median usage per operating second of each usage axis (its unit)."""
+    p_trend_g: tuple[float, ...] | None = None
+    """The trend model's prior over its growth cells (``trend.G_SPAN``), learned from the
+    fleet's evidence (None: uniform)."""
+    p_trend_q: tuple[float, ...] | None = None
+    """The trend model's prior over its rate diffusions (``trend.Q_DEV``), learned likewise."""
+    nu: float = 4.0
+    """Degrees of freedom of the readings' Student-t noise, learned from the fleet (before it:
+    ``trend.NU``)."""
+    nu_ll: tuple[float, ...] | None = None
+    """The fleet's log likelihood of nu per residual on ``trend.NU_GRID`` (``unit_nu``)."""
+    robust_trend: bool = False
+    """Opt-in (decision records 0030-0032; ``robust_trend_prior``): the Student-t readings and
+    the trend model beside the family. Off (the default): the family under Gaussian noise
+    alone, and none of the four fields above is used."""
 
     def as_dict(self) -> dict:
         """Plain dict (JSON)."""
@@ -131,7 +162,26 @@ class FleetPrior:
             "kappa": self.kappa,
             "p_axis": dict(self.p_axis),
             "usage_ref": dict(self.usage_ref),
+        } | (self._robust_dict() if self.robust_trend else {})
+
+    def _robust_dict(self) -> dict:
+        return {
+            "robust_trend": True,
+            "p_trend_g": None if self.p_trend_g is None else list(self.p_trend_g),
+            "p_trend_q": None if self.p_trend_q is None else list(self.p_trend_q),
+            "nu": self.nu,
+            "nu_ll": None if self.nu_ll is None else list(self.nu_ll),
         }
+
+
+def robust_trend_prior(base: FleetPrior | None = None) -> FleetPrior:
+    """``base`` (default: the vague ``FleetPrior()``) with the opt-in Student-t readings and
+    trend model on (``FleetPrior.robust_trend``): the trend model's prior probability
+    ``TREND_P0`` beside the family's."""
+    base = base or FleetPrior()
+    if base.robust_trend:
+        return base
+    return replace(base, robust_trend=True, p_model={**base.p_model, "trend": TREND_P0})
 
 
 @dataclass
@@ -151,6 +201,8 @@ class Fit:
     q2: float = 0.0  # diffusion of the path about the model [ratio^2 per unit of t]
     cv2: float = 0.0  # squared coefficient of variation of the wear per step (usage spread)
     dt: float = 1.0  # mean spacing of the observations [units of t]
+    trend: TrendFit | None = None  # the trend model's cells (``trend``)
+    lam: NDArray | None = None  # the readings' Student-t scales (``trend.scale_weights``)
 
     def log_marginal(self, p_model: dict[str, float]) -> float:
         """log p(y | axis): the models' evidences weighted by their prior ``p_model`` (how
@@ -176,6 +228,8 @@ class Fit:
                 continue
             phi = basis_grid(m, t, self.grids[m][g])  # (G, n, p)
             y += np.einsum("g,gnp,gp->n", self.post[m][g], phi, self.means[m][g])
+        if self.trend is not None and self.p_model.get("trend", 0.0) > 1e-9:
+            y += self.p_model["trend"] * self.trend.mean_path(t)
         return y
 
 
@@ -191,7 +245,7 @@ def noise_sigma(y: NDArray) -> float:
 
 def _fit_model(
     model: str, t: NDArray, y: NDArray, sigma: float, prior: ModelPrior,
-    chol: NDArray | None = None,
+    chol: NDArray | None = None, lam: NDArray | None = None,
 ):  # fmt: skip
     """Gaussian posteriors and log evidences of one model over its grid (batched). ``chol``:
     the Cholesky factor C of the noise covariance (then ``sigma`` is 1): the model is whitened
@@ -206,6 +260,11 @@ def _fit_model(
         Phi = c_inv @ Phi
         y = c_inv @ y
         logdet_c = float(np.log(np.diagonal(chol)).sum())
+    elif lam is not None:  # noise sigma^2 / lambda_k: whitened by sqrt(lambda_k)
+        sl = np.sqrt(lam)
+        Phi = Phi * sl[None, :, None]
+        y = y * sl
+        logdet_c = -0.5 * float(np.log(lam).sum())
     m0 = np.asarray(prior.mean, float)
     v0 = np.asarray(prior.sd, float) ** 2
     s2 = sigma * sigma
@@ -228,10 +287,13 @@ def _fit_model(
     return grid, logev, mn, cov
 
 
-def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | None = None) -> Fit:
+def fit_history(
+    t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | None = None,
+    z2_out: list | None = None,
+) -> Fit:  # fmt: skip
     """Posterior of the models (module docstring) for one unit's history: ``t_h`` its
     life axis (flights or operating hours, increasing), ``y`` the C_Lk ratio (NaN entries are
-    ignored)."""
+    ignored); ``z2_out`` gets its readings' squared standardised residuals (``learn_nu``)."""
     prior = prior or FleetPrior()
     t = np.asarray(t_h, float)
     y = np.asarray(y, float)
@@ -247,10 +309,13 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
     n_d = max(len(y) - 3, 0) if math.isfinite(s_u) else 0
     s2 = (k0 * prior.sigma**2 + n_d * (s_u**2 if n_d else 0.0)) / (k0 + n_d)
     sigma = max(math.sqrt(s2), 1e-4)
-    fit = _posterior(t, y, sigma, prior, t_now, scale)
-    rho = _lag1(y - fit.mean_path(t * scale))
+    lam = _student_t_scales(t, y, sigma, prior, z2_out) if prior.robust_trend else None
+    fit = _posterior(t, y, sigma, prior, t_now, scale, lam=lam)
+    r = y - fit.mean_path(t * scale)
+    rho = _lag1(r if lam is None else np.sqrt(lam) * r)
     if rho > 0:
-        fit = _posterior(t, y, sigma * math.sqrt((1 + rho) / (1 - rho)), prior, t_now, scale)
+        fit = _posterior(t, y, sigma * math.sqrt((1 + rho) / (1 - rho)), prior, t_now, scale,
+                         lam=lam)  # fmt: skip
     # path diffusion about the model: the unit's estimate shrunk toward the fleet's (weight
     # of the fleet: sigma_strength points)
     q2_u, n_q = diffusion(t * scale, y - fit.mean_path(t * scale))
@@ -270,6 +335,24 @@ def fit_history(t_h: Sequence[float], y: Sequence[float], prior: FleetPrior | No
     return fit
 
 
+def _student_t_scales(t, y, sigma, prior: FleetPrior, z2_out: list | None) -> NDArray:
+    """The readings' Student-t scales (``robust_trend`` on, decision record 0030): by EM
+    under the trend model (``trend.scale_weights``) at the fleet's nu, then at the unit's own
+    (``unit_nu``: its residuals' tails, the fleet's curve as its prior)."""
+    from service.prognostics.trend import scale_weights, unit_nu
+
+    lw = prior.weights["linear"]
+    m0, sd0 = np.asarray(lw.mean, float), np.asarray(lw.sd, float)
+    z2: list[float] = []
+    lam = scale_weights(t, y, sigma, m0, sd0, nu=prior.nu, z2_out=z2)
+    if z2_out is not None:
+        z2_out.extend(z2)
+    nu_u = unit_nu(np.asarray(z2), prior.nu_ll, prior.sigma_strength)
+    if nu_u is not None and nu_u != prior.nu:
+        lam = scale_weights(t, y, sigma, m0, sd0, nu=nu_u)
+    return lam
+
+
 def _refit_with_wear_spread(t, y, sigma, prior, t_now, scale, fit: Fit, s2m: float) -> Fit:
     """The posterior again under the noise model the RUL's spread uses: measurement noise
     sigma_m^2 plus the wear's own spread accumulated along the path, Cov(y_i, y_j) =
@@ -284,8 +367,19 @@ def _refit_with_wear_spread(t, y, sigma, prior, t_now, scale, fit: Fit, s2m: flo
     if v[-1] <= 0:
         return fit
     idx = np.arange(len(t))
-    cov = max(s2m, 1e-6) * np.eye(len(t)) + v[np.minimum.outer(idx, idx)]
-    out = _posterior(t, y, sigma, prior, t_now, scale, np.linalg.cholesky(cov))
+    if fit.lam is None:  # Gaussian readings (``robust_trend`` off)
+        cov = max(s2m, 1e-6) * np.eye(len(t)) + v[np.minimum.outer(idx, idx)]
+        out = _posterior(t, y, sigma, prior, t_now, scale, np.linalg.cholesky(cov))
+        out.q2, out.cv2, out.dt = fit.q2, fit.cv2, fit.dt
+        return out
+    # the readings' scales of the first fit (``fit_history``), not estimated again about this
+    # path: its wear spread comes from the first fit's increments, a transient's jump would
+    # be read as wear spread and kept
+    lam = fit.lam
+    rvar = max(s2m, 1e-6) / lam
+    cov = np.diag(rvar) + v[np.minimum.outer(idx, idx)]
+    out = _posterior(t, y, sigma, prior, t_now, scale, np.linalg.cholesky(cov), lam=lam,
+                     noise=(rvar, np.diff(v, prepend=0.0)))  # fmt: skip
     out.q2, out.cv2, out.dt = fit.q2, fit.cv2, fit.dt
     return out
 
@@ -340,14 +434,15 @@ def _lag1(r: NDArray, max_rho: float = 0.9) -> float:
     return min(max(float(r[1:] @ r[:-1]) / den, 0.0), max_rho)
 
 
-def _posterior(t, y, sigma, prior, t_now, scale, chol=None) -> Fit:
-    """The models' posteriors at a fixed sigma, or a noise covariance's Cholesky factor
-    ``chol`` (``fit_history``)."""
+def _posterior(t, y, sigma, prior, t_now, scale, chol=None, lam=None, noise=None) -> Fit:
+    """The models' posteriors at a fixed sigma and the readings' scales ``lam`` (noise
+    sigma^2 / lam_k), or a noise covariance's Cholesky factor ``chol`` (``fit_history``) with
+    ``noise`` = (reading variances, wear-spread variance per step) for the trend model."""
     grids, post, means, covs, logz = {}, {}, {}, {}, {}
     tot = []
     for m in MODELS:
         g, le, mn, cv = _fit_model(m, t, y, 1.0 if chol is not None else sigma,
-                                   prior.weights[m], chol)  # fmt: skip
+                                   prior.weights[m], chol, lam)  # fmt: skip
         grids[m], means[m], covs[m] = g, mn, cv
         if len(g) == 0 or prior.p_model.get(m, 0.0) <= 0:
             logz[m] = -math.inf
@@ -358,16 +453,36 @@ def _posterior(t, y, sigma, prior, t_now, scale, chol=None) -> Fit:
         logz[m] = z
         post[m] = np.exp(le - mx) / np.exp(le - mx).sum()
         tot.append(z + math.log(prior.p_model[m]))
+    tf = None
+    models = ALL_MODELS if prior.robust_trend else MODELS
+    if prior.robust_trend and prior.p_model.get("trend", 0.0) > 0 and len(t) >= 5 and t[0] > 0:
+        from service.prognostics.trend import fit_trend
+
+        lam1 = np.ones(len(t)) if lam is None else lam
+        rvar, lvar = noise if noise is not None else (sigma * sigma / lam1, None)
+        lw = prior.weights["linear"]
+        tf = fit_trend(t, y, rvar, lvar, np.asarray(lw.mean, float), np.asarray(lw.sd, float),
+                       prior.p_trend_g, prior.p_trend_q)  # fmt: skip
+        logz["trend"] = tf.log_evidence
+        tot.append(tf.log_evidence + math.log(prior.p_model["trend"]))
+    elif prior.robust_trend:
+        logz["trend"] = -math.inf
     mx = max(tot)
     norm = sum(math.exp(v - mx) for v in tot)
     p_model = {}
-    for m in MODELS:
+    for m in models:
         if logz[m] == -math.inf:
             p_model[m] = 0.0
         else:
             p_model[m] = math.exp(logz[m] + math.log(prior.p_model[m]) - mx) / norm
-        post[m] = post[m] * p_model[m]
-    return Fit(t_now, sigma, float(scale), p_model, grids, post, means, covs, logz)
+        if m in post:
+            post[m] = post[m] * p_model[m]
+    if tf is not None:
+        grids["trend"] = np.arange(len(tf.w), dtype=float)
+        post["trend"] = tf.w * p_model["trend"]
+    fit = Fit(t_now, sigma, float(scale), p_model, grids, post, means, covs, logz, trend=tf)
+    fit.lam = lam
+    return fit
 
 
 def diffusion(t: NDArray, r: NDArray, max_lag: int = 8) -> tuple[float, int]:
@@ -404,21 +519,31 @@ def sample_crossing(
             if pw > 1e-12:
                 keys.append((m, g))
                 probs.append(pw)
+    p_tr = fit.p_model.get("trend", 0.0) if fit.trend is not None else 0.0
+    if p_tr > 1e-12:
+        keys.append(("trend", -1))
+        probs.append(p_tr)
     probs = np.asarray(probs) / np.sum(probs)
     counts = rng.multinomial(n, probs)
     out = []
     for (m, g), c in zip(keys, counts, strict=True):
         if c == 0:
             continue
-        w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c), method="cholesky")
-        u_now = fit.t_now / fit.t_scale
-        eta = float(fit.grids[m][g])
-        uc = crossing(m, w, eta, threshold, u_now)
-        tc = uc * fit.t_scale
+        if m == "trend":  # its paths simulated (``trend.TrendFit.crossing``), 3 spans ahead
+            assert fit.trend is not None
+            uc, sl = fit.trend.crossing(threshold, int(c), rng, reach=3.0)
+            tc, sl = uc * fit.t_scale, sl / fit.t_scale
+        else:
+            w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c),
+                                        method="cholesky")  # fmt: skip
+            eta = float(fit.grids[m][g])
+            uc = crossing(m, w, eta, threshold, fit.t_now / fit.t_scale)
+            tc = uc * fit.t_scale
         if fit.q2 > 0:
             # first passage of the path plus a random walk of diffusion q2 (inverse-Gaussian
             # spread about the crossing, to first order): dt = q W(tc - t_now) / slope(tc)
-            sl = slope(m, w, eta, uc) / fit.t_scale
+            if m != "trend":  # the trend's slope at its crossing comes with it
+                sl = slope(m, w, eta, uc) / fit.t_scale
             ahead = np.isfinite(tc) & (tc > fit.t_now) & (sl > 0)
             z = rng.standard_normal(len(tc))
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -455,7 +580,13 @@ def learn_fleet_prior(
     spans = [s for s in spans if s > 0]
     if base.t_scale is None and spans:
         base = replace(base, t_scale=float(np.median(spans)))
-    counts = dict.fromkeys(MODELS, 1.0)
+    counts = dict.fromkeys(ALL_MODELS if base.robust_trend else MODELS, 1.0)
+    z2s: list[float] = []
+    tg = tq = np.ones(0)  # Dirichlet(1) counts of the trend's cells over the units
+    if base.robust_trend:
+        from service.prognostics.trend import G_SPAN, Q_DEV
+
+        tg, tq = np.ones(len(G_SPAN)), np.ones(len(Q_DEV))
     ws: dict[str, list[NDArray]] = {m: [] for m in MODELS}
     sig = []
     q2s: list[float] = []
@@ -473,7 +604,7 @@ def learn_fleet_prior(
         s = noise_sigma(y)
         if math.isfinite(s):
             sig.append(s)
-        f = fit_history(t, y, base)
+        f = fit_history(t, y, base, z2_out=z2s)
         fits.append((t, y, f))
         s2m_u, n_m = measurement_noise(_increments(t, y, f)[0])
         if n_m:
@@ -484,8 +615,13 @@ def learn_fleet_prior(
         best = f.best()
         for m, pm in f.p_model.items():  # the unit's posterior over the models, not its choice
             counts[m] += pm
-        g = int(np.argmax(f.post[best]))
-        ws[best].append(f.means[best][g])
+        if f.trend is not None:  # the unit's evidence over the trend's cells
+            wc = f.trend.w.reshape(len(tg), len(tq))
+            tg += wc.sum(axis=1)
+            tq += wc.sum(axis=0)
+        if best in ws:
+            g = int(np.argmax(f.post[best]))
+            ws[best].append(f.means[best][g])
     if used == 0:
         return base
     s2m_f = float(np.median(s2ms)) if s2ms else None
@@ -494,6 +630,14 @@ def learn_fleet_prior(
         if n_c and f.best() != "none":
             cv2s.append(c2)
     tot = sum(counts.values())
+    robust = {}
+    if base.robust_trend:  # the trend's cells, the readings' tails (decision records 0030-1)
+        from service.prognostics.trend import learn_nu
+
+        nu_f, nu_ll = learn_nu(np.asarray(z2s))
+        robust = dict(p_trend_g=tuple(float(v) for v in tg / tg.sum()),
+                      p_trend_q=tuple(float(v) for v in tq / tq.sum()), nu=nu_f, nu_ll=nu_ll,
+                      robust_trend=True)  # fmt: skip
     weights = {}
     for m in MODELS:
         b = base.weights[m]
@@ -508,7 +652,7 @@ def learn_fleet_prior(
             weights[m] = b
     sigma = float(np.median(sig)) if sig else base.sigma
     return FleetPrior(
-        p_model={m: counts[m] / tot for m in MODELS},
+        p_model={m: counts[m] / tot for m in counts},
         weights=weights,
         sigma=max(sigma, 1e-3),
         sigma_strength=base.sigma_strength,
@@ -517,6 +661,7 @@ def learn_fleet_prior(
         q2_rel=float(np.median(q2s)) if q2s else base.q2_rel,
         cv2=float(np.median(cv2s)) if cv2s else base.cv2,
         sigma_m2=s2m_f if s2m_f is not None else base.sigma_m2,
+        **robust,
         kappa=hindcast(histories, replace(base, units=used), min_points=2 * min_points),
     )
 
@@ -561,10 +706,30 @@ def sample_paths(
             if pw > 1e-12:
                 keys.append((m, g))
                 probs.append(pw)
+    p_tr = fit.p_model.get("trend", 0.0) if fit.trend is not None else 0.0
+    if p_tr > 1e-12:
+        keys.append(("trend", -1))
+        probs.append(p_tr)
     counts = rng.multinomial(n, np.asarray(probs) / np.sum(probs))
     out = []
     for (m, g), c in zip(keys, counts, strict=True):
-        if c:
+        if c and m == "trend":
+            assert fit.trend is not None
+            out.append(_trend_paths(fit.trend, t / fit.t_scale, int(c), rng))
+        elif c:
             w = rng.multivariate_normal(fit.means[m][g], fit.covs[m][g], size=int(c))
             out.append(w @ basis(m, t / fit.t_scale, float(fit.grids[m][g])).T)
     return np.concatenate(out)
+
+
+def _trend_paths(tf: TrendFit, u: NDArray, n: int, rng: np.random.Generator) -> NDArray:
+    """Draws (n, len(u)) of the trend model's level at ``u``: simulated after its last
+    reading, its smoothed level (of the drawn cell) before."""
+    cells, x = tf.draw_states(n, rng)
+    ahead = u > tf.u[-1]
+    out = np.empty((n, len(u)))
+    if ahead.any():
+        out[:, ahead] = tf.paths_from(cells, x, u[ahead], rng)[0]
+    for j in np.flatnonzero(~ahead):
+        out[:, j] = np.array([np.interp(u[j], tf.u, tf.level[c]) for c in range(len(tf.w))])[cells]
+    return out

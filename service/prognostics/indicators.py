@@ -12,7 +12,13 @@ A period closes when the actuator goes silent (no sample for ``silence_s``) or a
   no load, a reduced channel set or just after a re-initialisation it stays near its prior.
   The observable estimates, decimated to ``c_lk_rate_hz`` (the estimate is correlated over
   much longer than that), give the robust mean (median) and sigma (1.4826 MAD);
-  c_lk_ratio = median / C_Lk,baseline;
+  c_lk_ratio = median / C_Lk,baseline, the indicator the views and the RUL read;
+- the pooled C_Lk, recorded beside the indicator and not driving it (``BankRows.pooled``:
+  everything the filter learnt since the last detected change, with the sigma of that pooled
+  information; docs/estimation.md, "The pooled C_Lk"; decisions/0025): ``c_lk_pooled`` and
+  ``c_lk_pooled_sigma`` are the pool of the period's last row whose pooled sigma is within
+  the observability limit ``pooled_limit`` (its +-z band inside ``pool_tol`` of the increase
+  read, at least of ``pool_d_min``), NaN where no row passes or the rows came without a pool;
 - P_SR mean and minimum, null bias i_b mean, NIS/dof mean and the share of samples whose NIS
   lies in the two-sided 95 % chi-square band of its degrees of freedom;
 - alarms raised (rising edges of the health alarm flags, every kind) and data quality: the
@@ -50,7 +56,14 @@ from service.monitor.usage_config import (
 )
 from service.store.records import AlarmEvent, Period
 
-__all__ = ["PeriodConfig", "PeriodAccumulator", "BAD_COUNTERS", "periods_of_rows", "nis_band"]
+__all__ = [
+    "PeriodConfig",
+    "PeriodAccumulator",
+    "BAD_COUNTERS",
+    "periods_of_rows",
+    "nis_band",
+    "pooled_limit",
+]
 
 BAD_COUNTERS: tuple[str, ...] = ("skipped_nan", "skipped_time", "bad_channel")
 """Monitor counters (``MonitorBank.counters_of``) that count a bad sample or channel."""
@@ -85,6 +98,19 @@ class PeriodConfig:
     obs_sigma_ratio: float = 0.25
     settle_s: float = 0.5
     c_lk_rate_hz: float = 20.0
+    pool_tol: float = 0.1
+    pool_z: float = 1.96
+    pool_d_min: float = 0.5
+
+
+def pooled_limit(ratio: NDArray | float, cfg: PeriodConfig) -> NDArray | float:
+    """The largest pooled C_Lk sigma (a share of baseline) at which a pooled reading of
+    ``ratio`` (C_Lk / baseline) counts as observable: its +-``pool_z`` band (1.96, 95 %)
+    within ``pool_tol`` (10 %) of the increase read, |ratio - 1|, and of at least
+    ``pool_d_min`` (0.5, the leak alarm's band between its clear and raise levels):
+    sigma <= pool_tol max(|ratio - 1|, pool_d_min) / pool_z (docs/estimation.md, "The pooled
+    C_Lk")."""
+    return cfg.pool_tol * np.maximum(np.abs(np.asarray(ratio) - 1.0), cfg.pool_d_min) / cfg.pool_z
 
 
 class _Open:
@@ -104,6 +130,8 @@ class _Open:
         self.nis_sum = 0.0
         self.nis_n = 0
         self.in_band = 0
+        self.pooled = (math.nan, math.nan)  # the last observable pooled C_Lk and its sigma
+        self.pool_rows = True  # every row came with a pool
         self.alarms = 0
         self.bad = 0
         self.dropped = 0
@@ -171,13 +199,16 @@ class PeriodAccumulator:
         dropped: int = 0,
         flight: int | None = None,
         usage: NDArray | None = None,
+        pooled: NDArray | None = None,
     ) -> list[Period]:
         """Fold rows (t (n,), est (n, len(est_keys)), health, res) into periods; returns the
         periods closed by them. ``counters``: the monitor's cumulative counters of this
         actuator after these rows (the increase of ``BAD_COUNTERS`` is charged to the open
         period); ``dropped``: messages lost in transport since the last call; ``flight``:
         flight number recorded on a period opened by these rows; ``usage``: the rows' usage
-        rates (``BankRows.usage``; None: the periods these rows fall in get NaN usage)."""
+        rates (``BankRows.usage``; None: the periods these rows fall in get NaN usage);
+        ``pooled``: the rows' pooled C_Lk and sigma (``BankRows.pooled``; recorded as
+        ``c_lk_pooled``, not the indicator; None: no pooled reading)."""
         t = np.asarray(t, float)
         closed: list[Period] = []
         bad = self._bad_delta(counters)
@@ -212,7 +243,8 @@ class PeriodAccumulator:
             b = max(min(stop, b_w), a + 1)
             sl = slice(a, b)
             self._fold(o, t[sl], est[sl], health[sl], None if res is None else res[sl],
-                       None if usage is None else usage[sl])  # fmt: skip
+                       None if usage is None else usage[sl],
+                       None if pooled is None else pooled[sl])  # fmt: skip
             self._last_t = float(t[b - 1])
             a = b
         return closed
@@ -231,6 +263,15 @@ class PeriodAccumulator:
         """Alarm raises seen since the last call (store records; value = the ratio)."""
         ev, self._events = self._events, []
         return ev
+
+    def pooled_reading(self) -> tuple[float, float] | None:
+        """The open period's pooled C_Lk so far (recorded beside the indicator, 0025): its
+        last pooled C_Lk within the observability limit and that sigma [m^3/s/Pa] (None
+        without an open period or before such a row)."""
+        o = self._open
+        if o is None or not math.isfinite(o.pooled[0]):
+            return None
+        return o.pooled
 
     def nis_in_band(self) -> float | None:
         """Fraction of the open period's rows whose NIS lies in its 95 % band (None without
@@ -255,6 +296,7 @@ class PeriodAccumulator:
         health: NDArray,
         res: NDArray | None,
         usage: NDArray | None,
+        pooled: NDArray | None,
     ) -> None:
         cfg = self.cfg
         dt = np.diff(np.concatenate(([o.end_t if o.n else t[0]], t)))
@@ -284,6 +326,14 @@ class PeriodAccumulator:
             first = np.concatenate(([tb[0] != self._keep_bin], tb[1:] != tb[:-1]))
             o.c_lk.append(c[obs][first])
             self._keep_bin = float(tb[-1])
+        if pooled is None:
+            o.pool_rows = False
+        else:
+            r = pooled[:, 0] / self.c_lk0
+            sd = pooled[:, 1] / self.c_lk0
+            ok = np.flatnonzero((sd <= pooled_limit(r, cfg)) & np.isfinite(r))
+            if len(ok):
+                o.pooled = (float(pooled[ok[-1], 0]), float(pooled[ok[-1], 1]))
         p = est[:, self._i_p]
         o.p_sum += float(p.sum())
         o.p_min = min(o.p_min, float(p.min()))
@@ -329,6 +379,8 @@ class PeriodAccumulator:
             c_lk_mean=med,
             c_lk_sigma=sig,
             c_lk_ratio=med / self.c_lk0,
+            c_lk_pooled=o.pooled[0] if o.pool_rows else math.nan,
+            c_lk_pooled_sigma=o.pooled[1] if o.pool_rows else math.nan,
             observable_samples=o.n_obs,
             p_sr_mean=o.p_sum / o.n if o.n else math.nan,
             p_sr_min=o.p_min if o.n else math.nan,
@@ -358,6 +410,7 @@ def periods_of_rows(
     res: NDArray | None = None,
     config: PeriodConfig | None = None,
     usage: NDArray | None = None,
+    pooled: NDArray | None = None,
     **keys: Sequence[str],
 ) -> list[Period]:
     """All periods of one actuator's complete rows (``add_rows`` then ``flush``); ``keys``
@@ -373,4 +426,4 @@ def periods_of_rows(
         keys.get("res_keys", RES_KEYS) if res is not None else None,
         config,
     )
-    return acc.add_rows(t, est, health, res, usage=usage) + acc.flush()
+    return acc.add_rows(t, est, health, res, usage=usage, pooled=pooled) + acc.flush()

@@ -32,6 +32,7 @@ from service.prognostics.degradation import (
     FleetPrior,
     fit_history,
     learn_fleet_prior,
+    robust_trend_prior,
     sample_crossing,
 )
 from service.store.records import Period
@@ -75,8 +76,11 @@ def default_threshold_ratio() -> float:
 class RulConfig:
     """Threshold (C_Lk ratio; None = derived), planning horizons (in flights, used when the
     history counts flights; in operating hours otherwise), the probability of crossing within
-    it that counts as a warning, Monte-Carlo draws, and the fewest observable periods a RUL is
-    computed from."""
+    it that counts as a warning, Monte-Carlo draws, the fewest observable periods a RUL is
+    computed from, and ``robust_trend``: the opt-in Student-t readings and trend model
+    (``degradation.robust_trend_prior``, decision records 0030-0032; off by default: on fresh
+    fleets it regressed the step, quadratic and linear laws and let a one-flight transient
+    warn)."""
 
     threshold_ratio: float | None = None
     horizon_h: float = 50.0
@@ -85,6 +89,7 @@ class RulConfig:
     n_samples: int = 4000
     min_periods: int = 8
     seed: int = 0
+    robust_trend: bool = False
 
     def threshold(self) -> float:
         """The threshold ratio in use."""
@@ -249,6 +254,7 @@ def rul_of_history(
     warning, the model probabilities and the threshold. None stands for "beyond any crossing
     the posterior predicts" or "not known for this history"."""
     cfg = cfg or RulConfig()
+    prior = _prior_for(prior, cfg)
     thr = cfg.threshold()
     t, y = h.observed()
     axis = h.axis
@@ -333,6 +339,18 @@ def rul_of_history(
     return out
 
 
+def _prior_for(prior: FleetPrior | None, cfg: RulConfig) -> FleetPrior | None:
+    """The prior a RUL is computed under: ``prior``, or with ``cfg.robust_trend`` and none the
+    vague prior with the switch on; a prior learned with the other setting of the switch is
+    refused (its model mix and noise model would not be the ones asked for)."""
+    if prior is None:
+        return robust_trend_prior() if cfg.robust_trend else None
+    if prior.robust_trend != cfg.robust_trend:
+        raise ValueError(f"the fleet prior was learned with robust_trend={prior.robust_trend}, "
+                         f"the RUL asks for robust_trend={cfg.robust_trend}")  # fmt: skip
+    return prior
+
+
 def axis_fits(
     h: History, prior: FleetPrior | None, min_p: float = 0.0, wearing_only: bool = False
 ) -> dict[str, tuple]:
@@ -415,11 +433,15 @@ def usage_to_flights(
     return out
 
 
-def fleet_prior(histories: Iterable[History], min_points: int = 8) -> FleetPrior:
+def fleet_prior(
+    histories: Iterable[History], min_points: int = 8, robust_trend: bool = False
+) -> FleetPrior:
     """Fleet prior learned from every unit's observable history (``learn_fleet_prior``) and
-    which life axis explains the fleet's wear (``learn_axes``)."""
+    which life axis explains the fleet's wear (``learn_axes``); ``robust_trend``: with the
+    opt-in Student-t readings and trend model (``RulConfig.robust_trend``)."""
     hs = list(histories)
-    return learn_axes(hs, learn_fleet_prior([h.observed() for h in hs]), min_points)
+    base = robust_trend_prior() if robust_trend else None
+    return learn_axes(hs, learn_fleet_prior([h.observed() for h in hs], base), min_points)
 
 
 def learn_axes(hs: Sequence[History], prior: FleetPrior, min_points: int = 8) -> FleetPrior:
@@ -463,7 +485,7 @@ def compute_rul(
     from all of them; each summary written with ``store.put_rul`` when ``save``."""
     names = store.actuators()
     hist = {a: history_of(a, store.life(a)) for a in names}
-    prior = fleet_prior(hist.values())
+    prior = fleet_prior(hist.values(), robust_trend=cfg is not None and cfg.robust_trend)
     out = []
     for a in [actuator] if actuator is not None else names:
         if a not in hist:

@@ -80,7 +80,8 @@ class FleetSimConfig:
     drawn from a few seconds to several times it), the calibration flight's [s], the fleet
     threshold (C_Lk ratio; None = ``threshold.leak_threshold``), evaluation cadence, horizon
     (flights), worker processes, the monitor's process model, where the logs go (None: a
-    temporary folder)."""
+    temporary folder), and the RUL's opt-in Student-t readings and trend model
+    (``RulConfig.robust_trend``)."""
 
     actuators: int = 6
     flights: int = 20
@@ -98,6 +99,7 @@ class FleetSimConfig:
     workers: int = 0  # 0: min(2, cpu count)
     model: str = DEFAULT_MODEL
     log_dir: str | None = None
+    robust_trend: bool = False
 
     def threshold(self) -> float:
         """The fleet threshold in use."""
@@ -472,7 +474,7 @@ def evaluate(
     rcfg = RulConfig(
         threshold_ratio=cfg.threshold(), horizon_h=cfg.horizon_h,
         horizon_flights=cfg.horizon_flights, warn_p=cfg.warn_p, n_samples=cfg.n_samples,
-        min_periods=cfg.min_history,
+        min_periods=cfg.min_history, robust_trend=cfg.robust_trend,
     )  # fmt: skip
     predict = predict or rul_of_history
     hist = {}
@@ -497,7 +499,8 @@ def evaluate(
             continue
         if prior is None or step % max(1, cfg.prior_every // max(1, cfg.eval_every)) == 0:
             heads_k = hist_heads(hist, k)
-            prior = learn([h.observed() for h in heads_k]) if learn else fleet_prior(heads_k)
+            prior = (learn([h.observed() for h in heads_k]) if learn
+                     else fleet_prior(heads_k, robust_trend=cfg.robust_trend))  # fmt: skip
         row_p, row_t, row_u = [], [], []
         for a, h in heads.items():
             res = predict(h, prior, rcfg)
@@ -536,12 +539,12 @@ def evaluate(
         row = {"actuator": a, "law": tr["law"], "eol_flight": tr["eol_flight"],
                "predictions": len(p), "warned": warned}  # fmt: skip
         eol = tr["eol_flight"]
+        ps = [x[4] for x in p if x[4] is not None]
+        row["max_p_horizon"] = max(ps) if ps else None  # every unit's (a healthy law's too)
         if tr["law"] == "none":
             healthy += 1
             false_warn += int(warned)
-            ps = [x[4] for x in p if x[4] is not None]
             healthy_p.extend(ps)
-            row["max_p_horizon"] = max(ps) if ps else None
         elif p and eol <= tr["flown"] + 1 and p[0][0] < eol:
             before = [x for x in p if x[0] < eol]
             s = score_unit([x[0] for x in before], [x[1] for x in before], eol)

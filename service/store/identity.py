@@ -29,7 +29,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -147,6 +147,14 @@ class Relation:
     exact: bool = True
     holds: bool = False
     shared: int = 0
+
+
+class Relations(dict):
+    """``{source: Relation}`` of a new stream against the stored ones it was read with;
+    called with a source, its relation (None: not compared)."""
+
+    def __call__(self, source: str) -> Relation | None:
+        return self.get(source)
 
 
 class StreamDigest:
@@ -298,10 +306,11 @@ class StreamDigest:
                 return True
         return False
 
-    def relate(self, new: StreamId) -> Callable[[str], Relation | None]:
+    def relate(self, new: StreamId) -> Relations:
         """``source -> relation(new, source)`` for the stored streams this digest compared
-        with while it read (None for any other source)."""
-        return lambda source: self.relation(new, source) if source in self._stored else None
+        with while it read (None for any other source), made now so that it travels with
+        the log's units (a worker's result is pickled to the client that writes the store)."""
+        return Relations({src: self.relation(new, src) for src in self._stored})
 
     def relation(self, new: StreamId, source: str) -> Relation:
         """``new`` (this digest's ``finish()``) against stored ``source``."""

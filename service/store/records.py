@@ -22,6 +22,7 @@ __all__ = [
     "PERIOD_FLOAT_FIELDS",
     "PERIOD_INT_FIELDS",
     "USAGE_FIELDS",
+    "POOLED_FIELDS",
     "check_actuator",
 ]
 
@@ -109,6 +110,8 @@ class Period:
     usage_reversals: float = math.nan
     usage_loaded_s: float = math.nan
     usage_pressurised_s: float = math.nan
+    c_lk_pooled: float = math.nan
+    c_lk_pooled_sigma: float = math.nan
 
     def __post_init__(self) -> None:
         check_actuator(self.actuator)
@@ -139,6 +142,14 @@ class Period:
             if not (math.isnan(v) or (math.isfinite(v) and v >= 0)):
                 raise ValueError(f"{name}: expected a finite number >= 0 or NaN, got {v!r}")
 
+    def c_lk_ratio_sigma(self) -> float:
+        """The 1-sigma of ``c_lk_ratio`` (a share of baseline C_Lk): the scatter of the
+        observable estimates (``c_lk_sigma``) over the baseline the median reading came with;
+        NaN where it abstains. The pooled reading has its own (``c_lk_pooled_sigma``)."""
+        if math.isfinite(self.c_lk_mean) and self.c_lk_mean > 0:
+            return self.c_lk_sigma * self.c_lk_ratio / self.c_lk_mean
+        return math.nan
+
     def __eq__(self, other: object) -> bool:
         """Field by field, a NaN equal to a NaN (an unknown indicator reads back as NaN; two
         records of the same period are equal whichever backend they came through)."""
@@ -156,9 +167,9 @@ class Period:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Period:
-        """Inverse of ``to_dict``; ``None`` in a float field reads as NaN, as does a usage
-        field the dict lacks (a period written before them)."""
-        kw = {k: d[k] if k not in USAGE_FIELDS else d.get(k) for k in PERIOD_FIELDS}
+        """Inverse of ``to_dict``; ``None`` in a float field reads as NaN, as does a usage or
+        pooled field the dict lacks (a period written before them)."""
+        kw = {k: d[k] if k not in LATER_FIELDS else d.get(k) for k in PERIOD_FIELDS}
         del kw["start_unix"]
         su = d.get("start_unix")
         kw["start_unix"] = None if su is None or not math.isfinite(float(su)) else float(su)
@@ -210,6 +221,11 @@ USAGE_FIELDS: tuple[str, ...] = (
     "usage_pressurised_s",
 )
 """The usage fields of a period (migration 5), in the order of ``service.monitor.usage``."""
+POOLED_FIELDS: tuple[str, ...] = ("c_lk_pooled", "c_lk_pooled_sigma")
+"""The pooled C_Lk reading of a period and its sigma [m^3/s/Pa] (migration 6; NaN where the
+indicator abstains, in a period stored before, or from rows without a pool)."""
+LATER_FIELDS: tuple[str, ...] = (*USAGE_FIELDS, *POOLED_FIELDS)
+"""Fields a period written before their migration lacks (they read as NaN)."""
 PERIOD_FLOAT_FIELDS: tuple[str, ...] = (
     "start_t",
     "end_t",
@@ -223,4 +239,5 @@ PERIOD_FLOAT_FIELDS: tuple[str, ...] = (
     "nis_mean",
     "nis_in_band",
     *USAGE_FIELDS,
+    *POOLED_FIELDS,
 )

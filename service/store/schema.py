@@ -134,6 +134,13 @@ _V5: tuple[str, ...] = (
     "ALTER TABLE summary ADD COLUMN usage_load_travel_j DOUBLE PRECISION NOT NULL DEFAULT 0",
 )
 
+# the pooled C_Lk reading of each period and its sigma (service.store.records.POOLED_FIELDS;
+# NULL in the periods stored before: their c_lk_ratio stays the median reading it was)
+_V6: tuple[str, ...] = (
+    "ALTER TABLE periods ADD COLUMN c_lk_pooled DOUBLE PRECISION",
+    "ALTER TABLE periods ADD COLUMN c_lk_pooled_sigma DOUBLE PRECISION",
+)
+
 # a log's identity from all of its samples and one life order (decision records 0033 and
 # 0034; docs/store.md, "What identifies a log"): per replayed log and unit its stream
 # identity (``service.store.identity.StreamId`` as JSON; NULL: stored before, identified by its
@@ -164,6 +171,7 @@ MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
         "usage per period (travel, load-weighted travel, reversals, time under load and at pressure)",
         _V5,
     ),
+    (6, "pooled C_Lk reading of each period and its sigma", _V6),
     (7, "stream identity of replayed logs, one life order in the summary", _V7),
 )
 

@@ -50,6 +50,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument("--threshold", type=finite_float, default=None, help="C_Lk ratio at failure")
     p.add_argument("--workers", type=int, default=0, help="processes (default min(2, cores))")
+    p.add_argument(
+        "--robust-trend", action="store_true",
+        help="the RUL with the opt-in Student-t readings and trend model (as rul --robust-trend)",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
@@ -64,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         [("--truth", args.truth), ("--store", store_path_arg(args))],
         directories=[("--logs", args.logs)],
     )
-    ensure("models", "monitor")
+    ensure("models", "monitor", *(("trend",) if args.robust_trend else ()))
 
     if args.actuators < 1 or args.flights < 2:
         return fail("need --actuators >= 1 and --flights >= 2")
@@ -76,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         actuators=args.actuators, flights=args.flights, seed=args.seed,
         segment_s=args.segment_s, threshold_ratio=args.threshold, eval_every=args.eval_every,
         horizon_h=args.horizon_h, horizon_flights=args.horizon_flights, workers=args.workers,
-        model=args.model, log_dir=args.logs,
+        model=args.model, log_dir=args.logs, robust_trend=args.robust_trend,
     )  # fmt: skip
     t0 = time.perf_counter()
     try:
@@ -90,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         compute_rul(
             store, None,
             RulConfig(threshold_ratio=cfg.threshold(), horizon_h=cfg.horizon_h,
-                      horizon_flights=cfg.horizon_flights),
+                      horizon_flights=cfg.horizon_flights, robust_trend=cfg.robust_trend),
         )  # fmt: skip
         url = store.url
     units = sim["units"]
@@ -144,6 +148,10 @@ def _score_only(args: argparse.Namespace) -> int:
     if not isinstance(truth, dict):
         return fail("--truth: not a fleet-sim truth object")
     thr = args.threshold if args.threshold is not None else truth.get("threshold_ratio")
+    if args.robust_trend:
+        from service.cli.warmup import ensure
+
+        ensure("trend")
     t0 = time.perf_counter()
     try:  # scoring reads the store only
         store = open_store_arg(args, create=False, read_only=True)
@@ -154,7 +162,7 @@ def _score_only(args: argparse.Namespace) -> int:
         cfg = FleetSimConfig(
             actuators=len(units), seed=int(truth.get("seed", 0)), threshold_ratio=thr,
             eval_every=args.eval_every, horizon_h=args.horizon_h,
-            horizon_flights=args.horizon_flights,
+            horizon_flights=args.horizon_flights, robust_trend=args.robust_trend,
         )  # fmt: skip
         prog = Progress("evaluate")
         try:

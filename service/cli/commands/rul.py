@@ -55,6 +55,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--no-save", action="store_true",
         help="do not write the RUL to the store (the store is then opened read only)",
     )  # fmt: skip
+    p.add_argument(
+        "--robust-trend", action="store_true",
+        help="opt in to the Student-t readings and the trend model (off by default: on fresh "
+        "fleets they regressed the step, quadratic and linear laws; docs/prognostics.md)",
+    )  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--png", metavar="F", help="RUL fan plot of --actuator (or the most urgent)")
 
@@ -78,8 +83,13 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as e:
             return fail(f"--tolerance-m: {e}")
     cfg = RulConfig(threshold_ratio=thr, horizon_h=args.horizon_h,
-                    horizon_flights=args.horizon_flights)  # fmt: skip
+                    horizon_flights=args.horizon_flights,
+                    robust_trend=args.robust_trend)  # fmt: skip
     check_outputs([("--png", args.png)], [("--store", store_path_arg(args))])
+    if args.robust_trend:
+        from service.cli.warmup import ensure
+
+        ensure("trend")  # its first use compiles the trend model's kernel (and says so)
     t0 = time.perf_counter()
     try:  # --no-save only reads: the store opened read only (never migrated, never written)
         store = open_store_arg(args, create=False, read_only=args.no_save)

@@ -90,8 +90,8 @@ def format_rul(rul: dict | None) -> str:
 def format_unit(a: dict) -> list[str]:
     """The lines of one unit of a daemon's status, every value chosen by name (a model that
     adds or reorders estimate fields changes nothing here): counters; C_Lk with its
-    1-sigma [m^3/(s Pa)], the leak and supply ratios over the baseline, the NIS in band;
-    then silence, active alarms, commissioning and baseline version, periods and RUL."""
+    1-sigma [m^3/(s Pa)], the leak and supply ratios over the baseline, the NIS in band and
+    the pooled C_Lk with its sigma where the daemon has one (decisions/0025); then silence, active alarms, commissioning and baseline version, periods and RUL."""
     est, health = _dict(a.get("est")), _dict(a.get("health"))
     c_lk, c_sig = _num(est.get("c_lk")), _num(est.get("c_lk_sigma"))
     head = (
@@ -105,6 +105,14 @@ def format_unit(a: dict) -> list[str]:
         f"supply ratio {_fmt(_num(health.get('supply_ratio')))}, "
         f"NIS in band {_pct(a.get('nis_in_band'))}"
     )
+    pooled = a.get("c_lk_pooled") if isinstance(a.get("c_lk_pooled"), dict) else None
+    if "c_lk_pooled" in a:  # the pooled C_Lk (issue 51, 0025; shown, not the indicator)
+        ind += (
+            f", pooled {_fmt(_num(pooled.get('value')))} +- "
+            f"{_fmt(_num(pooled.get('sigma')), '.2g')}"
+            if pooled
+            else ", pooled abstains"
+        )
     flags = []
     if a.get("silent"):
         flags.append("SILENT")

@@ -22,10 +22,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--group", action="append", choices=tuple(GROUPS), default=None,
         help=f"only the kernels of this group (repeatable; default: {', '.join(DEFAULT_GROUPS)}; "
-        "valves: the bench on the simplified valve models (simulate, compare), compiled on its "
-        "first use otherwise)",
+        "valves: the bench on the simplified valve models (simulate, compare); trend: the RUL's "
+        "opt-in trend model (rul --robust-trend); each compiled on its first use otherwise)",
     )  # fmt: skip
-    p.add_argument("--all", action="store_true", help="every group, valves too")
+    p.add_argument("--all", action="store_true", help="every group, valves and trend too")
     p.add_argument("--table", action="store_true", help="print the compile seconds of every kernel")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument(

@@ -96,8 +96,9 @@ def fleet_view(store: HealthStore, now_s: float | None = None) -> dict[str, Any]
 def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
     """One unit's history for the page: per period (by start time) the cumulative operating
     hours at its end ``t_h`` (the RUL's time axis, ``history_of``), the C_Lk ratio and its
-    1-sigma (NaN -> null where unobservable), the lowest supply pressure [Pa] and the alarm
-    count, the usage (travel, load-weighted travel, reversals; null where unknown); its alarm
+    1-sigma (NaN -> null where unobservable), the pooled C_Lk and its sigma [m^3/(s Pa)]
+    (recorded beside the indicator, decisions/0025; null where it abstains), the lowest
+    supply pressure [Pa] and the alarm count, the usage (travel, load-weighted travel, reversals; null where unknown); its alarm
     events, baseline versions, stored RUL and mean usage per flight (``usage_per_flight``)."""
     check_actuator(actuator)
     if not store.has_actuator(actuator):
@@ -106,8 +107,7 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
     hist = history_of(actuator, periods)
     rows = []
     for p, t_h, y in zip(periods, hist.t_h, hist.y, strict=True):
-        base = p.c_lk_mean / p.c_lk_ratio if p.c_lk_ratio else math.nan
-        sig = p.c_lk_sigma / base if math.isfinite(base) and base > 0 else math.nan
+        sig = p.c_lk_ratio_sigma()
         rows.append(
             {
                 "start_t": p.start_t,
@@ -116,6 +116,8 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
                 "flight": p.flight,
                 "c_lk_ratio": _finite(float(y)),
                 "c_lk_ratio_sigma": _finite(sig) if math.isfinite(float(y)) else None,
+                "c_lk_pooled": _finite(p.c_lk_pooled),
+                "c_lk_pooled_sigma": _finite(p.c_lk_pooled_sigma),
                 "p_sr_min": _finite(p.p_sr_min),
                 "alarms": p.alarms,
                 "source": p.source,

@@ -312,7 +312,8 @@ function chart(unit) {
       s.appendChild(svg("line", { x1: x(p.t_h), x2: x(p.t_h), y1: y(p.c_lk_ratio - sig), y2: y(p.c_lk_ratio + sig), class: "err" }));
     }
     const c = svg("circle", { cx: x(p.t_h), cy: y(p.c_lk_ratio), r: 3, class: "pt" + (p.alarms ? " alarm" : "") });
-    c.appendChild(svg("title", {}, `${p.t_h.toFixed(2)} h: ${p.c_lk_ratio.toFixed(3)}${p.alarms ? ", alarm" : ""}`));
+    const pool = num(p.c_lk_pooled) !== null ? `, pooled C_Lk ${p.c_lk_pooled.toExponential(2)} +- ${(num(p.c_lk_pooled_sigma) || 0).toExponential(1)}` : "";
+    c.appendChild(svg("title", {}, `${p.t_h.toFixed(2)} h: ${p.c_lk_ratio.toFixed(3)}${pool}${p.alarms ? ", alarm" : ""}`));
     s.appendChild(c);
   }
   return s;
