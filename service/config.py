@@ -34,8 +34,10 @@ from pydantic_settings import NoDecode
 from pydantic_settings.exceptions import SettingsError
 
 from service.compat.pydantic_settings import MappingEnvSource
+from service.log.settings import LogSettings
 from service.monitor import MonitorConfig
 from service.names import NAME_PATTERN
+from service.paths import DEFAULT_LOG_DIR
 from service.strictnum import bool_in_number
 from service.zenoh_util import EndpointError, check_endpoint, diagnose_link, make_config
 
@@ -426,7 +428,12 @@ class ServiceConfig(BaseModel):
     shard: str = Field("0", pattern=_NAME, description="shard of the fleet")
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
     key_expr: str = Field("fleet/**/meas", min_length=1, description="measurements to watch")
-    log_dir: Path = Field(Path("logs"), description="directory of the MCAP logs")
+    log_dir: Path = Field(
+        DEFAULT_LOG_DIR,
+        description="directory of the MCAP logs (beside the default store "
+        "servowatch-data/health.sqlite)",
+    )
+    log: LogSettings = Field(default_factory=LogSettings)
     log_name: str = Field("servowatch", min_length=1, description="MCAP file name prefix")
     rotate_bytes: int | None = Field(256 * 2**20, gt=0, description="rotate after this size")
     rotate_s: float | None = Field(3600.0, gt=0, description="rotate after this long [s]")

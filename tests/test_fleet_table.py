@@ -48,3 +48,48 @@ def test_the_table_ranks_by_rul_and_prints_each_units_axis():
     text = format_fleet(ranked).splitlines()
     assert "20 fl" in text[2] and "+0.05/10 fl" in text[2] and "4 [3-6] flights" in text[2]
     assert "100.0 h" in text[3] and "+0.10/100 h" in text[3] and "50 [40-70] h" in text[3]
+
+
+def test_the_default_table_fits_100_columns_and_wide_has_every_column():
+    fl = {"axis": "flights", "t_now": 20.0, "hours_per_flight": 0.5, "median_flights": 1.0,
+          "lo_flights": 1.0, "hi_flights": 6.0, "median_days": 12.0, "p_horizon": 0.4}  # fmt: skip
+    rows = [_row(f"AC{k:03d}/aileron_R", fl, 0.01, 10 * 3600.0) for k in range(3)]
+    for r in rows:
+        r["usage"] = {"travel_m_per_h": 12.5, "load_travel_j_per_h": 3.2e4}
+    ranked = rank_fleet(rows)
+    narrow = format_fleet(ranked).splitlines()
+    assert max(len(ln) for ln in narrow) <= 100, max(len(ln) for ln in narrow)
+    assert "1 [1-6] flight ~12 d" in narrow[2]  # one flight, not "1 flights"
+    wide = format_fleet(ranked, wide=True).splitlines()
+    assert max(len(ln) for ln in wide) > 100
+    for h in ("P_SR min MPa", "P(horizon)", "travel m/h", "load x travel kJ/h"):
+        assert h in wide[0] and h not in narrow[0]
+    assert "|F|trav" not in wide[0]
+    assert "12.50" in wide[2] and "32.0" in wide[2]
+
+
+def test_fleet_png_draws_the_trends_against_the_threshold(store_url, tmp_path, capsys):
+    """``servowatch fleet --png``: a panel per unit with its C_Lk ratio per period and the
+    threshold its RUL used; the table says which store it read."""
+    import matplotlib.image as mpimg
+
+    from service.cli import main
+    from service.store import open_store
+    from tests.test_store import make_period
+
+    with open_store(store_url) as s:
+        for name, slope in (("AC1/a", 0.05), ("AC1/b", 0.01)):
+            s.add_periods([make_period(name, k, ratio=1.0 + slope * k) for k in range(1, 30)])
+        s.put_rul("AC1/a", {"axis": "flights", "threshold_ratio": 2.5, "t_now": 29.0,
+                            "median_flights": 3.0, "lo_flights": 1.0, "hi_flights": 8.0,
+                            "periods": 29})  # fmt: skip
+    png = tmp_path / "trends.png"
+    assert main(["fleet", "--store", store_url, "--png", str(png)]) == 0
+    out, err = capsys.readouterr()
+    assert f"wrote {png} (2 units)" in err
+    assert out.startswith("2 actuators in ") and "AC1/a" in out
+    img = mpimg.imread(png)
+    assert img.shape[0] > 200 and img.shape[1] > 1000  # two panels side by side
+    # the threshold line is drawn in red: some pixels are red-dominant
+    red = (img[..., 0] > 0.8) & (img[..., 1] < 0.4) & (img[..., 2] < 0.4)
+    assert red.sum() > 200

@@ -20,6 +20,7 @@ from _foxglove_ws import FoxgloveClient, MessageData
 
 from service.edge.foxglove_feed import LEAVES, FoxgloveFeed, encode_rows, topic_schemas
 from service.log import McapLogger
+from service.log.events import EventCodec, EventLayout, decode_event, encode_event
 from service.log.proclog import MEAS_LOG_FIELDS
 from service.log.rows import RowLayout
 from service.monitor import EST_KEYS
@@ -47,7 +48,7 @@ def _mcap(path: Path) -> tuple[dict[str, tuple], dict[str, dict[int, bytes]]]:
 
 def _advertised(schema) -> tuple:
     """What the feed advertises for a topic_schemas entry, as _mcap gives it."""
-    if isinstance(schema, RowLayout):
+    if isinstance(schema, RowLayout | EventLayout):
         return ("protobuf", schema.message, "protobuf", schema.schema)
     return ("json", "events", "jsonschema", schema)
 
@@ -79,14 +80,15 @@ def test_schemas_and_bytes_are_the_logs(tmp_path):
     with McapLogger(path, background_flush=False) as lg:
         lg.log_block(TOPIC["meas"], t, MEAS_LOG_FIELDS, meas, int_fields=("seq",))
         lg.log_block(TOPIC["est"], t, EST_KEYS, est)
-        lg.log(TOPIC["events"], event["t"], event)
+        lg.log_event(TOPIC["events"], event["t"], event)
     schemas, msgs = _mcap(path)
     mine = topic_schemas(AC, ACT)
     for leaf in ("meas", "est", "events"):
         assert _advertised(mine[TOPIC[leaf]]) == schemas[TOPIC[leaf]], leaf
     assert schemas[TOPIC["est"]][:3] == ("protobuf", "servowatch.Est", "protobuf")
     assert set(mine) == set(TOPIC.values())
-    assert AlarmEvent.__dataclass_fields__.keys() == mine[TOPIC["events"]]["properties"].keys()
+    assert set(AlarmEvent.__dataclass_fields__) <= set(EventCodec.names)  # every field carried
+    assert msgs[TOPIC["events"]] == {round(event["t"] * 1e9): encode_event(event)}
     lts, datas = encode_rows(TOPIC["est"], t, EST_KEYS, est)
     assert dict(zip(lts.tolist(), datas, strict=True)) == msgs[TOPIC["est"]]
     lts, datas = encode_rows(TOPIC["meas"], t, MEAS_LOG_FIELDS, meas, ("seq",))
@@ -103,8 +105,7 @@ def test_feed_encodes_only_subscribed_topics_and_counts_drops():
         assert c.topics() == set(TOPIC.values())
         enc = {x["topic"].rsplit("/", 1)[-1]: (x["encoding"], x["schemaEncoding"])
                for x in c.channels.values()}  # fmt: skip
-        assert enc == {**{leaf: ("protobuf", "protobuf") for leaf in LEAVES},
-                       "events": ("json", "jsonschema")}  # fmt: skip
+        assert enc == {leaf: ("protobuf", "protobuf") for leaf in LEAVES}  # events too
         lay = topic_schemas(AC, ACT)[TOPIC["est"]]
         assert _channel_schema(ch) == _advertised(lay)
         t = np.array([1.0, 1.001, 1.002])
@@ -145,12 +146,16 @@ def test_every_sends_one_row_in_n_per_topic_and_every_event():
         est = np.zeros((10, len(EST_KEYS)))
         for a, b in ((0, 3), (3, 8), (8, 10)):  # blocks of 3, 5 and 2 rows
             feed.log_block(TOPIC["est"], np.arange(a, b, dtype=float), EST_KEYS, est[a:b])
-            feed.log(TOPIC["events"], a + 0.5, {"t": a + 0.5, "kind": "leak", "state": "raised"})
-        got = []
+            feed.log_event(TOPIC["events"], a + 0.5,
+                           {"t": a + 0.5, "kind": "leak", "state": "raised"})  # fmt: skip
+        got, payloads = [], []
         while len(got) < 6:
             r = c.recv(timeout=10)
             if isinstance(r, MessageData):
                 got.append((r.subscription, r.timestamp_ns / 1e9))
+                if r.subscription == 2:
+                    payloads.append(decode_event(r.payload))
+        assert [(p["kind"], p["state"]) for p in payloads] == [("leak", "raised")] * 3
         assert sorted(x for s, x in got if s == 1) == [0.0, 4.0, 8.0]
         assert sorted(x for s, x in got if s == 2) == [0.5, 3.5, 8.5]
     finally:
@@ -242,7 +247,7 @@ def test_daemon_serves_foxglove_live(net, tmp_path):
             if isinstance(r, MessageData):
                 (est if r.subscription == 1 else events).append(r)
         assert len(est) >= 2 * RATE
-        ev = [json.loads(x.payload) for x in events]
+        ev = [decode_event(x.payload) for x in events]
         assert any(e["kind"] == "leak" and e["state"] == "raised" for e in ev), ev
         ts = [x.timestamp_ns for x in est]
         assert ts == sorted(ts) and len(set(ts)) == len(ts)

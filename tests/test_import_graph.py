@@ -24,7 +24,7 @@ MAX_LOOSE = 8
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("models",),
     ("service.compat", "service.jsonutil", "service.strictnum", "service.progress",
-     "service.plots", "service.zenoh_util", "service.names"),
+     "service.plots", "service.zenoh_util", "service.names", "service.paths"),
     ("service.log", "service.store"),
     ("service.monitor",),
     ("service.wire",),

@@ -109,6 +109,9 @@ def test_scrape_is_the_status_snapshot(leaking):
     )
     assert [c for _, c in les] == sorted(c for _, c in les)  # cumulative
     assert v("servowatch_log_bytes", base) > 0  # the log file's size
+    ret = st["log_retention"]  # the retention's: what it kept, what it deleted
+    assert v("servowatch_log_kept_bytes", base) == ret["kept_bytes"] > 0
+    assert v("servowatch_log_deleted_files_total", base) == ret["deleted_files"] == 0
 
 
 def test_scrape_reads_the_status_each_time(leaking):
@@ -211,6 +214,8 @@ def full_status() -> dict:
         "station": "s", "shard": "0", "model": "WH", "state": "ok", "uptime_s": 1.0,
         "samples": 1, "dropped": 0, "bad": 0, "missed": 0, "errors": 0, "queue": 0,
         "queue_high": 0, "queue_size": 10, "busy_fraction": 0.1, "log": [], "log_failure": None,
+        "log_retention": {"kept_bytes": 7, "kept_files": 1, "deleted_bytes": 9,
+                          "deleted_files": 2},
         "latency_hist": {"le_s": [0.01], "counts": [1, 0], "sum_s": 0.001},
         "store": {"written": 1, "errors": 0, "pending": 0, "failure": None},
         "group": {"members": ["a", "b"], "takeovers": 1, "released": 0, "held_units": 0,

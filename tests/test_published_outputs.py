@@ -284,8 +284,10 @@ def test_listen_prints_outputs_old_json_too_and_counts_malformed(meas, tmp_path)
                 proc.kill()
     assert proc.returncode == 0, err
     assert "Traceback" not in err
-    lines = [ln.split(" ", 1) for ln in out.splitlines()]
-    got = [(key, json.loads(d)) for key, d in lines]
+    lines = [ln.split(" ", 2) for ln in out.splitlines()]  # time, key, fields
+    assert len(lines) == len(want) + 1  # --count N: exactly N lines
+    got = [(key, json.loads(d)) for _when, key, d in lines]
+    assert all(w == f"t={d['t']:.3f}s" for (w, _k, _d), (_, d) in zip(lines, got, strict=True))
     by_key: dict[str, list] = {}
     for key, d in got:
         by_key.setdefault(key, []).append(d)

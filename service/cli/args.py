@@ -71,7 +71,11 @@ def add_foxglove_arguments(
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """``--config``, ``--connect``, ``--listen``, ``--mode`` shared by the service commands."""
-    parser.add_argument("--config", help="service TOML file (SERVOWATCH_* env overrides apply)")
+    parser.add_argument(
+        "--config",
+        help="service TOML file (default: $SERVOWATCH_CONFIG, ~/.config/servowatch/"
+        "servowatch.toml, /etc/servowatch/servowatch.toml; SERVOWATCH_* overrides apply)",
+    )
     parser.add_argument(
         "--connect",
         action="append",
@@ -98,10 +102,14 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def service_config_from_args(args: argparse.Namespace) -> ServiceConfig:
-    """``load_config(args.config)`` with the command line's Zenoh overrides applied."""
+    """``load_config`` of the config file the search finds (``service.paths.find_config``:
+    ``--config``, ``$SERVOWATCH_CONFIG``, the user's, the system's) with the command line's
+    Zenoh overrides applied."""
     from service.config import ConfigError, ZenohSettings, load_config
+    from service.paths import find_config
 
-    cfg = load_config(getattr(args, "config", None))
+    path, _where = find_config(getattr(args, "config", None))  # flag, env, user, system
+    cfg = load_config(path)
     z = cfg.zenoh.model_dump()
     if getattr(args, "connect", None):
         z["connect"] = list(args.connect)

@@ -42,6 +42,7 @@ COMMANDS: tuple[str, ...] = (
     "demo",
     "warmup",
     "import",
+    "layout",
 )
 
 
@@ -82,6 +83,7 @@ def build_parser(only: str | None = None, *, summary: bool = False) -> argparse.
         description="Prognostics and health monitoring for electro-hydraulic actuators.",
         epilog="`servowatch COMMAND --help` describes a command's options (docs/cli.md).",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS if only is None else (only,):
         if summary:
@@ -92,6 +94,18 @@ def build_parser(only: str | None = None, *, summary: bool = False) -> argparse.
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
+
+
+def version() -> str:
+    """The installed servowatch's version (its package metadata), or ``unknown`` for a
+    source tree that is not installed."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as _v
+
+    try:
+        return _v("servowatch")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _escape(text: str) -> str:

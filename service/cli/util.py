@@ -59,6 +59,20 @@ EXIT_OK = 0
 EXIT_REFUSED = 1  # refused by the target (a daemon, the actuator), or the run found nothing
 EXIT_USAGE = 2  # bad arguments, settings or input files; an output that is an input
 EXIT_IO = 5  # a file or the store failed while being read or written (disk full, I/O error)
+EXIT_INTERRUPTED = 130  # Ctrl-C
+
+#: the table of every exit code (docs/cli.md, "Exit codes", checked by tests/test_docs_exit_codes.py):
+#: 3 and 4 are the Zenoh session's (``service.config.EXIT_UNREACHABLE``, ``EXIT_REFUSED``),
+#: 5 also the daemon's failed MCAP log (``service.daemon.EXIT_LOG_FAILURE``)
+EXIT_CODES: dict[int, str] = {
+    EXIT_OK: "ok",
+    EXIT_REFUSED: "refused by the target, nothing came back, or part of a batch failed",
+    EXIT_USAGE: "bad arguments, settings or input files, found before the work",
+    3: "router or target not reachable",
+    4: "connection refused at the TLS handshake",
+    EXIT_IO: "a file or the store failed while being written or read, after the work started",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C)",
+}
 
 
 class CommandError(Exception):

@@ -236,6 +236,7 @@ def _run_part(part: str, record: bool, t0: float, stream) -> list[tuple]:
 
     rec = _CompileTimes()
     depth = [0]
+    seen = _SeenKernels(os.environ.get("SERVOWATCH_WARMUP_SEEN"))
 
     def on_start(ev) -> None:
         depth[0] += 1
@@ -246,13 +247,43 @@ def _run_part(part: str, record: bool, t0: float, stream) -> list[tuple]:
         rec.on_end(ev)
         if depth[0] == 0 and stream is not None:
             f = ev.data["dispatcher"].py_func
-            print(f"servowatch:   compiled {f.__module__}.{f.__qualname__} "
-                  f"({time.time() - t0:.0f} s)", file=stream, flush=True)  # fmt: skip
+            name = f"{f.__module__}.{f.__qualname__}"
+            if seen.first(name):  # once per kernel: another signature, another part: silent
+                print(f"servowatch:   compiled {name} ({time.time() - t0:.0f} s)", file=stream,
+                      flush=True)  # fmt: skip
 
     with event.install_listener("numba:compile", _listener(on_start, on_end)):
         PARTS[part][0]()
     group = next(g for g, ps in GROUP_PARTS.items() if part in ps)
     return [(group, k, rec.count[k], rec.own[k], rec.total[k]) for k in rec.own] if record else []
+
+
+_ANNOUNCED: set[str] = set()  # kernels announced by the parts run in this process
+
+
+class _SeenKernels:
+    """The kernels announced so far by the parts of one warm-up: a marker file per kernel in
+    ``folder`` (shared by the parts' processes, created exclusively), else this process's
+    set. A kernel compiled for a second signature, or by two parts, is announced once."""
+
+    def __init__(self, folder: str | None) -> None:
+        self.folder = folder
+        self.names: set[str] = set() if folder else _ANNOUNCED  # in process: every part's
+
+    def first(self, name: str) -> bool:
+        if name in self.names:
+            return False
+        self.names.add(name)
+        if not self.folder:
+            return True
+        try:
+            fd = os.open(os.path.join(self.folder, name), os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            return False
+        except OSError:  # the folder is gone: announce rather than hide
+            return True
+        os.close(fd)
+        return True
 
 
 def _path_s(part: str, parts: list[str]) -> float:
@@ -277,7 +308,10 @@ def run_parts(
         for p in parts:
             rows += _run_part(p, record, t0, stream)
         return rows, time.time() - t0
-    env = {**os.environ, "SERVOWATCH_WARMUP_T0": repr(t0)}
+    import tempfile
+
+    seen = tempfile.TemporaryDirectory(prefix="servowatch-warmup-")
+    env = {**os.environ, "SERVOWATCH_WARMUP_T0": repr(t0), "SERVOWATCH_WARMUP_SEEN": seen.name}
     try:  # a file stream takes the parts' lines as they come; another one, when they end
         err = stream.fileno() if stream is not None else subprocess.DEVNULL
     except (AttributeError, OSError, ValueError):
@@ -382,6 +416,29 @@ def monitor_group(model: str) -> str:
     return "monitor"
 
 
+def estimate_text(cold: list[str], jobs: int | None = None, load: float | None = None) -> str:
+    """What a cold compile of ``cold`` will take and what the figure assumes: the CPU seconds
+    measured on this project's 2-core VM (``ESTIMATE_S``) over the cores it uses, if they are
+    idle; the load average now (``load``: os.getloadavg's), which lengthens it."""
+    n = default_jobs() if jobs is None else max(1, jobs)
+    used = min(n, 2)  # the parts wait for each other: at most 2 run at once
+    cpu = sum(ESTIMATE_S[g] for g in cold)
+    if load is None:
+        try:
+            load = os.getloadavg()[0]
+        except OSError:
+            load = None
+    text = (
+        f"first run, about {cpu / used:.0f} s if {used} core{'s are' if used > 1 else ' is'} "
+        f"idle: {cpu:.0f} s of CPU measured on a 2-core VM"
+    )
+    if load is not None:
+        cores = os.cpu_count() or 1
+        busy = f", more now: load average {load:.1f} on {cores} cores" if load > 0.5 * cores else ""
+        text += busy
+    return text + "; cached afterwards; `servowatch warmup` does it ahead"
+
+
 def ensure(*groups: str, always: bool = False, stream=None, jobs: int | None = None) -> float:
     """Compile the kernels of ``groups`` that numba's cache lacks, before a command uses
     them, saying so on ``stream`` (stderr): what, an estimate, then a line per kernel as it
@@ -391,14 +448,8 @@ def ensure(*groups: str, always: bool = False, stream=None, jobs: int | None = N
     t0 = time.perf_counter()
     cold = [g for g in groups if not is_cached(g)]
     if cold:
-        n = default_jobs() if jobs is None else jobs
-        est = sum(ESTIMATE_S[g] for g in cold) / min(n, 2)
-        print(
-            f"servowatch: compiling {', '.join(WHAT[g] for g in cold)} (first run, about "
-            f"{est:.0f} s on {n} core{'s' if n > 1 else ''}; cached afterwards; `servowatch "
-            "warmup` does it ahead)...",
-            file=out, flush=True,
-        )  # fmt: skip
+        print(f"servowatch: compiling {', '.join(WHAT[g] for g in cold)} "
+              f"({estimate_text(cold, jobs)})...", file=out, flush=True)  # fmt: skip
         # a part's lines go straight to a file stream; another stream gets them from here
         run_parts(_parts_of(tuple(cold), cold_only=True), jobs, stream=out)
     if always:  # the cached groups exercised here (the cold ones ran in their parts)

@@ -13,7 +13,7 @@ from service.daemon.core import EXIT_LOG_FAILURE, Daemon, default_log_path
 from service.daemon.intake import MAX_ACTUATORS, ActuatorState
 from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.status import percentiles
-from service.daemon.systemd import sd_notify, watchdog_interval
+from service.daemon.systemd import extending_start, notify_ready, sd_notify, watchdog_interval
 
 __all__ = [
     "ActuatorState",
@@ -22,6 +22,8 @@ __all__ = [
     "MAX_ACTUATORS",
     "RateLimitedLog",
     "default_log_path",
+    "extending_start",
+    "notify_ready",
     "percentiles",
     "sd_notify",
     "watchdog_interval",

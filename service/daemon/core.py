@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import threading
 import time
 import uuid
@@ -45,10 +46,16 @@ from service.config import ServiceConfig
 from service.daemon.intake import ClockCheck, Intake
 from service.daemon.member import GroupMember
 from service.daemon.monitoring import MonitorStage
-from service.daemon.outputs import Outputs, default_log_path, open_logger, store_target
+from service.daemon.outputs import (
+    Outputs,
+    default_log_path,
+    open_logger,
+    open_retention,
+    store_target,
+)
 from service.daemon.ratelimit import RateLimitedLog
 from service.daemon.status import snapshot
-from service.daemon.systemd import sd_notify, watchdog_interval
+from service.daemon.systemd import extending_start, notify_ready, sd_notify, watchdog_interval
 from service.monitor import Baseline
 from service.wire import messages as m
 
@@ -117,6 +124,7 @@ class Daemon:
         baseline = Baseline.load(config.baseline) if config.baseline and bank is None else None
         self.monitor = MonitorStage(config.monitor, baseline, store_url=store_url, bank=bank)
         log_id = None  # the id of the log the live periods are written beside
+        retention = None if logger is not None else open_retention(config, log_path)
         if logger is None:
             b = self.monitor.bank
             log_id = uuid.uuid4().hex[:16]
@@ -127,7 +135,7 @@ class Daemon:
         self.log_path = Path(log_path) if log_path is not None else None
         self.outputs = Outputs(
             config, logger, counters=self.monitor.counters_of_row, store_url=store_url,
-            bad_log=bad_log, log_id=log_id,
+            bad_log=bad_log, log_id=log_id, retention=retention,
         )  # fmt: skip
         pc = config.prognostics
         if self.outputs.store is not None and pc.auto_commission_s is not None:
@@ -147,6 +155,10 @@ class Daemon:
         self._last_silence_check = 0.0
         self._wd_interval = watchdog_interval()
         self._wd_last = 0.0
+        self.sweep_s = config.log.sweep_s
+        self._last_sweep = -math.inf
+        self._swept_paths = 0
+        self._sweep_lock = threading.Lock()
 
     # -- the pipeline ---------------------------------------------------------------------
     def submit(self, key: str, payload: bytes, t_recv: float | None = None) -> bool:
@@ -201,6 +213,16 @@ class Daemon:
         """Group units no member monitors (``GroupMember.check_unmonitored``)."""
         return self.member.check_unmonitored(now, self.config.silence_s, self.intake, self.outputs)
 
+    def maybe_sweep(self, now: float) -> list:
+        """A retention sweep of the logs every ``[log] sweep_s`` and after each rotation
+        (``Outputs.sweep_logs``); returns what it deleted."""
+        with self._sweep_lock:  # the worker's, and a caller's (tests)
+            n = len(self.outputs.logger.paths)
+            if now - self._last_sweep < self.sweep_s and n == self._swept_paths:
+                return []
+            self._last_sweep, self._swept_paths = now, n
+            return self.outputs.sweep_logs()
+
     def _run_worker(self) -> None:
         while True:
             stopping = self._stop.is_set()
@@ -219,6 +241,7 @@ class Daemon:
                     if self.check_silence(now) or changed:
                         self.outputs.logger.commit()
                     self.outputs.check_feed()
+                    self.maybe_sweep(now)
                 if self._wd_interval is not None and now - self._wd_last > self._wd_interval:
                     self._wd_last = now
                     with self._notify_lock:  # never a WATCHDOG after STOPPING
@@ -293,9 +316,10 @@ class Daemon:
         it holds the GIL for seconds, during which Zenoh's callbacks could not queue samples
         (a unit would look silent) nor answer status (a daemon answers once it can
         monitor)."""
-        warm = self.monitor.warm_up()
-        self.intake.warm_up()
-        self.outputs.fanout.warm_up()
+        with extending_start("starting: loading the kernels"):  # systemd: the start goes on
+            warm = self.monitor.warm_up()
+            self.intake.warm_up()
+            self.outputs.fanout.warm_up()
         if warm > 0.05:
             log.info("monitor warm-up (JIT) took %.2f s", warm)
         if session is not None:
@@ -337,14 +361,10 @@ class Daemon:
             target=self._run_worker, name="servowatch-worker", daemon=True
         )
         self._worker.start()
-        sd_notify("READY=1")
-        log.info(
-            "daemon %s/%s started on %s, logging to %s",
-            self.station,
-            self.shard,
-            self.key_expr,
-            self.log_path,
-        )
+        self.maybe_sweep(time.monotonic())  # the files of earlier runs, before READY
+        notify_ready()  # once compiled, loaded, subscribed and serving status
+        log.info("daemon %s/%s started on %s", self.station, self.shard, self.key_expr)
+        self.outputs.announce_log()  # the file written, by its own name (rotated or not)
 
     def stop(self, timeout: float = 30.0) -> dict[str, Any]:
         """Stop the inflow, process what is queued, finish the log. Idempotent.

@@ -322,10 +322,18 @@ class FanOut:
         for e in events:
             d = event_dict(e)
             te, fd = float(d.get("t") or t_r), flat(d)
-            if lg is not None:
-                lg.log(tg.prefix + "events", te, fd)
-            if lv is not None:
-                lv.log(tg.prefix + "events", te, fd)
+            if lg is not None:  # a servowatch.Event protobuf row (JSON: a logger without it)
+                ev = getattr(lg, "log_event", None)
+                if ev is not None:
+                    ev(tg.prefix + "events", te, d)
+                else:
+                    lg.log(tg.prefix + "events", te, fd)
+            if lv is not None:  # the live feed: the log's bytes
+                lev = getattr(lv, "log_event", None)
+                if lev is not None:
+                    lev(tg.prefix + "events", te, d)
+                else:
+                    lv.log(tg.prefix + "events", te, fd)
             em.events.append(d)
 
     def _publish(

@@ -32,7 +32,7 @@ from service.log.proclog import MEAS_LOG_FIELDS, ProcessLogger
 from service.prognostics import PeriodConfig
 from service.wire import messages as m
 
-__all__ = ["Outputs", "default_log_path", "open_logger", "store_target"]
+__all__ = ["Outputs", "default_log_path", "open_logger", "open_retention", "store_target"]
 
 log = logging.getLogger("servowatch.daemon")
 
@@ -40,7 +40,28 @@ log = logging.getLogger("servowatch.daemon")
 def default_log_path(log_dir: Path, station: str, shard: str, prefix: str = "servowatch") -> Path:
     """``{log_dir}/{prefix}-{station}-{shard}-{UTC time}.mcap``."""
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-    return Path(log_dir) / f"{prefix}-{station}-{shard}-{stamp}.mcap"
+    return Path(log_dir) / f"{default_log_prefix(station, shard, prefix)}{stamp}.mcap"
+
+
+def default_log_prefix(station: str, shard: str, prefix: str = "servowatch") -> str:
+    """The name every default log file of daemon ``station``/``shard`` starts with."""
+    return f"{prefix}-{station}-{shard}-"
+
+
+def open_retention(config: ServiceConfig, log_path: str | Path | None):
+    """The retention of the daemon's logs (``[log] keep_bytes``, ``keep_days``;
+    ``service.log.retention``): every run's files on the default path, else the rotation set
+    of ``log_path`` (an explicit ``--log``)."""
+    from service.log.retention import Retention, pattern_of
+
+    lc = config.log
+    if log_path is None:
+        folder = Path(config.log_dir)
+        pattern = pattern_of("", default_log_prefix(config.station, config.shard, config.log_name))
+    else:
+        folder = Path(log_path).parent
+        pattern = pattern_of(log_path)
+    return Retention(folder, pattern, keep_bytes=lc.keep_bytes, keep_days=lc.keep_days)
 
 
 def store_target(store: str | None) -> str | None:
@@ -68,6 +89,22 @@ def open_logger(
     return logger, Path(log_path)
 
 
+def log_alarm(unit: str, d: dict[str, Any]) -> None:
+    """An alarm event as one log line with its unit, kind, state, value and time as fields
+    (``fields``: JSON keys, journald ``SERVOWATCH_*`` fields), the time in RFC 3339."""
+    from service.log.retention import rfc3339
+
+    kind, state, value, t = d.get("kind"), d.get("state"), d.get("value"), d.get("t")
+    when = rfc3339(float(t)) if isinstance(t, int | float) and np.isfinite(t) else None
+    shown = f"{value:.4g}" if isinstance(value, int | float) else str(value)
+    log.log(
+        logging.WARNING if _is_active(state) else logging.INFO,
+        "alarm %s %s %s, value %s at %s", unit, kind, state, shown, when,
+        extra={"fields": {"event": "alarm", "unit": unit, "kind": kind, "state": state,
+                          "value": value, "time": when}},
+    )  # fmt: skip
+
+
 _OFF_STATES = {"off", "clear", "cleared", "ok", "normal", "none", "false", "0", "inactive"}
 
 
@@ -93,8 +130,11 @@ class Outputs:
         store_url: str | None,
         bad_log: RateLimitedLog,
         log_id: str | None = None,
+        retention: Any = None,
     ) -> None:
         self.logger = logger
+        self.retention = retention  # service.log.retention.Retention, or None
+        self._announced = 0  # log files announced so far
         self._meas_topics: dict[str, str] = {}  # meas key -> its MCAP topic
         self.log_failure: str | None = None
         self.bad_log = bad_log
@@ -163,7 +203,7 @@ class Outputs:
                     else:
                         st.alarms.pop(kind, None)
                     st.events.append(d)
-                    log.info("alarm %s %s: %s", st.name, kind, d)
+                    log_alarm(st.name, d)
         self.commit()
 
     def _log_meas(self, blk: Block, run: list[Part], off: int) -> int:
@@ -218,8 +258,9 @@ class Outputs:
         t = float(t) if t is not None else time.time()
         d = {"t": t, "kind": kind, "value": value, "wall": time.time()}
         st.events.append(d)
-        self.logger.log(f"/fleet/{st.aircraft}/{st.actuator}/service", t, flat(d))
-        log.info("%s %s", st.name, kind)
+        self._log_event(f"/fleet/{st.aircraft}/{st.actuator}/service", t, d)
+        log.info("%s %s", st.name, kind,
+                 extra={"fields": {"event": kind, "unit": st.name}})  # fmt: skip
 
     def group_event(self, key: str, kind: str, value: Any, st: ActuatorState | None) -> None:
         """An event of a group unit (meas key ``key``), owned by this member or not: logged,
@@ -229,7 +270,16 @@ class Outputs:
         d = {"t": t, "kind": kind, "value": value, "wall": t}
         if st is not None:
             st.events.append(d)
-        self.logger.log(f"/fleet/{parts[1]}/{parts[2]}/service", t, flat(d))
+        self._log_event(f"/fleet/{parts[1]}/{parts[2]}/service", t, d)
+
+    def _log_event(self, topic: str, t: float, d: dict[str, Any]) -> None:
+        """An event in the log: a ``servowatch.Event`` protobuf row (``log_event``), or JSON
+        for a logger without it."""
+        ev = getattr(self.logger, "log_event", None)
+        if ev is not None:
+            ev(topic, t, d)
+        else:
+            self.logger.log(topic, t, flat(d))
 
     def end_period(self, row: int | None) -> None:
         """The open operating period of bank row ``row`` ends (silent, released)."""
@@ -240,6 +290,32 @@ class Outputs:
         """Send what was logged to the log; take up its first failure."""
         self.logger.commit()
         self.check_log()
+        if len(self.logger.paths) != self._announced:
+            self.announce_log()
+
+    def announce_log(self) -> Path | None:
+        """Log the file now written (the name it has: a rotated file's own name), once per
+        file; returns it."""
+        paths = self.logger.paths
+        self._announced = len(paths)
+        if not paths:
+            return None
+        log.info("logging to %s", paths[-1], extra={"fields": {"log_file": str(paths[-1])}})
+        return Path(paths[-1])
+
+    def sweep_logs(self) -> list:
+        """A retention sweep (``service.log.retention.Retention.sweep``): never the open
+        file. Returns what it deleted."""
+        if self.retention is None:
+            return []
+        closed = getattr(self.logger, "closed", False)
+        open_paths = [] if closed or not self.logger.paths else [self.logger.paths[-1]]
+        try:
+            return self.retention.sweep(open_paths)
+        except Exception as e:  # a directory gone, ...: counted, monitoring goes on
+            self.errors += 1
+            log.warning("retention sweep failed: %s", e)
+            return []
 
     def check_log(self) -> None:
         """Take up the logger's first failure: status, health, systemd."""
@@ -358,6 +434,7 @@ class Outputs:
         return {
             "log_failure": self.log_failure,
             "log": [str(p) for p in self.logger.paths],
+            "log_retention": None if self.retention is None else self.retention.status(),
             "store": store,
             "foxglove": None if self.foxglove is None else self.foxglove.status(),
             "errors": self.errors,

@@ -91,6 +91,7 @@ def snapshot(
             "pid": os.getpid(),
             "uptime_s": up,
             "log": out["log"],
+            "log_retention": out.get("log_retention"),
             "queue": ins["queue"],
             "queue_high": ins["queue_high"],
             "queue_size": ins["queue_size"],

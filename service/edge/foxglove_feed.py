@@ -4,7 +4,7 @@ protocol (``foxglove.websocket.v1``, served by the ``foxglove-sdk`` package).
 Per actuator, the channels are the MCAP log's topics ``/fleet/{aircraft}/{actuator}/{meas,
 est,residual,health,events}`` in the log's encodings: protobuf rows with the log's schemas
 (``service.log.row_schema``: the FileDescriptorSet of ``servowatch.Meas``, ``.Est``, ...) and
-JSON events (``json_schema_for``), with the log's message bytes, time-stamped with the sample
+``servowatch.Event`` rows for the events (``service.log.events``), with the log's message bytes, time-stamped with the sample
 time, so a Foxglove layout works on a log and live alike (docs/dashboard.md).
 
 A viewer never slows the monitor:
@@ -32,12 +32,11 @@ from typing import Any
 import numpy as np
 
 from service.edge.foxglove_guard import GuardLimits, start_guarded
-from service.jsonutil import event_dict, flat
+from service.log.events import EventLayout, encode_event
 from service.log.proclog import MEAS_LOG_FIELDS
 from service.log.rows import RowLayout
-from service.log.writer import encode_message, json_schema_for, row_schema
+from service.log.writer import encode_message, row_schema
 from service.monitor import EST_KEYS, HEALTH_KEYS, RES_KEYS
-from service.monitor.outputs import AlarmEvent
 from service.wire import messages as m
 
 __all__ = ["FoxgloveFeed", "LEAVES", "topic_schemas", "DEFAULT_QUEUE"]
@@ -53,16 +52,15 @@ _PERIOD_S = 0.025  # the feeder thread's period: what is queued is sent within t
 
 def topic_schemas(aircraft: str, actuator: str) -> dict[str, RowLayout | dict[str, Any]]:
     """Topic -> what the MCAP log gives it, for the channels of one actuator: the protobuf
-    row layout (``.message``, ``.schema``) of meas, est, residual and health, the jsonschema
-    of events."""
+    row layout (``.message``, ``.schema``) of meas, est, residual and health, the
+    ``servowatch.Event`` layout of events."""
     topic = {leaf: m.mcap_topic(aircraft, actuator, leaf) for leaf in LEAVES}
-    event = flat(event_dict(AlarmEvent(0.0, "leak", "raised", 0.0)))  # what FanOut logs
     return {
         topic["meas"]: row_schema(topic["meas"], MEAS_LOG_FIELDS, ("seq",)),
         topic["est"]: row_schema(topic["est"], EST_KEYS),
         topic["residual"]: row_schema(topic["residual"], RES_KEYS),
         topic["health"]: row_schema(topic["health"], HEALTH_KEYS),
-        topic["events"]: json_schema_for(topic["events"], event),
+        topic["events"]: EventLayout(),  # servowatch.Event rows (decision 0043)
     }
 
 
@@ -139,7 +137,7 @@ class FoxgloveFeed:
         for topic, schema in topic_schemas(aircraft, actuator).items():
             if topic in self._channels:
                 continue
-            if isinstance(schema, RowLayout):
+            if isinstance(schema, RowLayout | EventLayout):
                 sc = self._fg.Schema(name=schema.message, encoding="protobuf", data=schema.schema)
                 enc = "protobuf"
             else:
@@ -195,6 +193,12 @@ class FoxgloveFeed:
         if self.wants(topic):
             self._put(1, (topic, t, None, dict(msg), ()))
 
+    def log_event(self, topic: str, t: float, event: Mapping[str, Any]) -> None:
+        """One event on ``topic`` at ``t`` [s], as ``McapLogger.log_event`` (the same
+        ``servowatch.Event`` bytes)."""
+        if self.wants(topic):
+            self._put(1, (topic, t, "event", dict(event), ()))
+
     # -- the feeder thread ---------------------------------------------------------------
     def _run(self) -> None:
         q = self._queue
@@ -205,7 +209,7 @@ class FoxgloveFeed:
             self._wake.clear()
             while q:
                 topic, t, names, vals, ints = q.popleft()
-                n = 1 if names is None else len(t)
+                n = 1 if names is None or isinstance(names, str) else len(t)
                 try:
                     self._send(topic, t, names, vals, ints)
                 except Exception as e:  # never let a message kill the feeder
@@ -218,8 +222,9 @@ class FoxgloveFeed:
         ch = self._channels.get(topic)
         if ch is None:
             return
-        if names is None:  # one message
-            ch.log(encode_message(vals), log_time=max(0, int(round(float(t) * 1e9))))
+        if names is None or names == "event":  # one message, one event
+            data = encode_event(vals) if names == "event" else encode_message(vals)
+            ch.log(data, log_time=max(0, int(round(float(t) * 1e9))))
             self.sent += 1
             return
         lts, datas = encode_rows(topic, t, names, vals, ints)

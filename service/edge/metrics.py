@@ -76,6 +76,13 @@ METRICS: dict[str, tuple[str, str]] = {
     "latency_seconds": ("histogram", "receipt of a sample to its health output [s]"),
     "log_bytes": ("gauge", "bytes of the MCAP log files this daemon has written"),
     "log_failed": ("gauge", "1 when the MCAP log failed, else 0"),
+    "log_kept_bytes": ("gauge", "bytes of this daemon's log files kept ([log] retention)"),
+    "log_kept_files": ("gauge", "this daemon's log files kept ([log] retention)"),
+    "log_deleted_bytes": ("counter", "bytes of log files the retention deleted"),
+    "log_deleted_files": (
+        "counter",
+        "log files the retention deleted ([log] keep_bytes, keep_days)",
+    ),
     "store_written": ("counter", "operating periods written to the health store"),
     "store_errors": ("counter", "failed writes to the health store"),
     "store_pending": ("gauge", "batches waiting for the health store writer"),
@@ -200,6 +207,10 @@ def collect_status(st: dict[str, Any]) -> list[Metric]:
         f.f["latency_seconds"] = lat
     f.add("log_bytes", _log_bytes(st.get("log")), d)
     f.add("log_failed", bool(st.get("log_failure")), d)
+    r = st.get("log_retention")
+    if isinstance(r, dict):
+        for name in ("kept_bytes", "kept_files", "deleted_bytes", "deleted_files"):
+            f.add("log_" + name, r.get(name), d)
     s = st.get("store")
     if s:
         f.add("store_written", s.get("written"), d)

@@ -18,6 +18,7 @@ from typing import IO, Any
 
 from service.log.blocks import LogBlock, read_blocks
 from service.log.reader import LogReadStats, rotated_files
+from service.log.retention import lock_shared
 
 __all__ = ["LogFile", "LogSet", "LogFileError", "FLIGHT_RECORD", "parse_meas_topic"]
 
@@ -45,6 +46,7 @@ class LogFile:
             self._fh: IO[bytes] = open(self.path, "rb")  # noqa: SIM115 - closed by close()
         except OSError as e:
             raise LogFileError(f"{self.path}: cannot read: {e.strerror or e}") from None
+        lock_shared(self._fh)  # held while open: a daemon's retention leaves it (decision 0041)
         self.identity: dict[str, Any] = {}  # unit -> StreamId, set by the replay
 
     def __enter__(self) -> LogFile:

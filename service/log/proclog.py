@@ -96,6 +96,8 @@ def _write_batch(lg: Any, batch: Sequence[tuple]) -> None:
             t = np.frombuffer(t, np.float64)
             values = np.frombuffer(values, np.float64).reshape(len(t), len(names))
             lg.log_rows(topics, counts, t, names, values, int_fields=int_fields)
+        elif rec[0] == "e":  # (e, topic, t, event)
+            lg.log_event(rec[1], rec[2], rec[3])
         else:  # (l, topic, t, msg)
             lg.log(rec[1], rec[2], rec[3])
 
@@ -142,6 +144,10 @@ class ProcessLogger:
     def log(self, topic: str, t: float, msg: Any) -> None:
         """Queue one message (sent at the next ``commit``)."""
         self._buf.append(("l", topic, t, msg))
+
+    def log_event(self, topic: str, t: float, event: Any) -> None:
+        """Queue one event (``McapLogger.log_event``: a ``servowatch.Event`` row)."""
+        self._buf.append(("e", topic, t, dict(event)))
 
     def log_block(
         self, topic: str, t: Any, names: Sequence[str], values: Any, *, int_fields=()

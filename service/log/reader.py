@@ -31,6 +31,7 @@ from mcap.records import Channel, Chunk, Footer, Schema
 from mcap.writer import MCAP0_MAGIC
 
 from service.compat.mcap import SkipIndexStreamReader
+from service.log.retention import lock_shared
 
 try:
     import zstandard
@@ -111,6 +112,10 @@ class Channels(dict):
         sc = self.schemas.get(ch.schema_id)
         if sc is None:
             return _SKIP
+        if sc.name == "servowatch.Event" and sc.encoding == "protobuf":
+            from service.log.events import EventCodec
+
+            return EventCodec()
         key = (sc.name, sc.data)
         lay = self._layouts.get(key, _SKIP)
         if lay is _SKIP:
@@ -124,7 +129,11 @@ class Channels(dict):
 
 
 def row_dict(lay: Any, data: bytes) -> dict[str, Any]:
-    """A protobuf row as the dict :func:`read_log` yields (NaN as None, integers as int)."""
+    """A protobuf row as the dict :func:`read_log` yields (NaN as None, integers as int; an
+    event as ``service.log.events.decode_event`` gives it)."""
+    as_dict = getattr(lay, "as_dict", None)
+    if as_dict is not None:
+        return as_dict(data)
     return {
         k: (None if v != v else v) for k, v in zip(lay.names, lay.decode_one(data), strict=True)
     }
@@ -207,6 +216,7 @@ def iter_stream(
 
     try:
         with _opened(path) as fh:
+            lock_shared(fh)  # held while read: a retention sweep leaves the file alone
             reader = SkipIndexStreamReader(fh, emit_chunks=True, record_size_limit=1 << 30)
             records = reader.records
             while True:

@@ -39,6 +39,9 @@ from mcap.writer import CompressionType
 
 from service.compat.mcap import BlockWriter
 from service.jsonutil import flat
+from service.log.events import EVENT_FIELDS as _EVENT_FIELDS
+from service.log.events import EVENT_MESSAGE, encode_event, event_schema
+from service.log.retention import lock_shared
 from service.log.rows import RowLayout, row_layout
 
 try:
@@ -56,6 +59,18 @@ log = logging.getLogger("servowatch.log")
 
 _LIBRARY = "servowatch"
 _ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
+
+EVENT_NAMES = tuple(f[0] for f in _EVENT_FIELDS)
+
+
+def channel_metadata(names: Iterable[str]) -> dict[str, str]:
+    """A channel's metadata: ``units``, the JSON ``{field: unit}`` of its fields
+    (``service.log.units``)."""
+    from service.log.units import units_of
+
+    u = units_of(tuple(names))
+    return {"units": json.dumps(u, separators=(",", ":"))} if u else {}
 
 
 def json_schema_for(topic: str, msg: Mapping[str, Any]) -> dict[str, Any]:
@@ -149,6 +164,8 @@ class McapLogger:
         self._channels: dict[str, int] = {}  # JSON channels by topic
         self._row_channels: dict[tuple[str, RowLayout], int] = {}  # protobuf channels
         self._row_schemas: dict[RowLayout, int] = {}
+        self._event_channels: dict[str, int] = {}
+        self._event_schema: int | None = None
         self._seq: dict[int, int] = {}
         self._dirty = False
         self._since_check = 0
@@ -172,6 +189,7 @@ class McapLogger:
         p = self._next_path()
         p.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(p, "wb")  # noqa: SIM115 - closed in _finish_current
+        lock_shared(self._fh)  # a retention sweep (of any process) never deletes it
         self._writer = BlockWriter(
             self._fh,
             chunk_size=self.chunk_size,
@@ -186,6 +204,8 @@ class McapLogger:
         self._channels.clear()
         self._row_channels.clear()
         self._row_schemas.clear()
+        self._event_channels.clear()
+        self._event_schema = None
         self._seq.clear()
         self._opened_at = time.monotonic()
         self._last_flush = self._opened_at
@@ -296,7 +316,10 @@ class McapLogger:
                 sid = self._row_schemas[lay] = w.register_schema(
                     name=lay.message, encoding="protobuf", data=lay.schema
                 )
-            cid = w.register_channel(topic=topic, message_encoding="protobuf", schema_id=sid)
+            cid = w.register_channel(
+                topic=topic, message_encoding="protobuf", schema_id=sid,
+                metadata=channel_metadata(lay.names),
+            )  # fmt: skip
             self._row_channels[(topic, lay)] = cid
             self._seq[cid] = 0
         return cid
@@ -396,6 +419,44 @@ class McapLogger:
                 raise
 
     log_blocks = log_rows  # the name ProcessLogger and the fan-out use
+
+    def log_event(self, topic: str, t: float, event: Mapping[str, Any]) -> None:
+        """Append an event (an alarm, a service event: keys t, kind, state, value, wall,
+        anything else) on ``topic`` at ``t`` [s] as a ``servowatch.Event`` protobuf message
+        (``service.log.events``). Same flush and rotation as :meth:`log`."""
+        data = encode_event(event)
+        t_ns = max(0, int(round(t * 1e9)))
+        with self._lock:
+            if self._closed:
+                raise ValueError("log_event() on a closed McapLogger")
+            if self.failure is not None:
+                self.dropped += 1
+                return
+            try:
+                cid = self._event_channels.get(topic)
+                if cid is None:
+                    w = self._writer
+                    assert w is not None
+                    if self._event_schema is None:
+                        self._event_schema = w.register_schema(
+                            name=EVENT_MESSAGE, encoding="protobuf", data=event_schema()
+                        )
+                    cid = self._event_channels[topic] = w.register_channel(
+                        topic=topic, message_encoding="protobuf", schema_id=self._event_schema,
+                        metadata=channel_metadata(EVENT_NAMES),
+                    )  # fmt: skip
+                    self._seq[cid] = 0
+                seq = self._seq[cid]
+                self._seq[cid] = (seq + 1) & 0xFFFFFFFF
+                self._writer.add_message(cid, t_ns, data, t_ns, seq)  # type: ignore[union-attr]
+                self.message_count += 1
+                self._dirty = True
+                if time.monotonic() - self._last_flush >= self.flush_s:
+                    self._flush_locked()
+                self._maybe_rotate()
+            except Exception as e:
+                self._failed("write", e)
+                raise
 
     def log_many(self, records: Iterable[tuple[str, float, Mapping[str, Any]]]) -> None:
         """:meth:`log` for each ``(topic, t, msg)``, taking the lock once (fewer switches)."""

@@ -7,9 +7,7 @@ May import models, compat and the loose utilities only.
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
+from service.paths import DEFAULT_STORE, store_of
 from service.store.health import HealthStore, StoreError, describe_url, open_store, trend_of
 from service.store.records import (
     ActuatorKey,
@@ -34,10 +32,9 @@ __all__ = [
     "trend_of",
 ]
 
-# the daemon's data directory holds the embedded store unless told otherwise
-DEFAULT_STORE = Path("servowatch-data") / "health.sqlite"
-
 
 def default_store() -> str:
-    """``$SERVOWATCH_STORE`` if set, else ``servowatch-data/health.sqlite``."""
-    return os.environ.get("SERVOWATCH_STORE") or str(DEFAULT_STORE)
+    """``$SERVOWATCH_STORE`` if set, else the ``store`` of the config file the search finds
+    (``service.paths``: ``$SERVOWATCH_CONFIG``, the user's, the system's), else
+    ``servowatch-data/health.sqlite``."""
+    return store_of()[0]

@@ -28,6 +28,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_store_argument(p)
     p.add_argument("--top", type=int, default=None, metavar="N", help="only the N most urgent")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    p.add_argument("--wide", action="store_true",
+                   help="every column (P_SR, P(horizon), usage per hour): about 160 columns; "
+                   "the default fits 100")  # fmt: skip
+    p.add_argument("--png", metavar="F.png", default=None,
+                   help="also draw the most urgent units' C_Lk-ratio trends against the "
+                   "threshold (--top N of them, default 6)")  # fmt: skip
 
 
 def _plain(v: Any) -> Any:
@@ -58,46 +64,69 @@ def _f(v: Any, spec: str, scale: float = 1.0) -> str:
     return "-" if n is None else format(n * scale, spec)
 
 
-def format_fleet(ranked: list[dict[str, Any]]) -> str:
-    """A fixed-width table of the ranked fleet: life and trend on each unit's life axis
-    (flights, or operating hours: ``fl``, ``h``), and its usage per operating hour over the
-    periods that carry it (jack travel, load-weighted travel; docs/prognostics.md, "Usage")."""
-    head = (
-        f"{'#':>4} {'actuator':<22} {'comm':<4} {'cond':<6} {'periods':>7} {'life':>8} "
-        f"{'C_Lk/base':>9} "
-        f"{'trend':>20} {'P_SR min MPa':>12} {'RUL median [90%] unit':>30} "
-        f"{'P(hor)':>6} {'alarms':>6} {'travel m/h':>10} {'|F|trav kJ/h':>12}"
+_SHORT = {"flights": "fl", "h": "h", "per 10 flights": "/10 fl", "per 100 h": "/100 h"}
+
+
+def _cells(r: dict[str, Any]) -> dict[str, str]:
+    """The text of each column of one ranked unit."""
+    last = r.get("last") or {}
+    use = r.get("usage") or {}
+    life, rate = r["life"], r["trend_rate"]
+    life_s = (
+        "-"
+        if life["value"] is None
+        else f"{life['value']:.{0 if life['unit'] == 'flights' else 1}f} {_SHORT[life['unit']]}"
     )
+    trend = "-" if rate is None else f"{rate['value']:+.2f}{_SHORT[rate['unit']]}"
+    label = (r.get("trend") or {}).get("label", "")
+    iv = r.get("rul_interval")
+    if iv and iv["median"] is not None:
+        unit = iv["unit"]
+        if unit == "flights" and round(iv["median"]) == 1:
+            unit = "flight"
+        rul = f"{iv['median']:.0f} [{_f(iv['lo'], '.0f')}-{_f(iv['hi'], '.0f')}] {unit}"
+        if iv["median_days"] is not None:
+            rul += f" ~{iv['median_days']:.0f} d"
+    else:
+        rul = "-"
+    return {
+        "rank": str(r["rank"]), "actuator": r["actuator"],
+        "comm": "yes" if r["commissioned"] else "NO", "periods": str(r["periods"]),
+        "cond": "FAILED" if r.get("condition") == "failed" else "-",
+        "life": life_s, "ratio": _f(r.get("last_ratio"), ".3f"),
+        "trend": trend, "trend_wide": f"{label} {trend}" if rate is not None else "-",
+        "p_sr": _f(last.get("p_sr_min"), ".2f", 1e-6), "rul": rul,
+        "p_hor": _f(iv and iv["p_horizon"], ".2f"), "alarms": str(alarm_count(r)),
+        "travel": _f(use.get("travel_m_per_h"), ".2f"),
+        "load_travel": _f(use.get("load_travel_j_per_h"), ".1f", 1e-3),
+    }  # fmt: skip
+
+
+#: (cell, header, width, align) of the default table (within 100 columns) and of --wide
+NARROW = (("rank", "#", 3, ">"), ("actuator", "actuator", 18, "<"), ("comm", "comm", 4, "<"),
+          ("cond", "cond", 6, "<"), ("life", "life", 8, ">"), ("ratio", "C_Lk/base", 9, ">"),
+          ("trend", "trend", 11, ">"), ("rul", "RUL median [90%]", 26, ">"),
+          ("alarms", "alarms", 6, ">"))  # fmt: skip
+WIDE = (("rank", "#", 4, ">"), ("actuator", "actuator", 22, "<"), ("comm", "comm", 4, "<"),
+        ("cond", "cond", 6, "<"), ("periods", "periods", 7, ">"), ("life", "life", 8, ">"),
+        ("ratio", "C_Lk/base", 9, ">"), ("trend_wide", "trend", 20, ">"),
+        ("p_sr", "P_SR min MPa", 12, ">"), ("rul", "RUL median [90%]", 30, ">"),
+        ("p_hor", "P(horizon)", 10, ">"), ("alarms", "alarms", 6, ">"),
+        ("travel", "travel m/h", 10, ">"), ("load_travel", "load x travel kJ/h", 18, ">"))  # fmt: skip
+
+
+def format_fleet(ranked: list[dict[str, Any]], wide: bool = False) -> str:
+    """A fixed-width table of the ranked fleet: life and trend on each unit's life axis
+    (flights, or operating hours: ``fl``, ``h``), the C_Lk ratio, the RUL interval and the
+    alarms, within 100 columns; ``wide`` adds the periods, the lowest P_SR, P(horizon) and
+    the usage per operating hour over the periods that carry it (jack travel, load-weighted
+    travel; docs/prognostics.md, "Usage")."""
+    cols = WIDE if wide else NARROW
+    head = " ".join(f"{h:{a}{w}}" for _, h, w, a in cols)
     lines = [head, "-" * len(head)]
-    short = {"flights": "fl", "h": "h", "per 10 flights": "/10 fl", "per 100 h": "/100 h"}
     for r in ranked:
-        last = r.get("last") or {}
-        use = r.get("usage") or {}
-        life, rate = r["life"], r["trend_rate"]
-        life_s = (
-            "-"
-            if life["value"] is None
-            else f"{life['value']:.{0 if life['unit'] == 'flights' else 1}f} {short[life['unit']]}"
-        )
-        trend = "-"
-        if rate is not None:
-            trend = f"{(r.get('trend') or {}).get('label', '')} {rate['value']:+.2f}{short[rate['unit']]}"
-        iv = r.get("rul_interval")
-        if iv and iv["median"] is not None:
-            rul = f"{iv['median']:.0f} [{_f(iv['lo'], '.0f')}-{_f(iv['hi'], '.0f')}] {iv['unit']}"
-            if iv["median_days"] is not None:
-                rul += f" ~{iv['median_days']:.0f} d"
-        else:
-            rul = "-"
-        lines.append(
-            f"{r['rank']:>4} {r['actuator']:<22} {'yes' if r['commissioned'] else 'NO':<4} "
-            f"{'FAILED' if r.get('condition') == 'failed' else '-':<6} "
-            f"{r['periods']:>7} {life_s:>8} {_f(r.get('last_ratio'), '.3f'):>9} "
-            f"{trend:>20} {_f(last.get('p_sr_min'), '.2f', 1e-6):>12} {rul:>30} "
-            f"{_f(iv and iv['p_horizon'], '.2f'):>6} {alarm_count(r):>6} "
-            f"{_f(use.get('travel_m_per_h'), '.2f'):>10} "
-            f"{_f(use.get('load_travel_j_per_h'), '.1f', 1e-3):>12}"
-        )
+        c = _cells(r)
+        lines.append(" ".join(f"{c[k]:{a}{w}}" for k, _, w, a in cols))
     return "\n".join(lines)
 
 
@@ -108,9 +137,21 @@ def run(args: argparse.Namespace) -> int:
         store = open_store_arg(args, create=False, read_only=True)
     except StoreError as e:
         return fail(str(e))
+    if args.png:
+        from service.cli.util import check_outputs
+
+        check_outputs([("--png", args.png)], [])
     with store:
         rows = store.fleet_summary()
-    ranked = rank_fleet(rows)
+        ranked = rank_fleet(rows)
+        if args.png:
+            from service.edge.fleet_plot import plot_trends
+
+            try:
+                drawn = plot_trends(store, ranked[: args.top or 6], args.png)
+            except OSError as e:
+                return fail(f"--png {args.png}: {e.strerror or e}", 5)
+            print(f"wrote {args.png} ({drawn} unit{'' if drawn == 1 else 's'})", file=sys.stderr)
     if args.top is not None:
         ranked = ranked[: args.top]
     if args.json:
@@ -122,8 +163,8 @@ def run(args: argparse.Namespace) -> int:
     uncomm = sum(1 for r in rows if not r["commissioned"])
     with_rul = sum(1 for r in rows if has_rul(r.get("rul")))
     print(
-        f"{len(rows)} actuators in {store.where}: {uncomm} not commissioned, "
-        f"{with_rul} with a RUL (run `servowatch rul` to update)"
+        f"{len(rows)} actuator{'' if len(rows) == 1 else 's'} in {store.where}: {uncomm} not "
+        f"commissioned, {with_rul} with a RUL (run `servowatch rul` to update)"
     )
-    print(format_fleet(ranked))
+    print(format_fleet(ranked, wide=args.wide))
     return 0

@@ -69,6 +69,34 @@ def send_fault(session, aircraft: str, actuator: str, command, timeout: float = 
     return None
 
 
+_UNITS = {"leak": "m^3/(s Pa)", "supply": "Pa"}
+
+
+def _when(t) -> str:
+    """A fault's end: RFC 3339 for a calendar (Unix) time, seconds for a simulated one."""
+    from service.log.retention import rfc3339
+
+    if not isinstance(t, int | float) or isinstance(t, bool):
+        return "until cleared"
+    return f"until {rfc3339(t)}" if t > 1e8 else f"until t = {t:g} s"
+
+
+def format_fault(f: dict) -> str:
+    """One active fault of a ``FaultAck`` as a line: ``leak 6.1e-13 m^3/(s Pa), ramping to
+    8e-13, until cleared``; ``dropout of p1 until 2026-12-04T09:53:20.536Z``."""
+    kind = str(f.get("kind"))
+    parts = [kind]
+    if "channel" in f:
+        parts.append(f"of {f['channel']}" if kind == "dropout" else f"on {f['channel']}")
+    v, target = f.get("value"), f.get("target")
+    if isinstance(v, int | float):
+        parts.append(f"{v:.3g}" + (f" {_UNITS[kind]}" if kind in _UNITS else ""))
+    text = " ".join(parts)
+    if isinstance(target, int | float) and isinstance(v, int | float) and target != v:
+        text += f", ramping to {target:.3g}"
+    return f"{text}, {_when(f.get('until'))}"
+
+
 def run(args: argparse.Namespace) -> int:
     from pydantic import ValidationError
 
@@ -102,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(("ok: " if ack.ok else "") + ack.message)
         for f in ack.active:
-            print("  active:", f)
+            print("  active:", format_fault(f))
     if not ack.ok:
         print(f"servowatch: {ack.message}", file=sys.stderr)
     return 0 if ack.ok else 1

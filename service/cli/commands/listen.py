@@ -48,12 +48,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 MAX_KEYS = 4096
 
 
+def output_line(key: str, d: dict[str, Any]) -> str:
+    """One output as a line: its sample time in RFC 3339 (``t``, a Unix time; a simulated
+    time stays in seconds), the key, then the fields as JSON."""
+    from service.log.retention import readable_time
+
+    return f"{readable_time(d.get('t')).replace(' ', '')} {key} {json.dumps(d)}"
+
+
 class OutputListener:
     """Decodes published outputs (``service.wire.messages.decode_output``), counting them per
     key and the malformed ones (a bad message is counted and logged on stderr, never an
-    exception in Zenoh's thread); ``echo`` prints a line ``KEY {json}`` per output. The
-    last output of at most ``max_keys`` keys is kept (least recently seen evicted, counted
-    in ``evicted``): a publisher of many keys cannot grow it without bound."""
+    exception in Zenoh's thread); ``echo`` prints a line ``TIME KEY {json}`` per output
+    (:func:`output_line`), ``count`` of them at most. The last output of at most
+    ``max_keys`` keys is kept (least recently seen evicted, counted in ``evicted``): a
+    publisher of many keys cannot grow it without bound."""
 
     def __init__(
         self, echo: bool = True, count: int = 0, out: Any = None, max_keys: int = MAX_KEYS
@@ -92,6 +101,8 @@ class OutputListener:
                       f"{escape_controls(e, 300)}", file=sys.stderr)  # fmt: skip
             return
         with self._lock:
+            if self.count and self.received >= self.count:
+                return  # --count N: exactly N, whatever arrives before the subscribers go
             self.received += 1
             self.last[key] = d
             self.last.move_to_end(key)
@@ -99,7 +110,7 @@ class OutputListener:
                 self.last.popitem(last=False)
                 self.evicted += 1
             if self.echo:
-                print(key, json.dumps(d), file=self.out, flush=True)
+                print(output_line(key, d), file=self.out, flush=True)
             if self.count and self.received >= self.count:
                 self.done.set()
 

@@ -109,6 +109,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _print_summary(s) -> None:
+    from service.log.retention import readable_time
+
     speed = "n/a" if s.speed is None else f"{s.speed:.1f}x real time"
     print(f"replayed {s.log}: {s.samples} samples of {len(s.actuators)} actuator(s), "
           f"{s.duration_s:.3f} s of data in {s.wall_s:.3f} s ({speed})")  # fmt: skip
@@ -118,11 +120,13 @@ def _print_summary(s) -> None:
         keys = [k for k in ("c_lk", "p_sr", "f_r") if k in est]
         parts = ", ".join(f"{k}={est[k]:.4g}" for k in keys)
         hp = ", ".join(f"{k}={v:.3g}" for k, v in health.items() if isinstance(v, int | float))
-        print(f"  {name} at t={fin.get('t', float('nan')):.3f}: {parts}; {hp}")
+        print(f"  {name} at {readable_time(fin.get('t'))}: {parts}; {hp}")
     print(f"  alarms: {len(s.alarms)}")
     for a in s.alarms[:20]:
-        print(f"    t={a.get('t')}: {a.get('actuator')} {a.get('kind')} {a.get('state')} "
-              f"({a.get('value')})")  # fmt: skip
+        v = a.get("value")
+        shown = f"{v:.4g}" if isinstance(v, int | float) else "-"
+        print(f"    {readable_time(a.get('t'))}: {a.get('actuator')} {a.get('kind')} "
+              f"{a.get('state')} ({shown})")  # fmt: skip
     for name, tc in s.time.items():
         if any(tc.values()):
             print(f"  time checks {name}: " + ", ".join(f"{k} {v}" for k, v in tc.items()))

@@ -3,59 +3,19 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import signal
 import sys
 import threading
 import time
 
+from service.cli.logsetup import PlainFormatter, setup_logging
 from service.cli.util import check_outputs, emit_json, fail
 
 NAME = "run"
 HELP = "Run the monitoring daemon: subscribe, monitor each actuator, publish, log to MCAP."
 
-
-class _JsonFormatter(logging.Formatter):
-    """One JSON object per log line (structured logs for journald / containers)."""
-
-    def format(self, record: logging.LogRecord) -> str:
-        d = {
-            "ts": round(record.created, 3),
-            "level": record.levelname,
-            "logger": record.name,
-            "msg": record.getMessage(),
-        }
-        if record.exc_info:
-            d["exc"] = self.formatException(record.exc_info)
-        return json.dumps(d)
-
-
-class PlainFormatter(logging.Formatter):
-    """One line per record: the message's control characters escaped, so a quoted value (a
-    key with a newline) cannot forge a line; a traceback follows as usual."""
-
-    def __init__(self) -> None:
-        super().__init__("%(asctime)s %(levelname)s %(name)s %(message)s")
-
-    def format(self, record: logging.LogRecord) -> str:
-        msg = record.getMessage()
-        from service.log.escape import CONTROLS
-
-        esc = msg.translate(CONTROLS)
-        if esc != msg:
-            record = logging.makeLogRecord({**record.__dict__, "msg": esc, "args": None})
-        return super().format(record)
-
-
-def setup_logging(level: str, structured: bool) -> None:
-    """Root logging on stderr: JSON lines when ``structured``, else plain text
-    (:class:`PlainFormatter`)."""
-    h = logging.StreamHandler(sys.stderr)
-    h.setFormatter(_JsonFormatter() if structured else PlainFormatter())
-    root = logging.getLogger()
-    root.handlers[:] = [h]
-    root.setLevel(level)
+__all__ = ["PlainFormatter", "setup_logging", "NAME", "HELP", "add_arguments", "run"]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -178,10 +138,12 @@ def run(args: argparse.Namespace) -> int:
     setup_logging(cfg.log_level, not args.plain_logs)
     _check_identity(cfg)
     from service.cli.warmup import ensure, monitor_group
+    from service.daemon.systemd import extending_start
 
-    ensure(
-        monitor_group(cfg.monitor.model), "log"
-    )  # before the session: a first run compiles (and says so)
+    # before the session: a first run compiles (and says so), telling systemd meanwhile that
+    # the start goes on (EXTEND_TIMEOUT_USEC; READY=1 comes once the daemon has started)
+    with extending_start("starting: compiling the kernels (a first run takes minutes)"):
+        ensure(monitor_group(cfg.monitor.model), "log")
     stop = threading.Event()
 
     def _stop(signum, frame):

@@ -80,9 +80,9 @@ def format_rul(rul: dict | None) -> str:
         if why == "insufficient history":
             return "RUL - (insufficient history)"
         return "RUL none predicted" if rul.get("periods") else "RUL -"
-    unit = "flights" if iv["unit"] == "flights" else "h"
+    unit = ("flight" if round(med) == 1 else "flights") if iv["unit"] == "flights" else "h"
     text = f"RUL {med:.0f} {unit} [{_fmt(iv['lo'], '.0f')}-{_fmt(iv['hi'], '.0f')}]"
-    if unit == "flights" and _num(iv["median_days"]) is not None:
+    if iv["unit"] == "flights" and _num(iv["median_days"]) is not None:
         text += f" ~{iv['median_days']:.0f} d"
     return text
 
@@ -129,11 +129,61 @@ def format_unit(a: dict) -> list[str]:
     elif a.get("commissioned"):
         flags.append(f"commissioned, baseline v{_int(a.get('baseline_version'))}")
     if "periods" in a:
-        flags.append(f"{_int(a['periods'])} periods, {format_rul(a.get('rul'))}")
+        flags.append(f"{plural(_num(a['periods']), 'period')}, {format_rul(a.get('rul'))}")
         cond, why = condition_of(a)
         if cond == "failed":
             flags.append(f"FAILED: {why}")
     return [head, ind, "    " + "; ".join(flags)]
+
+
+def _size(n) -> str:
+    """Bytes in binary units: ``512 B``, ``3.2 MiB``, ``50 GiB``."""
+    v = _num(n)
+    if v is None:
+        return "-"
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if abs(v) < 1024 or unit == "TiB":
+            return f"{v:.0f} {unit}" if unit == "B" or v == int(v) else f"{v:.1f} {unit}"
+        v /= 1024
+    return "-"
+
+
+def plural(n, one: str, many: str | None = None) -> str:
+    """``1 period``, ``3 periods``, ``- periods`` (``many``: the plural when not ``one + s``;
+    ``n`` a count, anything else shown as ``-``)."""
+    v = _num(n)
+    word = one if v == 1 else (many or one + "s")
+    return f"{'-' if v is None else f'{v:.0f}'} {word}"
+
+
+def format_log(st: dict) -> list[str]:
+    """The daemon's log file now written, its retention (limits, kept, deleted, the last
+    deleted file) and the store it writes: one line each."""
+    out = []
+    paths = st.get("log") if isinstance(st.get("log"), list) else []
+    ret = st.get("log_retention") if isinstance(st.get("log_retention"), dict) else None
+    if paths:
+        text = f"  log {_s(paths[-1], 300)}"
+        if ret is not None:
+            lim = [
+                f"{_size(ret.get('keep_bytes'))}" if ret.get("keep_bytes") else None,
+                f"{_fmt(_num(ret.get('keep_days')), 'g')} d" if ret.get("keep_days") else None,
+            ]
+            text += (
+                f"; keeps {' and '.join(x for x in lim if x) or 'everything'}: "
+                f"{plural(ret.get('kept_files'), 'file')} ({_size(ret.get('kept_bytes'))}) kept, "
+                f"{plural(ret.get('deleted_files'), 'file')} ({_size(ret.get('deleted_bytes'))}) "
+                "deleted"
+            )  # fmt: skip
+            last = ret.get("last_deleted") or []
+            if last and isinstance(last[-1], dict):
+                text += (f", the last {_s(last[-1].get('path'), 300)} "
+                         f"(ended {_s(last[-1].get('end'), 40)})")  # fmt: skip
+        out.append(text)
+    store = st.get("store")
+    out.append(f"  store {_s(store.get('where'), 300)}" if isinstance(store, dict) else
+               "  store: none")  # fmt: skip
+    return out
 
 
 def format_status(daemons: dict) -> str:
@@ -169,6 +219,7 @@ def format_status(daemons: dict) -> str:
             lines.append(f"  ... and {more:.0f} more bad units")
         if st.get("log_failure"):
             lines.append(f"  DEGRADED: the MCAP log failed: {_s(st['log_failure'])}")
+        lines.extend(format_log(st))
         g = _dict(st.get("group"))
         if g:
             lines.append(

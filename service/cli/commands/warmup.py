@@ -48,7 +48,12 @@ def run(args: argparse.Namespace) -> int:
         else:
             print_table(rows, wall)
         return 0
-    wall = ensure(*groups, always=True, jobs=args.jobs)
+    from service.daemon.systemd import extending_start
+
+    # as a unit's ExecStartPre (NotifyAccess=exec): systemd's start timeout is extended
+    # while it compiles (deploy/servowatch.service)
+    with extending_start("warmup: compiling the kernels (a first run takes minutes)"):
+        wall = ensure(*groups, always=True, jobs=args.jobs)
     if args.json:
         emit_json({"groups": list(groups), "wall_s": wall})
     else:
