@@ -316,9 +316,9 @@ def test_fleet_text_json_and_the_unit_view_show_usage(store_url, capsys):
     assert u["periods"] == 5 and u["travel_m"] == pytest.approx(9.5)
     assert u["travel_m_per_h"] == pytest.approx(9.5 / hours)
     assert u["load_travel_j_per_h"] == pytest.approx(18000.0 / (4 * 90 / 3600))
-    assert main(["fleet", "--store", store_url]) == 0
+    assert main(["fleet", "--store", store_url, "--wide"]) == 0  # usage: the wide table's
     text = capsys.readouterr().out.splitlines()
-    assert "travel m/h" in text[1] and "|F|trav kJ/h" in text[1]
+    assert "travel m/h" in text[1] and "load x travel kJ/h" in text[1]
     assert text[3].split()[-2:] == [f"{9.5 / hours:.2f}", f"{18.0 / (4 * 90 / 3600):.1f}"]
     with open_store(store_url) as s:
         fv = fleet_view(s)
