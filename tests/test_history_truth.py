@@ -393,6 +393,9 @@ def test_views_agree(store_url, capsys):
         assert f["life"]["unit"] == p["life"]["unit"] == axis, a
         assert f["life"]["value"] == pytest.approx(r["t_now"] if axis == "flights"
                                                    else r["t_now_h"]), a  # fmt: skip
+        # the page's unit chart: the same axis, its last period where `rul` says it stands
+        assert u["life_axis"] == ("flights" if axis == "flights" else "hours"), a
+        assert u["periods"][-1]["life"] == pytest.approx(r["t_now"]), a
         assert f["trend"] == p["trend"], a
         med = r.get(f"median_{axis}")
         assert (f["rul_interval"] or {}).get("median") == pytest.approx(med) if med is not None \

@@ -78,8 +78,22 @@ def test_unit_history(filled):
         # sigma of the ratio: c_lk_sigma over the baseline C_Lk (1e-14 / 1e-12)
         assert unit["periods"][3]["c_lk_ratio_sigma"] == pytest.approx(0.01)
         assert unit["rul"]["median_h"] == 12.0 and [b["version"] for b in unit["baselines"]] == [1]
+        # an hours history: its life axis is the operating hours, the RUL counted from t_now_h
+        assert unit["life_axis"] == "hours"
+        assert [p["life"] for p in unit["periods"]] == [p["t_h"] for p in unit["periods"]]
+        assert unit["rul_on_axis"] == pytest.approx({"now": 0.2, "median": 12.0, "lo": 8.0,
+                                                     "hi": 20.0})  # fmt: skip
         status, _, watch = _get(url + "/api/unit?name=" + urllib.parse.quote(WATCH, safe=""))
         assert [(e["kind"], e["t"]) for e in watch["alarms"]] == [("leak", 105.0)]
+        # a history of flights 0-7: flights 1-8 since its first, the RUL's interval in flights
+        # from the 8th (the summary's life axis, as `fleet`'s life column and `rul` count)
+        assert watch["life_axis"] == "flights"
+        assert [p["life"] for p in watch["periods"]] == [1.0 + k for k in range(8)]
+        assert watch["rul_on_axis"] == pytest.approx({"now": 8.0, "median": 200.0, "lo": 80.0,
+                                                      "hi": 600.0})  # fmt: skip
+        fleet = {u["actuator"]: u for u in _get(url + "/api/fleet")[2]["fleet"]}
+        assert fleet[WATCH]["life"] == {"value": 8.0, "unit": "flights"}
+        assert fleet[CRITICAL]["life"]["unit"] == "h"
 
 
 def test_live_is_off_without_zenoh(filled):

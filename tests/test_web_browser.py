@@ -114,9 +114,35 @@ def test_unit_history_chart(tmp_path):
     lo, hi = float(band.attrs["x"]), float(band.attrs["x"]) + float(band.attrs["width"])
     assert lo < float(med.attrs["x1"]) < hi
     assert xs[-1] < lo  # the crossing lies ahead of the last period
+    # an hours history (no flight numbers): drawn against its operating hours
+    label = chart.find("text", class_="x-label")
+    assert label.text() == "operating hours" and label.attrs["data-axis"] == "hours"
     assert not dom.find_all("b", id="evil")
     facts = dom.find("dl", id="unit-facts").text()
     assert "<b id=evil>x</b>" in facts
+
+
+def test_unit_chart_counts_flights(tmp_path):
+    """A unit whose history counts flights (the store summary's life axis) is drawn against
+    its flights, 1-8 since its first, and its RUL interval (80-600 flights from the 8th) on
+    that same axis: x scales with the flight count from the chart's left edge."""
+    db = str(tmp_path / "h.sqlite")
+    fill_store(db)
+    with web_process(db) as url:
+        dom = render(url + "/#unit=" + quote(WATCH, safe=""))
+    assert dom.find("body").attrs.get("data-unit-ready") == WATCH
+    chart = dom.find("svg", id="history")
+    label = chart.find("text", class_="x-label")
+    assert label.text() == "flights" and label.attrs["data-axis"] == "flights"
+    left = float(chart.find_all("line", class_="axis")[-1].attrs["x1"])  # the y axis
+    xs = [float(p.attrs["cx"]) - left for p in chart.find_all("circle", class_="pt")]
+    assert xs == pytest.approx([xs[0] * (k + 1) for k in range(8)], rel=1e-4)
+    band = chart.find("rect", class_="rul-band")
+    med = chart.find("line", class_="rul-median")
+    per_flight = xs[0]
+    assert float(band.attrs["x"]) - left == pytest.approx((8 + 80) * per_flight, rel=1e-4)
+    assert float(band.attrs["width"]) == pytest.approx((600 - 80) * per_flight, rel=1e-4)
+    assert float(med.attrs["x1"]) - left == pytest.approx((8 + 200) * per_flight, rel=1e-4)
 
 
 def test_lost_store_shows_a_banner(tmp_path):

@@ -28,23 +28,32 @@ UNCOMMISSIONED = "AC002/spoiler_3"  # periods but no baseline
 RANKED = [CRITICAL, WATCH, OK, UNCOMMISSIONED]
 
 
-def _rul(actuator: str, median_h, lo_h, hi_h, p_horizon: float, warning: bool) -> dict:
+def _rul(
+    actuator: str, median_h, lo_h, hi_h, p_horizon: float, warning: bool, flights: bool = False
+) -> dict:
+    """A RUL as ``rul`` stores it, 1.5 operating hours per flight; on the flights axis
+    (``flights``) of a history of 8 flights, else on hours (no ``axis``: a RUL stored before
+    the key was)."""
+    axis = {"axis": "flights", "t_now": 8.0, "horizon": 20.0} if flights else {}
     return {
         "actuator": actuator, "status": "ok", "median_h": median_h, "lo_h": lo_h, "hi_h": hi_h,
         "median_flights": None if median_h is None else median_h / 1.5,
         "lo_flights": None if lo_h is None else lo_h / 1.5,
         "hi_flights": None if hi_h is None else hi_h / 1.5,
         "p_horizon": p_horizon, "warning": warning, "horizon_h": 50.0, "threshold_ratio": 4.0,
-        "model": "linear", "t_now_h": 0.2,
+        "model": "linear", "t_now_h": 0.2, **axis,
     }  # fmt: skip
 
 
 def fill_store(url: str) -> None:
-    """Four units, one per status, with hand-set RULs."""
+    """Four units, one per status, with hand-set RULs: CRITICAL's history on operating hours
+    (no flight numbers), WATCH's and OK's on flights (one flight a period)."""
     with open_store(url) as s:
         for a in (CRITICAL, WATCH, OK):
             s.add_baseline(a, {"c_lk": 1e-12}, "test")
-        s.add_periods([make_period(CRITICAL, k, ratio=1.0 + 0.3 * k) for k in range(8)])
+        s.add_periods(
+            [replace(make_period(CRITICAL, k, ratio=1.0 + 0.3 * k), flight=None) for k in range(8)]
+        )
         s.add_periods([make_period(WATCH, k) for k in range(8)])
         s.add_periods([replace(make_period(OK, k, ratio=1.0), alarms=0) for k in range(8)])
         s.add_periods(
@@ -52,7 +61,7 @@ def fill_store(url: str) -> None:
         )
         s.add_alarms([AlarmEvent(WATCH, 105.0, "leak", 3e-12, "log-a")])
         s.put_rul(CRITICAL, _rul(CRITICAL, 12.0, 8.0, 20.0, 0.93, True))
-        s.put_rul(WATCH, _rul(WATCH, 300.0, 120.0, 900.0, 0.01, False))
+        s.put_rul(WATCH, _rul(WATCH, 300.0, 120.0, 900.0, 0.01, False, flights=True))
         s.put_rul(OK, _rul(OK, None, None, None, 0.0, False))
 
 

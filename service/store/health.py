@@ -554,14 +554,17 @@ class HealthStore:
         return None if r is None else json.loads(r[0])
 
     # -- fleet ----------------------------------------------------------------------------
-    def fleet_summary(self) -> list[dict[str, Any]]:
-        """One dict per actuator (sorted by name) from the summary rows only: the last
-        period's indicators, the C_Lk-ratio trend, the last RUL dict, alarm counts and
-        whether it is commissioned (has a baseline). Reads O(actuators) rows."""
+    def fleet_summary(self, actuator: str | None = None) -> list[dict[str, Any]]:
+        """One dict per actuator (sorted by name; only ``actuator``'s when given) from the
+        summary rows only: the last period's indicators, the C_Lk-ratio trend, the last RUL
+        dict, alarm counts, the life axis and whether it is commissioned (has a baseline).
+        Reads O(actuators) rows."""
+        where, args = ("WHERE a.name = ? ", (actuator,)) if actuator is not None else ("", ())
         rows = self._b.execute(
             f"SELECT a.name, {','.join('s.' + c for c in _FLEET_COLS)}, r.rul, r.updated_s "
             "FROM actuators a LEFT JOIN summary s ON s.actuator = a.name "
-            "LEFT JOIN rul r ON r.actuator = a.name ORDER BY a.name"
+            f"LEFT JOIN rul r ON r.actuator = a.name {where}ORDER BY a.name",
+            args,
         ).fetchall()
         out: list[dict[str, Any]] = []
         for r in rows:

@@ -8,7 +8,7 @@ import time
 from typing import Any
 
 from service.edge.fleet import finite_or_none as _finite
-from service.edge.fleet import has_rul, rank_fleet
+from service.edge.fleet import has_rul, rank_fleet, rul_interval
 from service.jsonutil import jsonable
 from service.prognostics.rul import history_of
 from service.store import HealthStore
@@ -20,6 +20,7 @@ __all__ = [
     "fleet_view",
     "unit_view",
     "usage_per_flight",
+    "rul_on_axis",
     "UnknownActuatorError",
 ]
 
@@ -94,25 +95,38 @@ def fleet_view(store: HealthStore, now_s: float | None = None) -> dict[str, Any]
 
 
 def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
-    """One unit's history for the page: per period (by start time) the cumulative operating
-    hours at its end ``t_h`` (the RUL's time axis, ``history_of``), the C_Lk ratio and its
+    """One unit's history for the page, on the unit's life axis ``life_axis`` (the store
+    summary's, decisions/0035: ``flights`` when its history counts flights, else ``hours``):
+    per period (in life order) its position ``life`` on that axis (flights: the flights flown
+    since the history's first flight, counting that one, flight - first + 1, as ``rul``'s
+    ``History.life`` and ``fleet``'s life column; hours: ``t_h``), the cumulative operating
+    hours at its end ``t_h`` (``history_of``), the C_Lk ratio and its
     1-sigma (NaN -> null where unobservable), the pooled C_Lk and its sigma [m^3/(s Pa)]
     (recorded beside the indicator, decisions/0025; null where it abstains), the lowest
     supply pressure [Pa] and the alarm count, the usage (travel, load-weighted travel, reversals; null where unknown); its alarm
-    events, baseline versions, stored RUL and mean usage per flight (``usage_per_flight``)."""
+    events, baseline versions, stored RUL (and ``rul_on_axis``) and mean usage per flight
+    (``usage_per_flight``)."""
     check_actuator(actuator)
     if not store.has_actuator(actuator):
         raise UnknownActuatorError(actuator)
     periods = store.life(actuator)  # the unit's life order, as every view
     hist = history_of(actuator, periods)
+    (row,) = store.fleet_summary(actuator)
+    first = row.get("first_flight")
+    axis = "flights" if row.get("life_axis") == "flights" and first is not None else "hours"
     rows = []
     for p, t_h, y in zip(periods, hist.t_h, hist.y, strict=True):
         sig = p.c_lk_ratio_sigma()
+        if axis == "hours":
+            life: float | None = float(t_h)
+        else:  # a period without a flight has no place on it (the summary says none has)
+            life = None if p.flight is None else float(p.flight - first + 1)
         rows.append(
             {
                 "start_t": p.start_t,
                 "end_t": p.end_t,
                 "t_h": float(t_h),
+                "life": life,
                 "flight": p.flight,
                 "c_lk_ratio": _finite(float(y)),
                 "c_lk_ratio_sigma": _finite(sig) if math.isfinite(float(y)) else None,
@@ -126,9 +140,11 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
                 "usage_reversals": _finite(p.usage_reversals),
             }
         )
+    rul = store.rul(actuator)
     return jsonable(
         {
             "actuator": actuator,
+            "life_axis": axis,
             "periods": rows,
             "alarms": [
                 {"t": e.t, "kind": e.kind, "value": e.value, "source": e.source}
@@ -138,10 +154,34 @@ def unit_view(store: HealthStore, actuator: str) -> dict[str, Any]:
                 {"version": b.version, "created_s": b.created_s, "source": b.source}
                 for b in store.baselines(actuator)
             ],
-            "rul": store.rul(actuator),
+            "rul": rul,
+            "rul_on_axis": rul_on_axis(rul, axis),
             "usage": usage_per_flight(periods),
         }
     )
+
+
+def rul_on_axis(rul: dict[str, Any] | None, axis: str) -> dict[str, float] | None:
+    """Where a stored RUL's 90 % interval lies on life axis ``axis`` (``flights`` or
+    ``hours``): ``now`` (where the history ended when the RUL was computed, ``t_now``; newer
+    periods may have passed it) and ``median``/``lo``/``hi`` counted from it
+    (``rul_interval``, the RUL's own axis). None without a median, or when the RUL was
+    computed on the other axis (a RUL older than the history's last change of axis)."""
+    iv = rul_interval(rul)
+    if rul is None or iv is None or iv["median"] is None:
+        return None
+    if iv["unit"] != ("flights" if axis == "flights" else "h"):
+        return None
+    # a RUL stored before ``t_now`` was: on hours its operating hours say the same
+    now = _finite(rul.get("t_now"))
+    if now is None and axis == "hours":
+        now = _finite(rul.get("t_now_h"))
+    if now is None:
+        return None
+    med = iv["median"]
+    lo = med if iv["lo"] is None else iv["lo"]
+    hi = med if iv["hi"] is None else iv["hi"]
+    return {"now": now, "median": med, "lo": lo, "hi": hi}
 
 
 def usage_per_flight(periods: list[Period]) -> dict[str, Any]:

@@ -256,20 +256,23 @@ async function loadFleet() {
 }
 
 function chart(unit) {
-  // C_Lk ratio per period against cumulative operating hours, +-1 sigma, the failure
-  // threshold and the RUL's 90 % interval where the trend would meet it
+  // C_Lk ratio per period against the unit's life axis (the store summary's life_axis:
+  // flights flown when its history counts flights, else cumulative operating hours; each
+  // period's place on it is its `life`), +-1 sigma, the failure threshold and the RUL's 90 %
+  // interval where the trend would meet it, on that same axis (rul_on_axis)
   const W = 760, H = 290, L = 52, R = 16, T = 24, B = 34;
   const s = svg("svg", { width: W, height: H, id: "history", role: "img" });
-  const pts = unit.periods.filter((p) => num(p.c_lk_ratio) !== null);
+  const flights = unit.life_axis === "flights";
+  const pts = unit.periods.filter((p) => num(p.c_lk_ratio) !== null && num(p.life) !== null);
   const rul = unit.rul || {};
   const thr = num(rul.threshold_ratio);
-  // the RUL counts from the hours the history had when it was computed (t_now_h), which
+  // the RUL counts from where the history ended when it was computed (iv.now), which
   // newer periods may have passed since
-  const tLast = unit.periods.length ? unit.periods[unit.periods.length - 1].t_h : 0;
-  const tNow = num(rul.t_now_h) === null ? tLast : rul.t_now_h;
-  let tMax = Math.max(tLast, tNow, 1e-6);
-  if (num(rul.hi_h) !== null) tMax = Math.max(tMax, tNow + rul.hi_h);
-  else if (num(rul.median_h) !== null) tMax = Math.max(tMax, tNow + rul.median_h);
+  const iv = unit.rul_on_axis;
+  const lives = unit.periods.map((p) => num(p.life)).filter((t) => t !== null);
+  const tLast = lives.length ? lives[lives.length - 1] : 0;
+  let tMax = Math.max(tLast, 1e-6);
+  if (iv) tMax = Math.max(tMax, iv.now, iv.now + iv.hi);
   tMax *= 1.04;
   let yMax = 1.2;
   for (const p of pts) yMax = Math.max(yMax, p.c_lk_ratio + (num(p.c_lk_ratio_sigma) || 0));
@@ -289,31 +292,31 @@ function chart(unit) {
   }
   s.appendChild(svg("line", { x1: L, x2: W - R, y1: H - B, y2: H - B, class: "axis" }));
   s.appendChild(svg("line", { x1: L, x2: L, y1: T, y2: H - B, class: "axis" }));
-  s.appendChild(svg("text", { x: (L + W - R) / 2, y: H - 4, "text-anchor": "middle" }, "operating hours"));
+  s.appendChild(svg("text", { x: (L + W - R) / 2, y: H - 4, "text-anchor": "middle", class: "x-label", "data-axis": flights ? "flights" : "hours" },
+    flights ? "flights" : "operating hours"));
   s.appendChild(svg("text", { x: L, y: T - 10 }, "C_Lk / baseline, per operating period (1 sigma bars; red: alarm)"));
   s.appendChild(svg("line", { x1: L, x2: W - R, y1: y(1), y2: y(1), class: "baseline" }));
   if (thr !== null) {
     s.appendChild(svg("line", { x1: L, x2: W - R, y1: y(thr), y2: y(thr), class: "threshold" }));
     s.appendChild(svg("text", { x: L + 6, y: y(thr) - 5 }, `failure threshold ${thr.toFixed(2)}`));
-    if (num(rul.median_h) !== null) {
-      const lo = num(rul.lo_h) === null ? rul.median_h : rul.lo_h;
-      const hi = num(rul.hi_h) === null ? rul.median_h : rul.hi_h;
+    if (iv) {
       s.appendChild(svg("rect", {
-        x: x(tNow + lo), y: y(thr) - 9, width: Math.max(x(tNow + hi) - x(tNow + lo), 2), height: 18, class: "rul-band",
+        x: x(iv.now + iv.lo), y: y(thr) - 9, width: Math.max(x(iv.now + iv.hi) - x(iv.now + iv.lo), 2), height: 18, class: "rul-band",
       }));
       s.appendChild(svg("line", {
-        x1: x(tNow + rul.median_h), x2: x(tNow + rul.median_h), y1: y(thr) - 11, y2: y(thr) + 11, class: "rul-median",
+        x1: x(iv.now + iv.median), x2: x(iv.now + iv.median), y1: y(thr) - 11, y2: y(thr) + 11, class: "rul-median",
       }));
     }
   }
   for (const p of pts) {
     const sig = num(p.c_lk_ratio_sigma);
     if (sig !== null && sig > 0) {
-      s.appendChild(svg("line", { x1: x(p.t_h), x2: x(p.t_h), y1: y(p.c_lk_ratio - sig), y2: y(p.c_lk_ratio + sig), class: "err" }));
+      s.appendChild(svg("line", { x1: x(p.life), x2: x(p.life), y1: y(p.c_lk_ratio - sig), y2: y(p.c_lk_ratio + sig), class: "err" }));
     }
-    const c = svg("circle", { cx: x(p.t_h), cy: y(p.c_lk_ratio), r: 3, class: "pt" + (p.alarms ? " alarm" : "") });
+    const c = svg("circle", { cx: x(p.life), cy: y(p.c_lk_ratio), r: 3, class: "pt" + (p.alarms ? " alarm" : "") });
     const pool = num(p.c_lk_pooled) !== null ? `, pooled C_Lk ${p.c_lk_pooled.toExponential(2)} +- ${(num(p.c_lk_pooled_sigma) || 0).toExponential(1)}` : "";
-    c.appendChild(svg("title", {}, `${p.t_h.toFixed(2)} h: ${p.c_lk_ratio.toFixed(3)}${pool}${p.alarms ? ", alarm" : ""}`));
+    const at = flights ? `flight ${p.life.toFixed(0)} (${p.t_h.toFixed(2)} h)` : `${p.t_h.toFixed(2)} h`;
+    c.appendChild(svg("title", {}, `${at}: ${p.c_lk_ratio.toFixed(3)}${pool}${p.alarms ? ", alarm" : ""}`));
     s.appendChild(c);
   }
   return s;
