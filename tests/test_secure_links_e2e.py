@@ -26,7 +26,7 @@ pytestmark = [
     pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed for the PKI"),
 ]
 
-from test_security import AC, ACT, SECURE, Station  # noqa: E402
+from test_security import AC, ACT, SECURE, Station, top_level  # noqa: E402
 
 KEY = f"fleet/{AC}/{ACT}/meas"
 
@@ -65,7 +65,7 @@ def _daemon_config(st: Station, station: str, shard: str = "0") -> Path:
     text = text.replace('station = "ground1"', f'station = "{station}"')
     text = text.replace('shard = "0"', f'shard = "{shard}"')
     text = text.replace('log_dir = "/var/lib/servowatch/logs"', f'log_dir = "{st.tmp}"')
-    cfg.write_text(text.replace("[zenoh]", 'store = "off"\n\n[zenoh]', 1))
+    cfg.write_text(top_level(text, 'store = "off"'))
     return cfg
 
 

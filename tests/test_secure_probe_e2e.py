@@ -180,7 +180,8 @@ def test_a_member_that_takes_units_and_does_nothing_makes_them_unmonitored(probe
     k = kinds.index("released")
     assert "unmonitored" not in kinds[:k], events
     j = kinds.index("unmonitored", k)
-    assert json.loads(events[j][1])["owner"] == "ground1/1", events
+    v = events[j][1]  # JSON text in the logs of JSON events, the object in protobuf events
+    assert (json.loads(v) if isinstance(v, str) else v)["owner"] == "ground1/1", events
     assert "monitored" in kinds[j:], events
 
 

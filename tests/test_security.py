@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -31,6 +32,16 @@ pytestmark = [
 
 ROOT = Path(__file__).resolve().parents[1]
 SECURE = ROOT / "deploy" / "secure"
+
+
+def top_level(text: str, lines: str) -> str:
+    """``text`` (a TOML config) with ``lines`` (top-level keys, then tables) put before its
+    first table, wherever the shipped config's tables start."""
+    at = re.search(r"^\[", text, flags=re.M)
+    i = at.start() if at else len(text)
+    return text[:i] + lines + "\n\n" + text[i:]
+
+
 ROLE = str(Path(__file__).with_name("_zenoh_role.py"))
 AC, ACT = "AC001", "elevator_L"
 FORGED = "FORGED"
@@ -126,10 +137,8 @@ class Station:
         cfg = self.tmp / "m0.toml"
         text = (SECURE / "monitor.toml").read_text()
         text = text.replace('log_dir = "/var/lib/servowatch/logs"', f'log_dir = "{self.tmp}"')
-        cfg.write_text(text.replace(
-            "[zenoh]",
-            'store = "off"\n\n[group]\nname = "fleet"\njoin_s = 0.5\nunmonitored_s = 1.5\n\n[zenoh]',
-            1,
+        cfg.write_text(top_level(
+            text, 'store = "off"\n\n[group]\nname = "fleet"\njoin_s = 0.5\nunmonitored_s = 1.5'
         ))  # fmt: skip
         return cfg
 
@@ -412,9 +421,7 @@ def test_monitor_group_forms_through_the_secure_router(tmp_path):
                 'log_dir = "/var/lib/servowatch/logs"', f'log_dir = "{tmp_path}"'
             )
             # top-level keys before the first table
-            cfg.write_text(
-                text.replace("[zenoh]", 'store = "off"\n\n[group]\nname = "fleet"\n\n[zenoh]', 1)
-            )
+            cfg.write_text(top_level(text, 'store = "off"\n\n[group]\nname = "fleet"'))
             st.popen(["run", "--config", str(cfg), "--no-rotate", "--json", "--plain-logs"],
                      f"m{shard}", env=st.env(f"monitor.ground1.{shard}"))  # fmt: skip
         deadline = time.monotonic() + 90
