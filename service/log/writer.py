@@ -29,7 +29,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
@@ -280,28 +280,45 @@ class McapLogger:
         except (ValueError, TypeError):
             msg = flat(dict(msg))  # the schema of a new topic is made from the flat message
             data = _ENCODE(msg).encode()
+        self._write_one("log", lambda: self._channels.get(topic), lambda: self._channel(topic, msg),
+                        t, data, check_every=64)  # fmt: skip
+
+    def _write_one(
+        self,
+        what: str,
+        known: Callable[[], int | None],
+        register: Callable[[], int],
+        t: float,
+        data: bytes,
+        check_every: int,
+    ) -> None:
+        """One message at ``t`` [s] on the channel ``known()`` gives (``register()`` when it
+        gives None), under the lock: numbered per channel, counted, dropped once the log
+        failed; the flush and rotation checks every ``check_every``-th call (1: each)."""
         t_ns = max(0, int(round(t * 1e9)))
         with self._lock:
             if self._closed:
-                raise ValueError("log() on a closed McapLogger")
+                raise ValueError(f"{what}() on a closed McapLogger")
             if self.failure is not None:
                 self.dropped += 1
                 return
             try:
-                cid = self._channels.get(topic)
+                cid = known()
                 if cid is None:
-                    cid = self._channel(topic, msg)
+                    cid = register()
                 seq = self._seq[cid]
                 self._seq[cid] = (seq + 1) & 0xFFFFFFFF
                 self._writer.add_message(cid, t_ns, data, t_ns, seq)  # type: ignore[union-attr]
                 self.message_count += 1
                 self._dirty = True
-                self._since_check += 1
-                if self._since_check >= 64:
+                if check_every > 1:
+                    self._since_check += 1
+                    if self._since_check < check_every:
+                        return
                     self._since_check = 0
-                    if time.monotonic() - self._last_flush >= self.flush_s:
-                        self._flush_locked()
-                    self._maybe_rotate()
+                if time.monotonic() - self._last_flush >= self.flush_s:
+                    self._flush_locked()
+                self._maybe_rotate()
             except Exception as e:
                 self._failed("write", e)
                 raise
@@ -425,38 +442,23 @@ class McapLogger:
         anything else) on ``topic`` at ``t`` [s] as a ``servowatch.Event`` protobuf message
         (``service.log.events``). Same flush and rotation as :meth:`log`."""
         data = encode_event(event)
-        t_ns = max(0, int(round(t * 1e9)))
-        with self._lock:
-            if self._closed:
-                raise ValueError("log_event() on a closed McapLogger")
-            if self.failure is not None:
-                self.dropped += 1
-                return
-            try:
-                cid = self._event_channels.get(topic)
-                if cid is None:
-                    w = self._writer
-                    assert w is not None
-                    if self._event_schema is None:
-                        self._event_schema = w.register_schema(
-                            name=EVENT_MESSAGE, encoding="protobuf", data=event_schema()
-                        )
-                    cid = self._event_channels[topic] = w.register_channel(
-                        topic=topic, message_encoding="protobuf", schema_id=self._event_schema,
-                        metadata=channel_metadata(EVENT_NAMES),
-                    )  # fmt: skip
-                    self._seq[cid] = 0
-                seq = self._seq[cid]
-                self._seq[cid] = (seq + 1) & 0xFFFFFFFF
-                self._writer.add_message(cid, t_ns, data, t_ns, seq)  # type: ignore[union-attr]
-                self.message_count += 1
-                self._dirty = True
-                if time.monotonic() - self._last_flush >= self.flush_s:
-                    self._flush_locked()
-                self._maybe_rotate()
-            except Exception as e:
-                self._failed("write", e)
-                raise
+        self._write_one("log_event", lambda: self._event_channels.get(topic),
+                        lambda: self._event_channel(topic), t, data, check_every=1)  # fmt: skip
+
+    def _event_channel(self, topic: str) -> int:
+        """The ``servowatch.Event`` channel of ``topic``, registered (with the schema, once)."""
+        w = self._writer
+        assert w is not None
+        if self._event_schema is None:
+            self._event_schema = w.register_schema(
+                name=EVENT_MESSAGE, encoding="protobuf", data=event_schema()
+            )
+        cid = self._event_channels[topic] = w.register_channel(
+            topic=topic, message_encoding="protobuf", schema_id=self._event_schema,
+            metadata=channel_metadata(EVENT_NAMES),
+        )  # fmt: skip
+        self._seq[cid] = 0
+        return cid
 
     def log_many(self, records: Iterable[tuple[str, float, Mapping[str, Any]]]) -> None:
         """:meth:`log` for each ``(topic, t, msg)``, taking the lock once (fewer switches)."""
