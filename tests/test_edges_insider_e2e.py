@@ -23,7 +23,7 @@ pytestmark = [
 
 from test_secure_insider_e2e import _live  # noqa: E402
 from test_secure_probe_e2e import _stop, _until, _wait_ready  # noqa: E402
-from test_security import AC, ACT, Station, _web_live  # noqa: E402
+from test_security import AC, ACT, Station, _web_live, live_url  # noqa: E402
 
 UNIT = f"{AC}/{ACT}"
 LONG = "a" * 129
@@ -40,7 +40,7 @@ def blinding(tmp_path_factory):
     try:
         daemon, act, web = st.monitored()
         _web_live(tmp / "web.out", web)
-        url = (tmp / "web.out").read_text().split()[1].rstrip("/") + "/api/live"
+        url = live_url(tmp / "web.out")
         _until(lambda: st.status("operator", "s0")["json"],
                lambda j: j and UNIT in str(j["daemons"].get(OWN, {}).get("actuators")))  # fmt: skip
 

@@ -26,7 +26,7 @@ pytestmark = [
 ]
 
 from test_secure_probe_e2e import _daemon_status, _stop, _until, _wait_ready  # noqa: E402
-from test_security import AC, ACT, Station, _web_live  # noqa: E402
+from test_security import AC, ACT, Station, _web_live, live_url  # noqa: E402
 
 UNIT = f"{AC}/{ACT}"
 KEY = f"fleet/{UNIT}/meas"
@@ -46,7 +46,7 @@ def insider(tmp_path_factory):
     try:
         daemon, act, web = st.monitored()
         _web_live(tmp / "web.out", web)
-        url = (tmp / "web.out").read_text().split()[1].rstrip("/") + "/api/live"
+        url = live_url(tmp / "web.out")
         time.sleep(2.0)
 
         # 1. station B's daemon certificate, its own token in ground1's group

@@ -24,7 +24,7 @@ pytestmark = [
     pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed for the PKI"),
 ]
 
-from test_security import AC, ACT, Station, _web_live  # noqa: E402
+from test_security import AC, ACT, Station, _web_live, live_url  # noqa: E402
 
 UNIT = f"{AC}/{ACT}"
 KEY = f"fleet/{UNIT}/meas"
@@ -133,7 +133,7 @@ def _web_live_until(out, web, timeout: float = 20.0) -> dict:
     import urllib.request
 
     live = _web_live(out, web)
-    url = out.read_text().split()[1].rstrip("/") + "/api/live"
+    url = live_url(out)
     deadline = time.monotonic() + timeout
     while not live.get("units", {}).get(UNIT, {}).get("unmonitored"):
         if time.monotonic() > deadline:

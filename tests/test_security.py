@@ -310,6 +310,11 @@ def station(tmp_path_factory):
         st.close()
 
 
+def live_url(out: Path) -> str:
+    """The /api/live address of the page whose ``serving http://...`` line is in ``out``."""
+    return out.read_text().split()[1].rstrip("/") + "/api/live"
+
+
 def _web_live(out: Path, web: subprocess.Popen, timeout: float = 30.0) -> dict:
     """The page's /api/live once it lists the actuator (or the last answer at ``timeout``)."""
     import urllib.request
@@ -318,7 +323,7 @@ def _web_live(out: Path, web: subprocess.Popen, timeout: float = 30.0) -> dict:
     while "serving http://" not in out.read_text():
         assert web.poll() is None and time.monotonic() < deadline, "the page did not start"
         time.sleep(0.1)
-    url = out.read_text().split()[1].rstrip("/") + "/api/live"
+    url = live_url(out)
     live: dict = {}
     while time.monotonic() < deadline:
         with urllib.request.urlopen(url, timeout=5) as resp:
