@@ -193,6 +193,16 @@ def _candidate(st: ActuatorState, s: int, t: float, ck: ClockCheck, period: floa
     return ck.resync_n <= 1
 
 
+def _follow(st: ActuatorState, seq: np.ndarray, t: np.ndarray, j: int,
+            on_restart: Callable[[ActuatorState, float, int, bool], None]) -> None:  # fmt: skip
+    """Re-synchronise the stream on its refused sample ``j`` (a clock that really jumped)."""
+    back = float(t[j]) < (st.last_t or 0.0)
+    st.last_seq, st.last_t = int(seq[j]), float(t[j])
+    st.restarts += 1
+    st.resync, st.refused = None, 0
+    on_restart(st, st.last_t, st.last_seq, back)
+
+
 def accept(
     st: ActuatorState,
     a: m.MeasArrays,
@@ -235,8 +245,12 @@ def accept(
                 st.name, "%s sample from %s: seq %d t %.6f after t %.6f",
                 why, st.name, sj, tj, st.last_t,
             )  # fmt: skip
-            if resync_at >= 0:
-                break
+            if resync_at >= 0:  # followed here: the rest is judged from this sample
+                _follow(st, seq, t, resync_at, on_restart)
+                k = resync_at + 1
+                rest = m.MeasArrays(seq[k:], t[k:], a.values[k:])
+                r0, r1 = accept(st, rest, bad_log, on_restart, ck, now)
+                return k + r0, k + r1
         if j0 < jw:  # ahead of what the sequence gap implies: refused from there on
             lim = _limits(st, seq[j0:jw], ck, period)
             bad = np.flatnonzero(t[j0:jw] > lim)
@@ -258,11 +272,7 @@ def accept(
             n - jw, st.name, float(t[jw]) - (now or 0.0),
         )  # fmt: skip
     if resync_at >= 0 and j0 >= j1:  # a clock that really jumped: follow it
-        back = float(t[resync_at]) < (st.last_t or 0.0)
-        st.last_seq, st.last_t = int(seq[resync_at]), float(t[resync_at])
-        st.restarts += 1
-        st.resync, st.refused = None, 0
-        on_restart(st, st.last_t, st.last_seq, back)
+        _follow(st, seq, t, resync_at, on_restart)
         j0, j1 = resync_at + 1, jw
     if j0 >= j1:
         return j0, j0

@@ -13,6 +13,7 @@ log bytes; importing them again finds the log and writes nothing.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import itertools
 import json
@@ -211,7 +212,8 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
             for s, (_, dt, blocks) in zip(src.series, firsts, strict=True):
                 cols = [chan.index(conv[c][3]) for c in s.columns]
                 rsm = SeriesResampler(t0, rate, dt)
-                put = emit if spool is None else _Forward(rsm.counts, spool, cols)
+                sink = emit if spool is None else functools.partial(_spool_put, spool, cols)
+                put = _Forward(rsm.counts, sink)
                 rs = _stream(s, blocks, conv, finite, rsm, start,
                              UnitClock(ac, act, RateLimitedLog(log)), put)  # fmt: skip
                 counts.add(rs)
@@ -240,13 +242,18 @@ def _write(src: Source, cmap: ChannelMap, map_raw: bytes, tmp: Path, ident: dict
                         (t_last or 0.0) - (t_first or 0.0), chan, summary)  # fmt: skip
 
 
-class _Forward:
-    """A time base's grid values into the spool, grid index increasing: after a clock was
-    followed back, the values at indices already written are dropped and counted (the log
-    of one time base keeps them, as the live stream would)."""
+def _spool_put(spool: ColumnSpool, cols: list[int], k: NDArray, v: NDArray) -> None:
+    spool.put(k, cols, v)
 
-    def __init__(self, counts: GridCounts, spool: ColumnSpool, cols: list[int]) -> None:
-        self.counts, self.spool, self.cols, self.last = counts, spool, cols, -1
+
+class _Forward:
+    """A time base's grid values to ``sink`` (the log, or the spool of a file of several
+    rates), grid index increasing: after a clock was followed back, the values at indices
+    already written are dropped and counted (``overlap``; the grid keeps the values written
+    first), so the log's ``seq`` and ``t`` only increase and its replay accepts every row."""
+
+    def __init__(self, counts: GridCounts, sink: Callable[[NDArray, NDArray], None]) -> None:
+        self.counts, self.sink, self.last = counts, sink, -1
 
     def __call__(self, k: NDArray, v: NDArray) -> None:
         keep = k > self.last
@@ -254,7 +261,7 @@ class _Forward:
             self.counts.overlap += int((~keep).sum())
             k, v = k[keep], v[keep]
         if len(k):
-            self.spool.put(k, self.cols, v)
+            self.sink(k, v)
             self.last = int(k[-1])
 
 
