@@ -40,15 +40,18 @@ def _chans(meas) -> list[str]:
     return [k for k in meas if k != "t"]
 
 
-def _write(path: Path, t, vals, names, ac="AC1", act="ail_L") -> Path:
-    """An acquisition-style log without a flight record: several chunks (16 KiB), samples
-    logged 250 at a time."""
+def _write(path: Path, t, vals, names, ac="AC1", act="ail_L", record=None) -> Path:
+    """An acquisition-style log without a flight record (``record``: with that
+    ``FlightRecord``): several chunks (16 KiB), samples logged 250 at a time."""
     from service.log import McapLogger
+    from service.log.flightrec import FLIGHT_RECORD
 
     path.parent.mkdir(parents=True, exist_ok=True)
     t = np.asarray(t, float)
     cols = np.column_stack([t, vals])
     with McapLogger(path, chunk_size=16_384, background_flush=False) as lg:
+        if record is not None:
+            lg.add_metadata(FLIGHT_RECORD, record.to_metadata())
         for a in range(0, len(t), 250):
             sl = slice(a, a + 250)
             lt = np.nan_to_num(t[sl], nan=0.0)
@@ -267,6 +270,35 @@ def test_a_flight_given_for_a_stored_log_is_applied_with_a_message(store_url, tm
         ps = st.periods(UNIT)
         assert {p.flight for p in ps} == {7}
         assert min(p.start_unix for p in ps) == pytest.approx(T0 + ps[0].start_t - meas["t"][0])
+
+
+def test_a_copy_with_a_flight_record_gives_the_same_flights_in_either_order(
+    request, store_url, tmp_path, meas
+):
+    """Three dated logs without a flight record, and a copy of the second's samples whose
+    record says flight 7 (a recording imported again with ``--flight 7``): the record is
+    applied whichever of the two is stored first (before: stored after the plain log, the
+    record was dropped, giving flights 0, 1, 2 instead of 0, 7, 8)."""
+    from service.log.flightrec import FlightRecord
+
+    names = _chans(meas)
+    vals = np.column_stack([meas[c] for c in names]).astype(float)
+    plain = [_log(tmp_path / f"d{d}.mcap", meas, T0 + d * DAY, k=d + 1, keep=0) for d in (0, 2, 4)]
+    t2 = meas["t"] + T0 + 2 * DAY
+    v2 = vals + 3 * 1e-6 * (1.0 + np.abs(vals))  # the samples of d2.mcap (k = 3)
+    rec = FlightRecord("AC1", "ail_L", 7, float(t2[0]), float(t2[0]))
+    copy7 = _write(tmp_path / "again" / "d2_flight7.mcap", t2, v2, names, record=rec)
+    replay_many(plain, store_url)
+    s = replay(copy7, store=store_url)
+    assert s.stored == {UNIT: "stored"} and s.periods_new == 0
+    assert any("flight 7" in w and "applied" in w for w in s.warnings)
+    other = _fresh(request, store_url, tmp_path, "other")
+    replay(copy7, store=other)
+    replay_many(plain, other)
+    with open_store(store_url) as st:
+        assert [p.flight for p in st.life(UNIT)] == [0, 7, 8]
+        assert st.fleet_summary()[0]["flights"] == 3
+    assert _snapshot(store_url) == _snapshot(other)
 
 
 # ------------------------------------------------------------------ the daemon's log

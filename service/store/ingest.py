@@ -112,7 +112,7 @@ def _store_units(
         changed = False
         if keep is not None:
             status = "stored"
-            changed = keep == u.source and _apply_given(hs, u, notes)
+            changed = keep == u.source and _apply_given(hs, u, mine, notes)
         else:
             gone = _superseded(hs, u, stored, notes)
             mine, n_live = _replace_live(hs, u, mine, notes)
@@ -233,31 +233,44 @@ def _replace_live(
     return out, len(gone)
 
 
-def _apply_given(hs: Any, u: LogUnit, notes: list[str]) -> bool:
-    """A ``--flight``/``--start-unix`` given for a log stored already: applied to its
-    stored periods (then no longer renumbered by the gap rule). True if anything changed."""
-    if u.flight is None and u.start_unix is None:
+def _apply_given(hs: Any, u: LogUnit, mine: list[Period], notes: list[str]) -> bool:
+    """A ``--flight``/``--start-unix`` given for a log stored already, else the flights of
+    its own flight records (``mine``: its periods as this replay stamped them): applied to
+    its stored periods (then no longer renumbered by the gap rule), so the store does not
+    depend on whether a copy with a record came first. True if anything changed."""
+    own = u.gap is False and u.flight is None and u.start_unix is None
+    if u.flight is None and u.start_unix is None and not own:
         return False
     b = hs._b
     rows = b.execute("SELECT start_t, flight, start_unix FROM periods WHERE actuator = ? "
                      "AND source = ?", (u.actuator, u.source)).fetchall()  # fmt: skip
     t0 = u.first_t if u.first_t is not None else min((float(r[0]) for r in rows), default=0.0)
+    stamped = {float(p.start_t): p for p in mine}
     upd = []
     for t, fl, su in rows:
-        nfl = int(u.flight) if u.flight is not None else fl
-        nsu = u.start_unix + (float(t) - t0) if u.start_unix is not None else su
+        if own:
+            p = stamped.get(float(t))
+            nfl = fl if p is None or p.flight is None else int(p.flight)
+            nsu = su if p is None or p.start_unix is None else p.start_unix
+        else:
+            nfl = int(u.flight) if u.flight is not None else fl
+            nsu = u.start_unix + (float(t) - t0) if u.start_unix is not None else su
         if nfl != fl or nsu != su:
             upd.append((nfl, nsu, u.actuator, t, u.source))
     if not upd:
         return False
     b.executemany("UPDATE periods SET flight = ?, start_unix = ? WHERE actuator = ? "
                   "AND start_t = ? AND source = ?", upd)  # fmt: skip
-    if u.flight is not None:
+    if u.flight is not None or own:
         b.execute("UPDATE log_sources SET flights = 'log' WHERE actuator = ? AND source = ?",
                   (u.actuator, u.source))  # fmt: skip
-    given = " and ".join(x for x in (
-        f"flight {u.flight}" if u.flight is not None else "",
-        f"start {u.start_unix:.0f} (Unix s)" if u.start_unix is not None else "") if x)  # fmt: skip
+    if own:
+        fls = sorted({int(p.flight) for p in mine if p.flight is not None})
+        given = "its flight record (flight " + ", ".join(map(str, fls)) + ")"
+    else:
+        given = " and ".join(x for x in (
+            f"flight {u.flight}" if u.flight is not None else "",
+            f"start {u.start_unix:.0f} (Unix s)" if u.start_unix is not None else "") if x)  # fmt: skip
     notes.append(f"stored already: {given} applied to its {len(rows)} stored period(s)")
     return True
 
