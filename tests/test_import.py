@@ -386,3 +386,36 @@ def test_a_clock_that_steps_back_is_refused_by_the_intake(tmp_path, healthy, cap
     _, names, v = _log(out)
     tt, p_sr = v[:, names.index("t")], v[:, names.index("p_sr")]
     assert np.all(p_sr[tt < 0.9995] == 200e5) and np.all(p_sr[tt > 0.9995] == 300e5)
+
+
+@pytest.mark.parametrize("tz", ["UTC", "America/New_York"])
+def test_csv_calendar_times_without_a_zone_are_utc(tmp_path, healthy, capsys, monkeypatch, tz):
+    """ISO 8601 text times: one without a zone is UTC whatever the machine's zone; an
+    offset is honoured (the log's times, hence its identity, never depend on the machine)."""
+    import json
+    import time
+
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+
+    monkeypatch.setenv("TZ", tz)
+    time.tzset()
+    try:
+        n = 300
+        base = rf.START.timestamp()
+        mp = tmp_path / "m.toml"
+        mp.write_text(rf.map_text("csv", "", '[time]\ncolumn = "Stamp"\nunit = "datetime"'))
+        cols = {k: v[:n] for k, v in rf.rig_columns(healthy).items()}
+        t0 = {}
+        for name, suffix in (("naive", ""), ("paris", "+02:00")):
+            stamps = [time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(base + k // 1000))
+                      + f".{k % 1000:03d}{suffix}" for k in range(n)]  # fmt: skip
+            f = tmp_path / f"{name}.csv"
+            pcsv.write_csv(pa.table({"Stamp": stamps, **cols}), f)
+            out = tmp_path / f"{name}.mcap"
+            assert main(["import", str(f), "--map", str(mp), "--out", str(out), "--json"]) == 0
+            t0[name] = json.loads(capsys.readouterr().out)["imports"][0]["t0"]
+        assert t0 == {"naive": base, "paris": base - 7200.0}
+    finally:
+        monkeypatch.undo()
+        time.tzset()
