@@ -301,6 +301,25 @@ def test_a_copy_with_a_flight_record_gives_the_same_flights_in_either_order(
     assert _snapshot(store_url) == _snapshot(other)
 
 
+def test_a_log_at_the_calendar_time_of_another_with_other_samples_is_named(store_url,
+                                                                           tmp_path, meas):  # fmt: skip
+    """The same flight in other samples (another export rate, map or acquisition): no
+    sample in common, the same calendar time. Both are kept, as two flights (the gap rule's
+    negative gap), and the replay says so, naming the stored log (before: not a word)."""
+    a = _log(tmp_path / "rig_1khz.mcap", meas, T0, k=1, keep=0)
+    b = _log(tmp_path / "rig_2khz_export.mcap", meas, T0 + 0.5, k=2, keep=0)
+    c = _log(tmp_path / "next_day.mcap", meas, T0 + DAY, k=3, keep=0)
+    replay(a, store=store_url)
+    s = replay(b, store=store_url)
+    assert s.stored == {UNIT: "new"}
+    (w,) = [w for w in s.warnings if "calendar time" in w]
+    assert "overlaps rig_1khz.mcap by 2.5 s of calendar time" in w and "two flights" in w
+    s = replay(c, store=store_url)
+    assert not [w for w in s.warnings if "calendar time" in w]
+    with open_store(store_url) as st:
+        assert [p.flight for p in st.life(UNIT)] == [0, 1, 2]
+
+
 # ------------------------------------------------------------------ the daemon's log
 
 

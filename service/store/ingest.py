@@ -116,6 +116,7 @@ def _store_units(
         else:
             gone = _superseded(hs, u, stored, notes)
             mine, n_live = _replace_live(hs, u, mine, notes)
+            _calendar_overlaps(hs, u, mine, gone, notes)
             status = "superseded" if gone or n_live else "new"
             changed = True
             for src in gone | {u.source}:
@@ -231,6 +232,43 @@ def _replace_live(
     if gone:
         notes.append(f"replaces {len(gone)} live period(s) the daemon stored beside this log")
     return out, len(gone)
+
+
+def _calendar_overlaps(
+    hs: Any, u: LogUnit, mine: list[Period], gone: set[str], notes: list[str]
+) -> None:
+    """A note per stored log (or live periods) of the unit whose periods overlap this log's
+    in calendar time while sharing no sample with it: the same flight recorded or imported
+    twice in different samples (another rate, map or acquisition). Both are kept, as two
+    flights (``lifeorder.next_flight``); the note is the sign of it."""
+    spans = [(float(p.start_unix), float(p.start_unix) + float(p.end_t - p.start_t))
+             for p in mine if p.start_unix is not None]  # fmt: skip
+    if not spans:
+        return
+    lo, hi = min(a for a, _ in spans), max(e for _, e in spans)
+    rows = hs._b.execute(
+        "SELECT p.source, l.name, p.start_unix, p.start_unix + (p.end_t - p.start_t) "
+        "FROM periods p LEFT JOIN log_sources l ON l.actuator = p.actuator "
+        "AND l.source = p.source WHERE p.actuator = ? AND p.source <> ? "
+        "AND p.start_unix IS NOT NULL AND p.start_unix < ? "
+        "AND p.start_unix + (p.end_t - p.start_t) > ?",
+        (u.actuator, u.source, hi, lo),
+    ).fetchall()
+    over: dict[str, list] = {}
+    for src, name, a, e in rows:
+        if src in gone or (u.live and src.endswith(u.live)):
+            continue
+        rel = u.relate(src) if u.relate is not None and name is not None else None
+        if rel is not None and (rel.shared or rel.inside or rel.holds):
+            continue  # noted as sharing samples (``_superseded``)
+        ov = sum(max(0.0, min(e, y) - max(a, x)) for x, y in spans)
+        if ov > 0:
+            o = over.setdefault(src, [name or src, 0.0])
+            o[1] += ov
+    for _src, (name, ov) in sorted(over.items()):
+        notes.append(f"overlaps {name} by {ov:.1f} s of calendar time with other samples: "
+                     "both kept, as two flights (the same flight recorded or imported "
+                     "twice differently?)")  # fmt: skip
 
 
 def _apply_given(hs: Any, u: LogUnit, mine: list[Period], notes: list[str]) -> bool:
