@@ -320,6 +320,26 @@ def test_a_log_at_the_calendar_time_of_another_with_other_samples_is_named(store
         assert [p.flight for p in st.life(UNIT)] == [0, 1, 2]
 
 
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_a_batch_shows_the_stores_lines(store_url, tmp_path, meas, capsys, jobs):
+    """``replay DIR --store S`` (in process, and on ``--jobs`` workers) prints the store's
+    lines as a single replay does, and lists them under ``warnings`` in ``--json`` (before:
+    a trimmed copy stored nothing without a word, on either path)."""
+    from service.cli import main
+
+    full = _log(tmp_path / "a" / "full.mcap", meas, T0, k=1, keep=0)
+    _log(tmp_path / "b" / "trimmed.mcap", meas, T0, k=1, keep=0, cut=slice(0, 2000))
+    assert main(["replay", str(full), "--store", store_url]) == 0
+    capsys.readouterr()
+    args = ["replay", str(tmp_path / "b"), str(tmp_path / "a"), "--store", store_url]
+    assert main([*args, "--jobs", jobs, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    (w,) = out["warnings"]
+    assert "trimmed.mcap" in w and "every sample of it is stored already, from full.mcap" in w
+    assert main([*args, "--jobs", jobs]) == 0
+    assert f"  warning: {w}" in capsys.readouterr().out.splitlines()
+
+
 # ------------------------------------------------------------------ the daemon's log
 
 

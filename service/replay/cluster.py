@@ -495,10 +495,10 @@ def write_logs(hs: Any, done: list[tuple[Any, IngestCall]]) -> None:
         raise StoreWriteError(
             f"store {getattr(hs, 'where', hs)}: writing {names} failed: {first}"
         ) from e
+    from service.replay.stored import store_result
+
     for (s, _), r in zip(done, res, strict=True):
-        s.periods_new = sum(x["periods_new"] for x in r.values())
-        s.flights = {a: x["flights"] for a, x in r.items() if x["flights"]}
-        s.stored = {a: x["status"] for a, x in r.items()}
+        store_result(s, r)
 
 
 def run_batch(

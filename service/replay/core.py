@@ -87,6 +87,7 @@ from service.replay.input import (
     named,
     unit_source,
 )
+from service.replay.stored import store_result
 from service.store.identity import StreamDigest, stream_source
 from service.wire import messages as m
 
@@ -658,14 +659,7 @@ def _store_log(hs, files, log_path, summary, closed, alarms, life, digests, log_
         ) from e
     summary.source = summary.sources[units[0].actuator] if units else None
     summary.periods = len(closed)
-    summary.periods_new = sum(r["periods_new"] for r in res.values())
-    summary.flights = {a: r["flights"] for a, r in res.items() if r["flights"]}
-    summary.stored = {a: r["status"] for a, r in res.items()}
-    for a, r in res.items():
-        for note in r.get("notes", ()):
-            text = f"{log_path}: {a}: {note}"
-            summary.warnings.append(text)
-            log.info(text)
+    store_result(summary, res)
 
 
 def expand_logs(items: list[str | Path]) -> list[Path]:

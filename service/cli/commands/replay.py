@@ -377,6 +377,7 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap, pool=None) -
               "corrupt_chunks": 0, "superseded": 0, "already_stored": 0}  # fmt: skip
     units: dict[str, set] = {}
     checks: list[dict] = []  # logs whose samples the time checks refused
+    warns: list[str] = []  # each log's warnings (the store's lines among them)
     done: list[str] = []
 
     def on_log(p, s, err) -> None:
@@ -398,6 +399,7 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap, pool=None) -
                 checks.append({"log": str(p), "actuator": a, **tc})
         for a, fl in s.flights.items():
             units.setdefault(a, set()).update(fl)
+        warns.extend(s.warnings)
 
     try:
         replay_many(logs, store, on_log=on_log, flight_gap_s=gap, monitor_config=monitor_config,
@@ -410,7 +412,8 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap, pool=None) -
     finally:
         bar.close()
     wall = time.perf_counter() - w0
-    out = {"logs": len(logs), "failed": failed, **totals, "time_checks": checks, "wall_s": wall,
+    out = {"logs": len(logs), "failed": failed, **totals, "time_checks": checks,
+           "warnings": warns, "wall_s": wall,
            "actuators": {a: {"flights": len(f), "first": min(f), "last": max(f)}
                          for a, f in sorted(units.items())}}  # fmt: skip
     if pool is not None:
@@ -431,6 +434,8 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap, pool=None) -
             print(f"  time checks {c['log']} {c['actuator']}: {counts}")
         if totals["corrupt_chunks"]:
             print(f"  corrupt chunks skipped: {totals['corrupt_chunks']}")
+        for w in warns:
+            print(f"  warning: {w}")
         if pool is not None:
             print(f"  on {report.pool}:")
             for w, d in sorted(report.workers.items()):
