@@ -99,6 +99,31 @@ def test_accept_counts_a_step_back_the_same_in_any_batches(m, size):
     assert backs == [m > RESYNC_N] * want["restarts"]
 
 
+@pytest.mark.parametrize("size", [1, 2, 7, 50, 350])
+def test_a_clock_that_jumps_forward_at_a_message_is_followed_after_5(size):
+    """The stream's period known (a first message of 100 samples), the clock jumps 10 s
+    forward at the first sample of a message of ``size``: 5 refused (``clock``), followed at
+    the 5th, the rest accepted, whatever the message length (before: every sample of that
+    message was refused, and the clock followed at its last)."""
+    from service.daemon.intake import ActuatorState, ClockCheck, accept
+    from service.daemon.ratelimit import RateLimitedLog
+    from service.wire import messages as msg
+
+    n, at = 900, 450
+    t = T0 + np.arange(n) / 1000.0
+    t[at:] += 10.0
+    seq = np.arange(n)
+    st = ActuatorState("AC1", "ail_L")
+    bad = RateLimitedLog(logging.getLogger("test"))
+    backs: list[bool] = []
+    accepted = 0
+    for a, b in [(0, 100)] + [(x, min(x + size, n)) for x in range(100, n, size)]:
+        arr = msg.MeasArrays(seq[a:b], t[a:b], np.zeros((b - a, len(msg.CHANNELS))))
+        j0, j1 = accept(st, arr, bad, lambda *x: backs.append(x[3]), ClockCheck(), None)
+        accepted += j1 - j0
+    assert (accepted, st.bad, st.restarts, backs) == (n - 5, {"clock": 5}, 1, [False])
+
+
 def test_the_daemon_status_counts_a_step_back_into_a_message():
     """The daemon's intake (``Intake.take``, its status counters): a message of 60 samples,
     then one of 30 whose clock stepped back 20 samples (a message's own samples increase)."""

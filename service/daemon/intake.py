@@ -256,24 +256,31 @@ def accept(
             bad = np.flatnonzero(t[j0:jw] > lim)
             if len(bad):
                 j1 = j0 + int(bad[0])
-                for j in range(j1, jw):
+                j = j1
+                while j < jw:
                     st.count_bad("clock")
                     st.refused += 1
                     if _candidate(st, int(seq[j]), float(t[j]), ck, period):
                         resync_at = j
+                        if j0 >= j1:  # none accepted before it: the clock is followed here
+                            break
+                    j += 1
                 bad_log.warning(
                     st.name, "clock: %d samples from %s ahead of the stream: t %.6f after t %.6f",
-                    jw - j1, st.name, float(t[j1]), st.last_t,
+                    min(j + 1, jw) - j1, st.name, float(t[j1]), st.last_t,
                 )  # fmt: skip
+                if resync_at >= 0 and j0 >= j1:  # a clock that really jumped: followed here,
+                    _follow(st, seq, t, resync_at, on_restart)  # the rest judged from it
+                    k = resync_at + 1
+                    rest = m.MeasArrays(seq[k:], t[k:], a.values[k:])
+                    r0, r1 = accept(st, rest, bad_log, on_restart, ck, now)
+                    return k + r0, k + r1
     if jw < n:
         st.count_bad("clock", n - jw)
         bad_log.warning(
             st.name, "clock: %d samples from %s ahead of the receiving clock by %.3f s",
             n - jw, st.name, float(t[jw]) - (now or 0.0),
         )  # fmt: skip
-    if resync_at >= 0 and j0 >= j1:  # a clock that really jumped: follow it
-        _follow(st, seq, t, resync_at, on_restart)
-        j0, j1 = resync_at + 1, jw
     if j0 >= j1:
         return j0, j0
     st.resync = None
