@@ -15,8 +15,8 @@ import sys
 
 import pytest
 
-from service.cli.logsetup import JournalHandler, setup_logging, under_journal
 from service.daemon.outputs import log_alarm
+from service.log.setup import JournalHandler, setup_logging, under_journal
 
 RFC3339 = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$")
 ALARM = {"t": 1796378000.5361416, "kind": "leak", "state": "raised", "value": 3.93}
@@ -133,13 +133,15 @@ def test_the_actuator_logs_as_the_daemon_does(net):
     p = net.start("actuator", "--duration", "0.5", "--rate", "200")
     _, err = p.communicate(timeout=120)
     assert p.returncode == 0, err
-    lines = [ln for ln in err.splitlines() if ln.startswith("{")]
-    assert lines, err
-    d = json.loads(lines[0])
-    assert RFC3339.match(d["time"]) and d["logger"] == "servowatch.actuator"
-    final = err.strip().splitlines()[-1]
-    assert final.startswith("actuator AC001/elevator_L: ") and "{" not in final, final
-    assert "samples in" in final
+    recs = [json.loads(ln) for ln in err.splitlines()]  # every line a JSON record
+    assert recs and all(RFC3339.match(r["time"]) for r in recs), err
+    starts = [r for r in recs if r["logger"] == "servowatch.actuator"]
+    assert starts[0]["msg"].startswith("actuator AC001/elevator_L publishing"), err
+    final = recs[-1]  # its final line: the counters in words and as fields
+    assert final["msg"].startswith("actuator AC001/elevator_L stopped: "), final
+    assert "{" not in final["msg"] and "samples in" in final["msg"], final
+    assert final["unit"] == "AC001/elevator_L" and final["samples"] > 0, final
+    assert f"{final['samples']} samples in {final['messages']} messages" in final["msg"]
 
 
 def test_listen_count_prints_exactly_n_outputs_with_readable_times():

@@ -302,7 +302,7 @@ def run_group(task: GroupTask) -> GroupResult:
 
 
 def _die_with_parent(parent: int) -> None:
-    """A ``--jobs`` worker's initializer: it dies with the batch (Linux: the kernel sends it
+    """A ``--jobs`` worker's initializer: it logs as the batch does, and dies with it (Linux: the kernel sends it
     SIGKILL when its parent dies, ``PR_SET_PDEATHSIG``; elsewhere a thread polls the parent
     and ends the worker when it is gone)."""
     import signal
@@ -320,6 +320,9 @@ def _die_with_parent(parent: int) -> None:
             armed = False
     if os.getppid() != parent:  # the parent died before the prctl took effect
         os._exit(1)
+    from service.log.setup import inherit_logging
+
+    inherit_logging()  # its log lines as the batch's
     if not armed:
 
         def watch() -> None:

@@ -11,7 +11,6 @@ workers, and this process writes the store (docs/cluster.md).
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 
 from service.cli.util import emit_json, fail
@@ -151,8 +150,6 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from service.config import ConfigError, load_config
-
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     from service.log import rotated_files
     from service.prognostics.life import FLIGHT_GAP_S
     from service.replay import expand_logs

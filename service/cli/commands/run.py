@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
-import sys
 import threading
 import time
 
-from service.cli.logsetup import PlainFormatter, setup_logging
 from service.cli.util import check_outputs, emit_json, fail
+from service.log.setup import PlainFormatter, add_log_arguments, setup_logging
 
 NAME = "run"
 HELP = "Run the monitoring daemon: subscribe, monitor each actuator, publish, log to MCAP."
@@ -43,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                            every_help="[foxglove] every, 10")  # fmt: skip
     add_serve_arguments(p, "metrics", "serve OpenMetrics for Prometheus on "
                         "http://HOST:PORT/metrics", "overrides [metrics] listen; ")  # fmt: skip
-    p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
+    add_log_arguments(p)
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
 
 
@@ -143,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     # before the session: a first run compiles (and says so), telling systemd meanwhile that
     # the start goes on (EXTEND_TIMEOUT_USEC; READY=1 comes once the daemon has started)
     with extending_start("starting: compiling the kernels (a first run takes minutes)"):
-        ensure(monitor_group(cfg.monitor.model), "log")
+        ensure(monitor_group(cfg.monitor.model), "log", log=True)
     stop = threading.Event()
 
     def _stop(signum, frame):
@@ -167,15 +166,15 @@ def run(args: argparse.Namespace) -> int:
                 break
             stop.wait(0.5 if left is None else min(0.5, left))
         final = daemon.stop()
+    log = logging.getLogger("servowatch.daemon")
     if args.json:
         emit_json(final)
     else:
-        print(
-            f"servowatch run: {final['samples']} samples, {final['dropped']} dropped, "
-            f"{final['bad']} bad, log {', '.join(final['log'])}",
-            file=sys.stderr,
-        )
+        log.info("stopped: %d samples, %d dropped, %d bad, log %s", final["samples"],
+                 final["dropped"], final["bad"], ", ".join(final["log"]),
+                 extra={"fields": {k: final[k] for k in ("samples", "dropped", "bad", "log")}})  # fmt: skip
     if final["log_failure"]:
-        print(f"servowatch run: the MCAP log failed: {final['log_failure']}", file=sys.stderr)
+        log.error("the MCAP log failed: %s", final["log_failure"],
+                  extra={"fields": {"log_failure": str(final["log_failure"])}})  # fmt: skip
         return EXIT_LOG_FAILURE
     return 0
