@@ -90,7 +90,8 @@ def web_process(store: str, *extra: str) -> Iterator[str]:
         serving.wait(60)  # a cold start imports numpy and the store; a hang fails here
         rec = find("".join(err), "servowatch.web", "url")
         assert rec is not None and rec["url"].startswith("http://127.0.0.1:"), "".join(err)
-        assert rec["msg"] == f"serving {rec['url']} from {rec['store']}", rec
+        live = " (live status on)" if rec["live"] else ""
+        assert rec["msg"] == f"serving {rec['url']} from {rec['store']}{live}", rec
         url = rec["url"].rstrip("/")
         deadline = time.monotonic() + 10
         while True:

@@ -192,10 +192,10 @@ def setup_logging(
     root = logging.getLogger()
     # replaces an earlier call's handler and a bare stderr one (logging.basicConfig's); a
     # capturing handler (pytest's caplog) stays
-    root.handlers[:] = [
+    root.handlers[:] = [h] + [
         x for x in root.handlers
         if not getattr(x, "_servowatch", False) and type(x) is not logging.StreamHandler
-    ] + [h]  # fmt: skip
+    ]  # fmt: skip
     root.setLevel(level)
     if stream is None and env is None:  # this process's stderr: its children log alike
         os.environ[ENV_CHILD] = f"{'plain' if plain else 'json'} {logging.getLevelName(root.level)}"

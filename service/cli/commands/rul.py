@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from service.cli.util import check_outputs, emit_json, fail, finite_float, writing
+from service.cli.util import check_outputs, emit_json, fail, finite_float, plural, writing
 from service.store import StoreError
 from service.store.cli import add_store_argument, open_store_arg, store_path_arg
 
@@ -126,8 +126,9 @@ def run(args: argparse.Namespace) -> int:
             }
         )
         return 0
-    print(f"threshold C_Lk ratio {cfg.threshold():.2f}, horizon {cfg.horizon_flights:g} flights "
-          f"(histories with flight numbers) or {cfg.horizon_h:g} h")  # fmt: skip
+    print(f"threshold C_Lk ratio {cfg.threshold():.2f}, horizon "
+          f"{plural(cfg.horizon_flights, 'flight')} (histories with flight numbers) or "
+          f"{cfg.horizon_h:g} h")  # fmt: skip
     print(
         f"{'actuator':<24}{'ratio':>7}{'model':>13}{'RUL median [90 %]':>28}{'days':>8}{'P(H)':>7}"
     )
