@@ -28,4 +28,4 @@ def test_a_reinit_at_a_calendar_time_logs_rfc3339(healthy, caplog):  # noqa: F81
     assert msg.startswith("monitor AC001/x re-initialised at 2026-12-04T09:53:21."), msg
     assert "t=" not in msg and "1796378" not in msg, msg
     f = rec.fields
-    assert f["event"] == "reinit" and f["unit"] == "AC001/x" and is_time(f["time"]), f
+    assert f["event"] == "reinit" and f["unit"] == "AC001/x" and is_time(f["event_time"]), f

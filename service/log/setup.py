@@ -49,6 +49,8 @@ JOURNAL_SOCKET = "/run/systemd/journal/socket"
 #: the variable a child process reads its parent's log format and level from (``json INFO``;
 #: not ``SERVOWATCH_LOG_LEVEL``, which is the service config's ``log_level``)
 ENV_CHILD = "SERVOWATCH_CHILD_LOG"
+#: the keys of every record; a field named like one is written as ``field_<name>``
+_RESERVED = frozenset({"time", "level", "logger", "msg", "exc"})
 #: syslog priorities of the logging levels (journald's PRIORITY)
 _PRIORITY = {"CRITICAL": 2, "ERROR": 3, "WARNING": 4, "INFO": 6, "DEBUG": 7}
 
@@ -69,8 +71,8 @@ class JsonFormatter(logging.Formatter):
             "logger": record.name,
             "msg": record.getMessage(),
         }
-        for k, v in fields_of(record).items():
-            d.setdefault(str(k), v)
+        for k, v in fields_of(record).items():  # a field named like a key above: field_K
+            d["field_" + str(k) if str(k) in _RESERVED else str(k)] = v
         if record.exc_info:
             d["exc"] = self.formatException(record.exc_info)
         return json.dumps(d, allow_nan=False, default=str)
@@ -139,7 +141,8 @@ class JournalHandler(logging.Handler):
             _journal_field("SERVOWATCH_LOGGER", record.name),
             _journal_field("SERVOWATCH_TIME", rfc3339(record.created)),
         ]
-        parts += [_journal_field(_field_name(k), v) for k, v in fields_of(record).items()]
+        parts += [_journal_field(_field_name("field_" + k if k in _RESERVED else k), v)
+                  for k, v in fields_of(record).items()]  # fmt: skip
         return b"".join(parts)
 
     def emit(self, record: logging.LogRecord) -> None:

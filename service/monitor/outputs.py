@@ -242,5 +242,5 @@ def log_reinit(unit: str, t: float, diverged: bool, nis_avg: float) -> None:
     why = "diverged" if diverged else "non-finite or not positive definite"
     logging.getLogger("service.monitor.bank").warning(
         "monitor %s re-initialised at %s (%s, NIS/dof average %.3g)", unit, when, why, nis_avg,
-        extra={"fields": {"event": "reinit", "unit": unit, "time": when, "value": nis_avg}},
+        extra={"fields": {"event": "reinit", "unit": unit, "event_time": when, "value": nis_avg}},
     )  # fmt: skip
