@@ -101,11 +101,13 @@ def test_the_station_logs_json_lines_with_rfc3339_times(tmp_path):
     assert web[-1]["msg"] == "web stopped"
     act = recs["actuator"][-1]
     assert act["msg"].startswith("actuator AC001/elevator_L stopped: ") and act["samples"] > 0
-    run = recs["run"][-1]
-    assert run["logger"] == "servowatch.daemon" and run["msg"].startswith(
-        f"stopped: {run['samples']} samples, {run['dropped']} dropped, {run['bad']} bad, log "
-    )
-    assert run["samples"] > 0 and Path(run["log"][0]).is_file()
+    stopped = next(r for r in recs["run"] if r["msg"].startswith("daemon stopped: "))
+    assert stopped["msg"] == (f"daemon stopped: {stopped['samples']} samples, "
+                              f"{stopped['dropped']} dropped, {stopped['bad']} bad")  # fmt: skip
+    assert stopped["samples"] > 0
+    last = recs["run"][-1]  # the file it logged to, not every name it wrote
+    assert last["msg"] == f"logged to {last['log_file']} (1 file of this run kept)", last
+    assert Path(last["log_file"]).is_file() and last["deleted_files"] == 0
 
 
 @pytest.mark.slow
@@ -158,3 +160,19 @@ def test_a_services_cold_compile_is_logged_in_its_format(tmp_path):
     assert "service.prognostics.trend._kalman" in kernels and len(set(kernels)) == len(kernels)
     assert recs[-1]["msg"].startswith("kernels compiled in ")
     assert json.dumps(recs)  # fields are plain JSON
+
+
+def test_the_daemons_last_line_names_its_last_file_and_counts_the_rest(tmp_path, caplog):
+    """A station that runs for months writes hundreds of files: the last line names the last
+    one and counts those kept and those retention deleted (it listed every name it wrote)."""
+    from service.cli.commands.run import log_files_line
+
+    paths = [str(tmp_path / f"r-{k:04d}.mcap") for k in range(5)]
+    for p in paths[3:]:
+        Path(p).write_bytes(b"x")
+    with caplog.at_level("INFO", logger="servowatch.daemon"):
+        log_files_line(paths)
+    (rec,) = caplog.records
+    assert rec.getMessage() == (f"logged to {paths[-1]} (2 files of this run kept, 3 deleted "
+                                "by retention)")  # fmt: skip
+    assert rec.fields == {"log_file": paths[-1], "kept_files": 2, "deleted_files": 3}

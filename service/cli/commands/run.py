@@ -114,6 +114,24 @@ def _check_identity(cfg) -> None:
         )  # fmt: skip
 
 
+def log_files_line(paths: list[str]) -> None:
+    """The daemon's last line (its counts are in ``daemon stopped``): the file it logged to
+    last, and how many of the files it wrote are kept and how many retention deleted (a
+    station running for months writes hundreds; not every name)."""
+    from pathlib import Path
+
+    from service.cli.util import plural
+
+    kept = [p for p in paths if Path(p).exists()]
+    gone = len(paths) - len(kept)
+    last = paths[-1] if paths else "-"
+    logging.getLogger("servowatch.daemon").info(
+        "logged to %s (%s of this run kept%s)", last, plural(len(kept), "file"),
+        f", {gone} deleted by retention" if gone else "",
+        extra={"fields": {"log_file": last, "kept_files": len(kept), "deleted_files": gone}},
+    )  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
 
     from service.cli.args import open_zenoh_session, zenoh_config
@@ -170,9 +188,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         emit_json(final)
     else:
-        log.info("stopped: %d samples, %d dropped, %d bad, log %s", final["samples"],
-                 final["dropped"], final["bad"], ", ".join(final["log"]),
-                 extra={"fields": {k: final[k] for k in ("samples", "dropped", "bad", "log")}})  # fmt: skip
+        log_files_line(final["log"])
     if final["log_failure"]:
         log.error("the MCAP log failed: %s", final["log_failure"],
                   extra={"fields": {"log_failure": str(final["log_failure"])}})  # fmt: skip
