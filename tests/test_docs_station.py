@@ -44,3 +44,20 @@ def test_no_paragraph_is_said_twice():
 def test_the_readme_says_how_long_make_test_takes():
     text = " ".join((ROOT / "README.md").read_text().split())
     assert re.search(r"`make test` takes about \d+-\d+ minutes", text), "README: make test"
+
+
+def test_the_grafana_import_is_the_one_the_docs_describe():
+    """docs/dashboard.md: the file asks for nothing at import (no ``__inputs``); a
+    ``datasource`` variable labelled *Prometheus* that every panel and query uses."""
+    import json
+
+    dash = json.loads((ROOT / "deploy" / "grafana" / "servowatch.json").read_text())
+    doc = " ".join((ROOT / "docs" / "dashboard.md").read_text().split())
+    assert "it has no `__inputs`" in doc and "*Prometheus* variable" in doc
+    assert "__inputs" not in dash and "__requires" not in dash
+    (var,) = [v for v in dash["templating"]["list"] if v["type"] == "datasource"]
+    assert var["label"] == "Prometheus" and var["query"] == "prometheus"
+    uid = "${" + var["name"] + "}"
+    panels = [p for p in dash["panels"] if p["type"] != "row"]
+    assert panels and all(p["datasource"]["uid"] == uid for p in panels)
+    assert all(t["datasource"]["uid"] == uid for p in panels for t in p.get("targets", []))
