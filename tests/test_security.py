@@ -291,7 +291,7 @@ def station(tmp_path_factory):
         for k, p in procs.items():
             r[k] = st.result(p, k)
         r["dash_status"] = st.status("dashboard", "dash_status")
-        r["web_live"] = _web_live(tmp / "web.out", web)
+        r["web_live"] = _web_live(tmp / "web.err", web)
         web.send_signal(signal.SIGTERM)
         r["web_rc"] = web.wait(15)
         r["status"] = st.status()
