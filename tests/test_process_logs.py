@@ -176,3 +176,35 @@ def test_the_daemons_last_line_names_its_last_file_and_counts_the_rest(tmp_path,
     assert rec.getMessage() == (f"logged to {paths[-1]} (2 files of this run kept, 3 deleted "
                                 "by retention)")  # fmt: skip
     assert rec.fields == {"log_file": paths[-1], "kept_files": 2, "deleted_files": 3}
+
+
+def _warn(text: str) -> str:
+    """A task that logs a warning (run on a pool's worker)."""
+    import logging
+
+    logging.getLogger("servowatch.replay").warning("worker says %s", text)
+    return text
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("pool", ["jobs", "dask"])
+def test_a_batch_workers_log_lines_are_the_batchs(pool):
+    """A warning logged in a ``replay --jobs`` worker or a ``--cluster local:N`` Dask worker
+    is a line of the batch's format (JSON here), not Python's bare last-resort line."""
+    code = ("import sys\n"
+            "sys.path.insert(0, 'tests')\n"
+            "from service.log.setup import setup_logging\n"
+            "from service.replay.cluster import open_pool\n"
+            "from test_process_logs import _warn\n"
+            "setup_logging('INFO')\n"
+            "pool = open_pool(2, 'local:1' if sys.argv[1] == 'dask' else None)\n"
+            "pool.start(1)\n"
+            "f = pool.submit(_warn, 'hello')\n"
+            "assert [x.result() for x in pool.as_completed([f])] == ['hello']\n"
+            "pool.close()\n")  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", code, pool], capture_output=True, text=True,
+                       timeout=300, cwd=ROOT)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    (line,) = [ln for ln in r.stderr.splitlines() if "worker says" in ln]
+    (rec,) = check_json_lines(line)
+    assert rec["msg"] == "worker says hello" and rec["logger"] == "servowatch.replay", rec

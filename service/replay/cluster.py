@@ -400,6 +400,22 @@ def _quiet() -> Iterator[None]:
             q.setLevel(lv)
 
 
+_WORKER_LOGGING = False  # set in a Dask worker once its log lines follow the batch's
+
+
+def _logging_as_the_batch(fn: Callable, arg: Any) -> Any:
+    """``fn(arg)`` on a Dask worker, whose log lines follow the batch's format (a
+    ``local:N`` worker inherits ``SERVOWATCH_CHILD_LOG``; another host's, plain text) rather
+    than Python's bare last-resort lines."""
+    global _WORKER_LOGGING
+    if not _WORKER_LOGGING:
+        from service.log.setup import inherit_logging
+
+        inherit_logging()
+        _WORKER_LOGGING = True
+    return fn(arg)
+
+
 class DaskPool:
     """``--cluster``: a Dask distributed scheduler at an address (``tcp://HOST:PORT``,
     ``tls://...``), or ``local:N``, a ``LocalCluster`` of N single-threaded worker processes
@@ -437,7 +453,7 @@ class DaskPool:
         """Nothing to start: the workers are the scheduler's."""
 
     def submit(self, fn: Callable, arg: Any) -> Any:
-        return self.client.submit(fn, arg, pure=False)
+        return self.client.submit(_logging_as_the_batch, fn, arg, pure=False)
 
     def as_completed(self, futures: list) -> Iterator:
         from distributed import as_completed
