@@ -41,7 +41,7 @@ demo: $(KERNELS)
 FLEET_DEMO ?= servowatch-data/fleet-demo.sqlite
 fleet-page: $(KERNELS)
 	test -e $(FLEET_DEMO) || $(VENV)/bin/servowatch fleet-sim --actuators 12 --flights 5 --seed 3 --store $(FLEET_DEMO) --truth servowatch-data/fleet-demo-truth.json
-	$(VENV)/bin/servowatch web --store $(FLEET_DEMO)
+	$(VENV)/bin/servowatch web --store $(FLEET_DEMO) --plain-logs
 
 test: $(KERNELS_ALL)
 	$(PY) -m pytest -q

@@ -8,10 +8,10 @@ of ``--tick`` messages (default N/2: 5 ms of N actuators at 1 kHz), then
 worker's stages (intake: decode and acceptance; monitor: the bank's update with its step
 threads; outputs: the meas log records, the fan-out, commit), of the monitor's step threads,
 and of the log process; the floor of each part with no transport and no contention from
-other processes of the bench. ``--tree PATH`` runs every row again on another checkout's
+other processes of the bench. ``--compare-tree PATH`` runs every row again on another checkout's
 ``service`` package, side by side.
 
-    .venv/bin/python bench/worker.py --actuators 20,100 --model WH --compare-tree /work/main
+    .venv/bin/python bench/worker.py --actuators 20,100 --model WH --compare-tree ../main
 """
 
 from __future__ import annotations

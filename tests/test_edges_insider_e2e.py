@@ -39,8 +39,8 @@ def blinding(tmp_path_factory):
     r: dict = {"station": st}
     try:
         daemon, act, web = st.monitored()
-        _web_live(tmp / "web.out", web)
-        url = live_url(tmp / "web.out")
+        _web_live(tmp / "web.err", web)
+        url = live_url(tmp / "web.err")
         _until(lambda: st.status("operator", "s0")["json"],
                lambda j: j and UNIT in str(j["daemons"].get(OWN, {}).get("actuators")))  # fmt: skip
 

@@ -93,3 +93,36 @@ def test_fleet_png_draws_the_trends_against_the_threshold(store_url, tmp_path, c
     # the threshold line is drawn in red: some pixels are red-dominant
     red = (img[..., 0] > 0.8) & (img[..., 1] < 0.4) & (img[..., 2] < 0.4)
     assert red.sum() > 200
+
+
+def test_fleet_png_draws_each_history_in_its_life_order(store_url, tmp_path, monkeypatch):
+    """Periods stored out of order (logs ingested newest first, as fleet-sim's workers may)
+    are drawn in the unit's life order, flights 1..N left to right, as the page draws them
+    (the panel took the store's row order, log-relative time then the log's name: flights
+    1, 10, 11, ..., 19, 2, 20, ...)."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    import service.plots
+    from service.edge.fleet_plot import plot_trends
+    from service.store import open_store
+    from tests.test_store import make_period
+
+    with open_store(store_url) as s:
+        for k in range(29, 0, -1):  # newest first, one log per flight, each from its own t=0
+            p = make_period("AC1/a", k, source=f"log-{k}", ratio=1.0 + 0.05 * k)
+            s.add_periods([replace(p, start_t=0.0, end_t=90.0, start_unix=1.79e9 + 86400.0 * k)])
+    drawn: list = []
+    save = service.plots._save
+
+    def keep(fig, path):
+        drawn.extend((ln.get_xdata(), ln.get_ydata()) for ln in fig.axes[0].lines[:1])
+        save(fig, path)
+
+    monkeypatch.setattr(service.plots, "_save", keep)
+    with open_store(store_url, read_only=True) as s:
+        assert plot_trends(s, [{"actuator": "AC1/a", "rank": 1}], tmp_path / "t.png") == 1
+    ((x, y),) = drawn
+    assert list(x) == list(np.arange(1.0, 30.0))  # flight - first + 1, the page's life axis
+    assert np.allclose(y, 1.0 + 0.05 * np.arange(1, 30))

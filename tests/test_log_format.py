@@ -15,8 +15,8 @@ import sys
 
 import pytest
 
-from service.cli.logsetup import JournalHandler, setup_logging, under_journal
 from service.daemon.outputs import log_alarm
+from service.log.setup import JournalHandler, setup_logging, under_journal
 
 RFC3339 = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$")
 ALARM = {"t": 1796378000.5361416, "kind": "leak", "state": "raised", "value": 3.93}
@@ -38,9 +38,18 @@ def test_json_lines_carry_rfc3339_times_and_the_alarm_fields(restore_root):
     d = json.loads(buf.getvalue().splitlines()[-1])
     assert RFC3339.match(d["time"]) and d["level"] == "WARNING"
     assert d["unit"] == "AC002/aileron_R" and d["kind"] == "leak" and d["state"] == "raised"
-    assert d["value"] == 3.93 and d["time"].endswith("Z")
+    assert d["value"] == 3.93 and d["event_time"] == "2026-12-04T09:53:20.536Z"
     assert d["msg"] == "alarm AC002/aileron_R leak raised, value 3.93 at 2026-12-04T09:53:20.536Z"
     assert "{" not in d["msg"] and "1796378000" not in buf.getvalue()  # no dict, no epoch
+
+
+def test_a_field_named_like_a_records_key_is_kept_apart(restore_root):
+    buf = io.StringIO()
+    setup_logging("INFO", stream=buf, env={})
+    logging.getLogger("servowatch.t").info("x", extra={"fields": {"time": "T", "msg": "M"}})
+    d = json.loads(buf.getvalue())
+    assert RFC3339.match(d["time"]) and d["msg"] == "x"
+    assert d["field_time"] == "T" and d["field_msg"] == "M"
 
 
 def test_plain_text_starts_with_an_rfc3339_time_and_escapes_controls(restore_root):
@@ -92,7 +101,10 @@ def test_journald_gets_the_fields_as_journal_fields(tmp_path, restore_root):
     assert f["PRIORITY"] == "4" and f["SYSLOG_IDENTIFIER"] == "servowatch"
     assert f["SERVOWATCH_UNIT"] == "AC002/aileron_R" and f["SERVOWATCH_KIND"] == "leak"
     assert f["SERVOWATCH_STATE"] == "raised" and float(f["SERVOWATCH_VALUE"]) == 3.93
-    assert f["SERVOWATCH_TIME"] == "2026-12-04T09:53:20.536Z"
+    assert f["SERVOWATCH_EVENT_TIME"] == "2026-12-04T09:53:20.536Z"
+    assert (
+        RFC3339.match(f["SERVOWATCH_TIME"]) and f["SERVOWATCH_TIME"] != f["SERVOWATCH_EVENT_TIME"]
+    )
     assert f["MESSAGE"].startswith("alarm AC002/aileron_R leak raised")
     assert g["MESSAGE"] == "two\nlines" and g["PRIORITY"] == "6"
 
@@ -133,13 +145,15 @@ def test_the_actuator_logs_as_the_daemon_does(net):
     p = net.start("actuator", "--duration", "0.5", "--rate", "200")
     _, err = p.communicate(timeout=120)
     assert p.returncode == 0, err
-    lines = [ln for ln in err.splitlines() if ln.startswith("{")]
-    assert lines, err
-    d = json.loads(lines[0])
-    assert RFC3339.match(d["time"]) and d["logger"] == "servowatch.actuator"
-    final = err.strip().splitlines()[-1]
-    assert final.startswith("actuator AC001/elevator_L: ") and "{" not in final, final
-    assert "samples in" in final
+    recs = [json.loads(ln) for ln in err.splitlines()]  # every line a JSON record
+    assert recs and all(RFC3339.match(r["time"]) for r in recs), err
+    starts = [r for r in recs if r["logger"] == "servowatch.actuator"]
+    assert starts[0]["msg"].startswith("actuator AC001/elevator_L publishing"), err
+    final = recs[-1]  # its final line: the counters in words and as fields
+    assert final["msg"].startswith("actuator AC001/elevator_L stopped: "), final
+    assert "{" not in final["msg"] and "samples in" in final["msg"], final
+    assert final["unit"] == "AC001/elevator_L" and final["samples"] > 0, final
+    assert f"{final['samples']} samples in {final['messages']} messages" in final["msg"]
 
 
 def test_listen_count_prints_exactly_n_outputs_with_readable_times():

@@ -45,8 +45,8 @@ def insider(tmp_path_factory):
     r: dict = {"station": st}
     try:
         daemon, act, web = st.monitored()
-        _web_live(tmp / "web.out", web)
-        url = live_url(tmp / "web.out")
+        _web_live(tmp / "web.err", web)
+        url = live_url(tmp / "web.err")
         time.sleep(2.0)
 
         # 1. station B's daemon certificate, its own token in ground1's group

@@ -26,6 +26,7 @@ pytestmark = [
     pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is needed for the PKI"),
 ]
 
+from loglines import find_in  # noqa: E402
 from test_security import AC, ACT, SECURE, Station, top_level  # noqa: E402
 
 KEY = f"fleet/{AC}/{ACT}/meas"
@@ -52,7 +53,7 @@ def _router(st: Station, tag: str, port: int, *connect: str):
         args, tag, env={"RUST_LOG": "error,zenoh::net::routing::interceptor::access_control=trace"}
     )
     deadline = time.monotonic() + 60
-    while "listening" not in (st.tmp / f"{tag}.out").read_text():
+    while find_in(st.tmp / f"{tag}.err", "servowatch.router", "listen") is None:
         assert p.poll() is None, (st.tmp / f"{tag}.err").read_text()[-2000:]
         assert time.monotonic() < deadline, f"router {tag} did not start"
         time.sleep(0.05)

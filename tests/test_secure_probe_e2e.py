@@ -92,7 +92,7 @@ def probe(tmp_path_factory):
         r["idle"] = _until(lambda: _daemon_status(st, "s_idle"),
                            lambda s: UNIT in s["group"]["unmonitored"])  # fmt: skip
         r["idle_text"] = st.run(["status", "--timeout", "2", *st.flags("operator")], "s_text")
-        r["idle_live"] = _web_live_until(tmp / "web.out", web)
+        r["idle_live"] = _web_live_until(tmp / "web.err", web)
         _stop(idle)
         # the idle member left: the daemon takes the unit back, outputs resume
         r["back"] = _until(lambda: _daemon_status(st, "s_back"),

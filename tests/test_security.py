@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
+from loglines import find_in
 
 from service.config import EXIT_REFUSED
 from service.zenoh_util import free_port
@@ -74,7 +75,7 @@ class Station:
             env={"RUST_LOG": "error,zenoh::net::routing::interceptor::access_control=trace"},
         )  # fmt: skip
         deadline = time.monotonic() + 30
-        while "listening" not in (tmp / "router.out").read_text():
+        while find_in(tmp / "router.err", "servowatch.router", "listen") is None:
             assert self.router.poll() is None, self.router_err.read_text()[-2000:]
             assert time.monotonic() < deadline, "the router did not start"
             time.sleep(0.1)
@@ -290,7 +291,7 @@ def station(tmp_path_factory):
         for k, p in procs.items():
             r[k] = st.result(p, k)
         r["dash_status"] = st.status("dashboard", "dash_status")
-        r["web_live"] = _web_live(tmp / "web.out", web)
+        r["web_live"] = _web_live(tmp / "web.err", web)
         web.send_signal(signal.SIGTERM)
         r["web_rc"] = web.wait(15)
         r["status"] = st.status()
@@ -310,20 +311,24 @@ def station(tmp_path_factory):
         st.close()
 
 
-def live_url(out: Path) -> str:
-    """The /api/live address of the page whose ``serving http://...`` line is in ``out``."""
-    return out.read_text().split()[1].rstrip("/") + "/api/live"
+def live_url(err: Path) -> str:
+    """The /api/live address of the page whose ``serving http://...`` record is in ``err``
+    (its ``url`` field)."""
+    rec = find_in(err, "servowatch.web", "url")
+    assert rec is not None and rec["url"].startswith("http://127.0.0.1:"), err.read_text()
+    assert rec["msg"].startswith(f"serving {rec['url']} from "), rec
+    return rec["url"].rstrip("/") + "/api/live"
 
 
-def _web_live(out: Path, web: subprocess.Popen, timeout: float = 30.0) -> dict:
+def _web_live(err: Path, web: subprocess.Popen, timeout: float = 30.0) -> dict:
     """The page's /api/live once it lists the actuator (or the last answer at ``timeout``)."""
     import urllib.request
 
     deadline = time.monotonic() + timeout
-    while "serving http://" not in out.read_text():
+    while find_in(err, "servowatch.web", "url") is None:
         assert web.poll() is None and time.monotonic() < deadline, "the page did not start"
         time.sleep(0.1)
-    url = live_url(out)
+    url = live_url(err)
     live: dict = {}
     while time.monotonic() < deadline:
         with urllib.request.urlopen(url, timeout=5) as resp:

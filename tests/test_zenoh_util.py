@@ -174,9 +174,11 @@ def test_router_command_routes_and_stops_on_sigterm():
         text=True,
     )
     try:
-        assert proc.stdout is not None
-        first = proc.stdout.readline()
-        assert f"listening on tcp/127.0.0.1:{port}" in first
+        assert proc.stderr is not None
+        first = proc.stderr.readline()  # its first log line: listening (a JSON record)
+        rec = json.loads(first)
+        assert rec["logger"] == "servowatch.router" and rec["listen"] == [loopback(port)], first
+        assert f"listening on tcp/127.0.0.1:{port}" in rec["msg"] and rec["zid"] in rec["msg"]
         ep = [loopback(port)]
         with (
             zenoh.open(make_config("client", connect=ep)) as a,
@@ -188,7 +190,7 @@ def test_router_command_routes_and_stops_on_sigterm():
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=20)
         assert proc.returncode == 0, err
-        assert "stopped" in out
+        assert out == "" and json.loads(err.splitlines()[-1])["msg"] == "router stopped", err
     finally:
         if proc.poll() is None:
             proc.kill()

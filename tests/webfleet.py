@@ -15,6 +15,7 @@ from contextlib import contextmanager
 from dataclasses import replace
 from html.parser import HTMLParser
 
+from loglines import find
 from test_store import make_period
 
 from service.edge.web.browser import dump_dom, find_chromium
@@ -75,14 +76,23 @@ def web_process(store: str, *extra: str) -> Iterator[str]:
          "--listen", "127.0.0.1:0", *extra],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True,
     )  # fmt: skip
+    err: list[str] = []  # its log lines (stderr), read on a thread until it ends
+    serving = threading.Event()
+
+    def _read() -> None:
+        for line in proc.stderr:
+            err.append(line)
+            if find(line, "servowatch.web", "url") is not None:
+                serving.set()
+
     try:
-        got: list[str] = []
-        reader = threading.Thread(target=lambda: got.append(proc.stdout.readline()), daemon=True)
-        reader.start()
-        reader.join(60)  # a cold start imports numpy and the store; a hang fails here
-        line = got[0] if got else ""
-        assert line.startswith("serving http://127.0.0.1:"), (line, proc.stderr.read())
-        url = line.split()[1].rstrip("/")
+        threading.Thread(target=_read, daemon=True).start()
+        serving.wait(60)  # a cold start imports numpy and the store; a hang fails here
+        rec = find("".join(err), "servowatch.web", "url")
+        assert rec is not None and rec["url"].startswith("http://127.0.0.1:"), "".join(err)
+        live = " (live status on)" if rec["live"] else ""
+        assert rec["msg"] == f"serving {rec['url']} from {rec['store']}{live}", rec
+        url = rec["url"].rstrip("/")
         deadline = time.monotonic() + 10
         while True:
             try:
@@ -101,7 +111,7 @@ def web_process(store: str, *extra: str) -> Iterator[str]:
         except subprocess.TimeoutExpired:
             proc.kill()
             raise
-        assert rc == 0, proc.stderr.read()
+        assert rc == 0, "".join(err)
 
 
 def require_chromium() -> None:

@@ -6,7 +6,8 @@ Bad arguments exit 2 (argparse), a bad input file exits 2 with a message naming 
 codes are ``service.cli.util.EXIT_*`` (docs/cli.md, "Exit codes"). Whatever a user can cause
 ends in one line on stderr, never a traceback: a command raises ``CommandError`` (its message
 and code), and ``main`` turns a ``StoreError`` (exit 2), an ``OSError`` or a store engine's
-error met during the work (exit 5) into one line as a backstop.
+error met during the work (exit 5) into one line as a backstop. Every command logs in the
+one format of ``service.log.setup`` (its warnings as plain text lines; the services' JSON).
 """
 
 from __future__ import annotations
@@ -142,6 +143,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     only = argv[0] if argv and argv[0] in COMMANDS else None
     parser = build_parser(only, summary=only is None)
     args = parser.parse_args(_join_negative_values(argv))
+    from service.log.setup import setup_command_logging
+
+    setup_command_logging()  # the services (run, actuator, router, web) set their own
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:

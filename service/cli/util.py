@@ -17,7 +17,7 @@ from service.jsonutil import jsonable as to_jsonable
 __all__ = [
     "float_list", "finite_float", "emit_json", "fail", "to_jsonable", "CommandError",
     "EXIT_OK", "EXIT_REFUSED", "EXIT_USAGE", "EXIT_IO", "same_file", "refuse_output_is_input",
-    "check_writable", "check_outputs", "writing",
+    "check_writable", "check_outputs", "writing", "plural",
 ]  # fmt: skip
 
 
@@ -38,6 +38,15 @@ def float_list(text: str) -> list[float]:
     if not parts:
         raise argparse.ArgumentTypeError("expected a comma-separated list of numbers")
     return [finite_float(p) for p in parts]
+
+
+def plural(n: Any, one: str, many: str | None = None) -> str:
+    """``1 period``, ``3 periods``, ``- periods`` (``many``: the plural when not ``one + s``;
+    ``n`` a finite count, anything else, e.g. a status field that is null, shown as ``-``)."""
+    ok = not isinstance(n, bool) and isinstance(n, int | float) and math.isfinite(n)
+    word = one if ok and n == 1 else (many or one + "s")
+    shown = "-" if not ok else f"{n:.0f}" if float(n).is_integer() else f"{n:g}"
+    return f"{shown} {word}"
 
 
 def emit_json(obj: Any) -> None:

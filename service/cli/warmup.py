@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -31,6 +32,8 @@ __all__ = [
     "table",
     "print_table",
 ]
+
+_logger = logging.getLogger("servowatch.warmup")
 
 
 def _models() -> None:
@@ -228,10 +231,10 @@ def _part_cached(part: str) -> bool:
     return all(has_cached_code(d) for d in _part_entries(part))
 
 
-def _run_part(part: str, record: bool, t0: float, stream) -> list[tuple]:
+def _run_part(part: str, record: bool, t0: float, stream, log: bool = False) -> list[tuple]:
     """Run one part here, announcing each kernel it compiles on ``stream`` (the seconds since
-    ``t0``, a wall clock); ``record``: return its compile rows (group, kernel, signatures,
-    own s, total s)."""
+    ``t0``, a wall clock), or as a log line of ``servowatch.warmup`` (``log``: a service's
+    start); ``record``: return its compile rows (group, kernel, signatures, own s, total s)."""
     from numba.core import event
 
     rec = _CompileTimes()
@@ -245,10 +248,16 @@ def _run_part(part: str, record: bool, t0: float, stream) -> list[tuple]:
     def on_end(ev) -> None:
         depth[0] -= 1
         rec.on_end(ev)
-        if depth[0] == 0 and stream is not None:
+        if depth[0] == 0 and (stream is not None or log):
             f = ev.data["dispatcher"].py_func
             name = f"{f.__module__}.{f.__qualname__}"
-            if seen.first(name):  # once per kernel: another signature, another part: silent
+            if not seen.first(name):  # once per kernel: another signature, another part: silent
+                return
+            if log:
+                dt = time.time() - t0
+                _logger.info("compiled %s (%.0f s)", name, dt,
+                          extra={"fields": {"kernel": name, "elapsed_s": round(dt, 1)}})  # fmt: skip
+            else:
                 print(f"servowatch:   compiled {name} ({time.time() - t0:.0f} s)", file=stream,
                       flush=True)  # fmt: skip
 
@@ -295,23 +304,31 @@ def _path_s(part: str, parts: list[str]) -> float:
 
 
 def run_parts(
-    parts: list[str], jobs: int | None = None, record: bool = False, stream=None
+    parts: list[str],
+    jobs: int | None = None,
+    record: bool = False,
+    stream=None,
+    log: bool = False,
 ) -> tuple[list[tuple], float]:
     """Run the warm-up ``parts``: in this process when ``jobs`` is 1 or there is one part,
     else each in a process of its own, ``jobs`` at a time, a part starting once the parts it
-    waits for have ended (the longest first). Compiles are announced on ``stream``. Returns
+    waits for have ended (the longest first). Compiles are announced on ``stream``, or as
+    log lines in the process's log format (``log``; a part's process inherits it). Returns
     the compile rows (``record``) and the wall time [s]."""
     t0 = time.time()
     jobs = default_jobs() if jobs is None else max(1, jobs)
     rows: list[tuple] = []
     if jobs == 1 or len(parts) <= 1:
         for p in parts:
-            rows += _run_part(p, record, t0, stream)
+            rows += _run_part(p, record, t0, stream, log)
         return rows, time.time() - t0
     import tempfile
 
     seen = tempfile.TemporaryDirectory(prefix="servowatch-warmup-")
     env = {**os.environ, "SERVOWATCH_WARMUP_T0": repr(t0), "SERVOWATCH_WARMUP_SEEN": seen.name}
+    if log:  # the parts log their lines as this process does, straight to its stderr
+        env["SERVOWATCH_WARMUP_LOG"] = "1"
+        stream = sys.stderr
     try:  # a file stream takes the parts' lines as they come; another one, when they end
         err = stream.fileno() if stream is not None else subprocess.DEVNULL
     except (AttributeError, OSError, ValueError):
@@ -439,24 +456,37 @@ def estimate_text(cold: list[str], jobs: int | None = None, load: float | None =
     return text + "; cached afterwards; `servowatch warmup` does it ahead"
 
 
-def ensure(*groups: str, always: bool = False, stream=None, jobs: int | None = None) -> float:
+def ensure(
+    *groups: str, always: bool = False, stream=None, jobs: int | None = None, log: bool = False
+) -> float:
     """Compile the kernels of ``groups`` that numba's cache lacks, before a command uses
-    them, saying so on ``stream`` (stderr): what, an estimate, then a line per kernel as it
-    is compiled, on ``jobs`` processes. Silent and cheap when they are cached (``always``:
-    run the warm-up anyway, loading from the cache). Returns the wall time spent [s]."""
+    them, saying so on ``stream`` (stderr), or as log lines of ``servowatch.warmup`` (``log``:
+    a service, whose lines are all in its log format): what, an estimate, then a line per
+    kernel as it is compiled, on ``jobs`` processes. Silent and cheap when they are cached
+    (``always``: run the warm-up anyway, loading from the cache). Returns the wall time [s]."""
     out = sys.stderr if stream is None else stream
     t0 = time.perf_counter()
     cold = [g for g in groups if not is_cached(g)]
     if cold:
-        print(f"servowatch: compiling {', '.join(WHAT[g] for g in cold)} "
-              f"({estimate_text(cold, jobs)})...", file=out, flush=True)  # fmt: skip
+        what = ", ".join(WHAT[g] for g in cold)
+        if log:
+            _logger.info("compiling %s (%s)", what, estimate_text(cold, jobs),
+                      extra={"fields": {"groups": cold}})  # fmt: skip
+        else:
+            print(f"servowatch: compiling {what} ({estimate_text(cold, jobs)})...", file=out,
+                  flush=True)  # fmt: skip
         # a part's lines go straight to a file stream; another stream gets them from here
-        run_parts(_parts_of(tuple(cold), cold_only=True), jobs, stream=out)
+        run_parts(_parts_of(tuple(cold), cold_only=True), jobs, stream=out, log=log)
     if always:  # the cached groups exercised here (the cold ones ran in their parts)
         for g in groups:
             if g not in cold:
                 GROUPS[g]()
-    if cold:
+    if cold and log:
+        dt = time.perf_counter() - t0
+        _logger.info(
+            "kernels compiled in %.0f s", dt, extra={"fields": {"elapsed_s": round(dt, 1)}}
+        )
+    elif cold:
         print(f"servowatch: kernels compiled in {time.perf_counter() - t0:.0f} s", file=out,
               flush=True)  # fmt: skip
     return time.perf_counter() - t0
@@ -479,7 +509,12 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.part:  # one part of a parallel warm-up (run_parts)
         t0 = float(os.environ.get("SERVOWATCH_WARMUP_T0", time.time()))
-        rows = _run_part(a.part, a.record, t0, sys.stderr)
+        log = os.environ.get("SERVOWATCH_WARMUP_LOG") == "1"
+        if log:  # a service's start: its log format (service.log.setup)
+            from service.log.setup import inherit_logging
+
+            inherit_logging()
+        rows = _run_part(a.part, a.record, t0, sys.stderr, log)
         if a.record:
             print(json.dumps(rows))
         return 0

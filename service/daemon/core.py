@@ -399,6 +399,7 @@ class Daemon:
             final["samples"],
             final["dropped"],
             final["bad"],
+            extra={"fields": {k: final[k] for k in ("samples", "dropped", "bad")}},
         )
         return final
 

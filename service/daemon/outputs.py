@@ -91,7 +91,8 @@ def open_logger(
 
 def log_alarm(unit: str, d: dict[str, Any]) -> None:
     """An alarm event as one log line with its unit, kind, state, value and time as fields
-    (``fields``: JSON keys, journald ``SERVOWATCH_*`` fields), the time in RFC 3339."""
+    (``fields``: JSON keys, journald ``SERVOWATCH_*`` fields), the time in RFC 3339
+    (``event_time``: the sample's; a record's own ``time`` is when it was logged)."""
     from service.log.retention import rfc3339
 
     kind, state, value, t = d.get("kind"), d.get("state"), d.get("value"), d.get("t")
@@ -101,7 +102,7 @@ def log_alarm(unit: str, d: dict[str, Any]) -> None:
         logging.WARNING if _is_active(state) else logging.INFO,
         "alarm %s %s %s, value %s at %s", unit, kind, state, shown, when,
         extra={"fields": {"event": "alarm", "unit": unit, "kind": kind, "state": state,
-                          "value": value, "time": when}},
+                          "value": value, "event_time": when}},
     )  # fmt: skip
 
 

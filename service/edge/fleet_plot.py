@@ -13,7 +13,8 @@ __all__ = ["plot_trends"]
 
 def plot_trends(store: Any, ranked: list[dict[str, Any]], path: str | Path) -> int:
     """Draw one panel per unit of ``ranked`` (``rank_fleet`` rows, most urgent first): its C_Lk
-    ratio per period (``history_of``: the RUL's own series and axis), the threshold ratio
+    ratio per period in the unit's life order (``history_of(store.life(...))``: the RUL's own
+    series and axis, as the page's; the store's row order drew flights backwards), the threshold ratio
     the stored RUL used (else the default), and the RUL median with its 90 % interval ahead
     of the last period. Writes ``path`` (PNG); returns the number of units drawn."""
     import numpy as np
@@ -22,14 +23,14 @@ def plot_trends(store: Any, ranked: list[dict[str, Any]], path: str | Path) -> i
     from service.prognostics.rul import default_threshold_ratio, history_of
 
     units = [r for r in ranked if store.has_actuator(r["actuator"])]
+    hists = [history_of(r["actuator"], store.life(r["actuator"])) for r in units]
     n = max(1, len(units))
     cols = 2 if n > 1 else 1
     rows = math.ceil(n / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(6.4 * cols, 3.0 * rows), squeeze=False)
     for ax in axes.flat[len(units) :]:
         ax.set_visible(False)
-    for ax, r in zip(axes.flat, units, strict=False):
-        h = history_of(r["actuator"], store.periods(r["actuator"]))
+    for ax, r, h in zip(axes.flat, units, hists, strict=False):
         x, y = h.observed()
         rul = r.get("rul") or {}
         thr = rul.get("threshold_ratio") or default_threshold_ratio()

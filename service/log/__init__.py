@@ -5,7 +5,8 @@ rows of a fixed layout, decision 0011), ``reader`` (:func:`read_log`, truncation
 ``blocks`` (:func:`read_blocks`, :class:`LogBlock`), ``codec`` (numba kernels: the chunk scan
 and the JSON parser of older logs and of events, imported on first use). mcap's private APIs are used only through
 :mod:`service.compat.mcap`.
-Also ``flightrec`` (the ``servowatch.flight`` record) and ``proclog`` (the child log process).
+Also ``flightrec`` (the ``servowatch.flight`` record), ``proclog`` (the child log process)
+and ``setup`` (the one log-line format of every process: JSON, plain text, journald).
 May import models, compat and the loose utilities only.
 """
 

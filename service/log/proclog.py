@@ -35,6 +35,9 @@ def _log_process_entry() -> None:
     import sys
     from multiprocessing.connection import Connection
 
+    from service.log.setup import inherit_logging
+
+    inherit_logging()  # the parent's log format and level (the daemon's JSON lines, ...)
     a = json.loads(sys.argv[1])
     _log_process_main(Connection(a["fd"]), a["path"], a["kwargs"])
 

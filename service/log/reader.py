@@ -295,8 +295,8 @@ def truncation_text(p: Path, st: LogReadStats) -> str | None:
         st.truncated = True
         st.reason = "no footer"
     return (
-        f"{p}: truncated MCAP log ({st.reason}); read {st.chunks} complete chunks, "
-        f"{st.messages} messages"
+        f"{p}: truncated MCAP log ({st.reason}); read {st.chunks} complete "
+        f"chunk{'' if st.chunks == 1 else 's'}, {st.messages} message{'' if st.messages == 1 else 's'}"
     )
 
 

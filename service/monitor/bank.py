@@ -91,6 +91,7 @@ from service.monitor.outputs import (
     RowEvents,
     StepBlock,
     empty_rows,
+    log_reinit,
 )
 from service.monitor.ukf import BatchUKF, workspace
 from service.monitor.usage import BankUsage
@@ -538,11 +539,7 @@ class MonitorBank:
                 self.t_init[k] = tj
                 value = float(so.nis_avg[j]) if math.isfinite(so.nis_avg[j]) else 0.0
                 extra[j] = [AlarmEvent(tj, "reinit", "raised", value)]
-                log.warning(
-                    "monitor %s re-initialised at t=%.6f (%s, NIS/dof average %.3g)",
-                    self._key_of(k), tj, "non-finite or not positive definite"
-                    if code == STEP_BROKEN else "diverged", value,
-                )  # fmt: skip
+                log_reinit(self._key_of(k), tj, code != STEP_BROKEN, value)
             emit = True
 
     def _rows_of(self, sb: StepBlock) -> BankRows:
@@ -725,11 +722,7 @@ class MonitorBank:
             self.t_init[k] = t[j]
             value = float(nis_avg[j]) if math.isfinite(nis_avg[j]) else 0.0
             evs[j].append(AlarmEvent(float(t[j]), "reinit", "raised", value))
-            log.warning(
-                "monitor %s re-initialised at t=%.6f (%s, NIS/dof average %.3g)",
-                self._key_of(k), float(t[j]), "non-finite or not positive definite"
-                if bad[j] else "diverged", value,
-            )  # fmt: skip
+            log_reinit(self._key_of(k), float(t[j]), not bad[j], value)
         for k in ks:
             self.counters[k]["accepted"] += 1
         self._outputs(ks, t, z, mask, y, nis, evs, slot_of, out)

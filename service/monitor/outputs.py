@@ -7,6 +7,7 @@ from the key tuples, so a key moved in a tuple moves its column everywhere.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
@@ -17,6 +18,7 @@ from numpy.typing import NDArray
 from models import eha_reduced as er
 
 __all__ = [
+    "log_reinit",
     "MEAS_CHANNELS",
     "ALARM_KINDS",
     "EST_KEYS",
@@ -229,3 +231,16 @@ def empty_rows() -> BankRows:
     z = np.zeros((0,))
     return BankRows(np.zeros(0, int), z, z.reshape(0, len(EST_KEYS)),
                     z.reshape(0, len(RES_KEYS)), z.reshape(0, len(HEALTH_KEYS)), RowEvents(0))  # fmt: skip
+
+
+def log_reinit(unit: str, t: float, diverged: bool, nis_avg: float) -> None:
+    """A monitor's re-initialisation as one warning with its unit, time (RFC 3339 for a
+    calendar time, ``t=... s`` for a simulated one) and NIS/dof average as fields."""
+    from service.log.retention import readable_time
+
+    when = readable_time(float(t), 6)
+    why = "diverged" if diverged else "non-finite or not positive definite"
+    logging.getLogger("service.monitor.bank").warning(
+        "monitor %s re-initialised at %s (%s, NIS/dof average %.3g)", unit, when, why, nis_avg,
+        extra={"fields": {"event": "reinit", "unit": unit, "event_time": when, "value": nis_avg}},
+    )  # fmt: skip

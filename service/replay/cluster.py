@@ -302,7 +302,7 @@ def run_group(task: GroupTask) -> GroupResult:
 
 
 def _die_with_parent(parent: int) -> None:
-    """A ``--jobs`` worker's initializer: it dies with the batch (Linux: the kernel sends it
+    """A ``--jobs`` worker's initializer: it logs as the batch does, and dies with it (Linux: the kernel sends it
     SIGKILL when its parent dies, ``PR_SET_PDEATHSIG``; elsewhere a thread polls the parent
     and ends the worker when it is gone)."""
     import signal
@@ -320,6 +320,9 @@ def _die_with_parent(parent: int) -> None:
             armed = False
     if os.getppid() != parent:  # the parent died before the prctl took effect
         os._exit(1)
+    from service.log.setup import inherit_logging
+
+    inherit_logging()  # its log lines as the batch's
     if not armed:
 
         def watch() -> None:
@@ -397,6 +400,22 @@ def _quiet() -> Iterator[None]:
             q.setLevel(lv)
 
 
+_WORKER_LOGGING = False  # set in a Dask worker once its log lines follow the batch's
+
+
+def _logging_as_the_batch(fn: Callable, arg: Any) -> Any:
+    """``fn(arg)`` on a Dask worker, whose log lines follow the batch's format (a
+    ``local:N`` worker inherits ``SERVOWATCH_CHILD_LOG``; another host's, plain text) rather
+    than Python's bare last-resort lines."""
+    global _WORKER_LOGGING
+    if not _WORKER_LOGGING:
+        from service.log.setup import inherit_logging
+
+        inherit_logging()
+        _WORKER_LOGGING = True
+    return fn(arg)
+
+
 class DaskPool:
     """``--cluster``: a Dask distributed scheduler at an address (``tcp://HOST:PORT``,
     ``tls://...``), or ``local:N``, a ``LocalCluster`` of N single-threaded worker processes
@@ -434,7 +453,7 @@ class DaskPool:
         """Nothing to start: the workers are the scheduler's."""
 
     def submit(self, fn: Callable, arg: Any) -> Any:
-        return self.client.submit(fn, arg, pure=False)
+        return self.client.submit(_logging_as_the_batch, fn, arg, pure=False)
 
     def as_completed(self, futures: list) -> Iterator:
         from distributed import as_completed

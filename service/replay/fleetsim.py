@@ -388,7 +388,11 @@ def run_fleet_sim(
                 if progress:
                     progress(0.5 * len(results) / len(jobs))
         else:
-            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as ex:
+            from service.log.setup import inherit_logging
+
+            with ProcessPoolExecutor(
+                workers, mp_context=get_context("spawn"), initializer=inherit_logging
+            ) as ex:  # the workers log as this process does
                 for r in ex.map(_sim_job, jobs):
                     results.append(r)
                     if progress:

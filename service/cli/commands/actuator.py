@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
-import sys
 import threading
 import time
 
@@ -17,6 +16,7 @@ HELP = "Run a virtual actuator (HF bench paced by the wall clock) publishing on 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from service.cli.args import add_zenoh_arguments
+    from service.log.setup import add_log_arguments
 
     p.add_argument("--scenario", default="demo", help="scenario TOML file or bundled name")
     p.add_argument("--aircraft", default="AC001")
@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="seconds of messages the publisher's cache holds for recovery (default 10)",
     )
     p.add_argument("--json", action="store_true", help="print a JSON summary at the end")
-    p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
+    add_log_arguments(p)
     add_zenoh_arguments(p)
 
 
@@ -68,7 +68,7 @@ def format_counters(c: dict) -> str:
 def run(args: argparse.Namespace) -> int:
 
     from service.cli.args import open_zenoh_session, zenoh_config
-    from service.cli.logsetup import setup_logging
+    from service.log.setup import setup_logging
     from service.sim.actuator import VirtualActuator
     from service.sim.scenarios import ScenarioError, load_scenario
     from service.wire import messages as msgs
@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         return fail(f"--cache-s: must be in (0, 3600] s, got {args.cache_s}")
     from service.cli.warmup import ensure
 
-    ensure("models")  # before publishing: a first run compiles (and says so)
+    ensure("models", log=True)  # before publishing: a first run compiles (and logs so)
     va = VirtualActuator(scenario, rate_hz=args.rate, t_origin=time.time(), seed=args.seed)
     stop = threading.Event()
 
@@ -117,6 +117,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         emit_json(counters)
     else:
-        print(f"actuator {args.aircraft}/{args.actuator}: {format_counters(counters)}",
-              file=sys.stderr)  # fmt: skip
+        logging.getLogger("servowatch.actuator").info(
+            "actuator %s/%s stopped: %s",
+            args.aircraft,
+            args.actuator,
+            format_counters(counters),
+            extra={"fields": {"unit": f"{args.aircraft}/{args.actuator}", **counters}},
+        )
     return 0

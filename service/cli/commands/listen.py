@@ -11,7 +11,7 @@ import time
 from collections import OrderedDict
 from typing import Any
 
-from service.cli.util import emit_json, fail
+from service.cli.util import emit_json, fail, plural
 
 NAME = "listen"
 HELP = (
@@ -120,6 +120,11 @@ class OutputListener:
                     "evicted": self.evicted, "outputs": dict(sorted(self.last.items()))}  # fmt: skip
 
 
+def summary_text(sm: dict[str, Any]) -> str:
+    """The closing line: ``listen: 1 output, 0 malformed``."""
+    return f"listen: {plural(sm['received'], 'output')}, {sm['malformed']} malformed"
+
+
 def run(args: argparse.Namespace) -> int:
     from service.cli.args import open_zenoh_session, zenoh_config
     from service.wire.messages import output_schema
@@ -158,5 +163,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         emit_json(sm)
     else:
-        print(f"listen: {sm['received']} outputs, {sm['malformed']} malformed", file=sys.stderr)
+        print(summary_text(sm), file=sys.stderr)
     return 0

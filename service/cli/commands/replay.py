@@ -11,10 +11,9 @@ workers, and this process writes the store (docs/cluster.md).
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 
-from service.cli.util import emit_json, fail
+from service.cli.util import emit_json, fail, plural
 
 NAME = "replay"
 HELP = "replay an MCAP log through the monitor (as fast as possible or paced)"
@@ -151,8 +150,6 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from service.config import ConfigError, load_config
-
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     from service.log import rotated_files
     from service.prognostics.life import FLIGHT_GAP_S
     from service.replay import expand_logs
@@ -422,8 +419,9 @@ def _run_many(args, logs, store, monitor_config, baseline, pc, gap, pool=None) -
     if args.json:
         emit_json(out)
     else:
-        print(f"replayed {len(logs)} logs into {store} in {wall:.1f} s: {totals['samples']} "
-              f"samples, {totals['periods_new']} new periods of {len(units)} actuator(s)")  # fmt: skip
+        print(f"replayed {plural(len(logs), 'log')} into {store} in {wall:.1f} s: "
+              f"{plural(totals['samples'], 'sample')}, {plural(totals['periods_new'], 'new period')}"
+              f" of {len(units)} actuator(s)")  # fmt: skip
         if totals["superseded"] or totals["already_stored"]:
             print(f"  {totals['already_stored']} log(s) already stored, {totals['superseded']} "
                   "superseded a shorter ingest of the same log")  # fmt: skip

@@ -6,13 +6,19 @@ A secure station (docs/security.md) starts it with ``--config deploy/secure/rout
 mutual TLS on every link and access-control rules keyed on certificate common names; the
 ``--tls-*`` flags give the file paths (never a secret itself). ``RUST_LOG`` set in the
 environment turns Zenoh's own log on (``zenoh::net::routing::interceptor::access_control=trace``
-logs every access decision, refusals included; costly, for an audit).
+logs every access decision, refusals included; costly, for an audit; those lines are Zenoh's
+own format, the only ones not in servowatch's).
+
+It logs as the daemon does (``service.log.setup``: JSON lines on stderr, ``--plain-logs``
+for text, journald under systemd): ``router ZID listening on ENDPOINTS`` once it listens
+(fields ``zid``, ``listen``), ``router stopped`` at the end. Nothing goes to stdout.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 import signal
 import threading
 
@@ -46,8 +52,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "unauthenticated, logged as a warning)",
     )  # fmt: skip
     from service.cli.args import add_tls_arguments
+    from service.log.setup import add_log_arguments
 
     add_tls_arguments(p)
+    add_log_arguments(p)
 
 
 def _tls(cfg, args: argparse.Namespace) -> None:
@@ -128,8 +136,11 @@ def run(args: argparse.Namespace) -> int:
 
     import zenoh
 
+    from service.log.setup import setup_logging
     from service.zenoh_util import EndpointError
 
+    setup_logging("INFO", not args.plain_logs)
+    log = logging.getLogger("servowatch.router")
     if os.environ.get("RUST_LOG"):
         zenoh.init_log_from_env_or("error")
 
@@ -151,11 +162,12 @@ def run(args: argparse.Namespace) -> int:
         except zenoh.ZError as e:
             return fail(f"cannot start the router on {listen}: {e}", 1)
         with session:
-            print(f"servowatch router {session.zid()} listening on {', '.join(map(str, listen))}",
-                  flush=True)  # fmt: skip
+            zid = str(session.zid())
+            log.info("router %s listening on %s", zid, ", ".join(map(str, listen)),
+                     extra={"fields": {"zid": zid, "listen": [str(e) for e in listen]}})  # fmt: skip
             while not stop.wait(0.5):
                 pass
-        print("servowatch router stopped", flush=True)
+        log.info("router stopped", extra={"fields": {"zid": zid}})
     finally:
         for s, h in old.items():
             signal.signal(s, h)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from service.cli.util import check_outputs, emit_json, fail, finite_float, writing
+from service.cli.util import check_outputs, emit_json, fail, finite_float, plural, writing
 from service.store import StoreError
 from service.store.cli import add_store_argument, open_store_arg, store_path_arg
 
@@ -126,10 +126,12 @@ def run(args: argparse.Namespace) -> int:
             }
         )
         return 0
-    print(f"threshold C_Lk ratio {cfg.threshold():.2f}, horizon {cfg.horizon_flights:g} flights "
-          f"(histories with flight numbers) or {cfg.horizon_h:g} h")  # fmt: skip
+    print(f"threshold C_Lk ratio {cfg.threshold():.2f}, horizon "
+          f"{plural(cfg.horizon_flights, 'flight')} (histories with flight numbers) or "
+          f"{cfg.horizon_h:g} h")  # fmt: skip
     print(
-        f"{'actuator':<24}{'ratio':>7}{'model':>13}{'RUL median [90 %]':>28}{'days':>8}{'P(H)':>7}"
+        f"{'actuator':<24}{'ratio':>7}  {'model':<20}{'RUL median [90 %]':>28}{'days':>8}"
+        f"{'P(H)':>7}"
     )
     for r in results:
         u = "flights" if r.get("axis") == "flights" else "h"
@@ -137,7 +139,8 @@ def run(args: argparse.Namespace) -> int:
             f"{_fmt(r.get(f'median_{u}'))} [{_fmt(r.get(f'lo_{u}'))}, {_fmt(r.get(f'hi_{u}'))}] {u}"
         )
         print(
-            f"{r['actuator']:<24}{_fmt(r['last_ratio'], '.2f'):>7}{r.get('model') or r.get('status', '-'):>13}"
+            f"{r['actuator']:<24}{_fmt(r['last_ratio'], '.2f'):>7}  "
+            f"{r.get('model') or r.get('status', '-'):<20}"
             f"{iv:>28}{_fmt(r.get('median_days')):>8}{_fmt(r['p_horizon'], '.2f'):>7}"
         )
     if png:

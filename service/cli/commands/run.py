@@ -5,12 +5,11 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
-import sys
 import threading
 import time
 
-from service.cli.logsetup import PlainFormatter, setup_logging
 from service.cli.util import check_outputs, emit_json, fail
+from service.log.setup import PlainFormatter, add_log_arguments, setup_logging
 
 NAME = "run"
 HELP = "Run the monitoring daemon: subscribe, monitor each actuator, publish, log to MCAP."
@@ -43,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                            every_help="[foxglove] every, 10")  # fmt: skip
     add_serve_arguments(p, "metrics", "serve OpenMetrics for Prometheus on "
                         "http://HOST:PORT/metrics", "overrides [metrics] listen; ")  # fmt: skip
-    p.add_argument("--plain-logs", action="store_true", help="plain-text logs, not JSON lines")
+    add_log_arguments(p)
     p.add_argument("--json", action="store_true", help="print the final status as JSON")
 
 
@@ -115,6 +114,24 @@ def _check_identity(cfg) -> None:
         )  # fmt: skip
 
 
+def log_files_line(paths: list[str]) -> None:
+    """The daemon's last line (its counts are in ``daemon stopped``): the file it logged to
+    last, and how many of the files it wrote are kept and how many retention deleted (a
+    station running for months writes hundreds; not every name)."""
+    from pathlib import Path
+
+    from service.cli.util import plural
+
+    kept = [p for p in paths if Path(p).exists()]
+    gone = len(paths) - len(kept)
+    last = paths[-1] if paths else "-"
+    logging.getLogger("servowatch.daemon").info(
+        "logged to %s (%s of this run kept%s)", last, plural(len(kept), "file"),
+        f", {gone} deleted by retention" if gone else "",
+        extra={"fields": {"log_file": last, "kept_files": len(kept), "deleted_files": gone}},
+    )  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
 
     from service.cli.args import open_zenoh_session, zenoh_config
@@ -143,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
     # before the session: a first run compiles (and says so), telling systemd meanwhile that
     # the start goes on (EXTEND_TIMEOUT_USEC; READY=1 comes once the daemon has started)
     with extending_start("starting: compiling the kernels (a first run takes minutes)"):
-        ensure(monitor_group(cfg.monitor.model), "log")
+        ensure(monitor_group(cfg.monitor.model), "log", log=True)
     stop = threading.Event()
 
     def _stop(signum, frame):
@@ -167,15 +184,13 @@ def run(args: argparse.Namespace) -> int:
                 break
             stop.wait(0.5 if left is None else min(0.5, left))
         final = daemon.stop()
+    log = logging.getLogger("servowatch.daemon")
     if args.json:
         emit_json(final)
     else:
-        print(
-            f"servowatch run: {final['samples']} samples, {final['dropped']} dropped, "
-            f"{final['bad']} bad, log {', '.join(final['log'])}",
-            file=sys.stderr,
-        )
+        log_files_line(final["log"])
     if final["log_failure"]:
-        print(f"servowatch run: the MCAP log failed: {final['log_failure']}", file=sys.stderr)
+        log.error("the MCAP log failed: %s", final["log_failure"],
+                  extra={"fields": {"log_failure": str(final["log_failure"])}})  # fmt: skip
         return EXIT_LOG_FAILURE
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from service.cli.util import emit_json
+from service.cli.util import emit_json, plural
 from service.edge.fleet import condition_of, rul_interval
 from service.edge.status import query_status
 
@@ -148,14 +148,6 @@ def _size(n) -> str:
     return "-"
 
 
-def plural(n, one: str, many: str | None = None) -> str:
-    """``1 period``, ``3 periods``, ``- periods`` (``many``: the plural when not ``one + s``;
-    ``n`` a count, anything else shown as ``-``)."""
-    v = _num(n)
-    word = one if v == 1 else (many or one + "s")
-    return f"{'-' if v is None else f'{v:.0f}'} {word}"
-
-
 def format_log(st: dict) -> list[str]:
     """The daemon's log file now written, its retention (limits, kept, deleted, the last
     deleted file) and the store it writes: one line each."""
@@ -224,7 +216,7 @@ def format_status(daemons: dict) -> str:
         if g:
             lines.append(
                 f"  group {_s(g.get('name'), 80)}: members {', '.join(_strs(g.get('members')))}"
-                f"{'' if g.get('joined') else ' (joining)'}; {_int(g.get('takeovers'))} units "
+                f"{'' if g.get('joined') else ' (joining)'}; {plural(_num(g.get('takeovers')), 'unit')} "
                 f"taken over, {_int(g.get('released'))} released, {_int(g.get('held_units'))} held"
             )
             for unit, u in sorted(_dict(g.get("unmonitored")).items()):

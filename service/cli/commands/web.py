@@ -1,8 +1,10 @@
 """``servowatch web``: the fleet health page over HTTP, read only, on loopback by default.
 
-Prints one line ``serving http://HOST:PORT/ from STORE`` on stdout once it listens (with
-``--listen 127.0.0.1:0`` the port is a free one, read it there), then serves until SIGINT or
-SIGTERM and exits 0. Exit 2: bad arguments, a non-loopback address without
+It logs as the daemon does (``service.log.setup``: JSON lines on stderr, ``--plain-logs`` for
+text, journald under systemd): ``serving http://HOST:PORT/ from STORE`` once it listens, with
+the fields ``url`` and ``store`` (with ``--listen 127.0.0.1:0`` the port is a free one, read
+it there), a line per request with ``--access-log``, ``web stopped`` at the end; it serves
+until SIGINT or SIGTERM and exits 0. Nothing goes to stdout but ``--snapshot``'s ``wrote F``. Exit 2: bad arguments, a non-loopback address without
 ``--allow-remote``, or a store that cannot be opened; 3: the address is in use.
 
 With ``--connect`` (or ``--config``, a service TOML with a ``[zenoh]`` table) the page also
@@ -15,8 +17,8 @@ every refresh period.
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
-import sys
 import threading
 
 from service.cli.util import check_outputs, fail, writing
@@ -43,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--refresh", type=float, default=10.0, metavar="S",
         help="seconds between the page's reloads of the fleet (default 10; 0 = never)",
     )  # fmt: skip
-    p.add_argument("--access-log", action="store_true", help="log every request on stderr")
+    p.add_argument("--access-log", action="store_true", help="log every request (a log line)")
     p.add_argument(
         "--connect", action="append", default=None, metavar="ENDPOINT",
         help="Zenoh router to ask the daemons' live status through, e.g. tcp/127.0.0.1:7447 "
@@ -55,8 +57,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(e.g. deploy/secure/dashboard.toml)",
     )  # fmt: skip
     from service.cli.args import add_tls_arguments
+    from service.log.setup import add_log_arguments
 
     add_tls_arguments(p)
+    add_log_arguments(p)
     p.add_argument(
         "--snapshot", default=None, metavar="F.png",
         help="serve on a free loopback port, take a PNG of the page with headless Chromium "
@@ -107,9 +111,15 @@ def _snapshot(srv, url: str, out: str, unit: str | None) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from service.edge.web.server import check_listen, make_server
+    from service.log.setup import setup_command_logging, setup_logging
     from service.store import StoreError, default_store
     from service.store.cli import open_store_arg
 
+    if args.snapshot:  # a one-shot command
+        setup_command_logging()
+    else:  # a service: the daemon's log format
+        setup_logging("INFO", not args.plain_logs)
+    log = logging.getLogger("servowatch.web")
     if not 0 <= args.refresh <= 3600:
         return fail(f"--refresh: expected 0-3600 s, got {args.refresh:g}")
     if args.unit is not None and args.snapshot is None:
@@ -156,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.snapshot:
             return _snapshot(srv, url, args.snapshot, args.unit)
-        print(f"serving {url} from {where}" + (" (live status on)" if live else ""), flush=True)
+        log.info("serving %s from %s%s", url, where, " (live status on)" if live else "",
+                 extra={"fields": {"url": url, "store": str(where), "live": live is not None}})  # fmt: skip
         worker = threading.Thread(
             target=srv.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True
         )
@@ -168,5 +179,5 @@ def run(args: argparse.Namespace) -> int:
         srv.server_close()
         if live is not None:
             live.close()
-    print("servowatch web: stopped", file=sys.stderr)
+    log.info("web stopped", extra={"fields": {"url": url}})
     return 0

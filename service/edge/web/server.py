@@ -20,7 +20,7 @@ its Content-Security-Policy says so.
 from __future__ import annotations
 
 import json
-import sys
+import logging
 from http import HTTPStatus
 from http.server import ThreadingHTTPServer
 from pathlib import Path
@@ -34,6 +34,9 @@ from service.jsonutil import jsonable
 from service.store import StoreError, open_store
 
 __all__ = ["STATIC", "check_listen", "make_server", "SECURITY_HEADERS"]
+
+#: ``--access-log``: a line per request, its client, request line, status and size as fields
+access_log = logging.getLogger("servowatch.web.access")
 
 STATIC = Path(__file__).resolve().parent / "static"
 _FILES = {
@@ -83,7 +86,19 @@ class _Handler(GuardedHandler):
     # -- plumbing ---------------------------------------------------------------------------
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (the base's name)
         if self.access_log:
-            sys.stderr.write(f"servowatch web: {self.address_string()} {format % args}\n")
+            access_log.info("%s " + format, self.address_string(), *args,
+                            extra={"fields": {"client": self.address_string()}})  # fmt: skip
+
+    def log_request(self, code: int | str = "-", size: int | str = "-") -> None:
+        if self.access_log:
+            try:
+                status: int | str = int(code)
+            except ValueError:
+                status = str(code)
+            line = getattr(self, "requestline", "")
+            access_log.info("%s %s %s %s", self.address_string(), line, status, size,
+                            extra={"fields": {"client": self.address_string(), "request": line,
+                                              "status": status, "size": str(size)}})  # fmt: skip
 
     def _send(self, status: int, body: bytes, ctype: str) -> None:
         head_only = self.command == "HEAD"
