@@ -1,4 +1,5 @@
-"""A unit's clock that steps back (the daemon's intake rule, docs/store.md "Time checks"):
+"""A unit's clock that steps back (the daemon's intake rule, docs/messages.md "Measurement
+sample schema"; the replay's time checks in docs/store.md "Migration 7"):
 the samples at or before the last accepted time are refused and counted, and after
 ``resync_n`` (5) consistent refused samples the clock is followed (a restart, the filter
 restarts there). The counts are those of the samples one by one, whatever the batches: a
