@@ -253,9 +253,16 @@ def test_a_bad_file_on_the_cluster_is_named_and_the_rest_stored(tmp_path, meas, 
 
 @pytest.mark.slow
 def test_tasks_of_one_log_each_store_and_report_what_one_process_does(tmp_path, meas, capsys,
-                                                                      dask_procs):  # fmt: skip
-    """``--task-logs 1``: an actuator's logs on both workers at once, written in the order
-    they complete: the same store, and the summary's flights the final ones."""
+                                                                      dask_procs, monkeypatch):  # fmt: skip
+    """``--task-logs 1``: an actuator's logs on both workers at once, written in their
+    group's order: the same store, the summary's flights the final ones, and every write
+    after a unit's first an append (no read of its history)."""
+    import service.store.ingest as ingest_mod
+
+    appended: list[bool] = []
+    real = ingest_mod.renumber_append
+    monkeypatch.setattr(ingest_mod, "renumber_append",
+                        lambda *a: appended.append(real(*a)) or appended[-1])  # fmt: skip
     logs = _logs(tmp_path / "logs", meas, n=4, acts=ACTS[:2])
     one, got = tmp_path / "one.sqlite", tmp_path / "got.sqlite"
     capsys.readouterr()
@@ -268,6 +275,17 @@ def test_tasks_of_one_log_each_store_and_report_what_one_process_does(tmp_path, 
     assert out["actuators"]["AC1/ail_L"] == {"flights": 4, "first": 0, "last": 3}
     assert sum(d["tasks"] for d in out["workers"].values()) == 8
     assert _snapshot(got) == _snapshot(one)
+    assert appended.count(True) >= 6  # both units' first write (an empty history) whole
+
+
+def test_a_groups_tasks_are_written_in_their_order_whatever_completes_first():
+    from service.replay.cluster import in_group_order
+
+    futs = [object() for _ in range(7)]
+    rank = [(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (2, 0), (0, 3)]
+    done = [futs[i] for i in (2, 4, 5, 1, 3, 0, 6)]  # completion order
+    got = [futs.index(f) for f in in_group_order(iter(done), futs, rank)]
+    assert got == [5, 3, 4, 0, 1, 2, 6]
 
 
 # -------------------------------------------------------------- 3. logs by URL, loopback

@@ -4,14 +4,15 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
-from dataclasses import replace
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from service.store.lifeorder import LogUnit, number_flights
+from service.store.lifeorder import LogUnit, SourceRule
 from service.store.records import PERIOD_FIELDS, AlarmEvent, Period
+from service.store.renumber import Added, renumber_append, renumber_full
 
 __all__ = ["ingest_log", "ingest_logs"]
 
@@ -19,6 +20,7 @@ __all__ = ["ingest_log", "ingest_logs"]
 _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
     f for f in PERIOD_FIELDS if f not in ("actuator", "start_t", "source")
 )
+_ALARM_COLS: tuple[str, ...] = ("actuator", "t", "kind", "source", "value")
 
 
 def ingest_log(
@@ -49,37 +51,46 @@ def ingest_logs(
     hs: Any,
     logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
     gap_s: float,
+    incremental: bool = True,
 ) -> list[dict[str, dict[str, Any]]]:
     """Several replayed logs, each ``(units, periods, alarms)`` as ``ingest_log`` takes
     them, in one transaction: each log as ``ingest_log`` stores it, in the given order,
-    then each changed unit renumbered and its summary rebuilt once (the renumbering reads
-    the unit's whole history: once per batch, not once per log). The store is the one
+    then each changed unit renumbered and its summary updated once. The store is the one
     the logs give one by one (the flights are a function of the stored periods); the
-    ``flights`` returned are the final ones. Returns ``ingest_log``'s dict per log."""
+    ``flights`` returned are the final ones. Returns ``ingest_log``'s dict per log.
+
+    A unit to which the logs only add periods after its stored ones in life order is
+    numbered and summarised from its stored last period (``renumber.renumber_append``: no
+    read of its history); any other changed unit, or every one with ``incremental``
+    False, is renumbered and summarised over its whole history (``renumber_full``). Both
+    give the same store (``tests/test_renumber.py``)."""
     b = hs._b
     acts = sorted({u.actuator for units, _, _ in logs for u in units})
     stored_as: list[dict[str, dict[str, Any]]] = []
     changed: set[str] = set()
+    added: dict[str, Added] = defaultdict(Added)
     with b.transaction():
         for a in acts:
             hs._ensure(a)
         summaries = hs._lock_summaries(acts)
+        pending = _Pending()
         for units, periods, alarms in logs:
-            res = _store_units(hs, units, periods, alarms)
+            res = _store_units(hs, units, periods, alarms, added, summaries, pending)
             changed.update(a for a, r in res.items() if r["changed"])
             stored_as.append(res)
+        pending.flush(b)
         for a in sorted(changed):
-            _renumber(hs, a, summaries[a], gap_s)
+            if not (incremental and renumber_append(hs, a, summaries[a], added[a], gap_s)):
+                renumber_full(hs, a, summaries[a], gap_s)
+        flights = _flights(b, {(a, r["source"]) for res in stored_as for a, r in res.items()})
         out: list[dict[str, dict[str, Any]]] = []
         for res in stored_as:
             one = {}
             for a, r in res.items():
-                flights = b.execute("SELECT DISTINCT flight FROM periods WHERE actuator = ? "
-                                    "AND source = ?", (a, r["source"])).fetchall()  # fmt: skip
                 one[a] = {
                     "status": r["status"],
                     "periods_new": 0 if r["status"] == "stored" else r["periods_new"],
-                    "flights": sorted({int(f[0]) for f in flights if f[0] is not None}),
+                    "flights": sorted(flights.get((a, r["source"]), ())),
                     "notes": r["notes"],
                 }
             out.append(one)
@@ -87,12 +98,89 @@ def ingest_logs(
     return out
 
 
+class _Pending:
+    """The period and alarm rows of a transaction's logs, per ``(actuator, source)``,
+    written in one bulk insert per table (``flush``) before anything reads or changes
+    them."""
+
+    def __init__(self) -> None:
+        self.periods: dict[tuple[str, str], list[list[Any]]] = {}
+        self.alarms: dict[tuple[str, str], list[list[Any]]] = {}
+
+    def drop(self, actuator: str, source: str) -> None:
+        self.periods.pop((actuator, source), None)
+        self.alarms.pop((actuator, source), None)
+
+    def flush(self, b: Any) -> None:
+        for table, cols, rows in (("periods", _PERIOD_COLS, self.periods),
+                                  ("alarms", _ALARM_COLS, self.alarms)):  # fmt: skip
+            if rows:
+                b.bulk_insert(table, cols, [r for part in rows.values() for r in part])
+            rows.clear()
+
+
+def _flights(b: Any, keys: set[tuple[str, str]]) -> dict[tuple[str, str], set[int]]:
+    """The stored flights of each ``(actuator, source)`` of ``keys``."""
+    out: dict[tuple[str, str], set[int]] = defaultdict(set)
+    by_act: dict[str, list[str]] = defaultdict(list)
+    for a, src in sorted(keys):
+        by_act[a].append(src)
+    for a, srcs in by_act.items():
+        for i in range(0, len(srcs), 500):
+            part = srcs[i : i + 500]
+            for src, fl in b.execute(
+                "SELECT DISTINCT source, flight FROM periods WHERE actuator = ? AND source "
+                f"IN ({','.join('?' * len(part))})", (a, *part)).fetchall():  # fmt: skip
+                if fl is not None:
+                    out[(a, src)].add(int(fl))
+    return out
+
+
+def _with_source(p: Period, source: str) -> Period:
+    """``p`` under ``source`` (a copy; ``p`` was checked when it was made)."""
+    q = copy.copy(p)
+    object.__setattr__(q, "source", source)
+    return q
+
+
+def _stored_rows(hs: Any, u: LogUnit) -> dict[str, tuple]:
+    """``{source: (samples, name, has identity)}`` of the stored logs of ``u``'s unit that
+    its ingest must weigh: its own source, its ``legacy`` ids and those ``u.relate`` relates
+    it to (``Relations``: the others are unrelated); every stored log when ``relate`` is a
+    plain function."""
+    b = hs._b
+    sql = ("SELECT source, samples, name, identity IS NOT NULL FROM log_sources "
+           "WHERE actuator = ?")  # fmt: skip
+    rel = u.relate
+    if rel is not None and not isinstance(rel, Mapping):
+        rows = b.execute(sql, (u.actuator,)).fetchall()
+    else:
+        want = {u.source, *u.legacy}
+        if rel is not None:
+            want.update(s for s, r in rel.items() if r is not None and (
+                r.inside or r.holds or r.shared))  # fmt: skip
+        rows = []
+        ws = sorted(want)
+        for i in range(0, len(ws), 500):
+            part = ws[i : i + 500]
+            rows += b.execute(f"{sql} AND source IN ({','.join('?' * len(part))})",
+                              (u.actuator, *part)).fetchall()  # fmt: skip
+    return {r[0]: (int(r[1]), r[2], r[3] or None) for r in rows}
+
+
 def _store_units(
-    hs: Any, units: Sequence[LogUnit], periods: Iterable[Period], alarms: Iterable[AlarmEvent]
+    hs: Any,
+    units: Sequence[LogUnit],
+    periods: Iterable[Period],
+    alarms: Iterable[AlarmEvent],
+    added: dict[str, Added],
+    summaries: dict[str, dict[str, Any]],
+    pending: _Pending,
 ) -> dict[str, dict[str, Any]]:
     """One log's units written (inside the caller's transaction, summaries locked): per
     unit its ``status``, whether its rows ``changed`` (it must be renumbered), the
-    ``source`` that holds its samples, ``periods_new`` and ``notes``."""
+    ``source`` that holds its samples, ``periods_new`` and ``notes``; what each unit's rows
+    got goes in ``added`` (``renumber.Added``), its new rows in ``pending``."""
     by_act: dict[str, list[Period]] = defaultdict(list)
     for p in periods:
         by_act[p.actuator].append(p)
@@ -103,25 +191,32 @@ def _store_units(
     out: dict[str, dict[str, Any]] = {}
     for u in units:
         a = u.actuator
-        stored = {r[0]: (int(r[1]), r[2], r[3]) for r in b.execute(
-            "SELECT source, samples, name, identity FROM log_sources WHERE actuator = ?",
-            (a,)).fetchall()}  # fmt: skip
+        stored = _stored_rows(hs, u)
         notes: list[str] = []
         keep = _stored_as(u, stored, notes)
-        mine = [replace(p, source=u.source) for p in by_act.get(a, [])]
+        mine = [_with_source(p, u.source) for p in by_act.get(a, [])]
         changed = False
+        add = added[a]
         if keep is not None:
             status = "stored"
-            changed = keep == u.source and _apply_given(hs, u, notes)
+            if keep == u.source and (u.flight is not None or u.start_unix is not None):
+                pending.flush(b)  # its periods may be this transaction's
+                changed = _apply_given(hs, u, notes)
+            add.clean = add.clean and not changed
         else:
             gone = _superseded(hs, u, stored, notes)
-            mine, n_live = _replace_live(hs, u, mine, notes)
+            mine, n_live = _replace_live(hs, u, mine, notes, summaries[a])
             status = "superseded" if gone or n_live else "new"
             changed = True
-            for src in gone | {u.source}:
+            for src in gone:  # (its own source is not stored: no log_sources row)
+                pending.drop(a, src)
                 for t in ("periods", "alarms", "log_sources"):
-                    b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?", (a, src))
+                    cur = b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?",
+                                    (a, src))  # fmt: skip
+                    add.clean = add.clean and not cur.rowcount
+            add.clean = add.clean and status == "new"
             order = [float(t) for t in u.order] or sorted(float(p.start_t) for p in mine)
+            add.rules[u.source] = SourceRule(u.gap, tuple(order))
             b.execute(
                 "INSERT INTO log_sources (actuator, source, samples, name, flights, identity, "
                 "sample_order) VALUES (?, ?, ?, ?, ?, ?, ?)",
@@ -130,18 +225,13 @@ def _store_units(
                  json.dumps(order)),
             )  # fmt: skip
             uniq = {float(p.start_t): p for p in mine}
-            if uniq:
-                b.bulk_insert("periods", _PERIOD_COLS,
-                              [[getattr(p, c) for c in _PERIOD_COLS]
-                               for p in uniq.values()])  # fmt: skip
-            ev = {(float(e.t), e.kind): replace(e, source=u.source)
-                  for e in al_by.get(a, [])}  # fmt: skip
-            if ev:
-                b.bulk_insert(
-                    "alarms",
-                    ("actuator", "t", "kind", "source", "value"),
-                    [[e.actuator, e.t, e.kind, e.source, e.value] for e in ev.values()],
-                )
+            add.periods.extend(uniq.values())
+            pending.periods[(a, u.source)] = [[getattr(p, c) for c in _PERIOD_COLS]
+                                              for p in uniq.values()]  # fmt: skip
+            ev = {(float(e.t), e.kind): e for e in al_by.get(a, [])}
+            add.alarms.extend(ev)
+            pending.alarms[(a, u.source)] = [[e.actuator, e.t, e.kind, u.source, e.value]
+                                             for e in ev.values()]  # fmt: skip
         prev = out.get(a)
         out[a] = {
             "status": status,
@@ -193,25 +283,23 @@ def _superseded(hs: Any, u: LogUnit, stored: dict[str, tuple], notes: list[str])
         elif rel.shared:
             notes.append(f"shares {rel.shared} samples with {name} and differs in others: "
                          "two logs, both kept")  # fmt: skip
-    for old in u.legacy:  # a store before schema v4: no log_sources row
-        if (
-            old not in stored
-            and hs._b.execute(
-                "SELECT 1 FROM periods WHERE actuator = ? AND source = ? LIMIT 1", (u.actuator, old)
-            ).fetchone()
-        ):
-            gone.add(old)
+    old = sorted(set(u.legacy) - set(stored))  # a store before schema v4: no log_sources row
+    if old:
+        gone.update(r[0] for r in hs._b.execute(
+            f"SELECT DISTINCT source FROM periods WHERE actuator = ? AND source IN "
+            f"({','.join('?' * len(old))})", (u.actuator, *old)).fetchall())  # fmt: skip
     return gone
 
 
 def _replace_live(
-    hs: Any, u: LogUnit, mine: list[Period], notes: list[str]
+    hs: Any, u: LogUnit, mine: list[Period], notes: list[str], s: dict[str, Any]
 ) -> tuple[list[Period], int]:
     """The daemon's live periods written beside this log (source ``live:...@{log_id}``)
     that lie within its samples are replaced by the log's (with their alarms); a log period
     that overlaps a live one kept (it straddles the log's first or last sample) is left
-    out. Returns the log's periods to store and how many live periods went."""
-    if not u.live or not mine:
+    out. Returns the log's periods to store and how many live periods went (``s``: the
+    unit's summary row, which counts its live periods)."""
+    if not u.live or not mine or not int(s.get("live_periods") or 0):  # none stored
         return mine, 0
     b = hs._b
     lo = min(p.start_t for p in mine)
@@ -260,23 +348,3 @@ def _apply_given(hs: Any, u: LogUnit, notes: list[str]) -> bool:
         f"start {u.start_unix:.0f} (Unix s)" if u.start_unix is not None else "") if x)  # fmt: skip
     notes.append(f"stored already: {given} applied to its {len(rows)} stored period(s)")
     return True
-
-
-def _renumber(hs: Any, actuator: str, s: dict[str, Any], gap_s: float) -> None:
-    """Renumber the unit's gap-rule flights along its life order and rebuild its summary
-    row (inside the caller's transaction)."""
-    b = hs._b
-    old = hs.periods(actuator)
-    now = number_flights(old, hs.rules(actuator), gap_s)
-    was = {(float(p.start_t), p.source): p.flight for p in old}
-    upd = [
-        (p.flight, actuator, p.start_t, p.source)
-        for p in now
-        if was[(float(p.start_t), p.source)] != p.flight
-    ]
-    if upd:
-        b.executemany(
-            "UPDATE periods SET flight = ? WHERE actuator = ? AND start_t = ? AND source = ?",
-            upd,
-        )
-    hs.rebuild_summary(actuator, s)
