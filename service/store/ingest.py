@@ -21,6 +21,8 @@ _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
     f for f in PERIOD_FIELDS if f not in ("actuator", "start_t", "source")
 )
 _ALARM_COLS: tuple[str, ...] = ("actuator", "t", "kind", "source", "value")
+_LOG_COLS: tuple[str, ...] = (
+    "actuator", "source", "samples", "name", "flights", "identity", "sample_order")  # fmt: skip
 
 
 def ingest_log(
@@ -73,12 +75,12 @@ def ingest_logs(
         for a in acts:
             hs._ensure(a)
         summaries = hs._lock_summaries(acts)
-        pending = _Pending()
+        tx = _Tx(b, logs)
         for units, periods, alarms in logs:
-            res = _store_units(hs, units, periods, alarms, added, summaries, pending)
+            res = _store_units(hs, units, periods, alarms, added, summaries, tx)
             changed.update(a for a, r in res.items() if r["changed"])
             stored_as.append(res)
-        pending.flush(b)
+        tx.flush()
         for a in sorted(changed):
             if not (incremental and renumber_append(hs, a, summaries[a], added[a], gap_s)):
                 renumber_full(hs, a, summaries[a], gap_s)
@@ -98,25 +100,88 @@ def ingest_logs(
     return out
 
 
-class _Pending:
-    """The period and alarm rows of a transaction's logs, per ``(actuator, source)``,
-    written in one bulk insert per table (``flush``) before anything reads or changes
-    them."""
+class _Tx:
+    """What a transaction's logs are weighed against and what they write, per unit: the
+    stored logs that any of them relates to, its own source or its legacy ids (read once
+    for all of them, then kept as the logs are added and removed), and the new period,
+    alarm and log rows, written in one bulk insert per table (``flush``) before anything
+    else reads or changes them."""
 
-    def __init__(self) -> None:
-        self.periods: dict[tuple[str, str], list[list[Any]]] = {}
-        self.alarms: dict[tuple[str, str], list[list[Any]]] = {}
+    def __init__(self, b: Any, logs: Sequence[tuple[Sequence[LogUnit], Any, Any]]) -> None:
+        self.b = b
+        self.rows: dict[str, dict[tuple[str, str], list[list[Any]]]] = {
+            "periods": {}, "alarms": {}, "log_sources": {}}  # fmt: skip
+        want: dict[str, set[str]] = defaultdict(set)
+        legacy: dict[str, set[str]] = defaultdict(set)
+        every: set[str] = set()  # units with a log related by a plain function: all rows
+        for units, _, _ in logs:
+            for u in units:
+                want[u.actuator] |= _candidates(u)
+                legacy[u.actuator].update(u.legacy)
+                if u.relate is not None and not isinstance(u.relate, Mapping):
+                    every.add(u.actuator)
+        sql = ("SELECT source, samples, name, identity IS NOT NULL FROM log_sources "
+               "WHERE actuator = ?")  # fmt: skip
+        #: per unit ``{source: (samples, name, True if it has a stream identity else None)}``
+        self.known: dict[str, dict[str, tuple]] = {}
+        #: per unit the legacy ids with periods and no log row (a store before schema v4)
+        self.legacy: dict[str, set[str]] = {}
+        for a, srcs in want.items():
+            rows = (b.execute(sql, (a,)).fetchall() if a in every
+                    else _in(b, sql, a, sorted(srcs)))  # fmt: skip
+            self.known[a] = {r[0]: (int(r[1]), r[2], r[3] or None) for r in rows}
+            old = sorted(legacy[a] - set(self.known[a]))
+            self.legacy[a] = {r[0] for r in _in(b, "SELECT DISTINCT source FROM periods "
+                                                   "WHERE actuator = ?", a, old)}  # fmt: skip
 
-    def drop(self, actuator: str, source: str) -> None:
-        self.periods.pop((actuator, source), None)
-        self.alarms.pop((actuator, source), None)
+    def stored(self, u: LogUnit) -> dict[str, tuple]:
+        """The stored logs of ``u``'s unit that its ingest weighs (``_candidates``)."""
+        known = self.known[u.actuator]
+        if u.relate is not None and not isinstance(u.relate, Mapping):
+            return dict(known)
+        return {s: known[s] for s in _candidates(u) if s in known}
 
-    def flush(self, b: Any) -> None:
-        for table, cols, rows in (("periods", _PERIOD_COLS, self.periods),
-                                  ("alarms", _ALARM_COLS, self.alarms)):  # fmt: skip
-            if rows:
-                b.bulk_insert(table, cols, [r for part in rows.values() for r in part])
-            rows.clear()
+    def add(self, a: str, source: str, row: tuple, rows: dict[str, list[list[Any]]]) -> None:
+        """A new log of unit ``a`` (its ``log_sources`` row fields and its table rows)."""
+        self.known[a][source] = row
+        for t, r in rows.items():
+            self.rows[t][(a, source)] = r
+
+    def remove(self, a: str, source: str) -> None:
+        """A stored log of unit ``a`` replaced: its rows deleted, written or pending."""
+        self.known[a].pop(source, None)
+        self.legacy[a].discard(source)
+        for t, part in self.rows.items():
+            part.pop((a, source), None)
+            self.b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?", (a, source))
+
+    def flush(self) -> None:
+        for t, cols in (("periods", _PERIOD_COLS), ("alarms", _ALARM_COLS),
+                        ("log_sources", _LOG_COLS)):  # fmt: skip
+            part = self.rows[t]
+            if part:
+                self.b.bulk_insert(t, cols, [r for rows in part.values() for r in rows])
+            part.clear()
+
+
+def _in(b: Any, sql: str, a: str, srcs: list[str]) -> list:
+    """``sql`` (``... WHERE actuator = ?``) for unit ``a`` and the sources ``srcs``."""
+    out: list = []
+    for i in range(0, len(srcs), 500):
+        part = srcs[i : i + 500]
+        out += b.execute(f"{sql} AND source IN ({','.join('?' * len(part))})",
+                         (a, *part)).fetchall()  # fmt: skip
+    return out
+
+
+def _candidates(u: LogUnit) -> set[str]:
+    """The stored logs the ingest of ``u`` must weigh: its own source, its ``legacy`` ids
+    and those ``u.relate`` (a ``Relations``) relates it to; the others are unrelated."""
+    want = {u.source, *u.legacy}
+    if isinstance(u.relate, Mapping):
+        want.update(s for s, r in u.relate.items() if r is not None and (
+            r.inside or r.holds or r.shared))  # fmt: skip
+    return want
 
 
 def _flights(b: Any, keys: set[tuple[str, str]]) -> dict[tuple[str, str], set[int]]:
@@ -143,31 +208,6 @@ def _with_source(p: Period, source: str) -> Period:
     return q
 
 
-def _stored_rows(hs: Any, u: LogUnit) -> dict[str, tuple]:
-    """``{source: (samples, name, has identity)}`` of the stored logs of ``u``'s unit that
-    its ingest must weigh: its own source, its ``legacy`` ids and those ``u.relate`` relates
-    it to (``Relations``: the others are unrelated); every stored log when ``relate`` is a
-    plain function."""
-    b = hs._b
-    sql = ("SELECT source, samples, name, identity IS NOT NULL FROM log_sources "
-           "WHERE actuator = ?")  # fmt: skip
-    rel = u.relate
-    if rel is not None and not isinstance(rel, Mapping):
-        rows = b.execute(sql, (u.actuator,)).fetchall()
-    else:
-        want = {u.source, *u.legacy}
-        if rel is not None:
-            want.update(s for s, r in rel.items() if r is not None and (
-                r.inside or r.holds or r.shared))  # fmt: skip
-        rows = []
-        ws = sorted(want)
-        for i in range(0, len(ws), 500):
-            part = ws[i : i + 500]
-            rows += b.execute(f"{sql} AND source IN ({','.join('?' * len(part))})",
-                              (u.actuator, *part)).fetchall()  # fmt: skip
-    return {r[0]: (int(r[1]), r[2], r[3] or None) for r in rows}
-
-
 def _store_units(
     hs: Any,
     units: Sequence[LogUnit],
@@ -175,23 +215,22 @@ def _store_units(
     alarms: Iterable[AlarmEvent],
     added: dict[str, Added],
     summaries: dict[str, dict[str, Any]],
-    pending: _Pending,
+    tx: _Tx,
 ) -> dict[str, dict[str, Any]]:
     """One log's units written (inside the caller's transaction, summaries locked): per
     unit its ``status``, whether its rows ``changed`` (it must be renumbered), the
     ``source`` that holds its samples, ``periods_new`` and ``notes``; what each unit's rows
-    got goes in ``added`` (``renumber.Added``), its new rows in ``pending``."""
+    got goes in ``added`` (``renumber.Added``), its new rows in ``tx``."""
     by_act: dict[str, list[Period]] = defaultdict(list)
     for p in periods:
         by_act[p.actuator].append(p)
     al_by: dict[str, list[AlarmEvent]] = defaultdict(list)
     for e in alarms:
         al_by[e.actuator].append(e)
-    b = hs._b
     out: dict[str, dict[str, Any]] = {}
     for u in units:
         a = u.actuator
-        stored = _stored_rows(hs, u)
+        stored = tx.stored(u)
         notes: list[str] = []
         keep = _stored_as(u, stored, notes)
         mine = [_with_source(p, u.source) for p in by_act.get(a, [])]
@@ -200,38 +239,30 @@ def _store_units(
         if keep is not None:
             status = "stored"
             if keep == u.source and (u.flight is not None or u.start_unix is not None):
-                pending.flush(b)  # its periods may be this transaction's
+                tx.flush()  # its rows may be this transaction's
                 changed = _apply_given(hs, u, notes)
             add.clean = add.clean and not changed
         else:
-            gone = _superseded(hs, u, stored, notes)
+            gone = _superseded(u, stored, tx.legacy[a], notes)
             mine, n_live = _replace_live(hs, u, mine, notes, summaries[a])
             status = "superseded" if gone or n_live else "new"
             changed = True
-            for src in gone:  # (its own source is not stored: no log_sources row)
-                pending.drop(a, src)
-                for t in ("periods", "alarms", "log_sources"):
-                    cur = b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?",
-                                    (a, src))  # fmt: skip
-                    add.clean = add.clean and not cur.rowcount
+            for src in gone:  # (its own source is not stored: it has no log row)
+                tx.remove(a, src)
             add.clean = add.clean and status == "new"
             order = [float(t) for t in u.order] or sorted(float(p.start_t) for p in mine)
             add.rules[u.source] = SourceRule(u.gap, tuple(order))
-            b.execute(
-                "INSERT INTO log_sources (actuator, source, samples, name, flights, identity, "
-                "sample_order) VALUES (?, ?, ?, ?, ?, ?, ?)",
-                (a, u.source, int(u.samples), u.name, "gap" if u.gap else "log",
-                 None if u.identity is None else u.identity.dumps(),
-                 json.dumps(order)),
-            )  # fmt: skip
             uniq = {float(p.start_t): p for p in mine}
             add.periods.extend(uniq.values())
-            pending.periods[(a, u.source)] = [[getattr(p, c) for c in _PERIOD_COLS]
-                                              for p in uniq.values()]  # fmt: skip
             ev = {(float(e.t), e.kind): e for e in al_by.get(a, [])}
             add.alarms.extend(ev)
-            pending.alarms[(a, u.source)] = [[e.actuator, e.t, e.kind, u.source, e.value]
-                                             for e in ev.values()]  # fmt: skip
+            ident = None if u.identity is None else u.identity.dumps()
+            tx.add(a, u.source, (int(u.samples), u.name, True if ident else None), {
+                "log_sources": [[a, u.source, int(u.samples), u.name, "gap" if u.gap else "log",
+                                 ident, json.dumps(order)]],
+                "periods": [[getattr(p, c) for c in _PERIOD_COLS] for p in uniq.values()],
+                "alarms": [[e.actuator, e.t, e.kind, u.source, e.value] for e in ev.values()],
+            })  # fmt: skip
         prev = out.get(a)
         out[a] = {
             "status": status,
@@ -259,7 +290,9 @@ def _stored_as(u: LogUnit, stored: dict[str, tuple], notes: list[str]) -> str | 
     return None
 
 
-def _superseded(hs: Any, u: LogUnit, stored: dict[str, tuple], notes: list[str]) -> set[str]:
+def _superseded(
+    u: LogUnit, stored: dict[str, tuple], legacy: set[str], notes: list[str]
+) -> set[str]:
     """The stored logs of ``u``'s unit it replaces: those whose samples it holds all, and
     the same log under an older servowatch's id; notes on the logs it overlaps."""
     gone: set[str] = set()
@@ -283,11 +316,7 @@ def _superseded(hs: Any, u: LogUnit, stored: dict[str, tuple], notes: list[str])
         elif rel.shared:
             notes.append(f"shares {rel.shared} samples with {name} and differs in others: "
                          "two logs, both kept")  # fmt: skip
-    old = sorted(set(u.legacy) - set(stored))  # a store before schema v4: no log_sources row
-    if old:
-        gone.update(r[0] for r in hs._b.execute(
-            f"SELECT DISTINCT source FROM periods WHERE actuator = ? AND source IN "
-            f"({','.join('?' * len(old))})", (u.actuator, *old)).fetchall())  # fmt: skip
+    gone.update(legacy.intersection(u.legacy))  # a store before schema v4: no log row
     return gone
 
 
