@@ -392,6 +392,40 @@ def test_a_log_by_another_protocol_is_fetched_under_its_own_name(tmp_path, meas)
                                                   "memory://fleet/none.mcap"]  # fmt: skip
 
 
+def test_logs_over_http_on_loopback_are_listed_fetched_and_stored_as_paths(tmp_path, meas):
+    """``http://`` (fsspec's HTTP file system, aiohttp) from a server on 127.0.0.1: a folder
+    URL lists its logs from the server's index, and each log's task gives what its path
+    gives, named by its URL."""
+    import functools
+    import threading
+    from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+
+    from service.replay.cluster import GroupTask, expand_urls, log_facts, run_group
+
+    logs = _logs(tmp_path / "logs", meas, n=2, acts=ACTS[:1])
+    quiet = type("Quiet", (SimpleHTTPRequestHandler,), {"log_message": lambda *a: None})
+    srv = ThreadingHTTPServer(("127.0.0.1", 0),
+                              functools.partial(quiet, directory=str(tmp_path / "logs")))  # fmt: skip
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        base = f"http://127.0.0.1:{srv.server_address[1]}/"
+        urls = expand_urls(base)
+        assert urls == [base + p.name for p in sorted(logs)]
+        assert [log_facts(u).units for u in urls] == [log_facts(str(p)).units for p in logs]
+        by_url = run_group(GroupTask(urls, "s", {}, 1800.0, {}, replay_many)).logs
+        by_path = run_group(GroupTask([str(p) for p in sorted(logs)], "s", {}, 1800.0, {},
+                                      replay_many)).logs  # fmt: skip
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    assert [x[0] for x in by_url] == [x[1].log for x in by_url] == urls
+    assert all(x[2] is None for x in by_url)
+    for u, p in zip(by_url, by_path, strict=True):
+        assert [(x.source, x.samples, x.name) for x in u[3].units] == [
+            (x.source, x.samples, x.name) for x in p[3].units]  # fmt: skip
+        assert u[3].periods == p[3].periods
+
+
 @pytest.mark.slow
 def test_the_progress_counts_every_log_from_the_completed_tasks(tmp_path, meas, dask_procs):
     """``run_batch``'s ``tick`` (the progress bar's) once per log as its task completes, and
