@@ -108,24 +108,38 @@ def fleet_rows(store: Path) -> list:
                 for d in s.fleet_summary()]  # fmt: skip
 
 
-def _flights(log: Path, periods: int) -> Callable[[int], tuple[Any, Any]]:
-    """``flight(k)``: the captured store write of one log (``run_group``: what a worker
-    returns) as the unit's flight ``k`` (its flight record's number, 4 flights a day), with
-    ``periods`` periods (a 2 h flight cut in 600 s windows: 12) and a source of its own."""
+def _flights(log: Path, periods: int) -> Callable[[int, float], tuple[Any, Any]]:
+    """``flight(k, scale)``: the captured store write of one log (``run_group``: what a
+    worker returns) as the unit's flight ``k`` (its flight record's number, 4 flights a
+    day), with ``periods`` periods (a 2 h flight cut in 600 s windows: 12) and a source of
+    its own; its stream identity that of a log ``scale`` times as long (its blocks repeated:
+    the size and shape a longer log's identity has, decision record 0033)."""
     from service.replay import replay_many
     from service.replay.cluster import GroupTask, run_group
 
     res = run_group(GroupTask([str(log)], "bench", {}, 1800.0, {}, replay_many))
     _, s0, _, call = res.logs[0]
     p0 = call.periods[0]
+    idents: dict[float, list] = {}
 
-    def flight(k: int):
+    def identity(u: Any, scale: float) -> Any:
+        if scale == 1:
+            return u.identity
+        text = u.identity if isinstance(u.identity, str) else u.identity.dumps()
+        runs = json.loads(text)
+        for r in runs:
+            r["blocks"] = r["blocks"] * max(1, round(scale))
+        return json.dumps(runs, separators=(",", ":"))
+
+    def flight(k: int, scale: float = 1.0):
         day = 86400.0 * (k // FLIGHTS_PER_DAY) + 3 * 3600.0 * (k % FLIGHTS_PER_DAY)
         dt = [day + 600.0 * j for j in range(periods)]
         ps = [replace(p0, start_t=p0.start_t + d, end_t=p0.end_t + d, flight=k,
                       start_unix=None if p0.start_unix is None else p0.start_unix + d)
               for d in dt]  # fmt: skip
-        units = [u._replace(source=f"{u.source}-{k}", name=f"f{k:05d}.mcap") for u in call.units]
+        ids = idents.setdefault(scale, [identity(u, scale) for u in call.units])
+        units = [u._replace(source=f"{u.source}-{k}", name=f"f{k:05d}.mcap", identity=i)
+                 for u, i in zip(call.units, ids, strict=True)]  # fmt: skip
         return replace(s0, log=f"f{k:05d}.mcap"), replace(call, units=units, periods=ps,
                                                           alarms=[])  # fmt: skip
 
@@ -137,7 +151,7 @@ def _write(hs: Any, done: list, how: str) -> None:
     previous commit's), or the whole-history renumbering of every changed unit."""
     from service.replay.cluster import write_logs
 
-    if how == "whole history":
+    if how.startswith("whole history"):
         hs.ingest_logs([(c.units, c.periods, c.alarms) for _, c in done], done[0][1].gap_s,
                        incremental=False)  # fmt: skip
     else:
@@ -145,55 +159,66 @@ def _write(hs: Any, done: list, how: str) -> None:
 
 
 def store_rows(
-    log: Path, marks: list[int], periods: int, batch: int, contenders: list[str], budget_s: float
+    log: Path,
+    marks: list[int],
+    periods: int,
+    batch: int,
+    contenders: list[str],
+    budget_s: float,
+    scales: dict[str, float] | None = None,
 ) -> list[dict[str, Any]]:
     """One unit's flights written by the client into a fresh throwaway PostgreSQL: its
     history built up to each of ``marks`` flights (``batch`` flights per transaction, the
     first contender's path, at most ``budget_s`` in all), and there each contender's write
-    timed, one flight per transaction and ``batch`` per transaction. Returns rows of
-    ``{mark, history, contender, batch, ms}`` (ms of client and store per unit-flight,
-    the median of the repeats; ``ms`` None where the history was not reached)."""
+    timed, one flight per transaction and ``batch`` per transaction (where the budget ran
+    out first: at the history reached, once). Returns rows of ``{mark, history, contender,
+    batch, ms}`` (``history``: the unit's periods before the timed writes; ms of client and
+    store per unit-flight, the median of the repeats)."""
     from service.store import open_store
     from service.store.pgtemp import TempCluster
 
     flight = _flights(log, periods)
+    scales = scales or {}
     out: list[dict[str, Any]] = []
     t_end = time.monotonic() + budget_s
     with TempCluster() as pg, open_store(pg.create_database()) as hs:
         k = 0
         for mark in marks:
+            if time.monotonic() >= t_end:
+                break
             while k < mark and time.monotonic() < t_end:
                 n = min(batch, mark - k)
                 _write(hs, [flight(j) for j in range(k, k + n)], contenders[0])
                 k += n
-            hist = hs.count_periods()
             for how in contenders:
-                for b, reps in (
-                    ((1, 12), (20, 5), (batch, 3)) if how == "incremental" else ((1, 3), (batch, 2))
-                ):
-                    ms = []
-                    for _ in range(reps if k >= mark else 0):
-                        done = [flight(j) for j in range(k, k + b)]
+                if how in scales:  # a longer log's identity: fewer repeats (its bytes)
+                    plan = ((20, 2), (batch, 1))
+                elif how == "incremental":
+                    plan = ((1, 12), (20, 5), (batch, 3))
+                else:
+                    plan = ((1, 3), (batch, 2))
+                for b, reps in plan:
+                    ms, hist = [], hs.count_periods()
+                    for _ in range(reps):
+                        done = [flight(j, scales.get(how, 1.0)) for j in range(k, k + b)]
                         w0 = time.perf_counter()
                         _write(hs, done, how)
                         ms.append((time.perf_counter() - w0) * 1e3 / b)
                         k += b
                     out.append({"mark": mark, "history": hist, "contender": how, "batch": b,
-                                "ms": sorted(ms)[len(ms) // 2] if ms else None})  # fmt: skip
+                                "ms": sorted(ms)[len(ms) // 2]})  # fmt: skip
     return out
 
 
 def print_store(rows: list[dict[str, Any]], periods: int) -> None:
     print(f"\nPostgreSQL (throwaway), the client writing one unit's flights of {periods} periods "
           "(client and store time per unit-flight, the median of the repeats):")  # fmt: skip
-    print(f"  {'contender':18s} {'flights/tx':>10s} {'history, periods':>17s} "
+    print(f"  {'contender':22s} {'flights/tx':>10s} {'history, periods':>17s} "
           f"{'ms/unit-flight':>15s} {'unit-flights/s':>15s}")  # fmt: skip
     for r in sorted(rows, key=lambda r: (r["mark"], r["contender"] != "incremental",
                                          r["contender"], r["batch"])):  # fmt: skip
-        ms = r["ms"]
-        cells = ("not reached", "") if ms is None else (f"{ms:.2f}", f"{1e3 / ms:,.0f}")
-        print(f"  {r['contender']:18s} {r['batch']:10d} {r['history']:17,d} {cells[0]:>15s} "
-              f"{cells[1]:>15s}")  # fmt: skip
+        print(f"  {r['contender']:22s} {r['batch']:10d} {r['history']:17,d} {r['ms']:15.2f} "
+              f"{1e3 / r['ms']:15,.0f}")  # fmt: skip
 
 
 def throughput(a: argparse.Namespace, tmp: Path) -> tuple[dict, int, float, Path]:
@@ -259,9 +284,12 @@ def main() -> int:
     ap.add_argument("--batch", type=int, default=100, help="flights per transaction, batched")
     ap.add_argument("--pg-budget-s", type=float, default=300.0,
                     help="time bound of building the history")  # fmt: skip
+    ap.add_argument("--identity-s", type=float, default=7200.0,
+                    help="the length of log whose stream identity a contender writes "
+                    "(the fleet's 2 h flights; the logs written are --log-s long)")  # fmt: skip
     ap.add_argument("--previous", metavar="DIR",
                     help="a checkout of the previous commit: its client writes timed beside")  # fmt: skip
-    ap.add_argument("--previous-budget-s", type=float, default=600.0)
+    ap.add_argument("--previous-budget-s", type=float, default=420.0)
     ap.add_argument("--code", metavar="DIR", help=argparse.SUPPRESS)  # import servowatch from DIR
     ap.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -273,8 +301,10 @@ def main() -> int:
             first, rows = sorted((tmp / "logs").glob("*.mcap"))[0], None
         else:
             rows, n, up, first = throughput(a, tmp)
-        how = ["previous commit"] if a.code else ["incremental", "whole history"]
-        writes = store_rows(first, a.marks, a.periods, a.batch, how, a.pg_budget_s)
+        long = f"incremental, {a.identity_s / 3600:g} h log"
+        how = ["previous commit"] if a.code else ["incremental", long, "whole history"]
+        writes = store_rows(first, a.marks, a.periods, a.batch, how, a.pg_budget_s,
+                            {long: a.identity_s / a.log_s})  # fmt: skip
         if a.json:
             print(json.dumps(writes))
             return 0
@@ -312,7 +342,9 @@ def main() -> int:
               f"day; five years = {core_s / 3.156e7:.0f} worker-years, in one day "
               f"{core_s / 86400:.0f} workers")  # fmt: skip
     for r in writes:
-        if r["batch"] == a.batch and r["ms"] is not None and r["mark"] == max(a.marks):
+        if r["batch"] == a.batch and r["mark"] == max(
+            x["mark"] for x in writes if x["contender"] == r["contender"]
+        ):
             rate = 1e3 / r["ms"]
             verdict = "keeps up" if rate >= unit_writes_s else "does NOT keep up"
             print(f"  one client, {r['contender']}, {a.batch} per transaction at "

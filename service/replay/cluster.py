@@ -294,6 +294,11 @@ def run_group(task: GroupTask) -> GroupResult:
                 s.log = item  # the URL, not the worker's cached copy
             err = None if e is None else str(e).replace(str(p), item)
             call = cap.calls[-1] if s is not None and cap.calls else None
+            if call is not None:  # each unit's stream identity as the store's text, made
+                # here: the client writes it as it comes (a 2 h log's is about 1.3 MB)
+                call.units = [u._replace(identity=u.identity.dumps())
+                              if u.identity is not None and not isinstance(u.identity, str)
+                              else u for u in call.units]  # fmt: skip
             out.append((item, s, err, call))
     return GroupResult(out, worker_name(), time.perf_counter() - w0)
 

@@ -256,7 +256,8 @@ def _store_units(
             add.periods.extend(uniq.values())
             ev = {(float(e.t), e.kind): e for e in al_by.get(a, [])}
             add.alarms.extend(ev)
-            ident = None if u.identity is None else u.identity.dumps()
+            ident = u.identity if u.identity is None or isinstance(u.identity, str) else (
+                u.identity.dumps())  # fmt: skip
             tx.add(a, u.source, (int(u.samples), u.name, True if ident else None), {
                 "log_sources": [[a, u.source, int(u.samples), u.name, "gap" if u.gap else "log",
                                  ident, json.dumps(order)]],

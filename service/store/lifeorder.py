@@ -56,7 +56,7 @@ class LogUnit(NamedTuple):
     name: str  # the log's file name (for messages only)
     gap: bool  # its flights follow the gap rule (no flight record, no ``--flight``)
     legacy: tuple[str, ...] = ()  # the ids older stores gave the same log (adopted)
-    identity: Any = None  # its ``StreamId`` (stored for later logs to be compared with)
+    identity: Any = None  # its ``StreamId`` or its text (stored for later logs to compare)
     relate: Callable[[str], Any] | None = None  # source -> ``Relation`` (or None: unknown)
     order: tuple[float, ...] = ()  # its periods' start_t in sample order
     flight: int | None = None  # ``--flight`` given for this log
