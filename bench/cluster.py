@@ -131,14 +131,15 @@ def _flights(log: Path, periods: int) -> Callable[[int, float], tuple[Any, Any]]
             r["blocks"] = r["blocks"] * max(1, round(scale))
         return json.dumps(runs, separators=(",", ":"))
 
-    def flight(k: int, scale: float = 1.0):
+    def flight(k: int, scale: float = 1.0, unit: str | None = None):
         day = 86400.0 * (k // FLIGHTS_PER_DAY) + 3 * 3600.0 * (k % FLIGHTS_PER_DAY)
         dt = [day + 600.0 * j for j in range(periods)]
         ps = [replace(p0, start_t=p0.start_t + d, end_t=p0.end_t + d, flight=k,
-                      start_unix=None if p0.start_unix is None else p0.start_unix + d)
-              for d in dt]  # fmt: skip
+                      start_unix=None if p0.start_unix is None else p0.start_unix + d,
+                      actuator=unit or p0.actuator) for d in dt]  # fmt: skip
         ids = idents.setdefault(scale, [identity(u, scale) for u in call.units])
-        units = [u._replace(source=f"{u.source}-{k}", name=f"f{k:05d}.mcap", identity=i)
+        units = [u._replace(source=f"{u.source}-{k}", name=f"f{k:05d}.mcap", identity=i,
+                            actuator=unit or u.actuator)
                  for u, i in zip(call.units, ids, strict=True)]  # fmt: skip
         return replace(s0, log=f"f{k:05d}.mcap"), replace(call, units=units, periods=ps,
                                                           alarms=[])  # fmt: skip
@@ -207,6 +208,48 @@ def store_rows(
                         k += b
                     out.append({"mark": mark, "history": hist, "contender": how, "batch": b,
                                 "ms": sorted(ms)[len(ms) // 2]})  # fmt: skip
+    return out
+
+
+def _writer(job: tuple) -> tuple[float, float, int]:
+    """One writer process of ``parallel_writers``: its own unit's flights, ``batch`` per
+    transaction, from the barrier time ``t0``; returns its start, end and flights."""
+    log, url, unit, batches, batch, periods, scale, t0 = job
+    from service.store import open_store
+
+    flight = _flights(Path(log), periods)
+    todo = [[flight(k, scale, unit) for k in range(i * batch, (i + 1) * batch)]
+            for i in range(batches)]  # fmt: skip
+    with open_store(url) as hs:
+        _write(hs, [flight(-1, 1.0, unit)], "incremental")  # its first write (whole, empty)
+        time.sleep(max(0.0, t0 - time.time()))
+        w0 = time.time()
+        for done in todo:
+            _write(hs, done, "incremental")
+        return w0, time.time(), batches * batch
+
+
+def parallel_writers(
+    log: Path, writers: list[int], batches: int, batch: int, periods: int, scale: float
+) -> list[dict[str, Any]]:
+    """Writers on the workers: ``n`` processes, each its own unit (tasks of disjoint units),
+    each task's flights in one transaction, into one throwaway PostgreSQL, at once; the
+    flights of all of them over the time from the first start to the last end."""
+    import multiprocessing as mp
+
+    from service.store.pgtemp import TempCluster
+
+    out = []
+    with TempCluster() as pg:
+        for n in writers:
+            url = pg.create_database()
+            t0 = time.time() + 30.0  # every writer replayed its log and built its flights
+            jobs = [(str(log), url, f"W{n}x{w}/eha", batches, batch, periods, scale, t0)
+                    for w in range(n)]  # fmt: skip
+            with mp.get_context("spawn").Pool(n) as pool:
+                res = pool.map(_writer, jobs)
+            wall = max(e for _, e, _ in res) - min(s for s, _, _ in res)
+            out.append({"writers": n, "flights": sum(f for _, _, f in res), "wall_s": wall})
     return out
 
 
@@ -287,6 +330,8 @@ def main() -> int:
     ap.add_argument("--identity-s", type=float, default=7200.0,
                     help="the length of log whose stream identity a contender writes "
                     "(the fleet's 2 h flights; the logs written are --log-s long)")  # fmt: skip
+    ap.add_argument("--writers", type=lambda t: [int(x) for x in t.split(",")],
+                    default=[1, 2], help="writer processes at once (writers on the workers)")  # fmt: skip
     ap.add_argument("--previous", metavar="DIR",
                     help="a checkout of the previous commit: its client writes timed beside")  # fmt: skip
     ap.add_argument("--previous-budget-s", type=float, default=420.0)
@@ -308,6 +353,8 @@ def main() -> int:
         if a.json:
             print(json.dumps(writes))
             return 0
+        par = (parallel_writers(first, a.writers, 2, a.batch, a.periods, a.identity_s / a.log_s)
+               if a.writers else [])  # fmt: skip
         if a.previous:
             writes += previous_rows(a, a.previous)
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
@@ -327,6 +374,10 @@ def main() -> int:
                   f"{cost[name]:25.2f}   {len(w)} worker(s)")  # fmt: skip
         c_us = cost["--cluster, 1 worker"]
     print_store(writes, a.periods)
+    for r in par:
+        print(f"  writers on the workers: {r['writers']} process(es), a unit each, "
+              f"{a.identity_s / 3600:g} h logs, {a.batch} per transaction: {r['flights']} "
+              f"unit-flights in {r['wall_s']:.2f} s = {r['flights'] / r['wall_s']:,.0f}/s")  # fmt: skip
     # projection (docs/cluster.md)
     unit_flights = FLIGHTS_PER_DAY * 365.25 * YEARS
     per_day = AIRCRAFT * UNITS_PER_AC * FLIGHTS_PER_DAY * FLIGHT_H * 3600 * RATE_HZ
