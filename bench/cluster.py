@@ -206,7 +206,10 @@ def store_rows(
                         _write(hs, done, how)
                         ms.append((time.perf_counter() - w0) * 1e3 / b)
                         k += b
+                    ident = done[0][1].units[0].identity
+                    size = len(ident) if isinstance(ident, str) else len(ident.dumps())
                     out.append({"mark": mark, "history": hist, "contender": how, "batch": b,
+                                "identity_bytes": size,
                                 "ms": sorted(ms)[len(ms) // 2]})  # fmt: skip
     return out
 
@@ -256,6 +259,9 @@ def parallel_writers(
 def print_store(rows: list[dict[str, Any]], periods: int) -> None:
     print(f"\nPostgreSQL (throwaway), the client writing one unit's flights of {periods} periods "
           "(client and store time per unit-flight, the median of the repeats):")  # fmt: skip
+    sizes = {r["contender"]: r.get("identity_bytes") for r in rows}
+    print("  stream identity per unit-flight: " + ", ".join(
+        f"{c} {b:,} B" for c, b in sizes.items() if b))  # fmt: skip
     print(f"  {'contender':22s} {'flights/tx':>10s} {'history, periods':>17s} "
           f"{'ms/unit-flight':>15s} {'unit-flights/s':>15s}")  # fmt: skip
     for r in sorted(rows, key=lambda r: (r["mark"], r["contender"] != "incremental",
