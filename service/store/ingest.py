@@ -191,13 +191,10 @@ def _flights(b: Any, keys: set[tuple[str, str]]) -> dict[tuple[str, str], set[in
     for a, src in sorted(keys):
         by_act[a].append(src)
     for a, srcs in by_act.items():
-        for i in range(0, len(srcs), 500):
-            part = srcs[i : i + 500]
-            for src, fl in b.execute(
-                "SELECT DISTINCT source, flight FROM periods WHERE actuator = ? AND source "
-                f"IN ({','.join('?' * len(part))})", (a, *part)).fetchall():  # fmt: skip
-                if fl is not None:
-                    out[(a, src)].add(int(fl))
+        for src, fl in _in(b, "SELECT DISTINCT source, flight FROM periods WHERE actuator = ?",
+                           a, srcs):  # fmt: skip
+            if fl is not None:
+                out[(a, src)].add(int(fl))
     return out
 
 
