@@ -496,15 +496,19 @@ def test_views_agree(store_url, capsys):
 
 def _as_before_v7(url) -> None:
     """The store as servowatch wrote it before schema v7: no stream identities, no sample
-    order, no life-order summary columns, its summary's latest period by ``start_t``."""
+    order, no life-order summary columns, its summary's latest period by ``start_t`` (and
+    nothing of the migrations after 7)."""
     with open_store(url) as s, s._b.transaction():
         b = s._b
         for t, c in (("log_sources", "identity"), ("log_sources", "sample_order"),
                      ("summary", "last_key"), ("summary", "life_axis"),
                      ("summary", "first_flight"), ("summary", "n_flights"),
-                     ("summary", "last_ratio")):  # fmt: skip
+                     ("summary", "last_ratio"), ("summary", "renumber_from"),
+                     ("summary", "flight_gap_s"), ("summary", "live_periods")):  # fmt: skip
             b.execute(f"ALTER TABLE {t} DROP COLUMN {c}")
-        b.execute("DELETE FROM schema_migrations WHERE version = 7")
+        b.execute("DROP INDEX periods_by_source")
+        b.execute("DROP INDEX alarms_by_source")
+        b.execute("DELETE FROM schema_migrations WHERE version >= 7")
         for (a,) in b.execute("SELECT name FROM actuators").fetchall():
             last = b.execute("SELECT start_t, source FROM periods WHERE actuator = ? "
                              "ORDER BY start_t DESC, source DESC LIMIT 1", (a,)).fetchone()  # fmt: skip

@@ -192,8 +192,9 @@ def test_migration_6_keeps_an_old_store_and_reads_null_pooled(store_url, monkeyp
         m.setattr(health, "LATEST_VERSION", 5)
         m.setattr(health, "_PERIOD_COLS", tuple(c for c in health._PERIOD_COLS
                                                 if c not in POOLED_FIELDS))  # fmt: skip
-        v7 = ("last_key", "life_axis", "first_flight", "n_flights", "last_ratio")
-        for name in ("_SUMMARY_COLS", "_FLEET_COLS"):  # the summary columns of migration 7
+        v7 = ("last_key", "life_axis", "first_flight", "n_flights", "last_ratio",
+              "renumber_from", "flight_gap_s", "live_periods")  # fmt: skip
+        for name in ("_SUMMARY_COLS", "_FLEET_COLS"):  # the summary columns of migrations 7, 8
             m.setattr(health, name, tuple(c for c in getattr(health, name)
                                           if c not in v7))  # fmt: skip
         with open_store(store_url) as s:

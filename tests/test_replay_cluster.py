@@ -253,9 +253,16 @@ def test_a_bad_file_on_the_cluster_is_named_and_the_rest_stored(tmp_path, meas, 
 
 @pytest.mark.slow
 def test_tasks_of_one_log_each_store_and_report_what_one_process_does(tmp_path, meas, capsys,
-                                                                      dask_procs):  # fmt: skip
-    """``--task-logs 1``: an actuator's logs on both workers at once, written in the order
-    they complete: the same store, and the summary's flights the final ones."""
+                                                                      dask_procs, monkeypatch):  # fmt: skip
+    """``--task-logs 1``: an actuator's logs on both workers at once, written in their
+    group's order: the same store, the summary's flights the final ones, and every write
+    after a unit's first an append (no read of its history)."""
+    import service.store.ingest as ingest_mod
+
+    appended: list[bool] = []
+    real = ingest_mod.renumber_append
+    monkeypatch.setattr(ingest_mod, "renumber_append",
+                        lambda *a: appended.append(real(*a)) or appended[-1])  # fmt: skip
     logs = _logs(tmp_path / "logs", meas, n=4, acts=ACTS[:2])
     one, got = tmp_path / "one.sqlite", tmp_path / "got.sqlite"
     capsys.readouterr()
@@ -268,6 +275,17 @@ def test_tasks_of_one_log_each_store_and_report_what_one_process_does(tmp_path, 
     assert out["actuators"]["AC1/ail_L"] == {"flights": 4, "first": 0, "last": 3}
     assert sum(d["tasks"] for d in out["workers"].values()) == 8
     assert _snapshot(got) == _snapshot(one)
+    assert appended.count(True) >= 6  # both units' first write (an empty history) whole
+
+
+def test_a_groups_tasks_are_written_in_their_order_whatever_completes_first():
+    from service.replay.cluster import in_group_order
+
+    futs = [object() for _ in range(7)]
+    rank = [(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (2, 0), (0, 3)]
+    done = [futs[i] for i in (2, 4, 5, 1, 3, 0, 6)]  # completion order
+    got = [futs.index(f) for f in in_group_order(iter(done), futs, rank)]
+    assert got == [5, 3, 4, 0, 1, 2, 6]
 
 
 # -------------------------------------------------------------- 3. logs by URL, loopback
@@ -372,6 +390,40 @@ def test_a_log_by_another_protocol_is_fetched_under_its_own_name(tmp_path, meas)
                               "s", {}, 1800.0, {}, replay_many)).logs  # fmt: skip
     assert [b[2].split(": ")[0] for b in bad] == ["memory://fleet/logs/notes.mcap",
                                                   "memory://fleet/none.mcap"]  # fmt: skip
+
+
+def test_logs_over_http_on_loopback_are_listed_fetched_and_stored_as_paths(tmp_path, meas):
+    """``http://`` (fsspec's HTTP file system, aiohttp) from a server on 127.0.0.1: a folder
+    URL lists its logs from the server's index, and each log's task gives what its path
+    gives, named by its URL."""
+    import functools
+    import threading
+    from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+
+    from service.replay.cluster import GroupTask, expand_urls, log_facts, run_group
+
+    logs = _logs(tmp_path / "logs", meas, n=2, acts=ACTS[:1])
+    quiet = type("Quiet", (SimpleHTTPRequestHandler,), {"log_message": lambda *a: None})
+    srv = ThreadingHTTPServer(("127.0.0.1", 0),
+                              functools.partial(quiet, directory=str(tmp_path / "logs")))  # fmt: skip
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        base = f"http://127.0.0.1:{srv.server_address[1]}/"
+        urls = expand_urls(base)
+        assert urls == [base + p.name for p in sorted(logs)]
+        assert [log_facts(u).units for u in urls] == [log_facts(str(p)).units for p in logs]
+        by_url = run_group(GroupTask(urls, "s", {}, 1800.0, {}, replay_many)).logs
+        by_path = run_group(GroupTask([str(p) for p in sorted(logs)], "s", {}, 1800.0, {},
+                                      replay_many)).logs  # fmt: skip
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    assert [x[0] for x in by_url] == [x[1].log for x in by_url] == urls
+    assert all(x[2] is None for x in by_url)
+    for u, p in zip(by_url, by_path, strict=True):
+        assert [(x.source, x.samples, x.name) for x in u[3].units] == [
+            (x.source, x.samples, x.name) for x in p[3].units]  # fmt: skip
+        assert u[3].periods == p[3].periods
 
 
 @pytest.mark.slow

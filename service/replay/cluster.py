@@ -18,7 +18,7 @@ import os
 import re
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -294,6 +294,11 @@ def run_group(task: GroupTask) -> GroupResult:
                 s.log = item  # the URL, not the worker's cached copy
             err = None if e is None else str(e).replace(str(p), item)
             call = cap.calls[-1] if s is not None and cap.calls else None
+            if call is not None:  # each unit's stream identity as the store's text, made
+                # here: the client writes it as it comes (a 2 h log's is about 1.3 MB)
+                call.units = [u._replace(identity=u.identity.dumps())
+                              if u.identity is not None and not isinstance(u.identity, str)
+                              else u for u in call.units]  # fmt: skip
             out.append((item, s, err, call))
     return GroupResult(out, worker_name(), time.perf_counter() - w0)
 
@@ -565,10 +570,14 @@ def run_batch(
         out: list = []
         with open_store(store) as hs:
             tasks = []
+            rank: list[tuple[int, int]] = []  # each task's group and place in it
             k = task_logs or len(items)
-            for g in (
-                grp[i : i + k] for grp in groups(items, facts) for i in range(0, len(grp), k)
+            for g, gi, i in (
+                (grp[i : i + k], gi, i // k)
+                for gi, grp in enumerate(groups(items, facts))
+                for i in range(0, len(grp), k)
             ):
+                rank.append((gi, i))
                 acts = sorted({a for i in g for a in facts[i].units if not a.startswith("?")})
                 bl = {a: rec for a in acts if (rec := hs.latest_baseline(a)) is not None}
                 streams = {a: {src: sid.dumps() for src, sid in hs.stream_ids(a).items()}
@@ -576,7 +585,7 @@ def run_batch(
                 tasks.append(GroupTask(g, str(store), bl, flight_gap_s, kw, work, streams))
             futs = [pool.submit(run_group, t) for t in tasks]
             by_fut = {id(f): t for f, t in zip(futs, tasks, strict=True)}
-            for f in pool.as_completed(futs):
+            for f in in_group_order(pool.as_completed(futs), futs, rank):
                 t = by_fut[id(f)]
                 try:
                     res: GroupResult = f.result()
@@ -614,6 +623,26 @@ def run_batch(
         if on_log is not None:
             on_log(key, s, None)
     return out
+
+
+def in_group_order(
+    done: Iterable[Any], futs: list[Any], rank: list[tuple[int, int]]
+) -> Iterator[Any]:
+    """The futures ``done`` yields as they complete, each group's tasks in their order
+    (``rank``: each future's group and place in it): a task that completes before an
+    earlier one of its group waits for it, its result where it is (on its Dask worker)
+    until then. So a group's logs reach the store in life order and each unit's periods
+    follow its stored ones: the store's incremental renumbering, no read of the unit's
+    history (``service.store.renumber``, decision record 0044)."""
+    at = {id(f): r for f, r in zip(futs, rank, strict=True)}
+    waiting: dict[tuple[int, int], Any] = {}
+    nxt: dict[int, int] = {}
+    for f in done:
+        g, k = at[id(f)]
+        waiting[(g, k)] = f
+        while (g, nxt.get(g, 0)) in waiting:
+            yield waiting.pop((g, nxt.get(g, 0)))
+            nxt[g] = nxt.get(g, 0) + 1
 
 
 def final_flights(hs: Any, summaries: list) -> None:

@@ -115,8 +115,11 @@ class _Postgres(_Backend):
         except ImportError as e:  # pragma: no cover - a dependency
             raise StoreError("store: PostgreSQL needs the psycopg package") from e
         self._psycopg = psycopg
-        try:
-            self.conn = psycopg.connect(url, autocommit=True, connect_timeout=int(timeout_s))
+        try:  # no server-side prepared statements: a plan made while a table was small
+            # (a store being filled) kept reading a unit's periods where the per-log index
+            # serves them (bench/cluster.py: the write cost grew with the history)
+            self.conn = psycopg.connect(url, autocommit=True, connect_timeout=int(timeout_s),
+                                        prepare_threshold=None)  # fmt: skip
         except psycopg.Error as e:
             msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
             raise StoreError(f"store: cannot connect to {describe_url(url)}: {msg}") from e

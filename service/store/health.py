@@ -31,6 +31,7 @@ from service.store.records import (
     Period,
     check_actuator,
 )
+from service.store.renumber import EVERYTHING
 from service.store.schema import LATEST_VERSION, MIGRATIONS, REBUILD_SUMMARIES, RECOMPUTE_TRENDS
 from service.store.summary import reset, summarise, trend_of
 from service.store.usage import USAGE_TOTALS, usage_totals
@@ -66,8 +67,15 @@ _SUMMARY_COLS: tuple[str, ...] = (
     "first_flight",
     "n_flights",
     "last_ratio",
+    "renumber_from",
+    "flight_gap_s",
+    "live_periods",
 )
-_FLEET_COLS: tuple[str, ...] = tuple(c for c in _SUMMARY_COLS if c not in ("recent", "last_key"))
+_FLEET_COLS: tuple[str, ...] = tuple(
+    c
+    for c in _SUMMARY_COLS
+    if c not in ("recent", "last_key", "renumber_from", "flight_gap_s", "live_periods")
+)
 _CHUNK = 500  # parameters per IN (...) list
 #: a read-only command waits at most this long for a writer's lock [s] (docs/cli.md)
 READ_TIMEOUT_S = 5.0
@@ -133,6 +141,10 @@ class HealthStore:
                 f"store {describe_url(self.url)}: schema version {current} is newer than this "
                 f"servowatch understands ({LATEST_VERSION}); upgrade servowatch"
             )
+        todo = [m for m in MIGRATIONS if m[0] > current]
+        # the summary rows are rebuilt (with every column) by the last migration to apply
+        # that rebuilds them: an earlier one's rebuild would write columns not yet added
+        rebuild_at = max((v for v, _, st in todo if REBUILD_SUMMARIES in st), default=None)
         for version, desc, stmts in MIGRATIONS:
             if version <= current:
                 continue
@@ -148,6 +160,8 @@ class HealthStore:
                     if s == RECOMPUTE_TRENDS:
                         self._recompute_trends()
                     elif s == REBUILD_SUMMARIES:  # the units that have periods to order
+                        if version != rebuild_at:
+                            continue
                         for (a,) in b.execute("SELECT DISTINCT actuator FROM periods").fetchall():
                             self.rebuild_summary(a, self._lock_summaries([a])[a])
                     else:
@@ -368,6 +382,9 @@ class HealthStore:
                               [keys[i] for i in order])  # fmt: skip
                 else:  # before the unit's latest period: the row made again in life order
                     rebuild.append(a)
+                if a in rebuild or any(p.flight is None for p in fresh):
+                    # the walk over the history would number these or the ones after them
+                    summaries[a]["renumber_from"] = EVERYTHING
             if new:
                 b.bulk_insert(
                     "periods", _PERIOD_COLS, [[getattr(p, c) for c in _PERIOD_COLS] for p in new]
@@ -419,11 +436,18 @@ class HealthStore:
         sample order): the one order every view reads."""
         return life_order(self.periods(actuator), self.rules(actuator))
 
-    def rebuild_summary(self, actuator: str, s: dict[str, Any]) -> None:
+    def rebuild_summary(
+        self,
+        actuator: str,
+        s: dict[str, Any],
+        periods: Sequence[Period] | None = None,
+        rules: dict[str, SourceRule] | None = None,
+    ) -> None:
         """Make ``actuator``'s summary row ``s`` (locked by the caller's transaction) afresh
-        from its whole history in life order, and write it."""
-        rules = self.rules(actuator)
-        periods = self.periods(actuator)
+        from its whole history in life order, and write it (``periods`` and ``rules``: the
+        unit's, as stored, when the caller has read them)."""
+        rules = self.rules(actuator) if rules is None else rules
+        periods = self.periods(actuator) if periods is None else list(periods)
         keys = life_keys(periods, rules)
         order = sorted(range(len(periods)), key=keys.__getitem__)
         reset(s)
@@ -445,12 +469,14 @@ class HealthStore:
         self,
         logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
         gap_s: float,
+        incremental: bool = True,
     ) -> list[dict[str, dict[str, Any]]]:
         """Several replayed logs in one transaction, each unit renumbered once:
-        ``service.store.ingest.ingest_logs`` (the store ``ingest_log`` one by one gives)."""
+        ``service.store.ingest.ingest_logs`` (the store ``ingest_log`` one by one gives;
+        ``incremental`` False: every changed unit renumbered over its whole history)."""
         from service.store.ingest import ingest_logs
 
-        return ingest_logs(self, logs, gap_s)
+        return ingest_logs(self, logs, gap_s, incremental)
 
     def periods(self, actuator: str) -> list[Period]:
         """The actuator's periods, by start_t."""

@@ -4,14 +4,15 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from collections import defaultdict
-from collections.abc import Iterable, Sequence
-from dataclasses import replace
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-from service.store.lifeorder import LogUnit, number_flights
+from service.store.lifeorder import LogUnit, SourceRule
 from service.store.records import PERIOD_FIELDS, AlarmEvent, Period
+from service.store.renumber import Added, renumber_append, renumber_full
 
 __all__ = ["ingest_log", "ingest_logs"]
 
@@ -19,6 +20,9 @@ __all__ = ["ingest_log", "ingest_logs"]
 _PERIOD_COLS: tuple[str, ...] = ("actuator", "start_t", "source") + tuple(
     f for f in PERIOD_FIELDS if f not in ("actuator", "start_t", "source")
 )
+_ALARM_COLS: tuple[str, ...] = ("actuator", "t", "kind", "source", "value")
+_LOG_COLS: tuple[str, ...] = (
+    "actuator", "source", "samples", "name", "flights", "identity", "sample_order")  # fmt: skip
 
 
 def ingest_log(
@@ -49,37 +53,46 @@ def ingest_logs(
     hs: Any,
     logs: Sequence[tuple[Sequence[LogUnit], Iterable[Period], Iterable[AlarmEvent]]],
     gap_s: float,
+    incremental: bool = True,
 ) -> list[dict[str, dict[str, Any]]]:
     """Several replayed logs, each ``(units, periods, alarms)`` as ``ingest_log`` takes
     them, in one transaction: each log as ``ingest_log`` stores it, in the given order,
-    then each changed unit renumbered and its summary rebuilt once (the renumbering reads
-    the unit's whole history: once per batch, not once per log). The store is the one
+    then each changed unit renumbered and its summary updated once. The store is the one
     the logs give one by one (the flights are a function of the stored periods); the
-    ``flights`` returned are the final ones. Returns ``ingest_log``'s dict per log."""
+    ``flights`` returned are the final ones. Returns ``ingest_log``'s dict per log.
+
+    A unit to which the logs only add periods after its stored ones in life order is
+    numbered and summarised from its stored last period (``renumber.renumber_append``: no
+    read of its history); any other changed unit, or every one with ``incremental``
+    False, is renumbered and summarised over its whole history (``renumber_full``). Both
+    give the same store (``tests/test_renumber.py``)."""
     b = hs._b
     acts = sorted({u.actuator for units, _, _ in logs for u in units})
     stored_as: list[dict[str, dict[str, Any]]] = []
     changed: set[str] = set()
+    added: dict[str, Added] = defaultdict(Added)
     with b.transaction():
         for a in acts:
             hs._ensure(a)
         summaries = hs._lock_summaries(acts)
+        tx = _Tx(b, logs)
         for units, periods, alarms in logs:
-            res = _store_units(hs, units, periods, alarms)
+            res = _store_units(hs, units, periods, alarms, added, summaries, tx)
             changed.update(a for a, r in res.items() if r["changed"])
             stored_as.append(res)
+        tx.flush()
         for a in sorted(changed):
-            _renumber(hs, a, summaries[a], gap_s)
+            if not (incremental and renumber_append(hs, a, summaries[a], added[a], gap_s)):
+                renumber_full(hs, a, summaries[a], gap_s)
+        flights = _flights(b, {(a, r["source"]) for res in stored_as for a, r in res.items()})
         out: list[dict[str, dict[str, Any]]] = []
         for res in stored_as:
             one = {}
             for a, r in res.items():
-                flights = b.execute("SELECT DISTINCT flight FROM periods WHERE actuator = ? "
-                                    "AND source = ?", (a, r["source"])).fetchall()  # fmt: skip
                 one[a] = {
                     "status": r["status"],
                     "periods_new": 0 if r["status"] == "stored" else r["periods_new"],
-                    "flights": sorted({int(f[0]) for f in flights if f[0] is not None}),
+                    "flights": sorted(flights.get((a, r["source"]), ())),
                     "notes": r["notes"],
                 }
             out.append(one)
@@ -87,62 +100,169 @@ def ingest_logs(
     return out
 
 
+class _Tx:
+    """What a transaction's logs are weighed against and what they write, per unit: the
+    stored logs that any of them relates to, its own source or its legacy ids (read once
+    for all of them, then kept as the logs are added and removed), and the new period,
+    alarm and log rows, written in one bulk insert per table (``flush``) before anything
+    else reads or changes them."""
+
+    def __init__(self, b: Any, logs: Sequence[tuple[Sequence[LogUnit], Any, Any]]) -> None:
+        self.b = b
+        self.rows: dict[str, dict[tuple[str, str], list[list[Any]]]] = {
+            "periods": {}, "alarms": {}, "log_sources": {}}  # fmt: skip
+        want: dict[str, set[str]] = defaultdict(set)
+        legacy: dict[str, set[str]] = defaultdict(set)
+        every: set[str] = set()  # units with a log related by a plain function: all rows
+        for units, _, _ in logs:
+            for u in units:
+                want[u.actuator] |= _candidates(u)
+                legacy[u.actuator].update(u.legacy)
+                if u.relate is not None and not isinstance(u.relate, Mapping):
+                    every.add(u.actuator)
+        sql = ("SELECT source, samples, name, identity IS NOT NULL FROM log_sources "
+               "WHERE actuator = ?")  # fmt: skip
+        #: per unit ``{source: (samples, name, True if it has a stream identity else None)}``
+        self.known: dict[str, dict[str, tuple]] = {}
+        #: per unit the legacy ids with periods and no log row (a store before schema v4)
+        self.legacy: dict[str, set[str]] = {}
+        for a, srcs in want.items():
+            rows = (b.execute(sql, (a,)).fetchall() if a in every
+                    else _in(b, sql, a, sorted(srcs)))  # fmt: skip
+            self.known[a] = {r[0]: (int(r[1]), r[2], r[3] or None) for r in rows}
+            old = sorted(legacy[a] - set(self.known[a]))
+            self.legacy[a] = {r[0] for r in _in(b, "SELECT DISTINCT source FROM periods "
+                                                   "WHERE actuator = ?", a, old)}  # fmt: skip
+
+    def stored(self, u: LogUnit) -> dict[str, tuple]:
+        """The stored logs of ``u``'s unit that its ingest weighs (``_candidates``)."""
+        known = self.known[u.actuator]
+        if u.relate is not None and not isinstance(u.relate, Mapping):
+            return dict(known)
+        return {s: known[s] for s in _candidates(u) if s in known}
+
+    def add(self, a: str, source: str, row: tuple, rows: dict[str, list[list[Any]]]) -> None:
+        """A new log of unit ``a`` (its ``log_sources`` row fields and its table rows)."""
+        self.known[a][source] = row
+        for t, r in rows.items():
+            self.rows[t][(a, source)] = r
+
+    def remove(self, a: str, source: str) -> None:
+        """A stored log of unit ``a`` replaced: its rows deleted, written or pending."""
+        self.known[a].pop(source, None)
+        self.legacy[a].discard(source)
+        for t, part in self.rows.items():
+            part.pop((a, source), None)
+            self.b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?", (a, source))
+
+    def flush(self) -> None:
+        for t, cols in (("periods", _PERIOD_COLS), ("alarms", _ALARM_COLS),
+                        ("log_sources", _LOG_COLS)):  # fmt: skip
+            part = self.rows[t]
+            if part:
+                self.b.bulk_insert(t, cols, [r for rows in part.values() for r in rows])
+            part.clear()
+
+
+def _in(b: Any, sql: str, a: str, srcs: list[str]) -> list:
+    """``sql`` (``... WHERE actuator = ?``) for unit ``a`` and the sources ``srcs``."""
+    out: list = []
+    for i in range(0, len(srcs), 500):
+        part = srcs[i : i + 500]
+        out += b.execute(f"{sql} AND source IN ({','.join('?' * len(part))})",
+                         (a, *part)).fetchall()  # fmt: skip
+    return out
+
+
+def _candidates(u: LogUnit) -> set[str]:
+    """The stored logs the ingest of ``u`` must weigh: its own source, its ``legacy`` ids
+    and those ``u.relate`` (a ``Relations``) relates it to; the others are unrelated."""
+    want = {u.source, *u.legacy}
+    if isinstance(u.relate, Mapping):
+        want.update(s for s, r in u.relate.items() if r is not None and (
+            r.inside or r.holds or r.shared))  # fmt: skip
+    return want
+
+
+def _flights(b: Any, keys: set[tuple[str, str]]) -> dict[tuple[str, str], set[int]]:
+    """The stored flights of each ``(actuator, source)`` of ``keys``."""
+    out: dict[tuple[str, str], set[int]] = defaultdict(set)
+    by_act: dict[str, list[str]] = defaultdict(list)
+    for a, src in sorted(keys):
+        by_act[a].append(src)
+    for a, srcs in by_act.items():
+        for src, fl in _in(b, "SELECT DISTINCT source, flight FROM periods WHERE actuator = ?",
+                           a, srcs):  # fmt: skip
+            if fl is not None:
+                out[(a, src)].add(int(fl))
+    return out
+
+
+def _with_source(p: Period, source: str) -> Period:
+    """``p`` under ``source`` (a copy; ``p`` was checked when it was made)."""
+    q = copy.copy(p)
+    object.__setattr__(q, "source", source)
+    return q
+
+
 def _store_units(
-    hs: Any, units: Sequence[LogUnit], periods: Iterable[Period], alarms: Iterable[AlarmEvent]
+    hs: Any,
+    units: Sequence[LogUnit],
+    periods: Iterable[Period],
+    alarms: Iterable[AlarmEvent],
+    added: dict[str, Added],
+    summaries: dict[str, dict[str, Any]],
+    tx: _Tx,
 ) -> dict[str, dict[str, Any]]:
     """One log's units written (inside the caller's transaction, summaries locked): per
     unit its ``status``, whether its rows ``changed`` (it must be renumbered), the
-    ``source`` that holds its samples, ``periods_new`` and ``notes``."""
+    ``source`` that holds its samples, ``periods_new`` and ``notes``; what each unit's rows
+    got goes in ``added`` (``renumber.Added``), its new rows in ``tx``."""
     by_act: dict[str, list[Period]] = defaultdict(list)
     for p in periods:
         by_act[p.actuator].append(p)
     al_by: dict[str, list[AlarmEvent]] = defaultdict(list)
     for e in alarms:
         al_by[e.actuator].append(e)
-    b = hs._b
     out: dict[str, dict[str, Any]] = {}
     for u in units:
         a = u.actuator
-        stored = {r[0]: (int(r[1]), r[2], r[3]) for r in b.execute(
-            "SELECT source, samples, name, identity FROM log_sources WHERE actuator = ?",
-            (a,)).fetchall()}  # fmt: skip
+        stored = tx.stored(u)
         notes: list[str] = []
         keep = _stored_as(u, stored, notes)
-        mine = [replace(p, source=u.source) for p in by_act.get(a, [])]
+        mine = [_with_source(p, u.source) for p in by_act.get(a, [])]
         changed = False
+        add = added[a]
         if keep is not None:
             status = "stored"
-            changed = keep == u.source and _apply_given(hs, u, mine, notes)
+            own = u.gap is False  # its flight record, applied as --flight is (decision 0048)
+            if keep == u.source and (u.flight is not None or u.start_unix is not None or own):
+                tx.flush()  # its rows may be this transaction's
+                changed = _apply_given(hs, u, mine, notes)
+            add.clean = add.clean and not changed
         else:
-            gone = _superseded(hs, u, stored, notes)
-            mine, n_live = _replace_live(hs, u, mine, notes)
+            gone = _superseded(u, stored, tx.legacy[a], notes)
+            mine, n_live = _replace_live(hs, u, mine, notes, summaries[a])
             _calendar_overlaps(hs, u, mine, gone, notes)
             status = "superseded" if gone or n_live else "new"
             changed = True
-            for src in gone | {u.source}:
-                for t in ("periods", "alarms", "log_sources"):
-                    b.execute(f"DELETE FROM {t} WHERE actuator = ? AND source = ?", (a, src))
+            for src in gone:  # (its own source is not stored: it has no log row)
+                tx.remove(a, src)
+            add.clean = add.clean and status == "new"
             order = [float(t) for t in u.order] or sorted(float(p.start_t) for p in mine)
-            b.execute(
-                "INSERT INTO log_sources (actuator, source, samples, name, flights, identity, "
-                "sample_order) VALUES (?, ?, ?, ?, ?, ?, ?)",
-                (a, u.source, int(u.samples), u.name, "gap" if u.gap else "log",
-                 None if u.identity is None else u.identity.dumps(),
-                 json.dumps(order)),
-            )  # fmt: skip
+            add.rules[u.source] = SourceRule(u.gap, tuple(order))
             uniq = {float(p.start_t): p for p in mine}
-            if uniq:
-                b.bulk_insert("periods", _PERIOD_COLS,
-                              [[getattr(p, c) for c in _PERIOD_COLS]
-                               for p in uniq.values()])  # fmt: skip
-            ev = {(float(e.t), e.kind): replace(e, source=u.source)
-                  for e in al_by.get(a, [])}  # fmt: skip
-            if ev:
-                b.bulk_insert(
-                    "alarms",
-                    ("actuator", "t", "kind", "source", "value"),
-                    [[e.actuator, e.t, e.kind, e.source, e.value] for e in ev.values()],
-                )
+            add.periods.extend(uniq.values())
+            ev = {(float(e.t), e.kind): e for e in al_by.get(a, [])}
+            add.alarms.extend(ev)
+            ident = u.identity if u.identity is None or isinstance(u.identity, str) else (
+                u.identity.dumps())  # fmt: skip
+            tx.add(a, u.source, (int(u.samples), u.name, True if ident else None), {
+                "log_sources": [[a, u.source, int(u.samples), u.name, "gap" if u.gap else "log",
+                                 ident, json.dumps(order)]],
+                "periods": [[getattr(p, c) for c in _PERIOD_COLS] for p in uniq.values()],
+                "alarms": [[e.actuator, e.t, e.kind, u.source, e.value] for e in ev.values()],
+            })  # fmt: skip
         prev = out.get(a)
         out[a] = {
             "status": status,
@@ -170,7 +290,9 @@ def _stored_as(u: LogUnit, stored: dict[str, tuple], notes: list[str]) -> str | 
     return None
 
 
-def _superseded(hs: Any, u: LogUnit, stored: dict[str, tuple], notes: list[str]) -> set[str]:
+def _superseded(
+    u: LogUnit, stored: dict[str, tuple], legacy: set[str], notes: list[str]
+) -> set[str]:
     """The stored logs of ``u``'s unit it replaces: those whose samples it holds all, and
     the same log under an older servowatch's id; notes on the logs it overlaps."""
     gone: set[str] = set()
@@ -194,25 +316,19 @@ def _superseded(hs: Any, u: LogUnit, stored: dict[str, tuple], notes: list[str])
         elif rel.shared:
             notes.append(f"shares {rel.shared} samples with {name} and differs in others: "
                          "two logs, both kept")  # fmt: skip
-    for old in u.legacy:  # a store before schema v4: no log_sources row
-        if (
-            old not in stored
-            and hs._b.execute(
-                "SELECT 1 FROM periods WHERE actuator = ? AND source = ? LIMIT 1", (u.actuator, old)
-            ).fetchone()
-        ):
-            gone.add(old)
+    gone.update(legacy.intersection(u.legacy))  # a store before schema v4: no log row
     return gone
 
 
 def _replace_live(
-    hs: Any, u: LogUnit, mine: list[Period], notes: list[str]
+    hs: Any, u: LogUnit, mine: list[Period], notes: list[str], s: dict[str, Any]
 ) -> tuple[list[Period], int]:
     """The daemon's live periods written beside this log (source ``live:...@{log_id}``)
     that lie within its samples are replaced by the log's (with their alarms); a log period
     that overlaps a live one kept (it straddles the log's first or last sample) is left
-    out. Returns the log's periods to store and how many live periods went."""
-    if not u.live or not mine:
+    out. Returns the log's periods to store and how many live periods went (``s``: the
+    unit's summary row, which counts its live periods)."""
+    if not u.live or not mine or not int(s.get("live_periods") or 0):  # none stored
         return mine, 0
     b = hs._b
     lo = min(p.start_t for p in mine)
@@ -311,23 +427,3 @@ def _apply_given(hs: Any, u: LogUnit, mine: list[Period], notes: list[str]) -> b
             f"start {u.start_unix:.0f} (Unix s)" if u.start_unix is not None else "") if x)  # fmt: skip
     notes.append(f"stored already: {given} applied to its {len(rows)} stored period(s)")
     return True
-
-
-def _renumber(hs: Any, actuator: str, s: dict[str, Any], gap_s: float) -> None:
-    """Renumber the unit's gap-rule flights along its life order and rebuild its summary
-    row (inside the caller's transaction)."""
-    b = hs._b
-    old = hs.periods(actuator)
-    now = number_flights(old, hs.rules(actuator), gap_s)
-    was = {(float(p.start_t), p.source): p.flight for p in old}
-    upd = [
-        (p.flight, actuator, p.start_t, p.source)
-        for p in now
-        if was[(float(p.start_t), p.source)] != p.flight
-    ]
-    if upd:
-        b.executemany(
-            "UPDATE periods SET flight = ? WHERE actuator = ? AND start_t = ? AND source = ?",
-            upd,
-        )
-    hs.rebuild_summary(actuator, s)

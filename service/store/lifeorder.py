@@ -56,7 +56,7 @@ class LogUnit(NamedTuple):
     name: str  # the log's file name (for messages only)
     gap: bool  # its flights follow the gap rule (no flight record, no ``--flight``)
     legacy: tuple[str, ...] = ()  # the ids older stores gave the same log (adopted)
-    identity: Any = None  # its ``StreamId`` (stored for later logs to be compared with)
+    identity: Any = None  # its ``StreamId`` or its text (stored for later logs to compare)
     relate: Callable[[str], Any] | None = None  # source -> ``Relation`` (or None: unknown)
     order: tuple[float, ...] = ()  # its periods' start_t in sample order
     flight: int | None = None  # ``--flight`` given for this log
@@ -95,12 +95,15 @@ def life_keys(periods: Sequence[Period], rules: Mapping[str, SourceRule]) -> lis
     the sources that are replayed logs."""
     first: dict[str, tuple[float, float | None]] = {}  # a log's first period: (pos, start_unix)
     pos: list[float] = []
+    ats: dict[str, dict[float, int]] = {}  # a log's sample order: start_t -> position
     for p in periods:
         r = rules.get(p.source)
         if r is None:
             pos.append(float(p.start_t))
             continue
-        at = {t: i for i, t in enumerate(r.order)} if r.order else {}
+        at = ats.get(p.source)
+        if at is None:
+            at = ats[p.source] = {t: i for i, t in enumerate(r.order)} if r.order else {}
         x = float(at.get(float(p.start_t), p.start_t)) if at else float(p.start_t)
         pos.append(x)
         f = first.get(p.source)
@@ -126,15 +129,20 @@ def life_order(periods: Sequence[Period], rules: Mapping[str, SourceRule]) -> li
 
 
 def number_flights(
-    periods: Sequence[Period], rules: Mapping[str, SourceRule], gap_s: float
+    periods: Sequence[Period],
+    rules: Mapping[str, SourceRule],
+    gap_s: float,
+    prev: Period | None = None,
 ) -> list[Period]:
     """One unit's ``periods`` in life order with their flights: a period of a log whose
     flights follow the gap rule (``rules[source].gap``), or one without a flight, is
-    numbered from the period before it; any other keeps its flight."""
+    numbered from the period before it; any other keeps its flight. ``prev``: the unit's
+    period just before the first of ``periods`` in life order, numbered (None: they are its
+    first), so that periods which all follow the stored ones are numbered on their own
+    (the store's incremental renumbering, ``service.store.renumber``)."""
     if not gap_s > 0:
         raise ValueError("gap_s must be > 0")
     out: list[Period] = []
-    prev: Period | None = None
     for p in life_order(periods, rules):
         r = rules.get(p.source)
         if (r is not None and r.gap) or p.flight is None:

@@ -159,6 +159,23 @@ _V7: tuple[str, ...] = (
     REBUILD_SUMMARIES,
 )
 
+# where a unit's stored flights stand against its life order, for the incremental
+# renumbering (docs/store.md, "What a re-run does"; decision record 0044): the life-order
+# key from which the stored flights may differ from a renumbering over the whole history
+# (``renumber_from``: NULL, none may; '[]', before every period: the next write renumbers
+# the whole history, as every row stored before this migration does once) and the flight
+# gap they were numbered with; how many of its periods are the daemon's live ones (a log
+# of the daemon looks for those it replaces only when there are); and indexes on the periods and alarms of one log of a unit
+# (a supersede's deletes, the flights of a log) that no longer read the unit's history
+_V8: tuple[str, ...] = (
+    "ALTER TABLE summary ADD COLUMN renumber_from TEXT DEFAULT '[]'",
+    "ALTER TABLE summary ADD COLUMN flight_gap_s DOUBLE PRECISION",
+    "ALTER TABLE summary ADD COLUMN live_periods BIGINT NOT NULL DEFAULT 0",
+    "CREATE INDEX periods_by_source ON periods (actuator, source)",
+    "CREATE INDEX alarms_by_source ON alarms (actuator, source)",
+    REBUILD_SUMMARIES,
+)
+
 # (version, description, statements): append only; never edit a released migration. A
 # statement is SQL, or RECOMPUTE_TRENDS (a data step run by the store in the same transaction)
 MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
@@ -173,6 +190,7 @@ MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
     ),
     (6, "pooled C_Lk reading of each period and its sigma", _V6),
     (7, "stream identity of replayed logs, one life order in the summary", _V7),
+    (8, "incremental renumbering: where the stored flights stand; per-log indexes", _V8),
 )
 
 LATEST_VERSION = MIGRATIONS[-1][0]

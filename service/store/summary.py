@@ -67,7 +67,8 @@ def trend_of(recent: Sequence[Sequence[float]]) -> dict[str, Any]:
 
 def reset(s: dict[str, Any]) -> None:
     """Empty the period part of summary row ``s`` (alarms and baselines stay)."""
-    for k in ("n_periods", "samples", "alarms", "bad_samples", "dropped", "n_flights"):
+    for k in ("n_periods", "samples", "alarms", "bad_samples", "dropped", "n_flights",
+              "live_periods"):  # fmt: skip
         s[k] = 0
     s["op_time_s"] = 0.0
     for k in USAGE_TOTALS:
@@ -90,7 +91,13 @@ def summarise(s: dict[str, Any], fresh: Sequence[Period], keys: Sequence[Sequenc
     s["n_periods"] = int(s["n_periods"] or 0) + len(fresh)
     for k in ("samples", "alarms", "bad_samples", "dropped"):
         s[k] = int(s[k] or 0) + sum(getattr(p, k) for p in fresh)
-    s["op_time_s"] = float(s["op_time_s"] or 0.0) + sum(p.op_time_s for p in fresh)
+    s["live_periods"] = int(s.get("live_periods") or 0) + sum(
+        p.source.startswith("live:") for p in fresh
+    )
+    op = float(s["op_time_s"] or 0.0)
+    for p in fresh:  # one addition per period in life order: a row added to in steps sums
+        op += p.op_time_s  # exactly as the row made afresh over the whole history
+    s["op_time_s"] = op
     if empty:
         s["first_start_t"] = fresh[0].start_t
         s["first_flight"] = fresh[0].flight
@@ -108,10 +115,13 @@ def summarise(s: dict[str, Any], fresh: Sequence[Period], keys: Sequence[Sequenc
             s["last_ratio"] = float(p.c_lk_ratio)
     s["n_flights"] = n_fl
     s["last_start_t"] = fresh[-1].start_t
-    s["last_period"] = _dumps(fresh[-1].to_dict())
+    # as the store reads them back (a float field a float, an int field an int), whether
+    # the periods were read from it or are being written
+    s["last_period"] = _dumps(Period.from_dict(fresh[-1].to_dict()).to_dict())
     s["last_key"] = key_text(keys[-1])
     recent = json.loads(s["recent"] or "[]")
-    recent.extend([p.start_t, p.op_time_s, p.c_lk_ratio, p.observable_samples] for p in fresh)
+    recent.extend([float(p.start_t), float(p.op_time_s), float(p.c_lk_ratio),
+                   int(p.observable_samples)] for p in fresh)  # fmt: skip
     recent = recent[-RECENT_WINDOW:]
     s["recent"] = _dumps(recent)
     add_usage(s, fresh)
