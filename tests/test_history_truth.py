@@ -320,6 +320,28 @@ def test_a_log_at_the_calendar_time_of_another_with_other_samples_is_named(store
         assert [p.flight for p in st.life(UNIT)] == [0, 1, 2]
 
 
+def test_an_undated_log_after_dated_flights_is_named(store_url, tmp_path, meas):
+    """A recording imported without its date (sample times from 0, no ``--start-unix``)
+    joining a unit with dated flights goes after them in the life order, so it becomes the
+    unit's latest reading: the replay says so (before: not a word). A dated log after it,
+    and an undated log on an undated history, get no such line."""
+    a = _log(tmp_path / "dated.mcap", meas, T0, k=1, keep=0)
+    b = _log(tmp_path / "undated.mcap", meas, 0.0, k=2, keep=0)
+    c = _log(tmp_path / "next_day.mcap", meas, T0 + DAY, k=3, keep=0)
+    d = _log(tmp_path / "undated_2.mcap", meas, 0.0, k=4, keep=0)
+    assert not replay(a, store=store_url).warnings
+    s = replay(b, store=store_url)
+    assert s.stored == {UNIT: "new"}
+    (w,) = [w for w in s.warnings if "no calendar time" in w]
+    assert "undated.mcap" in w and "latest reading" in w and "--start-unix" in w
+    assert not [w for w in replay(c, store=store_url).warnings if "no calendar time" in w]
+    with open_store(store_url) as st:
+        assert st.life(UNIT)[-1].start_unix is None  # the undated log is latest in life order
+    other = str(tmp_path / "undated_only.sqlite")
+    assert not [w for w in replay(b, store=other).warnings if "no calendar time" in w]
+    assert not [w for w in replay(d, store=other).warnings if "no calendar time" in w]
+
+
 @pytest.mark.parametrize("jobs", ["1", "2"])
 def test_a_batch_shows_the_stores_lines(store_url, tmp_path, meas, capsys, jobs):
     """``replay DIR --store S`` (in process, and on ``--jobs`` workers) prints the store's

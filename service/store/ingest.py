@@ -244,6 +244,7 @@ def _store_units(
             gone = _superseded(u, stored, tx.legacy[a], notes)
             mine, n_live = _replace_live(hs, u, mine, notes, summaries[a])
             _calendar_overlaps(hs, u, mine, gone, notes)
+            _undated_after_dated(u, mine, summaries.get(a), add.periods, notes)
             status = "superseded" if gone or n_live else "new"
             changed = True
             for src in gone:  # (its own source is not stored: it has no log row)
@@ -385,6 +386,28 @@ def _calendar_overlaps(
         notes.append(f"overlaps {name} by {ov:.1f} s of calendar time with other samples: "
                      "both kept, as two flights (the same flight recorded or imported "
                      "twice differently?)")  # fmt: skip
+
+
+def _undated_after_dated(
+    u: LogUnit,
+    mine: list[Period],
+    s: dict[str, Any] | None,
+    added: list[Period],
+    notes: list[str],
+) -> None:
+    """A note when a log without calendar time (no dated samples, no ``--start-unix``) joins
+    a unit whose history is dated: the life order (decision 0034) puts it after every dated
+    stretch, so its periods become the unit's latest reading, whatever its real date."""
+    if not mine or any(p.start_unix is not None for p in mine):
+        return
+    last = json.loads(s["last_period"]) if s and s.get("last_period") else None
+    if (last is None or last.get("start_unix") is None) and not any(
+        p.start_unix is not None for p in added
+    ):
+        return
+    notes.append("has no calendar time (samples not in Unix time, no --start-unix): placed "
+                 "after the unit's dated flights, so it is now the unit's latest reading; "
+                 "give --start-unix if it is older")  # fmt: skip
 
 
 def _apply_given(hs: Any, u: LogUnit, mine: list[Period], notes: list[str]) -> bool:
