@@ -12,10 +12,22 @@ ROOT = Path(__file__).resolve().parents[1]
 CHECKOUT = re.compile(r"(?<![\w.~-])/(?:work|home|Users|root)/[\w.-]+")
 
 
+#: what a clone holds that is not the project's text (run outputs, the venv, caches)
+_NOT_TEXT = {"tests", "logs", "servowatch-data", "build", "dist", "__pycache__"}
+
+
 def _texts() -> list[Path]:
-    files = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
-    files += sorted((ROOT / "bench").glob("*.py")) + sorted((ROOT / "deploy").rglob("*"))
-    return [p for p in files if p.is_file() and p.suffix not in (".png", ".pem", ".key")]
+    """The README and every text file of the clone's folders (docs, deploy, the packages,
+    the scripts), but the tests (which name such paths to test the check)."""
+    files = [ROOT / "README.md"]
+    for d in sorted(ROOT.iterdir()):
+        if d.is_dir() and not d.name.startswith(".") and d.name not in _NOT_TEXT:
+            files += [p for p in sorted(d.rglob("*")) if not (_NOT_TEXT & set(p.parts))]
+    return [p for p in files if p.is_file() and p.suffix in _SUFFIXES]
+
+
+_SUFFIXES = {".md", ".py", ".toml", ".service", ".socket", ".yml", ".yaml", ".json", ".txt",
+             ".cfg", ".conf", ".sh", ".env", ""}  # fmt: skip
 
 
 def find_checkout_paths(text: str) -> list[str]:
