@@ -530,6 +530,7 @@ def _as_before_v7(url) -> None:
             b.execute(f"ALTER TABLE {t} DROP COLUMN {c}")
         b.execute("DROP INDEX periods_by_source")
         b.execute("DROP INDEX alarms_by_source")
+        b.execute("DROP INDEX periods_by_end_unix")
         b.execute("DELETE FROM schema_migrations WHERE version >= 7")
         for (a,) in b.execute("SELECT name FROM actuators").fetchall():
             last = b.execute("SELECT start_t, source FROM periods WHERE actuator = ? "

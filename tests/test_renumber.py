@@ -221,6 +221,7 @@ def test_migration_8_keeps_an_old_store_and_renumbers_it_whole_once(
             b.execute(f"ALTER TABLE summary DROP COLUMN {c}")
         b.execute("DROP INDEX periods_by_source")
         b.execute("DROP INDEX alarms_by_source")
+        b.execute("DROP INDEX periods_by_end_unix")
         b.execute("DELETE FROM schema_migrations WHERE version = 8")
         assert s.schema_version() == 7
     with open_store(store_url) as s:

@@ -173,6 +173,9 @@ _V8: tuple[str, ...] = (
     "ALTER TABLE summary ADD COLUMN live_periods BIGINT NOT NULL DEFAULT 0",
     "CREATE INDEX periods_by_source ON periods (actuator, source)",
     "CREATE INDEX alarms_by_source ON alarms (actuator, source)",
+    # a unit's periods by their calendar end: the periods a new log overlaps in calendar
+    # time (``ingest._calendar_overlaps``) without reading the unit's history
+    "CREATE INDEX periods_by_end_unix ON periods (actuator, (start_unix + (end_t - start_t)))",
     REBUILD_SUMMARIES,
 )
 
@@ -190,7 +193,11 @@ MIGRATIONS: tuple[tuple[int, str, tuple[str, ...]], ...] = (
     ),
     (6, "pooled C_Lk reading of each period and its sigma", _V6),
     (7, "stream identity of replayed logs, one life order in the summary", _V7),
-    (8, "incremental renumbering: where the stored flights stand; per-log indexes", _V8),
+    (
+        8,
+        "incremental renumbering: where the stored flights stand; per-log, calendar-end indexes",
+        _V8,
+    ),
 )
 
 LATEST_VERSION = MIGRATIONS[-1][0]
