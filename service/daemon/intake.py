@@ -193,14 +193,26 @@ def _candidate(st: ActuatorState, s: int, t: float, ck: ClockCheck, period: floa
     return ck.resync_n <= 1
 
 
-def _follow(st: ActuatorState, seq: np.ndarray, t: np.ndarray, j: int,
-            on_restart: Callable[[ActuatorState, float, int, bool], None]) -> None:  # fmt: skip
-    """Re-synchronise the stream on its refused sample ``j`` (a clock that really jumped)."""
-    back = float(t[j]) < (st.last_t or 0.0)
-    st.last_seq, st.last_t = int(seq[j]), float(t[j])
+def _follow(
+    st: ActuatorState,
+    a: m.MeasArrays,
+    j: int,
+    bad_log: RateLimitedLog,
+    on_restart: Callable[[ActuatorState, float, int, bool], None],
+    ck: ClockCheck,
+    now: float | None,
+) -> tuple[int, int]:
+    """Re-synchronise the stream on its refused sample ``j`` (a clock that really jumped),
+    then judge the rest of the message from there (``accept``); its accepted samples."""
+    back = float(a.t[j]) < (st.last_t or 0.0)
+    st.last_seq, st.last_t = int(a.seq[j]), float(a.t[j])
     st.restarts += 1
     st.resync, st.refused = None, 0
     on_restart(st, st.last_t, st.last_seq, back)
+    k = j + 1
+    r0, r1 = accept(st, m.MeasArrays(a.seq[k:], a.t[k:], a.values[k:]), bad_log, on_restart,
+                    ck, now)  # fmt: skip
+    return k + r0, k + r1
 
 
 def accept(
@@ -246,11 +258,7 @@ def accept(
                 why, st.name, sj, tj, st.last_t,
             )  # fmt: skip
             if resync_at >= 0:  # followed here: the rest is judged from this sample
-                _follow(st, seq, t, resync_at, on_restart)
-                k = resync_at + 1
-                rest = m.MeasArrays(seq[k:], t[k:], a.values[k:])
-                r0, r1 = accept(st, rest, bad_log, on_restart, ck, now)
-                return k + r0, k + r1
+                return _follow(st, a, resync_at, bad_log, on_restart, ck, now)
         if j0 < jw:  # ahead of what the sequence gap implies: refused from there on
             lim = _limits(st, seq[j0:jw], ck, period)
             bad = np.flatnonzero(t[j0:jw] > lim)
@@ -269,12 +277,8 @@ def accept(
                     st.name, "clock: %d samples from %s ahead of the stream: t %.6f after t %.6f",
                     min(j + 1, jw) - j1, st.name, float(t[j1]), st.last_t,
                 )  # fmt: skip
-                if resync_at >= 0 and j0 >= j1:  # a clock that really jumped: followed here,
-                    _follow(st, seq, t, resync_at, on_restart)  # the rest judged from it
-                    k = resync_at + 1
-                    rest = m.MeasArrays(seq[k:], t[k:], a.values[k:])
-                    r0, r1 = accept(st, rest, bad_log, on_restart, ck, now)
-                    return k + r0, k + r1
+                if resync_at >= 0 and j0 >= j1:  # a clock that really jumped: followed here
+                    return _follow(st, a, resync_at, bad_log, on_restart, ck, now)
     if jw < n:
         st.count_bad("clock", n - jw)
         bad_log.warning(
