@@ -235,8 +235,7 @@ def _store_units(
         add = added[a]
         if keep is not None:
             status = "stored"
-            own = u.gap is False  # its flight record, applied as --flight is (decision 0048)
-            if keep == u.source and (u.flight is not None or u.start_unix is not None or own):
+            if keep == u.source and _gives_flights(u):
                 tx.flush()  # its rows may be this transaction's
                 changed = _apply_given(hs, u, mine, notes)
             add.clean = add.clean and not changed
@@ -410,14 +409,20 @@ def _undated_after_dated(
                  "give --start-unix if it is older")  # fmt: skip
 
 
+def _gives_flights(u: LogUnit) -> bool:
+    """``u`` names its flights or date: ``--flight``, ``--start-unix`` or its own flight
+    records (not the gap rule), to be applied to its stored periods (decision 0048)."""
+    return u.flight is not None or u.start_unix is not None or u.gap is False
+
+
 def _apply_given(hs: Any, u: LogUnit, mine: list[Period], notes: list[str]) -> bool:
     """A ``--flight``/``--start-unix`` given for a log stored already, else the flights of
     its own flight records (``mine``: its periods as this replay stamped them): applied to
     its stored periods (then no longer renumbered by the gap rule), so the store does not
     depend on whether a copy with a record came first. True if anything changed."""
-    own = u.gap is False and u.flight is None and u.start_unix is None
-    if u.flight is None and u.start_unix is None and not own:
+    if not _gives_flights(u):
         return False
+    own = u.flight is None and u.start_unix is None  # then its own flight records
     b = hs._b
     rows = b.execute("SELECT start_t, flight, start_unix FROM periods WHERE actuator = ? "
                      "AND source = ?", (u.actuator, u.source)).fetchall()  # fmt: skip
