@@ -16,6 +16,7 @@ import pytest
 from service.replay import expand_logs, replay, replay_many
 from service.store import Period, open_store
 from service.store.lifeorder import LogUnit
+from tests._store_versions import roll_back
 
 DAY = 86400.0
 T0 = 1.75e9  # Unix sample times, as the daemon's logs have
@@ -522,16 +523,7 @@ def _as_before_v7(url) -> None:
     nothing of the migrations after 7)."""
     with open_store(url) as s, s._b.transaction():
         b = s._b
-        for t, c in (("log_sources", "identity"), ("log_sources", "sample_order"),
-                     ("summary", "last_key"), ("summary", "life_axis"),
-                     ("summary", "first_flight"), ("summary", "n_flights"),
-                     ("summary", "last_ratio"), ("summary", "renumber_from"),
-                     ("summary", "flight_gap_s"), ("summary", "live_periods")):  # fmt: skip
-            b.execute(f"ALTER TABLE {t} DROP COLUMN {c}")
-        b.execute("DROP INDEX periods_by_source")
-        b.execute("DROP INDEX alarms_by_source")
-        b.execute("DROP INDEX periods_by_end_unix")
-        b.execute("DELETE FROM schema_migrations WHERE version >= 7")
+        roll_back(b, 6)
         for (a,) in b.execute("SELECT name FROM actuators").fetchall():
             last = b.execute("SELECT start_t, source FROM periods WHERE actuator = ? "
                              "ORDER BY start_t DESC, source DESC LIMIT 1", (a,)).fetchone()  # fmt: skip

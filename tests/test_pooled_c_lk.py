@@ -28,6 +28,7 @@ from service.prognostics.indicators import PeriodAccumulator, PeriodConfig, pool
 from service.store import Period, open_store
 from service.store.records import POOLED_FIELDS
 from service.store.schema import LATEST_VERSION, MIGRATIONS
+from tests._store_versions import summary_columns_after
 
 
 def _cst(h=6.9, tol=0.1, d_min=0.5):
@@ -192,9 +193,8 @@ def test_migration_6_keeps_an_old_store_and_reads_null_pooled(store_url, monkeyp
         m.setattr(health, "LATEST_VERSION", 5)
         m.setattr(health, "_PERIOD_COLS", tuple(c for c in health._PERIOD_COLS
                                                 if c not in POOLED_FIELDS))  # fmt: skip
-        v7 = ("last_key", "life_axis", "first_flight", "n_flights", "last_ratio",
-              "renumber_from", "flight_gap_s", "live_periods")  # fmt: skip
-        for name in ("_SUMMARY_COLS", "_FLEET_COLS"):  # the summary columns of migrations 7, 8
+        v7 = summary_columns_after(5)
+        for name in ("_SUMMARY_COLS", "_FLEET_COLS"):  # the summary columns of migrations 7 on
             m.setattr(health, name, tuple(c for c in getattr(health, name)
                                           if c not in v7))  # fmt: skip
         with open_store(store_url) as s:

@@ -17,6 +17,7 @@ import service.store.ingest as ingest_mod
 from service.store import AlarmEvent, Period, open_store
 from service.store.identity import Relation, Relations, StreamDigest
 from service.store.lifeorder import LogUnit
+from tests._store_versions import roll_back
 
 UNITS = ("AC1/ail_L", "AC1/elev_R")
 DAY = 86400.0
@@ -217,12 +218,7 @@ def test_migration_8_keeps_an_old_store_and_renumbers_it_whole_once(
                 s.ingest_logs([log.call()], 1800.0, incremental=False)
     with open_store(store_url) as s, s._b.transaction():  # the store before migration 8
         b = s._b
-        for c in ("renumber_from", "flight_gap_s", "live_periods"):
-            b.execute(f"ALTER TABLE summary DROP COLUMN {c}")
-        b.execute("DROP INDEX periods_by_source")
-        b.execute("DROP INDEX alarms_by_source")
-        b.execute("DROP INDEX periods_by_end_unix")
-        b.execute("DELETE FROM schema_migrations WHERE version = 8")
+        roll_back(b, 7)
         assert s.schema_version() == 7
     with open_store(store_url) as s:
         assert s.schema_version() == 8

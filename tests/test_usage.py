@@ -18,7 +18,7 @@ from service.prognostics.indicators import PeriodAccumulator, PeriodConfig
 from service.store import Period, open_store
 from service.store.records import LATER_FIELDS, USAGE_FIELDS
 from service.store.schema import LATEST_VERSION, MIGRATIONS
-from service.store.usage import USAGE_TOTALS
+from tests._store_versions import summary_columns_after
 
 AREA, P_RATED = 1e-3, 20e6
 # columns of the filter state the kernel reads (C-type order: x_s, v_s, x_j, v_j, f_r, p_sr)
@@ -208,17 +208,7 @@ def test_migration_5_keeps_an_old_store_and_reads_null_usage(store_url, monkeypa
         m.setattr(health, "LATEST_VERSION", 3)
         m.setattr(health, "_PERIOD_COLS", tuple(c for c in health._PERIOD_COLS
                                                 if c not in LATER_FIELDS))  # fmt: skip
-        later = (
-            *USAGE_TOTALS,
-            "last_key",
-            "life_axis",
-            "first_flight",
-            "n_flights",
-            "last_ratio",
-            "renumber_from",
-            "flight_gap_s",
-            "live_periods",
-        )  # the summary columns of migrations 5, 7 and 8
+        later = summary_columns_after(3)  # the summary columns of migrations 5 and later
         for name in ("_SUMMARY_COLS", "_FLEET_COLS"):
             m.setattr(health, name, tuple(c for c in getattr(health, name)
                                           if c not in later))  # fmt: skip
